@@ -1,0 +1,191 @@
+"""Public Python API for research driver scripts.
+
+>>> from fem_rmpm import api
+>>> scene = api.load_scene("meshes/column.toml")
+>>> scene = api.with_value(scene, "soil.youngs_modulus", 2000.0)
+>>> result = api.run(scene, out="runs/stiff")          # or out=None: nothing written
+>>> result.measures["max_displacement"], result.particles.stress[:, 1].min()
+
+A realization is a pure function of ``(scene, seed)``: the seed only drives the
+random field (if the scene has one); nothing else is random.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .explicit import RunRecord, SimulationError, run_explicit
+from .fem import FemResult, solve_static
+from .grid import Grid, make_grid
+from .measures import compute_measures
+from .output import PvdSeries, write_grid, write_json
+from .particles import Particles, seed_particles, soil_cells
+from .scene import Scene, SceneError, load_scene, scene_to_dict, with_value
+
+__all__ = ["load_scene", "with_value", "prepare", "run", "fem", "RunResult", "SceneError",
+           "SimulationError"]
+
+
+@dataclass
+class RunResult:
+    scene: Scene
+    seed: int | None
+    grid: Grid
+    particles: Particles
+    record: RunRecord
+    measures: dict
+    summary: dict
+    out: Path | None
+
+
+def prepare(scene: Scene, seed: int | None = None) -> tuple[Grid, Particles]:
+    """Grid and seeded material points; with a random field, the realization ``seed``."""
+    grid = make_grid(scene)
+    pts = seed_particles(scene, grid)
+    if scene.random_field is not None:
+        from .random_field import sample_point_property
+        seed = scene.montecarlo.seed if seed is None else seed
+        peak = sample_point_property(scene, grid, pts, seed)
+        ratio = pts.soil.cohesion_residual / pts.soil.cohesion_peak
+        pts.soil = dataclasses.replace(pts.soil, cohesion_peak=peak, cohesion_residual=peak * ratio)
+    return grid, pts
+
+
+def _run_scheme(scene, grid, pts, on_output, progress):
+    if scene.solver.scheme == "implicit":
+        from .implicit import run_implicit
+        return run_implicit(scene, grid, pts, on_output=on_output, progress=progress)
+    return run_explicit(scene, grid, pts, on_output=on_output, progress=progress)
+
+
+def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
+        progress: bool = False, vtk: bool | None = None, figures: bool | None = None) -> RunResult:
+    """Run one realization; write VTK, PNG and ``summary.json`` to ``out`` if given.
+
+    Raises :class:`SimulationError` when the run cannot go on (after writing what
+    it has, with the error, to ``out``).
+    """
+    grid, pts = prepare(scene, seed)
+    out = Path(out) if out is not None else None
+    vtk = scene.output.vtk if vtk is None else vtk
+    figures = scene.output.png if figures is None else figures
+    series = PvdSeries(out) if (out is not None and vtk) else None
+    snapshots: list = []
+
+    def on_output(t, p):
+        snapshots.append((t, p.x.copy(), p.plastic_shear_strain.copy()))
+        if series is not None:
+            series.add(t, p)
+
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        if vtk:
+            write_grid(out / "grid.vtu", grid, np.nonzero(soil_cells(scene, grid) >= 0)[0])
+    bar = _progress_bar(scene) if progress else None
+    wall0 = time.perf_counter()
+    error = None
+    try:
+        rec = _run_scheme(scene, grid, pts, on_output, bar.update_to if bar else None)
+    except SimulationError as exc:
+        error = exc
+        rec = RunRecord(scheme=scene.solver.scheme, error=str(exc), stop_reason="error")
+        rec.solver.update(getattr(exc, "solver_stats", {}) or {})
+    finally:
+        if bar:
+            bar.close()
+    rec.wall_time = time.perf_counter() - wall0
+    measures = compute_measures(pts, scene.scene.frame_angle_deg,
+                                scene.montecarlo.failure_displacement, grid.cell,
+                                rec.time if rec.stop_reason == "at rest" else None)
+    summary = _summary(scene, seed, pts, rec, measures)
+    if out is not None:
+        write_json(out / "summary.json", summary)
+        if figures and snapshots and error is None:
+            _figures(out, scene, grid, snapshots, measures)
+    if error is not None:
+        raise error
+    return RunResult(scene, seed, grid, pts, rec, measures, summary, out)
+
+
+def _summary(scene, seed, pts, rec, measures) -> dict:
+    return {
+        "scene": scene_to_dict(scene), "scene_file": scene.source, "seed": seed,
+        "scheme": rec.scheme, "status": "failed" if rec.error else "ok", "error": rec.error,
+        "stop_reason": rec.stop_reason, "steps": rec.steps, "simulated_time": rec.time,
+        "wall_time": rec.wall_time, "particles": pts.n,
+        "ns_per_particle_step": (1e9 * rec.wall_time / max(rec.steps * pts.n, 1)),
+        "dt_min": rec.dt_min, "dt_max": rec.dt_max,
+        "frozen_points": {"count": len(rec.frozen_points), "indices": rec.frozen_points,
+                          "policy": scene.solver.edge_policy},
+        "measures": measures, "solver": rec.solver,
+        "kinetic_energy": rec.energy[:: max(1, len(rec.energy) // 400)],
+        "machine": {"python": platform.python_version(), "node": platform.machine()},
+    }
+
+
+def _figures(out, scene, grid, snapshots, measures):
+    from .plots import plot_profile, plot_snapshots
+    k = len(snapshots)
+    pick = sorted({0, k // 3, (2 * k) // 3, k - 1}) if k > 4 else list(range(k))
+    spacing = float(np.min(grid.cell)) / 2
+    plot_snapshots(out / "plastic_shear_strain.png", [snapshots[i] for i in pick],
+                   scene.scene.frame_angle_deg, spacing, title=scene.scene.name)
+    plot_profile(out / "profile.png", measures["initial_profile"], measures["final_profile"],
+                 title=f"{scene.scene.name}: surface before and after")
+
+
+def fem(scene: Scene, out: str | Path | None = None) -> FemResult:
+    """Static small-strain FEM reference (scikit-fem); writes ``fem.vtu`` and a summary."""
+    t0 = time.perf_counter()
+    res = solve_static(scene)
+    if out is not None:
+        import meshio
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        used = np.unique(res.grid.cells[res.cells])
+        remap = -np.ones(res.grid.n_nodes, dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        s = res.stress.reshape(len(res.cells), -1, 4).mean(axis=1)
+        stress6 = np.column_stack([s[:, 0], s[:, 1], s[:, 2], s[:, 3], 0 * s[:, 0], 0 * s[:, 0]])
+        u = np.column_stack([res.displacement[used], np.zeros(len(used))])
+        mesh = meshio.Mesh(np.column_stack([res.grid.nodes[used], np.zeros(len(used))]),
+                           [("quad", remap[res.grid.cells[res.cells]])],
+                           point_data={"displacement": u}, cell_data={"stress": [stress6]})
+        mesh.write(out / "fem.vtu", binary=True)
+        write_json(out / "summary.json", {
+            "scene": scene_to_dict(scene), "scene_file": scene.source, "scheme": "fem",
+            "elements": int(len(res.cells)), "dofs": int(2 * len(used)),
+            "max_displacement": float(np.abs(res.displacement).max()),
+            "min_sigma_yy": float(res.stress[:, 1].min()), "wall_time": time.perf_counter() - t0})
+    return res
+
+
+class _Bar:
+    def __init__(self, scene: Scene):
+        from tqdm import tqdm
+        self.t_end = scene.solver.t_end
+        self.bar = tqdm(total=round(self.t_end, 6), unit="s sim", desc=scene.scene.name,
+                        bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s [{elapsed}<{remaining}] {postfix}")
+
+    def update_to(self, t: float, step: int) -> None:
+        self.bar.n = round(min(t, self.t_end), 6)
+        self.bar.set_postfix_str(f"step {step}", refresh=False)
+        self.bar.refresh()
+
+    def close(self):
+        self.bar.close()
+
+
+def _progress_bar(scene: Scene) -> _Bar:
+    return _Bar(scene)
+
+
+def read_summary(out: str | Path) -> dict:
+    """Read a run's ``summary.json``."""
+    return json.loads((Path(out) / "summary.json").read_text())

@@ -1,0 +1,236 @@
+"""Explicit MPM: lumped mass, MUSL, CFL time step, gravity ramp, local damping.
+
+One step has the three stages of the method (Wang et al. 2016, Fig. 1):
+
+1. **map to nodes** — mass, momentum, external (gravity) and internal
+   (stress divergence) forces from the points to the grid nodes;
+2. **solve on the mesh** — lumped-mass momentum balance ``m a = f`` with local
+   (Cundall) damping ``f - alpha |f| sign(v)`` and the boundary conditions;
+3. **update the points** — velocities (FLIP/PIC blend) and positions from the
+   nodal solution, then, as in MUSL (modified update stress last), the nodal
+   velocities are recomputed from the *updated* point momenta and used for the
+   velocity gradient, the Hughes-Winget deformation increment and the stress
+   update.  MUSL rather than USL: USL computes stresses from the nodal
+   velocities of the old momenta, which for nodes with tiny mass (a point near a
+   cell edge) are noisy; the MUSL re-map damps that noise and conserves momentum.
+
+The mesh is "reset" by construction: the grid is fixed and only the points move.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .grid import Grid
+from .material import hughes_winget_increment, small_strain_update, stress_update
+from .particles import Particles
+from .scene import Scene
+from .shape import shape_at_points
+
+__all__ = ["SimulationError", "StepStats", "explicit_step", "stable_time_step", "run_explicit"]
+
+_MASS_TOL = 1e-14
+
+
+class SimulationError(RuntimeError):
+    """A run cannot go on; the message says what, where, at which step and what to change."""
+
+
+@dataclass
+class StepStats:
+    kinetic_energy: float   # of the grid, 1/2 sum m_I |v_I|^2 (kJ per m of out-of-plane length)
+    max_speed: float        # max |v| of the points as moved by the grid (m/s)
+
+
+def stable_time_step(pts: Particles, cell: np.ndarray, cfl: float) -> float:
+    """CFL step dt = cfl * h / (c_p + |v|max), c_p = sqrt(M / rho) the P-wave speed (s)."""
+    act = pts.active
+    rho = pts.mass[act] / pts.volume[act]
+    M = pts.soil.bulk_modulus[act] + 4.0 / 3.0 * pts.soil.shear_modulus[act]
+    cp = float(np.max(np.sqrt(M / rho)))
+    vmax = float(np.max(np.linalg.norm(pts.velocity[act], axis=1))) if act.any() else 0.0
+    return cfl * float(np.min(cell)) / (cp + vmax)
+
+
+def _scatter(nodes: np.ndarray, weights: np.ndarray, n_nodes: int) -> np.ndarray:
+    return np.bincount(nodes.ravel(), weights.ravel(), minlength=n_nodes)
+
+
+def map_to_nodes(nodes, N, dN, mass, velocity, stress, volume, gravity, n_nodes):
+    """Stage 1: nodal mass (nn,), momentum (nn, 2) and force (nn, 2) from the points."""
+    m = _scatter(nodes, N * mass[:, None], n_nodes)
+    p = np.stack([_scatter(nodes, N * (mass * velocity[:, k])[:, None], n_nodes)
+                  for k in range(2)], axis=1)
+    sx, sy, sxy = (stress[:, i][:, None] * volume[:, None] for i in (0, 1, 3))
+    fx = -(sx * dN[..., 0] + sxy * dN[..., 1]) + N * (mass * gravity[0])[:, None]
+    fy = -(sxy * dN[..., 0] + sy * dN[..., 1]) + N * (mass * gravity[1])[:, None]
+    f = np.stack([_scatter(nodes, fx, n_nodes), _scatter(nodes, fy, n_nodes)], axis=1)
+    return m, p, f
+
+
+def solve_on_mesh(m, p, f, fixed, dt, damping):
+    """Stage 2: nodal velocities before/after the step and accelerations (lumped mass)."""
+    has = m > _MASS_TOL
+    inv_m = np.where(has, 1.0 / np.where(has, m, 1.0), 0.0)[:, None]
+    v_old = p * inv_m
+    if damping > 0:
+        f = f - damping * np.abs(f) * np.sign(v_old)
+    f = np.where(fixed, 0.0, f)
+    v_old = np.where(fixed, 0.0, v_old)
+    a = f * inv_m
+    return v_old, v_old + a * dt, a
+
+
+def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
+                  damping: float, flip: float = 1.0, shape: str = "standard",
+                  geostatic: bool = False) -> StepStats:
+    """Advance the active points by one explicit MUSL step of ``dt`` seconds (in place).
+
+    ``geostatic``: points stay where they are and strains are small (the in-situ
+    gravity phase); the displacement is accumulated in ``pts.u_geostatic``.
+    """
+    act = np.nonzero(pts.active)[0] if not pts.active.all() else slice(None)
+    x, v, mass, vol = pts.x[act], pts.velocity[act], pts.mass[act], pts.volume[act]
+    nn = grid.n_nodes
+    # 1. map point state to the nodes
+    _, nodes, N, dN, _ = shape_at_points(grid, x, shape, pts.half_width[act])
+    m, p, f = map_to_nodes(nodes, N, dN, mass, v, pts.stress[act], vol, gravity, nn)
+    # 2. solve momentum balance on the mesh
+    v_old, v_new, a = solve_on_mesh(m, p, f, grid.fixed, dt, damping)
+    # 3. map back, move the points, then (MUSL) re-map momentum and update stress
+    v_pic = np.einsum("pa,pak->pk", N, v_new[nodes])
+    v = flip * (v + dt * np.einsum("pa,pak->pk", N, a[nodes])) + (1.0 - flip) * v_pic
+    if geostatic:
+        pts.u_geostatic[act] += dt * v_pic
+    else:
+        x = x + dt * v_pic
+    _, p2, _ = map_to_nodes(nodes, N, dN, mass, v, pts.stress[act] * 0, vol, gravity * 0, nn)
+    v_nodes = np.where(grid.fixed, 0.0, p2 / np.where(m > _MASS_TOL, m, 1.0)[:, None])
+    L = np.einsum("pak,pal->pkl", v_nodes[nodes], dN)          # velocity gradient
+    state = (pts.log_strain[act], pts.plastic_shear_strain[act], pts.soil.take(act))
+    if geostatic:
+        log_strain, gamma_p, tau = small_strain_update(L * dt, *state)
+        dF, J = np.eye(2), 1.0
+    else:
+        dF = hughes_winget_increment(L, dt)
+        log_strain, gamma_p, tau = stress_update(dF, *state)
+        J = np.linalg.det(dF)
+    pts.x[act], pts.velocity[act], pts.volume[act] = x, v, vol * J
+    pts.F[act] = dF @ pts.F[act]
+    pts.log_strain[act], pts.plastic_shear_strain[act] = log_strain, gamma_p
+    pts.stress[act] = tau * (pts.volume0[act] / pts.volume[act])[:, None]
+    # motion as the grid sees it (FLIP keeps particle velocity modes the grid cannot see)
+    speed2 = np.einsum("pk,pk->p", v_pic, v_pic)
+    ke = 0.5 * float(m @ np.einsum("ik,ik->i", v_new, v_new))
+    return StepStats(ke, float(np.sqrt(speed2.max(initial=0.0))))
+
+
+@dataclass
+class RunRecord:
+    """What happened in a run (filled by the scheme, written to summary.json)."""
+    scheme: str
+    steps: int = 0
+    time: float = 0.0
+    wall_time: float = 0.0
+    stop_reason: str = ""
+    dt_min: float = math.inf
+    dt_max: float = 0.0
+    energy: list = field(default_factory=list)       # [(t, kinetic energy kJ/m)]
+    frozen_points: list = field(default_factory=list)  # indices of points frozen at the edge
+    error: str | None = None
+    solver: dict = field(default_factory=dict)
+
+
+def check_points(grid: Grid, pts: Particles, step: int, t: float, policy: str,
+                 record: RunRecord) -> None:
+    """Guard after each step: a non-finite state stops the run with a clear error.
+
+    Points can only leave the grid through a ``free`` edge (fixed and roller
+    edges stop them).  Policy ``freeze``: such a point is kept where it is,
+    inactive (no mass, no force, no motion) and listed in ``summary.json``;
+    ``stop``: the run ends with an error naming the point."""
+    act = np.nonzero(pts.active)[0]
+    bad = ~(np.isfinite(pts.x[act]).all(1) & np.isfinite(pts.velocity[act]).all(1)
+            & np.isfinite(pts.stress[act]).all(1))
+    if bad.any():
+        i = act[np.argmax(bad)]
+        raise SimulationError(
+            f"step {step} (t = {t:.4g} s): non-finite state at material point {i} (started at "
+            f"x = {pts.x0[i, 0]:.3f}, y = {pts.x0[i, 1]:.3f} m); the explicit scheme went "
+            "unstable — reduce [solver] cfl (default 0.5) or check the material constants")
+    lo, hi = grid.origin, grid.upper
+    out = ((pts.x[act] < lo) | (pts.x[act] > hi)).any(axis=1)
+    if out.any():
+        idx = act[out]
+        if policy == "stop":
+            i = idx[0]
+            raise SimulationError(
+                f"step {step} (t = {t:.4g} s): {len(idx)} material point(s) left the grid, "
+                f"first point {i} at x = {pts.x[i, 0]:.3f}, y = {pts.x[i, 1]:.3f} m; enlarge "
+                "[grid] size or set [solver] edge_policy = \"freeze\"")
+        pts.active[idx] = False
+        pts.velocity[idx] = 0.0
+        record.frozen_points.extend(int(i) for i in idx)
+
+
+def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
+                 progress=None) -> RunRecord:
+    """Time loop of the explicit scheme.
+
+    Phases: with ``gravity_phase = "geostatic"`` gravity is first ramped onto the
+    fixed in-situ geometry (small strain, damped) until at rest or for at most
+    ``geostatic_time``; then (or from t = 0 with ``"dynamic"``) the large
+    deformation phase runs, damped until ``damping_time``, until ``t_end`` or rest.
+    At rest: max point speed < ``rest_velocity`` and grid kinetic energy <=
+    ``rest_energy_ratio`` x its peak, once gravity is fully on.
+    ``on_output(t, pts)`` is called at t = 0, every ``output_interval`` and at the end.
+    """
+    sv = scene.solver
+    g_full = np.array(scene.gravity_vector)
+    rec = RunRecord(scheme="explicit")
+    t, step, ke_peak, next_out = 0.0, 0, 0.0, sv.output_interval
+    geostatic = sv.gravity_phase == "geostatic"
+    wall0 = time.perf_counter()
+    if on_output:
+        on_output(t, pts)
+    while t < sv.t_end - 1e-12:
+        dt = min(stable_time_step(pts, grid.cell, sv.cfl), sv.t_end - t)
+        ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
+        damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
+        stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape, geostatic)
+        t += dt
+        step += 1
+        rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
+        check_points(grid, pts, step, t, sv.edge_policy, rec)
+        if stats.max_speed * dt > 0.5 * float(np.min(grid.cell)):
+            raise SimulationError(
+                f"step {step} (t = {t:.4g} s): a material point moved {stats.max_speed * dt:.3g} m "
+                f"in one step (> half a cell); the explicit scheme is unstable — reduce [solver] "
+                f"cfl (now {sv.cfl:g}; the CFL limit is 1, default 0.5)")
+        ke_peak = max(ke_peak, stats.kinetic_energy)
+        if step % 20 == 0:
+            rec.energy.append((t, stats.kinetic_energy))
+            if progress:
+                progress(t, step)
+        if on_output and t >= next_out - 1e-12:
+            on_output(t, pts)
+            next_out += sv.output_interval
+        at_rest = (t >= sv.gravity_ramp_time and stats.max_speed < sv.rest_velocity
+                   and stats.kinetic_energy <= sv.rest_energy_ratio * ke_peak)
+        if geostatic and (at_rest or t >= sv.geostatic_time):
+            geostatic = False
+            rec.solver["geostatic_end_time"] = t
+            rec.solver["geostatic_at_rest"] = bool(at_rest)
+            continue
+        if at_rest:
+            rec.stop_reason = "at rest"
+            break
+    else:
+        rec.stop_reason = "t_end reached"
+    rec.steps, rec.time, rec.wall_time = step, t, time.perf_counter() - wall0
+    if on_output and next_out - sv.output_interval < t - 1e-12:
+        on_output(t, pts)
+    return rec

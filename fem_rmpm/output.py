@@ -1,0 +1,150 @@
+"""Output: VTK for ParaView (meshio), a ``.pvd`` time series, JSON summaries and PNG figures.
+
+Point data of ``particles_NNNN.vtu`` (DESIGN section 5): ``displacement`` and
+``velocity`` (3 components, m and m/s), ``stress`` (6 components, VTK order
+xx yy zz xy yz xz, kPa, tension positive), ``plastic_shear_strain`` (-),
+``cohesion`` (kPa), ``volume`` (m2 per m), ``mass`` (t per m), ``active`` (0/1).
+Coordinates are in the grid frame.  Every file is written to a temporary name
+and renamed, and no array holding NaN or Inf is ever written.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .particles import Particles
+
+__all__ = ["write_json", "write_particles", "write_grid", "PvdSeries", "to_true_frame",
+           "OutputError"]
+
+
+class OutputError(RuntimeError):
+    """Refused to write a non-finite field."""
+
+
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if math.isfinite(v) else str(v)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def write_json(path: str | Path, obj) -> None:
+    """Write JSON atomically (non-finite floats become the strings 'inf'/'nan')."""
+    _atomic_write_bytes(Path(path), json.dumps(_jsonable(obj), indent=2).encode())
+
+
+def _check_finite(name: str, arr: np.ndarray, where: str) -> None:
+    if not np.all(np.isfinite(arr)):
+        raise OutputError(f"refusing to write non-finite '{name}' to {where}")
+
+
+def particle_fields(pts: Particles) -> dict[str, np.ndarray]:
+    n = pts.n
+    pad = np.zeros((n, 1))
+    s = pts.stress
+    stress6 = np.stack([s[:, 0], s[:, 1], s[:, 2], s[:, 3], np.zeros(n), np.zeros(n)], axis=1)
+    coh = pts.cohesion
+    return {
+        "displacement": np.hstack([pts.displacement, pad]),
+        "velocity": np.hstack([pts.velocity, pad]),
+        "stress": stress6,
+        "plastic_shear_strain": pts.plastic_shear_strain.copy(),
+        "cohesion": np.where(np.isfinite(coh), coh, -1.0),   # -1: elastic point (no strength)
+        "cohesion_peak": np.where(np.isfinite(pts.soil.cohesion_peak), pts.soil.cohesion_peak, -1.0),
+        "volume": pts.volume.copy(),
+        "mass": pts.mass.copy(),
+        "active": pts.active.astype(np.int8),
+        "soil": pts.soil_id.astype(np.int32),
+    }
+
+
+def write_particles(path: str | Path, pts: Particles) -> None:
+    """One ``.vtu`` of the material points (vertex cells) with the fields above."""
+    import meshio
+
+    path = Path(path)
+    fields = particle_fields(pts)
+    for k, v in fields.items():
+        _check_finite(k, v, str(path))
+    _check_finite("points", pts.x, str(path))
+    mesh = meshio.Mesh(np.hstack([pts.x, np.zeros((pts.n, 1))]),
+                       [("vertex", np.arange(pts.n)[:, None])], point_data=fields)
+    tmp = path.with_name(f".{path.name}.tmp.vtu")
+    mesh.write(tmp, binary=True)
+    os.replace(tmp, path)
+
+
+def write_grid(path: str | Path, grid, active_cells: np.ndarray | None = None) -> None:
+    """The background grid as ``.vtu`` with cell data ``soil_cell`` and point data ``fixed``."""
+    import meshio
+
+    path = Path(path)
+    cell_data = {}
+    if active_cells is not None:
+        flag = np.zeros(grid.n_cells, dtype=np.int8)
+        flag[active_cells] = 1
+        cell_data["soil_cell"] = [flag]
+    mesh = meshio.Mesh(np.hstack([grid.nodes, np.zeros((grid.n_nodes, 1))]),
+                       [("quad", grid.cells)], cell_data=cell_data,
+                       point_data={"fixed": grid.fixed.astype(np.int8)})
+    tmp = path.with_name(f".{path.name}.tmp.vtu")
+    mesh.write(tmp, binary=True)
+    os.replace(tmp, path)
+
+
+class PvdSeries:
+    """``particles.pvd`` time series, rewritten after each snapshot (valid if a run dies)."""
+
+    def __init__(self, directory: str | Path, stem: str = "particles"):
+        self.dir = Path(directory)
+        self.stem = stem
+        self.entries: list[tuple[float, str]] = []
+
+    def add(self, t: float, pts: Particles) -> Path:
+        name = f"{self.stem}_{len(self.entries):04d}.vtu"
+        write_particles(self.dir / name, pts)
+        self.entries.append((t, name))
+        rows = "\n".join(f'    <DataSet timestep="{tt:.9g}" group="" part="0" file="{f}"/>'
+                         for tt, f in self.entries)
+        xml = ('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" '
+               f'byte_order="LittleEndian">\n  <Collection>\n{rows}\n  </Collection>\n</VTKFile>\n')
+        _atomic_write_bytes(self.dir / f"{self.stem}.pvd", xml.encode())
+        return self.dir / name
+
+
+def to_true_frame(x: np.ndarray, frame_angle_deg: float) -> np.ndarray:
+    """Rotate grid-frame coordinates (n, 2) to the true horizontal/vertical (m)."""
+    a = math.radians(frame_angle_deg)
+    c, s = math.cos(a), math.sin(a)
+    return np.stack([c * x[:, 0] + s * x[:, 1], -s * x[:, 0] + c * x[:, 1]], axis=1)

@@ -1,0 +1,474 @@
+"""Scene files: parse and validate a TOML scene into frozen dataclasses.
+
+A scene file describes everything one run needs (DESIGN section 4).  Every key
+carries its unit in its name or in the table below; unknown keys, missing keys
+and out-of-range values raise :class:`SceneError`, whose one-line message names
+the file, the key and what is allowed.
+
+Units: m, s, kPa (stress, modulus, cohesion), kN/m3 (unit weight).  The density
+used by the dynamics is ``unit_weight / gravity`` in t/m3.
+
+Nothing here is evaluated: TOML is parsed by :mod:`tomllib` and every value is
+type checked.  :func:`with_value` returns a modified copy for driver scripts.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "SceneError", "Scene", "SceneInfo", "GridSpec", "BoundarySpec", "SoilSpec",
+    "BedrockSpec", "RandomFieldSpec", "SolverSpec", "MonteCarloSpec", "OutputSpec",
+    "load_scene", "scene_from_dict", "with_value", "scene_to_dict",
+]
+
+
+class SceneError(ValueError):
+    """A scene file (or a value set on a scene) is invalid.
+
+    The message is one line: ``<file>: [<key>] <what is wrong>; allowed: <...>``.
+    """
+
+
+BOUNDARY_KINDS = ("fixed", "roller", "free")
+MODELS = ("linear_elastic", "von_mises_softening")
+SOFTENING_LAWS = ("linear", "exponential")
+SCHEMES = ("explicit", "implicit")
+SHAPES = ("standard", "gimp")
+EDGE_POLICIES = ("freeze", "stop")
+
+
+@dataclass(frozen=True)
+class SceneInfo:
+    name: str = "scene"
+    gravity: float = 9.81          # m/s2
+    frame_angle_deg: float = 0.0   # angle of the grid x axis below the true horizontal (deg)
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    origin: tuple[float, float] = (0.0, 0.0)   # m
+    size: tuple[float, float] = (1.0, 1.0)     # m
+    cell: tuple[float, float] = (0.25, 0.25)   # m
+    file: str | None = None                    # quad mesh read by meshio (path relative to scene)
+
+
+@dataclass(frozen=True)
+class BoundarySpec:
+    left: str = "roller"
+    right: str = "roller"
+    bottom: str = "fixed"
+    top: str = "free"
+
+
+@dataclass(frozen=True)
+class SoilSpec:
+    polygon: tuple[tuple[float, float], ...]
+    unit_weight: float                  # kN/m3
+    youngs_modulus: float               # kPa
+    poisson_ratio: float                # -
+    name: str = "soil"
+    points_per_cell_dir: int = 2
+    model: str = "linear_elastic"
+    cohesion_peak: float = math.inf     # kPa (undrained shear strength, sqrt(J2) at yield)
+    cohesion_residual: float = math.inf  # kPa
+    softening: str = "linear"
+    softening_strain: float = 0.5       # plastic shear strain (-) at which c reaches residual (linear)
+    #                                     or the e-folding strain (exponential)
+
+    @property
+    def shear_modulus(self) -> float:
+        return self.youngs_modulus / (2.0 * (1.0 + self.poisson_ratio))
+
+    @property
+    def bulk_modulus(self) -> float:
+        return self.youngs_modulus / (3.0 * (1.0 - 2.0 * self.poisson_ratio))
+
+    @property
+    def constrained_modulus(self) -> float:
+        """Oedometric (P-wave) modulus M = E(1-nu)/((1+nu)(1-2nu)), kPa."""
+        nu = self.poisson_ratio
+        return self.youngs_modulus * (1 - nu) / ((1 + nu) * (1 - 2 * nu))
+
+
+@dataclass(frozen=True)
+class BedrockSpec:
+    """A rigid region: every grid node inside or on the polygon is fixed (no particles)."""
+    polygon: tuple[tuple[float, float], ...]
+
+
+@dataclass(frozen=True)
+class RandomFieldSpec:
+    property: str = "cohesion_peak"
+    distribution: str = "lognormal"      # "normal" | "lognormal"
+    cov: float = 0.25                    # coefficient of variation (-)
+    theta_v: float = 0.5                 # vertical scale of fluctuation (m)
+    anisotropy: float = 1.0              # xi = theta_h / theta_v (-)
+    correlation: str = "markov_elliptic"  # "markov_elliptic" | "markov_separable"
+    layering_angle_deg: float = 0.0      # angle of the layering to the grid x axis (deg)
+    cell_size: float | None = None       # field cell size (m); default: the grid cell
+    local_averaging: bool = True
+    soil: str | None = None              # name of the soil the field applies to (default: all)
+    data: str | None = None              # CSV of x, y, value to condition on (kriging)
+
+
+@dataclass(frozen=True)
+class SolverSpec:
+    scheme: str = "explicit"
+    shape: str = "standard"              # "standard" Q4 or "gimp"
+    cfl: float = 0.5                     # explicit: dt = cfl * h / (c_p + |v|max)
+    damping: float = 0.7                 # local (Cundall) damping coefficient (-)
+    damping_time: float = math.inf       # s; damping is switched off after this time
+    gravity_ramp_time: float = 1.0       # s; gravity grows linearly to full over this time
+    gravity_phase: str = "dynamic"       # "geostatic": in-situ stresses on the fixed geometry first
+    geostatic_time: float = 20.0         # s; longest geostatic phase (ends earlier at rest)
+    t_end: float = 10.0                  # s; simulated time limit
+    rest_velocity: float = 1e-3          # m/s; at rest when max particle speed below this ...
+    rest_energy_ratio: float = 1e-6      # ... and kinetic energy below this fraction of its peak
+    output_interval: float = 0.5         # s between particle snapshots
+    flip: float = 1.0                    # FLIP fraction of the particle velocity update (1 = FLIP, 0 = PIC)
+    edge_policy: str = "freeze"          # what happens to points reaching the grid edge
+    # implicit
+    load_steps: int = 1                  # quasi-static: number of load steps
+    dynamic: bool = False                # implicit: Newmark trapezoidal dynamics (else quasi-static)
+    dt: float = 0.05                     # implicit dynamic time step (s)
+    max_iterations: int = 15
+    tolerance: float = 1e-9              # relative residual
+    max_cuts: int = 4                    # step cuts before giving up
+    linear_solver: str = "superlu"       # "superlu" | "pyamg"
+    fbar: bool = False                   # F-bar locking remedy
+
+
+@dataclass(frozen=True)
+class MonteCarloSpec:
+    realizations: int = 8
+    seed: int = 2017
+    failure_displacement: float = 0.5    # m; a point with |u| above this counts as sliding
+    keep_vtk: int = 2                    # keep VTK output of the first k realizations
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    vtk: bool = True
+    png: bool = True
+
+
+@dataclass(frozen=True)
+class Scene:
+    scene: SceneInfo
+    grid: GridSpec
+    boundary: BoundarySpec
+    soils: tuple[SoilSpec, ...]
+    bedrock: tuple[BedrockSpec, ...] = ()
+    random_field: RandomFieldSpec | None = None
+    solver: SolverSpec = field(default_factory=SolverSpec)
+    montecarlo: MonteCarloSpec = field(default_factory=MonteCarloSpec)
+    output: OutputSpec = field(default_factory=OutputSpec)
+    source: str = "<dict>"
+
+    @property
+    def gravity_vector(self) -> tuple[float, float]:
+        """Gravity in the grid frame (m/s2): grid x axis points down-slope at frame_angle_deg."""
+        a = math.radians(self.scene.frame_angle_deg)
+        g = self.scene.gravity
+        return (g * math.sin(a), -g * math.cos(a))
+
+
+# --------------------------------------------------------------------------- validation
+
+_SECTIONS = {"scene": SceneInfo, "grid": GridSpec, "boundary": BoundarySpec, "soil": SoilSpec,
+             "bedrock": BedrockSpec, "random_field": RandomFieldSpec, "solver": SolverSpec,
+             "montecarlo": MonteCarloSpec, "output": OutputSpec}
+
+# (low, high, low_inclusive, high_inclusive) for numeric keys
+_RANGES: dict[str, tuple[float, float, bool, bool]] = {
+    "scene.gravity": (0, 1e3, True, True),
+    "scene.frame_angle_deg": (-90, 90, False, False),
+    "soil.unit_weight": (0, 1e3, False, True),
+    "soil.youngs_modulus": (0, 1e12, False, True),
+    "soil.poisson_ratio": (-1, 0.5, False, False),
+    "soil.points_per_cell_dir": (1, 8, True, True),
+    "soil.cohesion_peak": (0, math.inf, False, True),
+    "soil.cohesion_residual": (0, math.inf, False, True),
+    "soil.softening_strain": (0, math.inf, False, False),
+    "random_field.cov": (0, 10, True, True),
+    "random_field.theta_v": (0, math.inf, False, False),
+    "random_field.anisotropy": (0, math.inf, False, False),
+    "random_field.layering_angle_deg": (-90, 90, True, True),
+    "random_field.cell_size": (0, math.inf, False, False),
+    "solver.cfl": (0, 10, False, True),
+    "solver.damping": (0, 1, True, False),
+    "solver.damping_time": (0, math.inf, True, True),
+    "solver.gravity_ramp_time": (0, math.inf, True, False),
+    "solver.geostatic_time": (0, math.inf, False, False),
+    "solver.t_end": (0, math.inf, False, False),
+    "solver.rest_velocity": (0, math.inf, True, False),
+    "solver.rest_energy_ratio": (0, 1, True, True),
+    "solver.output_interval": (0, math.inf, False, True),
+    "solver.flip": (0, 1, True, True),
+    "solver.load_steps": (1, 1e6, True, True),
+    "solver.dt": (0, math.inf, False, False),
+    "solver.max_iterations": (1, 1000, True, True),
+    "solver.tolerance": (0, 1, False, False),
+    "solver.max_cuts": (0, 30, True, True),
+    "montecarlo.realizations": (1, 1e9, True, True),
+    "montecarlo.seed": (0, 2**63 - 1, True, True),
+    "montecarlo.failure_displacement": (0, math.inf, False, False),
+    "montecarlo.keep_vtk": (0, 1e9, True, True),
+}
+_CHOICES: dict[str, tuple[str, ...]] = {
+    "boundary.left": BOUNDARY_KINDS, "boundary.right": BOUNDARY_KINDS,
+    "boundary.bottom": BOUNDARY_KINDS, "boundary.top": BOUNDARY_KINDS,
+    "soil.model": MODELS, "soil.softening": SOFTENING_LAWS,
+    "random_field.distribution": ("normal", "lognormal"),
+    "random_field.correlation": ("markov_elliptic", "markov_separable"),
+    "random_field.property": ("cohesion_peak",),
+    "solver.scheme": SCHEMES, "solver.shape": SHAPES, "solver.edge_policy": EDGE_POLICIES,
+    "solver.linear_solver": ("superlu", "pyamg"),
+    "solver.gravity_phase": ("dynamic", "geostatic"),
+}
+
+
+def _fail(source: str, key: str, msg: str) -> SceneError:
+    return SceneError(f"{source}: [{key}] {msg}")
+
+
+def _fmt_range(lo: float, hi: float, lo_in: bool, hi_in: bool) -> str:
+    left = "[" if lo_in else "("
+    right = "]" if hi_in else ")"
+    return f"a number in {left}{lo:g}, {hi:g}{right}"
+
+
+def _coerce(source: str, key: str, value: Any, default: Any, annotation: str) -> Any:
+    """Check the TOML value against the dataclass field type and convert it."""
+    ann = annotation.replace(" ", "")
+    if ann in ("float", "float|None"):
+        if value is None and "None" in ann:
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise _fail(source, key, f"expected a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value) and key not in ("solver.damping_time", "soil.cohesion_peak",
+                                                     "soil.cohesion_residual"):
+            raise _fail(source, key, f"expected a finite number, got {value!r}")
+        return value
+    if ann == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise _fail(source, key, f"expected an integer, got {value!r}")
+        return value
+    if ann == "bool":
+        if not isinstance(value, bool):
+            raise _fail(source, key, f"expected true or false, got {value!r}")
+        return value
+    if ann in ("str", "str|None"):
+        if not isinstance(value, str):
+            raise _fail(source, key, f"expected a string, got {value!r}")
+        return value
+    if ann == "tuple[float,float]":
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and key == "grid.cell":
+            value = [value, value]
+        if (not isinstance(value, list) or len(value) != 2
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+            raise _fail(source, key, f"expected two numbers [x, y], got {value!r}")
+        return (float(value[0]), float(value[1]))
+    if ann == "tuple[tuple[float,float],...]":
+        ok = isinstance(value, list) and len(value) >= 3 and all(
+            isinstance(p, list) and len(p) == 2 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in p) for p in value)
+        if not ok:
+            raise _fail(source, key, "expected a list of at least 3 points [[x, y], ...] in m")
+        return tuple((float(p[0]), float(p[1])) for p in value)
+    raise AssertionError(f"unhandled annotation {annotation}")  # pragma: no cover
+
+
+def _build(source: str, section: str, cls: type, data: Any) -> Any:
+    if not isinstance(data, dict):
+        raise _fail(source, section, f"expected a table, got {type(data).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise _fail(source, f"{section}.{unknown[0]}",
+                    f"unknown key; allowed keys: {', '.join(sorted(fields))}")
+    kwargs = {}
+    for name, f in fields.items():
+        key = f"{section}.{name}"
+        if name not in data:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise _fail(source, key, "missing required key")
+            continue
+        value = _coerce(source, key, data[name], f.default, str(f.type))
+        if key in _RANGES and value is not None:
+            lo, hi, lo_in, hi_in = _RANGES[key]
+            bad = (value < lo or (value == lo and not lo_in) or value > hi
+                   or (value == hi and not hi_in))
+            if bad:
+                raise _fail(source, key, f"value {value!r} out of range; allowed: "
+                            + _fmt_range(lo, hi, lo_in, hi_in))
+        if key in _CHOICES and value not in _CHOICES[key]:
+            raise _fail(source, key, f"value {value!r} not allowed; allowed: "
+                        + " | ".join(repr(c) for c in _CHOICES[key]))
+        kwargs[name] = value
+    return cls(**kwargs)
+
+
+def _check_scene(s: Scene) -> None:
+    src = s.source
+    gx, gy = s.grid.size
+    if s.grid.file is None:
+        if gx <= 0 or gy <= 0:
+            raise _fail(src, "grid.size", "grid size must be positive (m)")
+        hx, hy = s.grid.cell
+        if hx <= 0 or hy <= 0:
+            raise _fail(src, "grid.cell", "cell size must be positive (m)")
+        for n, h, L in (("x", hx, gx), ("y", hy, gy)):
+            k = L / h
+            if abs(k - round(k)) > 1e-6 * max(1.0, k):
+                raise _fail(src, "grid.cell", f"grid size {L:g} m is not a whole number of "
+                            f"cells of {h:g} m along {n}")
+    if not s.soils:
+        raise _fail(src, "soil", "at least one [[soil]] table is required")
+    names = [so.name for so in s.soils]
+    if len(set(names)) != len(names):
+        raise _fail(src, "soil.name", f"soil names must be unique, got {names}")
+    for i, so in enumerate(s.soils):
+        key = f"soil[{i}]"
+        if so.model == "von_mises_softening":
+            if not math.isfinite(so.cohesion_peak) or not math.isfinite(so.cohesion_residual):
+                raise _fail(src, f"{key}.cohesion_peak", "von_mises_softening needs finite "
+                            "cohesion_peak and cohesion_residual (kPa)")
+            if so.cohesion_residual > so.cohesion_peak:
+                raise _fail(src, f"{key}.cohesion_residual", f"{so.cohesion_residual:g} kPa "
+                            f"exceeds cohesion_peak {so.cohesion_peak:g} kPa; allowed: "
+                            "0 < cohesion_residual <= cohesion_peak")
+            h = (so.cohesion_peak - so.cohesion_residual) / so.softening_strain
+            if so.softening == "linear" and h >= so.shear_modulus:
+                raise _fail(src, f"{key}.softening_strain", f"softening modulus "
+                            f"{h:g} kPa >= shear modulus {so.shear_modulus:g} kPa makes the "
+                            "local return mapping snap back; allowed: softening_strain > "
+                            f"{(so.cohesion_peak - so.cohesion_residual) / so.shear_modulus:g}")
+        if s.grid.file is None:
+            x0, y0 = s.grid.origin
+            for (px, py) in so.polygon:
+                tol = 1e-9 * max(gx, gy)
+                if not (x0 - tol <= px <= x0 + gx + tol and y0 - tol <= py <= y0 + gy + tol):
+                    raise _fail(src, f"{key}.polygon", f"point ({px:g}, {py:g}) m lies outside "
+                                f"the grid [{x0:g}, {x0 + gx:g}] x [{y0:g}, {y0 + gy:g}] m")
+    if s.random_field is not None:
+        rf = s.random_field
+        if rf.soil is not None and rf.soil not in names:
+            raise _fail(src, "random_field.soil", f"{rf.soil!r} is not a soil; allowed: {names}")
+        if rf.distribution == "normal" and rf.cov > 0.5:
+            raise _fail(src, "random_field.cov", f"{rf.cov:g} with a normal distribution gives "
+                        "negative strengths too often; allowed: cov <= 0.5 or 'lognormal'")
+
+
+def scene_from_dict(data: dict, source: str = "<dict>") -> Scene:
+    """Build and validate a :class:`Scene` from parsed TOML (``source`` names the file)."""
+    if not isinstance(data, dict):
+        raise SceneError(f"{source}: [] expected a TOML table at the top level")
+    unknown = sorted(set(data) - set(_SECTIONS))
+    if unknown:
+        raise _fail(source, unknown[0], "unknown section; allowed: "
+                    + ", ".join(f"[{k}]" for k in _SECTIONS if k not in ("soil", "bedrock"))
+                    + ", [[soil]], [[bedrock]]")
+    if "soil" not in data:
+        raise _fail(source, "soil", "missing required section [[soil]]")
+    soils_raw = data["soil"] if isinstance(data["soil"], list) else [data["soil"]]
+    soils = tuple(_build(source, "soil", SoilSpec, d) for d in soils_raw)
+    rock_raw = data.get("bedrock", [])
+    rock_raw = rock_raw if isinstance(rock_raw, list) else [rock_raw]
+    scene = Scene(
+        scene=_build(source, "scene", SceneInfo, data.get("scene", {})),
+        grid=_build(source, "grid", GridSpec, data.get("grid", {})),
+        boundary=_build(source, "boundary", BoundarySpec, data.get("boundary", {})),
+        soils=soils,
+        bedrock=tuple(_build(source, "bedrock", BedrockSpec, d) for d in rock_raw),
+        random_field=(_build(source, "random_field", RandomFieldSpec, data["random_field"])
+                      if "random_field" in data else None),
+        solver=_build(source, "solver", SolverSpec, data.get("solver", {})),
+        montecarlo=_build(source, "montecarlo", MonteCarloSpec, data.get("montecarlo", {})),
+        output=_build(source, "output", OutputSpec, data.get("output", {})),
+        source=source,
+    )
+    if scene.grid.file is not None and source not in ("<dict>",):
+        p = Path(scene.grid.file)
+        if not p.is_absolute():
+            p = Path(source).parent / p
+        scene = dataclasses.replace(scene, grid=dataclasses.replace(scene.grid, file=str(p)))
+    _check_scene(scene)
+    return scene
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a scene file (TOML). Raises :class:`SceneError` on any problem."""
+    path = Path(path)
+    source = str(path)
+    if not path.exists():
+        raise SceneError(f"{source}: [] file not found; allowed: a path to a TOML scene file")
+    if path.is_dir():
+        raise SceneError(f"{source}: [] is a directory; allowed: a path to a TOML scene file")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise SceneError(f"{source}: [] not valid TOML ({exc}); allowed: a TOML scene file "
+                         "(see meshes/*.toml)") from None
+    return scene_from_dict(data, source)
+
+
+def scene_to_dict(scene: Scene) -> dict:
+    """Plain-data view of a scene (for ``summary.json``); inverse of :func:`scene_from_dict`."""
+    out: dict[str, Any] = {}
+    for name in ("scene", "grid", "boundary", "solver", "montecarlo", "output"):
+        out[name] = dataclasses.asdict(getattr(scene, name))
+    out["soil"] = [dataclasses.asdict(s) for s in scene.soils]
+    if scene.bedrock:
+        out["bedrock"] = [dataclasses.asdict(b) for b in scene.bedrock]
+    if scene.random_field is not None:
+        out["random_field"] = dataclasses.asdict(scene.random_field)
+
+    def clean(v: Any) -> Any:
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items() if x is not None}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        if isinstance(v, float) and not math.isfinite(v):
+            return str(v)
+        return v
+    return clean(out)
+
+
+def with_value(scene: Scene, key: str, value: Any) -> Scene:
+    """Return a validated copy of ``scene`` with one value changed.
+
+    ``key`` is dotted: ``"solver.cfl"``, ``"soil.youngs_modulus"`` (all soils) or
+    ``"soil[1].cohesion_peak"``, ``"random_field.anisotropy"``.
+    """
+    data = scene_to_dict(scene)
+    for sec in data.values():  # restore infinities written as strings
+        items = sec if isinstance(sec, list) else [sec]
+        for d in items:
+            for k, v in list(d.items()):
+                if v in ("inf", "-inf"):
+                    d[k] = float(v)
+    section, _, name = key.partition(".")
+    if not name:
+        raise SceneError(f"{scene.source}: [{key}] expected a dotted key like 'solver.cfl'")
+    if section.startswith("soil"):
+        idx = None
+        if "[" in section:
+            idx = int(section[section.index("[") + 1:section.index("]")])
+        targets = data["soil"] if idx is None else [data["soil"][idx]]
+        for t in targets:
+            t[name] = value
+    elif section == "random_field" and "random_field" not in data:
+        data["random_field"] = {name: value}
+    else:
+        if section not in data:
+            raise _fail(scene.source, key, "unknown section")
+        data[section][name] = value
+    return scene_from_dict(data, scene.source)
