@@ -88,7 +88,7 @@ def solve_static(scene: Scene, grid: Grid | None = None) -> FemResult:
     tr = exx + eyy
     stress = np.stack([lam * tr + 2 * mu * exx, lam * tr + 2 * mu * eyy, lam * tr,
                        2 * mu * exy], axis=-1).reshape(-1, 4)
-    points = np.moveaxis(np.asarray(basis.global_coordinates().value), 0, -1).reshape(-1, 2)
+    points = np.moveaxis(np.asarray(basis.global_coordinates()), 0, -1).reshape(-1, 2)
     volume = (basis.dx).reshape(-1)
     return FemResult(grid=grid, cells=cells, displacement=u.reshape(-1, 2), points=points,
                      stress=stress, volume=volume, K=K, f=f)

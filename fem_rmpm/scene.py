@@ -23,7 +23,7 @@ from typing import Any
 __all__ = [
     "SceneError", "Scene", "SceneInfo", "GridSpec", "BoundarySpec", "SoilSpec",
     "BedrockSpec", "RandomFieldSpec", "SolverSpec", "MonteCarloSpec", "OutputSpec",
-    "load_scene", "scene_from_dict", "with_value", "scene_to_dict",
+    "load_scene", "scene_from_dict", "with_value", "with_values", "scene_to_dict",
 ]
 
 
@@ -446,8 +446,15 @@ def with_value(scene: Scene, key: str, value: Any) -> Scene:
     """Return a validated copy of ``scene`` with one value changed.
 
     ``key`` is dotted: ``"solver.cfl"``, ``"soil.youngs_modulus"`` (all soils) or
-    ``"soil[1].cohesion_peak"``, ``"random_field.anisotropy"``.
+    ``"soil[1].cohesion_peak"``, ``"random_field.anisotropy"`` (creates the
+    section if the scene has none).  See :func:`with_values` for several at once.
     """
+    return with_values(scene, {key: value})
+
+
+def with_values(scene: Scene, changes: dict[str, Any]) -> Scene:
+    """Return a validated copy of ``scene`` with several values changed together
+    (validated once, after all changes: e.g. a new grid size and a new polygon)."""
     data = scene_to_dict(scene)
     for sec in data.values():  # restore infinities written as strings
         items = sec if isinstance(sec, list) else [sec]
@@ -455,20 +462,21 @@ def with_value(scene: Scene, key: str, value: Any) -> Scene:
             for k, v in list(d.items()):
                 if v in ("inf", "-inf"):
                     d[k] = float(v)
-    section, _, name = key.partition(".")
-    if not name:
-        raise SceneError(f"{scene.source}: [{key}] expected a dotted key like 'solver.cfl'")
-    if section.startswith("soil"):
-        idx = None
-        if "[" in section:
-            idx = int(section[section.index("[") + 1:section.index("]")])
-        targets = data["soil"] if idx is None else [data["soil"][idx]]
-        for t in targets:
-            t[name] = value
-    elif section == "random_field" and "random_field" not in data:
-        data["random_field"] = {name: value}
-    else:
-        if section not in data:
-            raise _fail(scene.source, key, "unknown section")
-        data[section][name] = value
+    for key, value in changes.items():
+        section, _, name = key.partition(".")
+        if not name:
+            raise SceneError(f"{scene.source}: [{key}] expected a dotted key like 'solver.cfl'")
+        if section.startswith("soil"):
+            idx = None
+            if "[" in section:
+                idx = int(section[section.index("[") + 1:section.index("]")])
+            targets = data["soil"] if idx is None else [data["soil"][idx]]
+            for t in targets:
+                t[name] = value
+        elif section == "random_field" and "random_field" not in data:
+            data["random_field"] = {name: value}
+        else:
+            if section not in data:
+                raise _fail(scene.source, key, "unknown section")
+            data[section][name] = value
     return scene_from_dict(data, scene.source)

@@ -1,0 +1,102 @@
+"""Scene files: bad input gets a clear one-line error and loses nothing (issue 2, acceptance 6).
+
+Each case runs the real command line (``fem_rmpm.cli.main``) and checks: exit code 2,
+exactly one line on stderr naming the file and the key and what is allowed, no
+traceback, and no output directory created.
+"""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from fem_rmpm.cli import main
+from fem_rmpm.scene import SceneError, load_scene, with_value
+
+
+def _run_bad(tmp_path, capsys, text: str | None, expect_key: str, expect_words: tuple[str, ...],
+             name: str = "bad.toml", write: bool = True):
+    scene = tmp_path / name
+    if write:
+        scene.write_bytes(text.encode() if isinstance(text, str) else text)
+    out = tmp_path / "out"
+    code = main(["run", str(scene), "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1, err
+    assert "Traceback" not in err
+    assert str(scene) in err
+    assert expect_key in err
+    for w in expect_words:
+        assert w in err, err
+    assert not out.exists()
+    return err
+
+
+def test_unknown_key_is_named(tmp_path, capsys, column_text):
+    """A typo in a key ('youngs_modulos') names the key and lists the allowed keys."""
+    text = column_text.replace("youngs_modulus", "youngs_modulos")
+    _run_bad(tmp_path, capsys, text, "soil.youngs_modulos", ("unknown key", "youngs_modulus"))
+
+
+def test_missing_required_key(tmp_path, capsys, column_text):
+    text = "\n".join(l for l in column_text.splitlines() if not l.startswith("unit_weight"))
+    _run_bad(tmp_path, capsys, text, "soil.unit_weight", ("missing required key",))
+
+
+def test_negative_modulus(tmp_path, capsys, column_text):
+    text = column_text.replace("youngs_modulus = 1000.0", "youngs_modulus = -1000.0")
+    _run_bad(tmp_path, capsys, text, "soil.youngs_modulus", ("out of range", "allowed"))
+
+
+@pytest.mark.parametrize("nu", ["0.5", "0.7"])
+def test_poisson_ratio_at_or_above_half(tmp_path, capsys, column_text, nu):
+    text = column_text.replace("poisson_ratio = 0.33", f"poisson_ratio = {nu}")
+    _run_bad(tmp_path, capsys, text, "soil.poisson_ratio", ("out of range", "0.5)"))
+
+
+def test_polygon_outside_grid(tmp_path, capsys, column_text):
+    text = column_text.replace("[0.25, 5.0], [0.0, 5.0]]", "[0.25, 9.0], [0.0, 9.0]]")
+    _run_bad(tmp_path, capsys, text, "polygon", ("outside the grid",))
+
+
+def test_not_toml(tmp_path, capsys):
+    _run_bad(tmp_path, capsys, "this is = not [valid toml\n", "[]", ("not valid TOML",))
+
+
+def test_binary_garbage(tmp_path, capsys):
+    _run_bad(tmp_path, capsys, b"\xff\xfe\x00garbage", "[]", ("not valid TOML",))
+
+
+def test_missing_file(tmp_path, capsys):
+    _run_bad(tmp_path, capsys, None, "[]", ("file not found",), name="nowhere.toml", write=False)
+
+
+def test_wrong_type_and_choice(tmp_path, capsys, column_text):
+    text = column_text.replace('model = "linear_elastic"', 'model = "mohr_coulomb"')
+    _run_bad(tmp_path, capsys, text, "soil.model", ("'linear_elastic'", "'von_mises_softening'"))
+
+
+def test_residual_above_peak_rejected(tmp_path, capsys, column_text):
+    """cohesion_residual > cohesion_peak is physically meaningless for softening."""
+    text = column_text.replace('model = "linear_elastic"', 'model = "von_mises_softening"\n'
+                               'cohesion_peak = 20.0\ncohesion_residual = 30.0')
+    _run_bad(tmp_path, capsys, text, "cohesion_residual", ("exceeds cohesion_peak",))
+
+
+def test_with_value_returns_validated_copy(meshes):
+    """Driver scripts change one value; the original scene is untouched (frozen)."""
+    s = load_scene(meshes / "column.toml")
+    s2 = with_value(s, "soil.youngs_modulus", 2000.0)
+    assert s.soils[0].youngs_modulus == 1000.0 and s2.soils[0].youngs_modulus == 2000.0
+    assert math.isclose(s2.soils[0].constrained_modulus, 2 * s.soils[0].constrained_modulus)
+    with pytest.raises(SceneError, match="solver.cfl"):
+        with_value(s, "solver.cfl", -1.0)
+
+
+def test_shipped_scenes_load(meshes):
+    """Every scene file in meshes/ parses and validates."""
+    files = sorted(meshes.glob("*.toml"))
+    assert files
+    for f in files:
+        load_scene(f)
