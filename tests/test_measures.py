@@ -1,0 +1,106 @@
+"""Measures of a realization and points leaving the grid (issue 4)."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from fem_rmpm import api
+from fem_rmpm.cli import main
+from fem_rmpm.grid import make_grid
+from fem_rmpm.measures import compute_measures, surface_profile
+from fem_rmpm.particles import seed_particles
+from fem_rmpm.scene import load_scene, with_values
+
+
+def _slope(meshes):
+    scene = load_scene(meshes / "slope_elastic.toml")
+    grid = make_grid(scene)
+    return scene, grid, seed_particles(scene, grid)
+
+
+def test_measures_of_a_prescribed_slide(meshes):
+    """Move a known block of points: the sliding area is its initial volume, the run-out the
+    travel of the toe front in the true horizontal, the retrogression the distance from the
+    crest (x = 56 m, y = 5 m in the grid frame) back to the block's upslope end."""
+    scene, grid, pts = _slope(meshes)
+    a = math.radians(20.0)
+    block = pts.x0[:, 0] > 40.0                     # everything down-slope of x = 40 m
+    shift = 3.0                                     # m along the bedrock
+    pts.x[block, 0] += shift
+    m = compute_measures(pts, 20.0, 0.5, grid.cell, time_to_rest=12.5)
+    assert m["failed"]
+    assert math.isclose(m["sliding_area"], pts.volume0[block].sum(), rel_tol=1e-12)
+    X0 = pts.x0[:, 0] * math.cos(a) + pts.x0[:, 1] * math.sin(a)
+    X = pts.x[:, 0] * math.cos(a) + pts.x[:, 1] * math.sin(a)
+    assert math.isclose(m["runout_distance"], X.max() - X0.max(), rel_tol=1e-12)
+    assert math.isclose(m["runout_distance"], shift * math.cos(a), rel_tol=1e-9)
+    crest = pts.x0[(pts.x0[:, 1] > 4.75)][:, 0].max()            # top layer, most down-slope
+    y_crest = pts.x0[(pts.x0[:, 1] > 4.75) & (pts.x0[:, 0] == crest), 1][0]
+    x_back = pts.x0[block, 0].min()
+    y_back = pts.x0[block & (pts.x0[:, 0] == x_back), 1]
+    expected = (crest * math.cos(a) + y_crest * math.sin(a)) - \
+        (x_back * math.cos(a) + y_back.min() * math.sin(a))
+    assert math.isclose(m["retrogression_distance"], expected, rel_tol=1e-9)
+    assert m["time_to_rest"] == 12.5
+
+
+def test_no_failure_below_threshold(meshes):
+    """Displacements below failure_displacement: not failed, zero area and retrogression."""
+    scene, grid, pts = _slope(meshes)
+    pts.x[:, 0] += 0.4
+    m = compute_measures(pts, 20.0, 0.5, grid.cell, None)
+    assert not m["failed"] and m["sliding_area"] == 0.0 and m["retrogression_distance"] == 0.0
+
+
+def test_surface_profile_is_top_of_each_bin():
+    """Profile = max y per x bin."""
+    X = np.array([[0.1, 1.0], [0.2, 3.0], [0.6, 2.0], [1.4, 0.5]])
+    assert surface_profile(X, 0.5) == [(0.25, 3.0), (0.75, 2.0), (1.25, 0.5)]
+
+
+def _falling_block(meshes, policy):
+    """A block thrown off the free right edge of a small grid."""
+    scene = load_scene(meshes / "column.toml")
+    return with_values(scene, {
+        "grid.size": [3.0, 2.0], "grid.cell": [0.25, 0.25], "boundary.right": "free",
+        "boundary.bottom": "roller", "scene.frame_angle_deg": 60.0,
+        "soil.polygon": [[0.5, 0.0], [1.5, 0.0], [1.5, 1.0], [0.5, 1.0]],
+        "solver.gravity_phase": "dynamic", "solver.gravity_ramp_time": 0.0,
+        "solver.damping": 0.0, "solver.t_end": 0.7, "solver.edge_policy": policy,
+        "solver.output_interval": 0.25})
+
+
+def test_points_leaving_the_grid_are_frozen_and_reported(meshes, tmp_path):
+    """Policy 'freeze': points that leave through a free edge are kept (inactive, where they
+    left), counted and named in summary.json; none is lost and nothing is NaN."""
+    res = api.run(_falling_block(meshes, "freeze"), out=tmp_path / "o")
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    frozen = s["frozen_points"]
+    assert frozen["count"] > 0 and frozen["count"] == len(frozen["indices"])
+    assert sorted(frozen["indices"]) == sorted(np.nonzero(~res.particles.active)[0].tolist())
+    assert res.particles.n == len(res.particles.mass)                 # nobody removed
+    assert np.all(np.isfinite(res.particles.x))
+
+
+def test_points_leaving_the_grid_stop_the_run_if_asked(meshes, tmp_path, capsys):
+    """Policy 'stop': a clear error naming the point and what to change; exit code 3."""
+    scene_file = tmp_path / "block.toml"
+    from fem_rmpm.scene import scene_to_dict
+    import tomllib  # noqa: F401  (the file is written by hand below)
+    scene = _falling_block(meshes, "stop")
+    d = scene_to_dict(scene)
+    lines = []
+    for sec, body in d.items():
+        items = body if isinstance(body, list) else [body]
+        for it in items:
+            lines.append(f"[[{sec}]]" if isinstance(body, list) else f"[{sec}]")
+            for k, v in it.items():
+                lines.append(f"{k} = {json.dumps(v) if not isinstance(v, bool) else str(v).lower()}")
+    scene_file.write_text("\n".join(lines).replace('"inf"', "inf"))
+    code = main(["run", str(scene_file), "--out", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 3
+    assert "left the grid" in err and "edge_policy" in err
