@@ -1,0 +1,367 @@
+"""Implicit Newton MPM (issue 3): from the Gauss points to large compaction.
+
+References: DESIGN section 7 (column, compaction, explicit time step), Charlton,
+Coombs & Augarde 2017 (AMPLE / iGIMP, Computers & Structures 190: the
+compaction benchmark and the updated-Lagrangian implicit MPM), the closed forms
+quoted in each docstring.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+from scipy.integrate import quad
+from scipy.special import lambertw
+
+from fem_rmpm import api
+from fem_rmpm import implicit as imp
+from fem_rmpm.cli import main
+from fem_rmpm.explicit import SimulationError
+from fem_rmpm.fem import solve_static
+from fem_rmpm.grid import make_grid
+from fem_rmpm.material import SoilPoints, small_strain_update, spatial_tangent, stress_update
+from fem_rmpm.particles import seed_particles
+from fem_rmpm.scene import load_scene
+from fem_rmpm.shape import q4_at_points
+
+MESHES = Path(__file__).resolve().parents[1] / "meshes"
+
+
+def _solver(scene, **kw):
+    return dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, **kw))
+
+
+def _run(scene, **kw):
+    scene = _solver(scene, **kw)
+    grid = make_grid(scene)
+    pts = seed_particles(scene, grid)
+    rec = imp.run_implicit(scene, grid, pts)
+    return grid, pts, rec
+
+
+def _rel_l2(a, b, w):
+    a, b = a.reshape(len(w), -1), b.reshape(len(w), -1)
+    return float(np.sqrt(np.sum(np.sum((a - b) ** 2, 1) * w) / np.sum(np.sum(b ** 2, 1) * w)))
+
+
+def _hencky_settlement(Y, gamma, M, H):
+    """Closed form (DESIGN section 7, oedometric Hencky/Kirchhoff): Cauchy
+    M ln(lambda)/lambda = -gamma (H - Y) gives lambda = exp(-W0(s)), s = gamma (H - Y)/M,
+    and u(Y) = integral_0^Y (lambda - 1) dY."""
+    lam = lambda y: float(np.exp(-lambertw(gamma * (H - y) / M).real))  # noqa: E731
+    return quad(lambda y: lam(y) - 1.0, 0.0, Y, limit=200)[0]
+
+
+def _random_state(n, seed=1):
+    rng = np.random.default_rng(seed)
+    idx = np.arange(n)
+    plastic = idx % 3 != 2
+    soil = SoilPoints(shear_modulus=np.full(n, 400.0), bulk_modulus=np.full(n, 900.0),
+                      cohesion_peak=np.where(plastic, 5.0, np.inf),
+                      cohesion_residual=np.where(plastic, 2.0, np.inf),
+                      softening_strain=np.full(n, 0.5), exponential=idx % 3 == 1)
+    dF = np.eye(2) + 0.05 * rng.normal(size=(n, 2, 2))
+    ls = 0.02 * rng.normal(size=(n, 4))
+    gp = np.abs(0.1 * rng.normal(size=n))
+    return soil, dF, ls, gp
+
+
+# ------------------------------------------------------------------ 1. Gauss points = FEM
+@pytest.mark.parametrize("name", ["column.toml", "slope_elastic.toml"])
+def test_one_static_step_at_gauss_points_equals_fem(name):
+    """DESIGN section 7 (column) and section 6 (elastic reference slope): with the points at
+    the 2x2 Gauss points (volume area/4), one geostatic (small-strain) implicit step is the
+    scikit-fem Q4 solution of fem.solve_static: displacement and stress to relative 1e-10,
+    in one Newton iteration (the problem is linear)."""
+    scene = _solver(load_scene(MESHES / name), scheme="implicit", gravity_phase="geostatic",
+                    dynamic=False, load_steps=1)
+    grid = make_grid(scene)
+    pts = seed_particles(scene, grid)
+    rec = imp.run_implicit(scene, grid, pts)
+    fem = solve_static(scene, grid)
+    from scipy.spatial import cKDTree
+    d, i = cKDTree(fem.points).query(pts.x0)
+    assert d.max() < 1e-9
+    _, nodes, N, _, _ = q4_at_points(grid, pts.x0)
+    u_fem = np.einsum("pa,pak->pk", N, fem.displacement[nodes])
+    du = np.linalg.norm(pts.displacement - u_fem) / np.linalg.norm(u_fem)
+    ds = np.linalg.norm(pts.stress - fem.stress[i]) / np.linalg.norm(fem.stress[i])
+    assert du < 1e-10 and ds < 1e-10, (du, ds)
+    assert rec.solver["steps"][0]["iterations"] == 1
+    assert np.array_equal(pts.x, pts.x0)             # geostatic: the points do not move
+
+
+# ------------------------------------------------------------------ tangent and assembly
+def test_fast_tangent_equals_material_spatial_tangent():
+    """The batched complex-step tangent (symmetric part by complex step, spin part
+    analytic for the isotropic law) equals material.spatial_tangent to round-off, for
+    elastic, linearly and exponentially softening points."""
+    soil, dF, ls, gp = _random_state(300)
+    tau1, A1 = spatial_tangent(dF, ls, gp, soil)
+    tau2, A2 = imp.finite_strain_tangent(dF, ls, gp, soil)
+    _, _, t_plastic = stress_update(dF, ls, gp, soil)
+    assert np.allclose(tau1, tau2, rtol=0, atol=1e-12 * np.abs(tau1).max())
+    assert np.abs(A1 - A2).max() < 1e-12 * np.abs(A1).max()
+    assert np.allclose(tau1, t_plastic)
+
+
+def test_small_strain_tangent_is_the_derivative_of_small_strain_update():
+    """Geostatic tangent D_ijlm = d tau_ij / d grad(du)_lm: against a complex step taken
+    through material.small_strain_update itself (all four components of grad du)."""
+    soil, dF, ls, gp = _random_state(200, seed=3)
+    H = dF - np.eye(2)
+    tau, D = imp.small_strain_tangent(H, ls, gp, soil)
+    h = 1e-30
+    for l in range(2):
+        for m in range(2):
+            Hc = H.astype(complex)
+            Hc[:, l, m] += 1j * h
+            _, _, tc = small_strain_update(Hc, ls, gp, soil)
+            d = tc.imag / h
+            assert np.abs(D[:, 0, 0, l, m] - d[:, 0]).max() < 1e-10 * np.abs(D).max()
+            assert np.abs(D[:, 1, 1, l, m] - d[:, 1]).max() < 1e-10 * np.abs(D).max()
+            assert np.abs(D[:, 0, 1, l, m] - d[:, 3]).max() < 1e-10 * np.abs(D).max()
+
+
+def test_vectorised_assembly_equals_scikit_fem_asm(meshes_dir_fx):
+    """DESIGN section 2: the tangent and internal force with the material points as
+    quadrature, assembled by skfem.asm (forms in implicit.py, skfem_point_basis) and by
+    the vectorised numpy path used in the run, agree to round-off (a deformed,
+    partly plastic state with points off the Gauss points)."""
+    grid = meshes_dir_fx
+    rng = np.random.default_rng(5)
+    cells = rng.choice(grid.n_cells, 300, replace=False)
+    lower = grid.nodes[grid.cells[np.repeat(cells, 3), 0]]
+    x = lower + rng.random((900, 2)) * grid.cell
+    soil, dF, ls, gp = _random_state(900, seed=7)
+    V0 = np.full(900, 0.01)
+    S = imp.StepSystem(grid, x)
+    tau, A = imp.finite_strain_tangent(dF, ls, gp, soil)
+    Finv = np.linalg.inv(dF)
+    g = np.matmul(S.dN, Finv)
+    K_fast = S.tangent(V0, g, A)
+    f_fast = S.internal_force(V0, tau, g)
+    K_sk, f_sk = imp.skfem_assemble(grid, x, V0, dF, tau, A)
+    K_sk = K_sk[S.free_dofs][:, S.free_dofs]
+    assert abs(K_fast - K_sk).max() < 1e-12 * abs(K_sk).max()
+    assert np.abs(f_fast - f_sk[S.free_dofs]).max() < 1e-12 * np.abs(f_sk).max()
+
+
+def test_tangent_is_the_derivative_of_the_internal_force(meshes_dir_fx):
+    """The assembled K (material + geometric stiffness) is the directional derivative of
+    the assembled internal force f(du) = sum_p V0 tau(dF) dF^-T grad N: central
+    differences along a random direction agree to 1e-6 (truncation-limited)."""
+    grid = meshes_dir_fx
+    rng = np.random.default_rng(2)
+    cells = rng.choice(grid.n_cells, 200, replace=False)
+    x = grid.nodes[grid.cells[np.repeat(cells, 4), 0]] + rng.random((800, 2)) * grid.cell
+    soil, _, ls, gp = _random_state(800, seed=4)
+    V0 = np.full(800, 0.01)
+    S = imp.StepSystem(grid, x)
+
+    def f_int(du):
+        dF = np.eye(2) + S.gradient(S.to_nodes(du))
+        _, _, tau = stress_update(dF, ls, gp, soil)
+        return S.internal_force(V0, tau, np.matmul(S.dN, np.linalg.inv(dF)))
+
+    du = 0.01 * rng.normal(size=S.n_free)
+    dF = np.eye(2) + S.gradient(S.to_nodes(du))
+    _, A = imp.finite_strain_tangent(dF, ls, gp, soil)
+    K = S.tangent(V0, np.matmul(S.dN, np.linalg.inv(dF)), A)
+    v = rng.normal(size=S.n_free)
+    eps = 1e-6
+    fd = (f_int(du + eps * v) - f_int(du - eps * v)) / (2 * eps)
+    assert np.linalg.norm(K @ v - fd) < 1e-6 * np.linalg.norm(fd)
+
+
+# ------------------------------------------------------------------ 2. compaction
+def test_column_compaction_top_displacement_hencky():
+    """DESIGN section 7 / Charlton et al. 2017 (AMPLE): l0 = 50 m, E = 10 kPa, nu = 0,
+    rho0 = 0.08 t/m3, g = 10, one cell wide, uGIMP, 32 cells, 50 load steps.  The top
+    settles -25.940 m (Hencky/Kirchhoff: lambda = exp(-W0(s))); the top material point
+    must be within 1 % of the closed form at its initial height, and the stress error
+    norm sum_p |sigma_p - sigma_a| V_p / (rho0 g l0 V0) below 1 %."""
+    scene = load_scene(MESHES / "compaction.toml")
+    grid, pts, rec = _run(scene)
+    top = np.argmax(pts.x0[:, 1])
+    ua = _hencky_settlement(pts.x0[top, 1], 0.8, 10.0, 50.0)
+    assert abs(_hencky_settlement(50.0, 0.8, 10.0, 50.0) - (-25.940)) < 5e-4
+    assert abs(pts.displacement[top, 1] / ua - 1) < 0.01, (pts.displacement[top, 1], ua)
+    sigma_a = -0.8 * (50.0 - pts.x0[:, 1])
+    err = np.sum(np.abs(pts.stress[:, 1] - sigma_a) * pts.volume) / (0.8 * 50.0 * pts.volume0.sum())
+    assert err < 0.01, err
+    assert max(s["iterations"] for s in rec.solver["steps"]) <= 10
+
+
+# ------------------------------------------------------------------ 3. quadratic convergence
+def _soft_column_residuals(monkeypatch=None):
+    scene = _solver(load_scene(MESHES / "soft_column.toml"), load_steps=1, max_iterations=30)
+    _, pts, rec = _run(scene)
+    return rec.solver["steps"][0]["residuals"]
+
+
+def test_newton_converges_quadratically(monkeypatch):
+    """Full Newton with the consistent tangent: over the last iterations of a loaded step
+    (soft column, gravity in one step) r_{k+1} / r_k^2 stays bounded (< 10) while the
+    residual falls from 1 to round-off.  Control: dropping the geometric (initial-stress)
+    term -delta_jl tau_im from the tangent makes convergence linear (the same ratio
+    explodes and more iterations are needed), so the test can tell."""
+    r = np.array(_soft_column_residuals())
+    assert r[-1] < 1e-9 and len(r) - 1 <= 6
+    tail = [(r[k + 1] / r[k] ** 2) for k in range(len(r) - 1) if r[k] < 0.5 and r[k + 1] > 1e-14]
+    assert len(tail) >= 2
+    assert max(tail) < 10.0, tail
+
+    full = imp.finite_strain_tangent
+
+    def no_geometric(dF, ls, gp, soil, step=1e-30):
+        tau, A = full(dF, ls, gp, soil, step)
+        return tau, A + np.einsum("jl,nim->nijlm", np.eye(2), imp._tensor(tau))
+
+    monkeypatch.setattr(imp, "finite_strain_tangent", no_geometric)
+    r2 = np.array(_soft_column_residuals())
+    ratios = [r2[k + 1] / r2[k] ** 2 for k in range(len(r2) - 1) if r2[k + 1] > 1e-14]
+    assert len(r2) > len(r) + 2 and max(ratios) > 100 * max(tail)
+
+
+# ------------------------------------------------------------------ 4. soft column
+@pytest.mark.parametrize("steps", [1, 10])
+def test_soft_column_large_deformation(steps):
+    """Issue 3 acceptance 4 (the case a peer code never converges on): E = 1000 kPa,
+    nu = 0.3, unit weight 20, H = 10 m, 0.25 m cells (uGIMP), gravity in 1 and in 10
+    load steps: <= 10 Newton iterations per step, settlement within 1 % of the closed
+    form (oedometric Hencky, Cauchy M ln(lambda)/lambda = -gamma (H - Y))."""
+    scene = load_scene(MESHES / "soft_column.toml")
+    _, pts, rec = _run(scene, load_steps=steps)
+    its = [s["iterations"] for s in rec.solver["steps"]]
+    assert len(its) == steps and max(its) <= 10, its
+    M = scene.soils[0].constrained_modulus
+    top = np.argmax(pts.x0[:, 1])
+    ua = _hencky_settlement(pts.x0[top, 1], 20.0, M, 10.0)
+    assert ua < -0.6                                       # large: 12 % strain at the base
+    assert abs(pts.displacement[top, 1] / ua - 1) < 0.01, (pts.displacement[top, 1], ua)
+    assert rec.stop_reason == "load applied"
+
+
+# ------------------------------------------------------------------ 5. explicit vs implicit
+def test_explicit_and_implicit_agree_on_elastic_slope():
+    """Issue 3 acceptance 5, elastic reference slope (DESIGN section 6): the explicit run
+    of meshes/slope_elastic.toml (geostatic phase, damped to rest) and the implicit
+    scheme on the same scene agree in stress to < 5 % (volume-weighted relative L2):
+    both the implicit geostatic step and one large-deformation load step."""
+    scene = load_scene(MESHES / "slope_elastic.toml")
+    res = api.run(scene)
+    assert res.record.stop_reason == "at rest"
+    s_exp, w = res.particles.stress, res.particles.volume0
+    for kw in (dict(gravity_phase="geostatic"), dict(gravity_phase="dynamic", load_steps=1)):
+        _, pts, rec = _run(scene, scheme="implicit", dynamic=False, **kw)
+        err = _rel_l2(pts.stress, s_exp, w)
+        assert err < 0.05, (kw, err)
+
+
+# ------------------------------------------------------------------ 6. loud failure
+def _compaction_file(tmp_path, **solver):
+    text = (MESHES / "compaction.toml").read_text()
+    for k, v in solver.items():
+        lines = [ln for ln in text.splitlines() if not ln.startswith(f"{k} ")]
+        text = "\n".join(lines) + "\n"
+        text = text.replace("[solver]\n", f"[solver]\n{k} = {json.dumps(v)}\n")
+    p = tmp_path / "scene.toml"
+    p.write_text(text)
+    return p
+
+
+def test_forced_nonconvergence_fails_loudly_and_keeps_output(tmp_path, capsys):
+    """Issue 3 acceptance 6: a run that cannot converge (Q4 compaction, max_iterations = 4,
+    no cuts: a step with cell crossing needs 5) stops with exit code 3, a one-line error
+    naming the step, the residual history and what to change; summary.json holds the
+    error and every converged step's residuals; the VTK series holds the initial state
+    and each converged step, all finite."""
+    scene_file = _compaction_file(tmp_path, shape="standard", max_iterations=4, max_cuts=0)
+    out = tmp_path / "run"
+    code = main(["run", str(scene_file), "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 3
+    assert "Newton did not converge" in err and "load step" in err
+    assert "relative residuals of the last attempt" in err and "max_iterations (now 4)" in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and "Newton did not converge" in summary["error"]
+    solver = summary["solver"]
+    k = solver["last_converged_step"]
+    assert k >= 1 and len(solver["steps"]) == k
+    assert all(s["residuals"][-1] <= 1e-9 for s in solver["steps"])
+    assert len(solver["failed_residuals"]) == 5
+    vtus = sorted(out.glob("particles_*.vtu"))
+    assert len(vtus) == k + 1
+    last = meshio.read(vtus[-1])
+    for v in last.point_data.values():
+        assert np.all(np.isfinite(v))
+
+
+def test_step_cutting_recovers_and_is_recorded():
+    """A step that needs 4 iterations with max_iterations = 3 is halved until it converges
+    (soft column, one load step): the run succeeds, the cuts are recorded per step, and
+    the settlement still meets the closed form within 1 %."""
+    scene = load_scene(MESHES / "soft_column.toml")
+    _, pts, rec = _run(scene, load_steps=1, max_iterations=3)
+    steps = rec.solver["steps"]
+    assert rec.solver["cuts_total"] >= 1 and len(steps) > 1
+    assert abs(sum(s["size"] for s in steps) - 1.0) < 1e-12
+    top = np.argmax(pts.x0[:, 1])
+    ua = _hencky_settlement(pts.x0[top, 1], 20.0, scene.soils[0].constrained_modulus, 10.0)
+    assert abs(pts.displacement[top, 1] / ua - 1) < 0.01
+
+
+def test_summary_json_holds_residual_history(tmp_path):
+    """DESIGN section 5 / issue 3: summary.json has the solver statistics: every step with
+    its residual history, iterations and the time split per Newton iteration."""
+    scene = _solver(load_scene(MESHES / "soft_column.toml"), load_steps=2)
+    api.run(scene, out=tmp_path, figures=False)
+    s = json.loads((tmp_path / "summary.json").read_text())["solver"]
+    assert len(s["steps"]) == 2 and all(st["residuals"][0] > st["residuals"][-1] for st in s["steps"])
+    assert set(s["ms_per_iteration"]) == {"setup", "material", "assembly", "solve"}
+    assert s["iterations_total"] == sum(st["iterations"] for st in s["steps"])
+    assert len(list(tmp_path.glob("particles_*.vtu"))) == 3
+
+
+# ------------------------------------------------------------------ linear solvers, dynamics
+def test_pyamg_solver_matches_superlu():
+    """The pyamg option (smoothed aggregation with rigid-body modes, as a CG
+    preconditioner) gives the SuperLU solution of the elastic slope's geostatic step."""
+    scene = load_scene(MESHES / "slope_elastic.toml")
+    kw = dict(scheme="implicit", gravity_phase="geostatic", dynamic=False)
+    _, p1, _ = _run(scene, linear_solver="superlu", **kw)
+    _, p2, rec = _run(scene, linear_solver="pyamg", **kw)
+    d = np.linalg.norm(p1.u_geostatic - p2.u_geostatic) / np.linalg.norm(p1.u_geostatic)
+    assert d < 1e-8 and rec.solver["steps"][0]["residuals"][-1] < 1e-9
+
+
+def test_newmark_sudden_gravity_on_stiff_column():
+    """Newmark trapezoidal (beta 1/4, gamma 1/2) on a stiff elastic column (E = 1e5 kPa,
+    small strain) under suddenly applied gravity: the undamped response swings to twice
+    the static settlement (1-D wave solution: u_max = 2 u_static) with the period of the
+    first mode T = 4 H / c_p (DESIGN section 7: c_p = sqrt(M / rho))."""
+    scene = load_scene(MESHES / "column.toml")
+    scene = dataclasses.replace(scene, soils=(dataclasses.replace(scene.soils[0],
+                                                                  youngs_modulus=1e5),))
+    M = scene.soils[0].constrained_modulus
+    T = 4 * 5.0 / np.sqrt(M / (20.0 / 9.81))
+    scene = _solver(scene, scheme="implicit", dynamic=True, gravity_phase="dynamic",
+                    gravity_ramp_time=0.0, dt=T / 40, t_end=1.5 * T, output_interval=T / 40)
+    grid = make_grid(scene)
+    pts = seed_particles(scene, grid)
+    top = np.argmax(pts.x0[:, 1])
+    hist = []
+    imp.run_implicit(scene, grid, pts, on_output=lambda t, p: hist.append(
+        (t, p.displacement[top, 1])))
+    t, u = np.array(hist).T
+    Y = pts.x0[top, 1]
+    u_static = -(20.0 / M) * (5.0 * Y - Y * Y / 2)
+    assert abs(u.min() / (2 * u_static) - 1) < 0.03
+    t_min = t[np.argmin(u[t < T])]
+    assert abs(t_min / (T / 2) - 1) < 0.1
+    assert np.all(np.isfinite(pts.stress))
