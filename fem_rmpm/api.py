@@ -131,8 +131,9 @@ def _summary(scene, seed, pts, rec, measures) -> dict:
 
 def _figures(out, scene, grid, snapshots, measures):
     from .plots import plot_profile, plot_snapshots
-    k = len(snapshots)
-    pick = sorted({0, k // 3, (2 * k) // 3, k - 1}) if k > 4 else list(range(k))
+    times = np.array([t for t, *_ in snapshots])
+    targets = times[-1] * np.array([0.0, 0.1, 0.25, 0.5, 1.0])   # early failure in detail
+    pick = sorted({int(np.argmin(np.abs(times - tt))) for tt in targets})
     spacing = float(np.min(grid.cell)) / 2
     plot_snapshots(out / "plastic_shear_strain.png", [snapshots[i] for i in pick],
                    scene.scene.frame_angle_deg, spacing, title=scene.scene.name)

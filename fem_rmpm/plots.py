@@ -35,7 +35,8 @@ def plot_snapshots(path: str | Path, snapshots: list[tuple[float, np.ndarray, np
     plt = _plt()
     n = len(snapshots)
     allX = np.vstack([to_true_frame(x, frame_angle_deg) for _, x, _ in snapshots])
-    vmax = vmax if vmax is not None else max(float(np.max([v.max() for *_, v in snapshots])), 1e-9)
+    if vmax is None:   # the literature's contour range: localised bands stand out at ~1
+        vmax = min(1.0, max(float(np.max([v.max() for *_, v in snapshots])), 1e-9))
     fig, axes = plt.subplots(n, 1, figsize=(11, 1.0 + 2.1 * n), squeeze=False, sharex=True)
     for ax, (t, x, v) in zip(axes[:, 0], snapshots):
         X = to_true_frame(x, frame_angle_deg)
@@ -46,7 +47,7 @@ def plot_snapshots(path: str | Path, snapshots: list[tuple[float, np.ndarray, np
         ax.set_ylabel("Y (m)")
         ax.set_title(f"t = {t:.2f} s", fontsize=9, loc="left")
     axes[-1, 0].set_xlabel("X, true horizontal (m)")
-    fig.colorbar(sc, ax=axes[:, 0].tolist(), label=label, shrink=0.8)
+    fig.colorbar(sc, ax=axes[:, 0].tolist(), label=label, shrink=0.8, extend="max")
     if title:
         fig.suptitle(title)
     fig.savefig(path, dpi=110)
