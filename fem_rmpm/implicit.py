@@ -95,13 +95,12 @@ from .particles import Particles
 from .scene import Scene, SceneError
 from .shape import shape_at_points
 
-__all__ = ["small_strain_tangent", "finite_strain_tangent", "StepSystem", "LinearSolver", "NewtonFailure", "newton",
+__all__ = ["small_strain_tangent", "finite_strain_tangent", "elastic_left_cauchy_green", "StepSystem", "LinearSolver", "NewtonFailure", "newton",
            "NewtonResult", "run_implicit", "skfem_tangent_form", "skfem_force_form",
            "skfem_assemble", "rigid_body_modes"]
 
 _MASS_TOL = 1e-14
 _EYE = np.eye(2)
-_EINSUM_PATH = ["einsum_path", (0, 1), (0, 1)]   # (g A) first, then with g
 
 
 # ----------------------------------------------------------------------------- material
@@ -127,8 +126,7 @@ def small_strain_tangent(grad_du: np.ndarray, log_strain: np.ndarray, gamma_p: n
     e3[:n, 0] += 1j * step
     e3[n:2 * n, 1] += 1j * step
     e3[2 * n:, 3] += 0.5j * step
-    idx = np.tile(np.arange(n), 3)
-    d = (_stress_of(e3, np.tile(gamma_p, 3) + 0j, soil.take(idx)).imag / step).reshape(3, n, 4)
+    d = _stress_derivative(e3, gamma_p, soil, step).reshape(3, n, 4)
     D = np.empty((n, 2, 2, 2, 2))
     for k, (l, m) in enumerate(((0, 0), (1, 1), (0, 1))):
         D[:, 0, 0, l, m], D[:, 1, 1, l, m] = d[k, :, 0], d[k, :, 1]
@@ -152,8 +150,38 @@ def _stress_of(eps: np.ndarray, gamma_p: np.ndarray, soil: SoilPoints) -> np.nda
     return tau
 
 
+def _stress_derivative(eps_c: np.ndarray, gamma_p: np.ndarray, soil: SoilPoints,
+                       step: float) -> np.ndarray:
+    """``Im tau(eps_c) / step`` for 3 stacked complex-step perturbations (3n, 4) of n
+    points: the directional derivatives of the Kirchhoff stress.  Linear elastic points
+    (no strength) are linear in the strain, so their derivative is
+    ``kirchhoff_stress(Im eps_c) / step`` in real arithmetic; the others go through the
+    complex return mapping of :mod:`fem_rmpm.material`."""
+    n = len(gamma_p)
+    elastic = ~np.isfinite(soil.cohesion_peak) & ~np.isfinite(soil.cohesion_residual)
+    d = np.empty((3 * n, 4))
+    for k in range(3):
+        d[k * n:(k + 1) * n] = kirchhoff_stress(eps_c[k * n:(k + 1) * n].imag, soil) / step
+    if not elastic.all():
+        idx = np.nonzero(~elastic)[0]
+        sp_ = soil.take(idx)
+        for k in range(3):
+            e = eps_c[k * n + idx]
+            d[k * n + idx] = _return_map(e, gamma_p[idx] + 0 * e[:, 0], sp_)[2].imag / step
+    return d
+
+
+def elastic_left_cauchy_green(log_strain: np.ndarray) -> np.ndarray:
+    """``b_e = exp(2 eps_e)`` (n, 2, 2) in-plane, from the stored log strain (n, 4)."""
+    bxx, byy, bxy = exp_sym2(log_strain[:, 0], log_strain[:, 1], log_strain[:, 3])
+    B = np.empty((len(log_strain), 2, 2))
+    B[:, 0, 0], B[:, 1, 1], B[:, 0, 1], B[:, 1, 0] = bxx, byy, bxy, bxy
+    return B
+
+
 def finite_strain_tangent(dF: np.ndarray, log_strain: np.ndarray, gamma_p: np.ndarray,
-                          soil: SoilPoints, step: float = 1e-30):
+                          soil: SoilPoints, step: float = 1e-30, b_e: np.ndarray | None = None,
+                          tau: np.ndarray | None = None):
     """Same ``(tau, A)`` as :func:`fem_rmpm.material.spatial_tangent`, about 3x faster.
 
     ``A_ijlm = d tau_ij / d(grad_x du)_lm - delta_jl tau_im`` where a perturbation
@@ -163,37 +191,40 @@ def finite_strain_tangent(dF: np.ndarray, log_strain: np.ndarray, gamma_p: np.nd
     ``b = (I + i h S) b_tr (I + i h S)`` formed directly) and its spin ``W``,
     whose effect is exact and analytic for this isotropic law:
     ``tau((I + W) dF) = (I + W) tau (I + W)^T``, i.e. ``d tau = W tau - tau W``.
-    Equality with ``spatial_tangent`` is tested.
+    Equality with ``spatial_tangent`` is tested.  Within a Newton step ``b_e``
+    (:func:`elastic_left_cauchy_green` of the step-start strain) and ``tau`` (from the
+    residual evaluation at the same ``dF``) may be passed in to save their evaluation.
     """
     n = dF.shape[0]
-    bxx, byy, bxy = exp_sym2(log_strain[:, 0], log_strain[:, 1], log_strain[:, 3])
-    B = np.empty((n, 2, 2))
-    B[:, 0, 0], B[:, 1, 1], B[:, 0, 1], B[:, 1, 0] = bxx, byy, bxy, bxy
+    B = elastic_left_cauchy_green(log_strain) if b_e is None else b_e
     btr = dF @ B @ np.swapaxes(dF, 1, 2)
     btr = 0.5 * (btr + np.swapaxes(btr, 1, 2))
-    exx, eyy, exy = log_sym2(btr[:, 0, 0], btr[:, 1, 1], btr[:, 0, 1])
-    eps_tr = np.stack([exx, eyy, log_strain[:, 2], exy], axis=1)
-    tau = _stress_of(eps_tr, gamma_p, soil)
+    if tau is None:
+        exx, eyy, exy = log_sym2(btr[:, 0, 0], btr[:, 1, 1], btr[:, 0, 1])
+        eps_tr = np.stack([exx, eyy, log_strain[:, 2], exy], axis=1)
+        tau = _stress_of(eps_tr, gamma_p, soil)
+    b00, b11, b01 = btr[:, 0, 0], btr[:, 1, 1], btr[:, 0, 1]
     # symmetric directions S_00, S_11, (E_01 + E_10)/2: b = b_tr + i h (S b_tr + b_tr S)
-    cxx = np.concatenate([2 * btr[:, 0, 0], 0 * bxx, btr[:, 0, 1]])
-    cyy = np.concatenate([0 * bxx, 2 * btr[:, 1, 1], btr[:, 0, 1]])
-    cxy = np.concatenate([btr[:, 0, 1], btr[:, 0, 1], 0.5 * (btr[:, 0, 0] + btr[:, 1, 1])])
-    t3 = lambda a: np.tile(a, 3)  # noqa: E731
     h = 1j * step
-    exx_c, eyy_c, exy_c = log_sym2(t3(btr[:, 0, 0]) + h * cxx, t3(btr[:, 1, 1]) + h * cyy,
-                                   t3(btr[:, 0, 1]) + h * cxy)
-    idx = np.tile(np.arange(n), 3)
-    eps_c = np.stack([exx_c, eyy_c, t3(log_strain[:, 2]) + 0 * exx_c, exy_c], axis=1)
-    d = (_tensor(_stress_of(eps_c, t3(gamma_p) + 0 * exx_c, soil.take(idx)).imag) / step
-         ).reshape(3, n, 2, 2)
+    axx, ayy, axy = (np.empty(3 * n, dtype=complex) for _ in range(3))
+    axx[:n], ayy[:n], axy[:n] = b00 + 2 * h * b00, b11, b01 + h * b01
+    axx[n:2 * n], ayy[n:2 * n], axy[n:2 * n] = b00, b11 + 2 * h * b11, b01 + h * b01
+    axx[2 * n:], ayy[2 * n:], axy[2 * n:] = b00 + h * b01, b11 + h * b01, b01 + h * 0.5 * (b00 + b11)
+    exx, eyy, exy = log_sym2(axx, ayy, axy)
+    eps_c = np.empty((3 * n, 4), dtype=complex)
+    eps_c[:, 0], eps_c[:, 1], eps_c[:, 3] = exx, eyy, exy
+    eps_c[:, 2] = np.tile(log_strain[:, 2], 3)
+    d = _tensor(_stress_derivative(eps_c, gamma_p, soil, step)).reshape(3, n, 2, 2)
     T = _tensor(tau)
-    # spin W = (E_01 - E_10)/2: d tau = W tau - tau W
-    W = np.array([[0.0, 0.5], [-0.5, 0.0]])
-    dW = W @ T - T @ W
+    # spin W = (E_01 - E_10)/2: d tau = W tau - tau W = [[t01, (t11-t00)/2], [.., -t01]]
+    dW = np.empty((n, 2, 2))
+    dW[:, 0, 0], dW[:, 1, 1] = T[:, 0, 1], -T[:, 0, 1]
+    dW[:, 0, 1] = dW[:, 1, 0] = 0.5 * (T[:, 1, 1] - T[:, 0, 0])
     A = np.empty((n, 2, 2, 2, 2))
     A[..., 0, 0], A[..., 1, 1] = d[0], d[1]
     A[..., 0, 1], A[..., 1, 0] = d[2] + dW, d[2] - dW
-    A -= np.einsum("jl,nim->nijlm", _EYE, T)
+    A[:, :, 0, 0, :] -= T                                     # - delta_jl tau_im
+    A[:, :, 1, 1, :] -= T
     return tau, A
 
 
@@ -255,9 +286,11 @@ class StepSystem:
         self.group_sum = sp.csr_matrix((np.ones(n), (inv, np.arange(n))), shape=(ng, n))
         first = np.zeros(ng, dtype=np.int64)
         first[inv] = np.arange(n)                                  # a representative point
-        gd = fnum[self.point_dofs[first]]                          # (ng, 2k) free index or -1
-        rows = np.repeat(gd[:, :, None], 2 * k, axis=2).ravel()
-        cols = np.repeat(gd[:, None, :], 2 * k, axis=1).ravel()
+        gd = fnum[self.point_dofs[first]].reshape(ng, k, 2)        # free index or -1
+        # block entries are laid out [a, i, l, b]: row dof (a, i), column dof (b, l)
+        rows = np.broadcast_to(gd[:, :, :, None, None], (ng, k, 2, 2, k)).ravel()
+        cols = np.broadcast_to(np.swapaxes(gd, 1, 2)[:, None, None, :, :],
+                               (ng, k, 2, 2, k)).ravel()
         keep = (rows >= 0) & (cols >= 0)
         self._keep = keep
         key = rows[keep] * nf + cols[keep]
@@ -319,9 +352,11 @@ class StepSystem:
         is a free-DOF vector (e.g. the Newmark mass term 4 m / dt^2).
         """
         n, k = self.n, self.k
-        # Ke[p, a, i, b, l] = V0_p g_aj A_ijlm g_bm (einsum picks the contraction order)
-        Ke = np.einsum("paj,pijlm,pbm->paibl", g * V0[:, None, None], A, g,
-                       optimize=_EINSUM_PATH).reshape(n, 4 * k * k)
+        # Ke[p, a, i, l, b] = V0_p g_aj A_ijlm g_bm, two batched matmuls:
+        # (g A)[p, a, (i, l, m)] = g[p, a, j] A[p, j, (i, l, m)], then contract m with g_bm
+        Aj = np.ascontiguousarray(A.transpose(0, 2, 1, 3, 4)).reshape(n, 2, 8)
+        gA = np.matmul(g * V0[:, None, None], Aj).reshape(n, 4 * k, 2)
+        Ke = np.matmul(gA, np.swapaxes(g, 1, 2)).reshape(n, 4 * k * k)
         Kg = self.group_sum @ Ke                                          # per node set
         data = np.bincount(self._pos, Kg.ravel()[self._keep], minlength=self.nnz)
         K = sp.csr_matrix((data, self._indices, self._indptr), shape=(self.n_free, self.n_free))
@@ -479,7 +514,10 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
     ref0 = None
     last_delta = 0.0
     for it in range(max_iterations + 1):
-        R, ref, state = evaluate(du)
+        try:
+            R, ref, state = evaluate(du)
+        except NewtonFailure as exc:
+            raise NewtonFailure(exc.reason, res) from None
         rn = float(np.linalg.norm(R))
         if ref0 is None:
             ref0 = max(ref, rn)
@@ -487,6 +525,8 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         res.append(r)
         if not math.isfinite(r):
             raise NewtonFailure("non-finite residual", res)
+        if r > 1e3 * max(1.0, res[0]):
+            raise NewtonFailure("diverging (residual grew 1000-fold)", res)
         # correction the next iteration would make, |delta_k| r_{k+1} / r_k
         predicted = last_delta * r / res[-2] if it > 0 and res[-2] > 0 else 0.0
         if r <= tol and predicted <= math.sqrt(tol) * float(np.linalg.norm(du)):
@@ -526,6 +566,9 @@ class _Stepper:
     def _setup(self):
         pts = self.pts
         act = np.nonzero(pts.active)[0]
+        if len(act) == 0:
+            raise SimulationError("no active material point left (all frozen at the grid "
+                                  "edge); enlarge [grid] size")
         sys_ = StepSystem(self.grid, pts.x[act], self.sv.shape,
                           pts.half_width[act] if pts.half_width is not None else None)
         return act, sys_
@@ -576,7 +619,7 @@ class _Stepper:
                 ls, gp, tau = stress_update(dF, ls0, gp0, soil)
                 t2 = time.perf_counter()
                 g = np.matmul(S.dN, Finv)
-                cache.update(H=H, dF=dF, g=g)
+                cache.update(H=H, dF=dF, g=g, tau=tau)
             f_int = S.internal_force(V0, tau, g)
             clock["material"] += t2 - t1
             clock["assembly"] += time.perf_counter() - t0 - (t2 - t1)
@@ -592,7 +635,10 @@ class _Stepper:
             if kind == "geostatic":
                 _, A = small_strain_tangent(cache["H"], ls0, gp0, soil)
             else:
-                _, A = finite_strain_tangent(cache["dF"], ls0, gp0, soil)
+                if "b_e" not in cache:
+                    cache["b_e"] = elastic_left_cauchy_green(ls0)
+                _, A = finite_strain_tangent(cache["dF"], ls0, gp0, soil, b_e=cache["b_e"],
+                                             tau=cache["tau"])
             t1 = time.perf_counter()
             K = S.tangent(V0, cache["g"], A, diagonal=(c * m_free) if dyn else None)
             clock["material"] += t1 - t0

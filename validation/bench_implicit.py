@@ -1,0 +1,125 @@
+"""Time per Newton iteration of the implicit MPM, split into its parts (issue 3, acceptance 7).
+
+The elastic reference slope (meshes/slope_elastic.toml: 4575 Q4 soil elements of
+0.25 m, 18 300 points) and the same slope at 1/13 m cells (48 300 elements, 193 000
+points), gravity applied in one quasi-static large-deformation load step (4 full Newton
+iterations), with SuperLU (MMD_AT_PLUS_A) and with pyamg (smoothed aggregation with the
+rigid-body modes as near-null space, CG).  Per iteration:
+
+* setup     -- basis at the points, DOF numbering, sparsity pattern (once per step,
+               shown per iteration);
+* material  -- stress update and consistent tangent at every point (complex step);
+* assembly  -- kinematics, internal force and the tangent matrix (vectorised numpy);
+* solve     -- factorisation + solve (SuperLU) or AMG setup + CG (pyamg).
+
+Also times scikit-fem's ``asm`` of the same tangent (material points as quadrature,
+``implicit.skfem_assemble``), the reference the vectorised path is tested against.
+Writes ``validation/out/bench_implicit.json``.  Each case is run ``--repeat`` times and
+the fastest run is reported (the machine is shared).  Run:
+``nice python validation/bench_implicit.py`` (a few minutes; ``--small`` for 4600 only).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from fem_rmpm.grid import make_grid
+from fem_rmpm.implicit import StepSystem, finite_strain_tangent, run_implicit, skfem_assemble
+from fem_rmpm.particles import seed_particles, soil_cells
+from fem_rmpm.scene import load_scene
+
+HERE = Path(__file__).parent
+OUT = HERE / "out"
+
+
+def scene_at(cell: float, solver: str):
+    scene = load_scene(HERE.parent / "meshes" / "slope_elastic.toml")
+    return dataclasses.replace(
+        scene, grid=dataclasses.replace(scene.grid, cell=(cell, cell)),
+        solver=dataclasses.replace(scene.solver, scheme="implicit", dynamic=False,
+                                   gravity_phase="dynamic", load_steps=1, linear_solver=solver))
+
+
+def one_run(cell: float, solver: str) -> dict:
+    scene = scene_at(cell, solver)
+    grid = make_grid(scene)
+    pts = seed_particles(scene, grid)
+    t0 = time.perf_counter()
+    rec = run_implicit(scene, grid, pts)
+    wall = time.perf_counter() - t0
+    s = rec.solver
+    ms = s["ms_per_iteration"]
+    total = sum(ms.values())
+    return {"cell_m": cell, "elements": int((soil_cells(scene, grid) >= 0).sum()),
+            "points": pts.n, "free_dofs": None, "solver": solver,
+            "iterations": s["iterations_total"], "residuals": s["steps"][0]["residuals"],
+            "ms_per_iteration": ms, "ms_total_per_iteration": total,
+            "assembly_share": ms["assembly"] / total,
+            "material_plus_assembly_share": (ms["assembly"] + ms["material"]) / total,
+            "wall_s": wall, "max_displacement_m": float(np.abs(pts.displacement).max())}
+
+
+def skfem_vs_fast(cell: float) -> dict:
+    """One tangent + internal force by skfem.asm and by the vectorised path (same state)."""
+    scene = scene_at(cell, "superlu")
+    grid = make_grid(scene)
+    pts = seed_particles(scene, grid)
+    rng = np.random.default_rng(0)
+    dF = np.eye(2) + 1e-3 * rng.normal(size=(pts.n, 2, 2))
+    tau, A = finite_strain_tangent(dF, pts.log_strain, pts.plastic_shear_strain, pts.soil)
+    t0 = time.perf_counter()
+    S = StepSystem(grid, pts.x)
+    t1 = time.perf_counter()
+    g = np.matmul(S.dN, np.linalg.inv(dF))
+    K = S.tangent(pts.volume0, g, A)
+    f = S.internal_force(pts.volume0, tau, g)
+    t2 = time.perf_counter()
+    Ks, fs = skfem_assemble(grid, pts.x, pts.volume0, dF, tau, A)
+    t3 = time.perf_counter()
+    Ks = Ks[S.free_dofs][:, S.free_dofs]
+    return {"cell_m": cell, "points": pts.n, "fast_setup_ms": 1e3 * (t1 - t0),
+            "fast_tangent_and_force_ms": 1e3 * (t2 - t1), "skfem_asm_ms": 1e3 * (t3 - t2),
+            "max_rel_difference": float(abs(K - Ks).max() / abs(Ks).max()),
+            "force_rel_difference": float(np.abs(f - fs[S.free_dofs]).max() / np.abs(fs).max())}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--small", action="store_true", help="only the 4600-element slope")
+    ap.add_argument("--repeat", type=int, default=2)
+    a = ap.parse_args()
+    OUT.mkdir(exist_ok=True)
+    cells = [0.25] if a.small else [0.25, 1 / 13]
+    rows = []
+    print(f"{'elements':>8} {'points':>7} {'solver':>8} {'its':>3} {'setup':>7} {'material':>8} "
+          f"{'assembly':>8} {'solve':>8} {'total':>8}  ms per Newton iteration (asm share)")
+    for cell in cells:
+        for solver in ("superlu", "pyamg"):
+            runs = [one_run(cell, solver) for _ in range(a.repeat if cell > 0.1 else 1)]
+            r = min(runs, key=lambda x: x["ms_total_per_iteration"])
+            rows.append(r)
+            m = r["ms_per_iteration"]
+            print(f"{r['elements']:8d} {r['points']:7d} {solver:>8} {r['iterations']:3d} "
+                  f"{m['setup']:7.1f} {m['material']:8.1f} {m['assembly']:8.1f} "
+                  f"{m['solve']:8.1f} {r['ms_total_per_iteration']:8.1f}  "
+                  f"({100 * r['assembly_share']:.0f} % assembly, "
+                  f"{100 * r['material_plus_assembly_share']:.0f} % with material)", flush=True)
+    comp = skfem_vs_fast(0.25)
+    print(f"tangent + internal force at {comp['points']} points: vectorised "
+          f"{comp['fast_tangent_and_force_ms']:.1f} ms (+ {comp['fast_setup_ms']:.1f} ms setup "
+          f"per step), skfem.asm {comp['skfem_asm_ms']:.1f} ms; max relative difference "
+          f"{comp['max_rel_difference']:.1e} (K), {comp['force_rel_difference']:.1e} (f)")
+    result = {"cases": rows, "skfem_vs_vectorised": comp,
+              "machine": {"python": platform.python_version(), "node": platform.machine()}}
+    (OUT / "bench_implicit.json").write_text(json.dumps(result, indent=2))
+    print(f"wrote {OUT / 'bench_implicit.json'}")
+
+
+if __name__ == "__main__":
+    main()
