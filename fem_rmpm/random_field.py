@@ -659,10 +659,12 @@ class Measurements:
     value: np.ndarray
     source: str
     rows: np.ndarray          # CSV line numbers (for messages)
+    group: np.ndarray | None = None   # optional column "group" (site labels, for fit_scales)
 
 
 def read_measurements(path, key: str = "random_field.data") -> Measurements:
-    """Read a CSV with a header naming columns ``x``, ``y``, ``value`` (others ignored).
+    """Read a CSV with a header naming columns ``x``, ``y``, ``value`` (others ignored,
+    except an optional ``group`` of site labels used by the variogram fit).
 
     Raises :class:`SceneError` (one line naming the file, row and column) on a
     missing file or column, an empty table or a value that is not a finite number.
@@ -691,6 +693,8 @@ def read_measurements(path, key: str = "random_field.data") -> Measurements:
                          f"{','.join(header)!r}; allowed: {allowed}")
     col = {c: header.index(c) for c in ("x", "y", "value")}
     vals = {c: [] for c in col}
+    gcol = header.index("group") if "group" in header else None
+    groups = []
     rows = []
     for lineno, row in enumerate(csv.reader(lines[start:]), start + 1):
         if not row or not any(c.strip() for c in row) or row[0].lstrip().startswith("#"):
@@ -706,11 +710,14 @@ def read_measurements(path, key: str = "random_field.data") -> Measurements:
                 raise SceneError(f"{src}: [{key}] row {lineno}: column {c} is {raw!r}; "
                                  "allowed: finite numbers")
             vals[c].append(v)
+        if gcol is not None:
+            groups.append(row[gcol].strip() if gcol < len(row) else "")
         rows.append(lineno)
     if not rows:
         raise SceneError(f"{src}: [{key}] no data rows; allowed: {allowed}")
     return Measurements(x=np.array(vals["x"]), y=np.array(vals["y"]),
-                        value=np.array(vals["value"]), source=src, rows=np.array(rows))
+                        value=np.array(vals["value"]), source=src, rows=np.array(rows),
+                        group=np.array(groups) if gcol is not None else None)
 
 
 def _resolve_data_path(scene: Scene, data) -> Path | None:
@@ -849,14 +856,21 @@ def _levels(c: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def empirical_variogram(x, y, v, axis: int, max_lag: float | None = None,
-                        min_pairs: int = 30) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        min_pairs: int = 30, group=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Semivariogram along ``axis`` (0: x, 1: y) from pairs on the same row (column).
 
-    Returns (lag centres m, gamma, pair counts); lags binned at the median spacing.
+    Rows (columns) are clusters of the other coordinate separated by more than
+    half its median spacing.  ``group`` (optional labels): pairs only within a
+    group (separate sites or realizations).  Returns (lag m, gamma, pair counts);
+    lags binned at the median spacing along the axis, bins with fewer than
+    ``min_pairs`` pairs and lags beyond ``max_lag`` (default half the extent) dropped.
     """
     x, y, v = (np.asarray(a, float) for a in (x, y, v))
     along, across = (x, y) if axis == 0 else (y, x)
     lev, _ = _levels(across)
+    if group is not None:
+        _, gid = np.unique(np.asarray(group), return_inverse=True)
+        lev = gid.ravel().astype(np.int64) * (int(lev.max()) + 1) + lev
     order = np.lexsort((along, lev))
     a, vv, lv = along[order], v[order], lev[order]
     bounds = np.r_[0, np.nonzero(np.diff(lv))[0] + 1, len(lv)]
@@ -915,13 +929,15 @@ class FitResult:
 
 
 def fit_scales(x, y, v, log: bool = False, source: str = "<data>",
-               max_lag: tuple[float | None, float | None] = (None, None)) -> FitResult:
+               max_lag: tuple[float | None, float | None] = (None, None),
+               group=None) -> FitResult:
     """Estimate ``theta_v`` and ``theta_h`` (m) by fitting the Markov semivariogram.
 
     ``gamma(h) = s^2 (1 - exp(-2 h / theta))`` with a common sill ``s^2`` to the
     empirical semivariograms along x (theta_h) and y (theta_v), Cressie (1985)
     weights ``N(h) (gamma_hat / gamma - 1)^2``.  Data in the grid frame with the
-    layering along x; ``log``: fit ``ln v`` (lognormal field).
+    layering along x; ``log``: fit ``ln v`` (lognormal field); ``group``: labels of
+    independent sites (pairs are formed within a group only).
     """
     from scipy.optimize import least_squares
     v = np.asarray(v, float)
@@ -930,8 +946,8 @@ def fit_scales(x, y, v, log: bool = False, source: str = "<data>",
             raise SceneError(f"{source}: [fit] values must be > 0 for a lognormal field; "
                              "allowed: positive values")
         v = np.log(v)
-    hx, gx, nx_ = empirical_variogram(x, y, v, 0, max_lag[0])
-    hy, gy, ny_ = empirical_variogram(x, y, v, 1, max_lag[1])
+    hx, gx, nx_ = empirical_variogram(x, y, v, 0, max_lag[0], group=group)
+    hy, gy, ny_ = empirical_variogram(x, y, v, 1, max_lag[1], group=group)
     if len(hx) < 2 or len(hy) < 2:
         which = "x (points on common rows)" if len(hx) < 2 else "y (points on common columns)"
         raise SceneError(f"{source}: [fit] too few pairs along {which} for a variogram "
@@ -1015,7 +1031,7 @@ def field_cli(args) -> int:
     if getattr(args, "fit", None):
         meas = read_measurements(args.fit, key="fit")
         fit = fit_scales(meas.x, meas.y, meas.value, log=rf.distribution == "lognormal",
-                         source=meas.source)
+                         source=meas.source, group=meas.group)
         write_json(out / "fit.json", {"data": meas.source, **fit.as_dict()})
         _plot_variogram(out / "variogram.png", fit, f"{Path(meas.source).name}: Markov fit")
         print(f"fit of {meas.source}: theta_v = {fit.theta_v:.4g} m, theta_h = "
