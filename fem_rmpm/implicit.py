@@ -32,7 +32,9 @@ Three kinds of step share one Newton solver (:class:`StepSystem` + :func:`newton
   the positive diagonal also keeps the tangent regular at nodes with little
   stiffness support.  Points: ``x += N du``, ``a_p = N a_{n+1}``, and the
   velocity is updated FLIP-like, ``v_p += N (v_{n+1} - v_n)`` blended with PIC
-  by ``[solver] flip``.
+  by ``[solver] flip``.  The scheme has no numerical dissipation and
+  ``[solver] damping`` (the explicit scheme's local damping) is not used: a
+  dynamic run comes to rest only through plastic dissipation.
 * **Geostatic steps** (``gravity_phase = "geostatic"``): gravity on the fixed
   in-situ geometry, small strain (:func:`fem_rmpm.material.small_strain_update`),
   points do not move (the displacement goes to ``pts.u_geostatic``).  The
@@ -49,8 +51,11 @@ and the forms :func:`skfem_tangent_form` / :func:`skfem_force_form` assemble
 numpy path (:meth:`StepSystem.tangent`) which evaluates the same sums from the
 fast Q4 (or uGIMP) basis of :mod:`fem_rmpm.shape`: per-point 8x8 blocks summed
 per node set, then one CSR build of the free DOFs only.  ``tests/test_implicit.py``
-checks the two agree to round-off; scikit-fem's ``asm`` is ~10x slower here
-(``validation/bench_implicit.py`` measures both).
+checks the two agree to round-off; scikit-fem's ``asm`` is 25-50x slower here
+(``validation/bench_implicit.py`` measures both).  The consistent tangent is
+:func:`finite_strain_tangent`: the same complex-step derivative of the same
+update as :func:`fem_rmpm.material.spatial_tangent` (tested equal), about 3x
+faster.
 
 **Convergence** (defaults from the scene): a step has converged when the
 relative residual ``r = |R_free| / max(|f_ext_free|, |R_0|) <= tolerance``
@@ -71,17 +76,26 @@ LU of the free-DOF tangent with ``permc_spec = "MMD_AT_PLUS_A"`` (about 2x the
 default ordering on these 2-D meshes); ``"pyamg"``: conjugate gradients
 preconditioned by pyamg smoothed aggregation whose near-null space is the three
 2-D rigid-body modes (the default constant vectors fail to converge on
-elasticity); the hierarchy is built once per step and reused by its Newton
-iterations; GMRES takes over if CG fails (softening makes the tangent
-indefinite).  The inner tolerance follows the residual (inexact Newton with
-forcing term ``min(1e-3, max(1e-12, 0.1 r_k))``), which keeps the outer
-convergence quadratic.
+elasticity) and a sparse-LU coarse solve; the hierarchy is built once per step
+and reused by its Newton iterations; GMRES takes over if CG fails (softening
+makes the tangent indefinite).  SuperLU wins up to ~10^4 DOFs, pyamg from
+~10^5 (``validation/bench_implicit.py``).  The inner tolerance follows the
+residual (inexact Newton with forcing term ``min(1e-3, max(1e-12, 0.1 r_k))``),
+which keeps the outer convergence quadratic.
+
+**Basis** (``[solver] shape``): with the standard Q4 basis the points sit on
+the Gauss points only in the first step; once they move, cell crossing makes
+the point-quadrature error O(1) (a cell holds 3 or 5 points instead of 4) and
+it accumulates over load steps: the soft column (meshes/soft_column.toml)
+settles 7 % too much in 10 Q4 load steps and the compaction error stalls near
+4 % under refinement, while uGIMP (``shape = "gimp"``) converges
+(``validation/compaction.py``).  Use uGIMP for large deformation.
 """
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -95,8 +109,8 @@ from .particles import Particles
 from .scene import Scene, SceneError
 from .shape import shape_at_points
 
-__all__ = ["small_strain_tangent", "finite_strain_tangent", "elastic_left_cauchy_green", "StepSystem", "LinearSolver", "NewtonFailure", "newton",
-           "NewtonResult", "run_implicit", "skfem_tangent_form", "skfem_force_form",
+__all__ = ["small_strain_tangent", "finite_strain_tangent", "elastic_left_cauchy_green",
+           "StepSystem", "LinearSolver", "NewtonFailure", "newton", "NewtonResult", "run_implicit", "skfem_tangent_form", "skfem_force_form",
            "skfem_assemble", "rigid_body_modes"]
 
 _MASS_TOL = 1e-14
@@ -209,7 +223,8 @@ def finite_strain_tangent(dF: np.ndarray, log_strain: np.ndarray, gamma_p: np.nd
     axx, ayy, axy = (np.empty(3 * n, dtype=complex) for _ in range(3))
     axx[:n], ayy[:n], axy[:n] = b00 + 2 * h * b00, b11, b01 + h * b01
     axx[n:2 * n], ayy[n:2 * n], axy[n:2 * n] = b00, b11 + 2 * h * b11, b01 + h * b01
-    axx[2 * n:], ayy[2 * n:], axy[2 * n:] = b00 + h * b01, b11 + h * b01, b01 + h * 0.5 * (b00 + b11)
+    axx[2 * n:], ayy[2 * n:] = b00 + h * b01, b11 + h * b01
+    axy[2 * n:] = b01 + h * 0.5 * (b00 + b11)
     exx, eyy, exy = log_sym2(axx, ayy, axy)
     eps_c = np.empty((3 * n, 4), dtype=complex)
     eps_c[:, 0], eps_c[:, 1], eps_c[:, 3] = exx, eyy, exy
@@ -467,7 +482,8 @@ class LinearSolver:
         from scipy.sparse.linalg import cg, gmres
         if self._ml is None:
             B = modes() if callable(modes) else modes
-            self._ml = pyamg.smoothed_aggregation_solver(K, B=B, max_coarse=500)
+            self._ml = pyamg.smoothed_aggregation_solver(K, B=B, max_coarse=500,
+                                                         coarse_solver="splu")
         M = self._ml.aspreconditioner(cycle="V")
         x, info = cg(K, b, rtol=rtol, atol=0.0, maxiter=500, M=M)
         if info != 0 or not np.all(np.isfinite(x)):
@@ -768,10 +784,10 @@ def run_implicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
                 out = stepper.step(kind, gravity_of(pos + h), h if kind == "dynamic" else 0.0)
             except NewtonFailure as f:
                 last = f
+                if cuts >= sv.max_cuts:
+                    fail(kind, label, last, cuts, h)
                 cuts += 1
                 stats["cuts_total"] += 1
-                if cuts > sv.max_cuts:
-                    fail(kind, label, last, cuts - 1, h)
                 size = 0.5 * h
                 continue
             info = out.commit() or {}

@@ -264,42 +264,54 @@ def test_explicit_and_implicit_agree_on_elastic_slope():
 
 
 # ------------------------------------------------------------------ 6. loud failure
-def _compaction_file(tmp_path, **solver):
-    text = (MESHES / "compaction.toml").read_text()
-    for k, v in solver.items():
-        lines = [ln for ln in text.splitlines() if not ln.startswith(f"{k} ")]
-        text = "\n".join(lines) + "\n"
-        text = text.replace("[solver]\n", f"[solver]\n{k} = {json.dumps(v)}\n")
-    p = tmp_path / "scene.toml"
+def _plastic_column_file(tmp_path, max_iterations, max_cuts):
+    """meshes/column.toml with von Mises soil (c = 20 kPa) under implicit geostatic load
+    steps: sqrt(J2) = (1 - K0) gamma (H - y) / sqrt(3) reaches c at the base at a load
+    factor of 0.68, so steps 1-7 of 10 are elastic (linear: one Newton iteration) and
+    step 8 is the first plastic one (two iterations)."""
+    text = (MESHES / "column.toml").read_text()
+    text = text.replace('model = "linear_elastic"', 'model = "von_mises_softening"\n'
+                        'cohesion_peak = 20.0\ncohesion_residual = 20.0')
+    text = text.replace('scheme = "explicit"', 'scheme = "implicit"\nload_steps = 10\n'
+                        f'max_iterations = {max_iterations}\nmax_cuts = {max_cuts}')
+    p = tmp_path / "plastic_column.toml"
     p.write_text(text)
     return p
 
 
 def test_forced_nonconvergence_fails_loudly_and_keeps_output(tmp_path, capsys):
-    """Issue 3 acceptance 6: a run that cannot converge (Q4 compaction, max_iterations = 4,
-    no cuts: a step with cell crossing needs 5) stops with exit code 3, a one-line error
-    naming the step, the residual history and what to change; summary.json holds the
-    error and every converged step's residuals; the VTK series holds the initial state
-    and each converged step, all finite."""
-    scene_file = _compaction_file(tmp_path, shape="standard", max_iterations=4, max_cuts=0)
+    """Issue 3 acceptance 6: a run that cannot converge (plastic column, max_iterations = 1:
+    the elastic steps are linear and converge, the first plastic step needs two iterations,
+    halving it twice does not help) stops with exit code 3 and a one-line error naming the
+    step, the residual history and what to change; summary.json holds the error and every
+    converged step's residuals; the VTK series holds the initial state and each converged
+    step, all finite."""
+    scene_file = _plastic_column_file(tmp_path, max_iterations=1, max_cuts=2)
     out = tmp_path / "run"
     code = main(["run", str(scene_file), "--out", str(out), "--quiet"])
     err = capsys.readouterr().err
     assert code == 3
-    assert "Newton did not converge" in err and "load step" in err
-    assert "relative residuals of the last attempt" in err and "max_iterations (now 4)" in err
+    assert "Newton did not converge after 2 cut(s)" in err and "geostatic step 8 of 10" in err
+    assert "relative residuals of the last attempt" in err and "max_iterations (now 1)" in err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "failed" and "Newton did not converge" in summary["error"]
     solver = summary["solver"]
-    k = solver["last_converged_step"]
-    assert k >= 1 and len(solver["steps"]) == k
-    assert all(s["residuals"][-1] <= 1e-9 for s in solver["steps"])
-    assert len(solver["failed_residuals"]) == 5
+    assert solver["last_converged_step"] == 7 and len(solver["steps"]) == 7
+    assert all(s["residuals"][-1] <= 1e-9 and s["iterations"] == 1 for s in solver["steps"])
+    assert len(solver["failed_residuals"]) == 2 and solver["failed_residuals"][-1] > 1e-9
+    assert solver["cuts_total"] == 2
     vtus = sorted(out.glob("particles_*.vtu"))
-    assert len(vtus) == k + 1
+    assert len(vtus) == 8
     last = meshio.read(vtus[-1])
     for v in last.point_data.values():
         assert np.all(np.isfinite(v))
+    # the last snapshot is the (elastic, Q4) state at load factor 0.7: the cell-constant
+    # sigma_yy of Q4 is exact at the cell centre, -0.7 gamma (H - y_c)
+    y_c = (np.floor(last.points[:, 1] / 0.25) + 0.5) * 0.25
+    assert np.allclose(last.point_data["stress"][:, 1], -0.7 * 20.0 * (5.0 - y_c), rtol=1e-9)
+    # with two iterations allowed the same run completes
+    assert main(["run", str(_plastic_column_file(tmp_path, 2, 0)), "--out",
+                 str(tmp_path / "ok"), "--quiet"]) == 0
 
 
 def test_step_cutting_recovers_and_is_recorded():
@@ -322,7 +334,8 @@ def test_summary_json_holds_residual_history(tmp_path):
     scene = _solver(load_scene(MESHES / "soft_column.toml"), load_steps=2)
     api.run(scene, out=tmp_path, figures=False)
     s = json.loads((tmp_path / "summary.json").read_text())["solver"]
-    assert len(s["steps"]) == 2 and all(st["residuals"][0] > st["residuals"][-1] for st in s["steps"])
+    assert len(s["steps"]) == 2
+    assert all(st["residuals"][0] > st["residuals"][-1] for st in s["steps"])
     assert set(s["ms_per_iteration"]) == {"setup", "material", "assembly", "solve"}
     assert s["iterations_total"] == sum(st["iterations"] for st in s["steps"])
     assert len(list(tmp_path.glob("particles_*.vtu"))) == 3

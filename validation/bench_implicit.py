@@ -15,24 +15,32 @@ rigid-body modes as near-null space, CG).  Per iteration:
 Also times scikit-fem's ``asm`` of the same tangent (material points as quadrature,
 ``implicit.skfem_assemble``), the reference the vectorised path is tested against.
 Writes ``validation/out/bench_implicit.json``.  Each case is run ``--repeat`` times and
-the fastest run is reported (the machine is shared).  Run:
+the fastest time of each part is reported (the machine is shared; all runs are in the JSON).  Run:
 ``nice python validation/bench_implicit.py`` (a few minutes; ``--small`` for 4600 only).
 """
 from __future__ import annotations
 
-import argparse
-import dataclasses
-import json
-import platform
-import time
-from pathlib import Path
+import os
 
-import numpy as np
+# One BLAS thread: on a shared 2-core machine threaded BLAS oversubscribes and makes the
+# dense kernels of SuperLU and of pyamg's coarse solve several times slower (measured).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from fem_rmpm.grid import make_grid
-from fem_rmpm.implicit import StepSystem, finite_strain_tangent, run_implicit, skfem_assemble
-from fem_rmpm.particles import seed_particles, soil_cells
-from fem_rmpm.scene import load_scene
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from fem_rmpm.grid import make_grid  # noqa: E402
+from fem_rmpm.implicit import (StepSystem, finite_strain_tangent, run_implicit,  # noqa: E402
+                               skfem_assemble)
+from fem_rmpm.particles import seed_particles, soil_cells  # noqa: E402
+from fem_rmpm.scene import load_scene  # noqa: E402
 
 HERE = Path(__file__).parent
 OUT = HERE / "out"
@@ -57,7 +65,7 @@ def one_run(cell: float, solver: str) -> dict:
     ms = s["ms_per_iteration"]
     total = sum(ms.values())
     return {"cell_m": cell, "elements": int((soil_cells(scene, grid) >= 0).sum()),
-            "points": pts.n, "free_dofs": None, "solver": solver,
+            "points": pts.n, "solver": solver,
             "iterations": s["iterations_total"], "residuals": s["steps"][0]["residuals"],
             "ms_per_iteration": ms, "ms_total_per_iteration": total,
             "assembly_share": ms["assembly"] / total,
@@ -101,8 +109,15 @@ def main():
           f"{'assembly':>8} {'solve':>8} {'total':>8}  ms per Newton iteration (asm share)")
     for cell in cells:
         for solver in ("superlu", "pyamg"):
-            runs = [one_run(cell, solver) for _ in range(a.repeat if cell > 0.1 else 1)]
-            r = min(runs, key=lambda x: x["ms_total_per_iteration"])
+            runs = [one_run(cell, solver) for _ in range(a.repeat)]
+            r = dict(runs[0])
+            r["ms_per_iteration"] = {k: min(x["ms_per_iteration"][k] for x in runs)
+                                     for k in runs[0]["ms_per_iteration"]}
+            m = r["ms_per_iteration"]
+            r["ms_total_per_iteration"] = total = sum(m.values())
+            r["assembly_share"] = m["assembly"] / total
+            r["material_plus_assembly_share"] = (m["assembly"] + m["material"]) / total
+            r["repeats"] = [x["ms_per_iteration"] for x in runs]
             rows.append(r)
             m = r["ms_per_iteration"]
             print(f"{r['elements']:8d} {r['points']:7d} {solver:>8} {r['iterations']:3d} "
@@ -116,7 +131,9 @@ def main():
           f"per step), skfem.asm {comp['skfem_asm_ms']:.1f} ms; max relative difference "
           f"{comp['max_rel_difference']:.1e} (K), {comp['force_rel_difference']:.1e} (f)")
     result = {"cases": rows, "skfem_vs_vectorised": comp,
-              "machine": {"python": platform.python_version(), "node": platform.machine()}}
+              "machine": {"python": platform.python_version(), "node": platform.machine(),
+                          "cpus": os.cpu_count(), "load_average": os.getloadavg(),
+                          "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS")}}
     (OUT / "bench_implicit.json").write_text(json.dumps(result, indent=2))
     print(f"wrote {OUT / 'bench_implicit.json'}")
 
