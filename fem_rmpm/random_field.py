@@ -51,18 +51,22 @@ truncation error (the table holds the exact ``C`` up to the largest lag in the
 field, ``n - 1 <= m / 2``) and no periodicity error (the periodic lattice is at
 least twice the field, so the wrap-around only touches lags that do not occur
 inside the field).  Padding beyond the minimal ``2 (n - 1)`` (by default two
-correlation lengths per axis, capped) only serves non-negativity; the minimum
-eigenvalue is checked, the padding doubled while it is negative (up to 5
-times), and only negatives below ``1e-10 * lambda_max`` are clipped (reported in
-:attr:`Embedding.clipped`; never needed for the cases measured below).
-Measured: for the reference slope (244 x 20 cells of 0.25 m, theta_v = 0.5 m) the
-minimum eigenvalue is positive already for the minimal embedding for xi = 1, 12
-and 48 (theta_h = 24 m on a 61 m field: lambda_min / lambda_max ~ 3e-5 > 0).
+correlation lengths per axis, capped at ``2 n + 64`` cells) only serves
+non-negativity: the minimum eigenvalue is checked, the padding doubled while it is
+negative (up to 5 times), and only negatives below ``1e-10 * lambda_max`` are
+clipped (reported in :attr:`Embedding.clipped`; zero in every case measured).
+Measured on the reference slope (243 x 20 field cells of 0.25 m, theta_v = 0.5 m,
+local averaging): lambda_min / lambda_max = 7e-3, 1.4e-5 and 2.3e-7 for xi = 1, 12
+and 48 (theta_h = 24 m on the 61 m field), all at the first padding.  Padding
+matters there: the *minimal* embedding of the cell-averaged xi = 48 field has
+negative eigenvalues of -1e-6 lambda_max (the averaged spectrum is tiny at high
+x frequencies, so the kink of the table at the wrap point shows); a field rotated
+against strong layering (xi = 48 at 20 deg) needs a few doublings.
 
 Local averages, exactly
 -----------------------
 ``C(k, l) = int int (1-|s|)(1-|t|) rho((k+s) h1, (l+t) h2) ds dt`` over ``[-1, 1]^2``
-(Vanmarcke 1983, eq. 5.3; the tent is the overlap of two cells).  Separable and
+(Vanmarcke 1983, ch. 5; the tent is the overlap of two cells).  Separable and
 not rotated: closed form, the product of the 1-D results
 ``C1(0) = g(T) = (theta/T)^2 / 2 (2T/theta + exp(-2T/theta) - 1)`` (DESIGN section 7)
 and ``C1(k) = (theta/T)^2 exp(-2(|k|-1)T/theta) (1 - exp(-2T/theta))^2 / 4``.
@@ -73,18 +77,22 @@ fan of signed triangles from the kink, integrated along rays in closed form
 (``int_0^1 lam^m exp(-b lam) dlam``) and across them by Gauss on panels graded
 geometrically toward the analytically known closest approach to the kink.
 Checked against ``scipy.integrate.nquad`` and the closed form in the tests.
-(The alternative of averaging a 4 x 4 sub-grid point field is 2-4 % off the
-variance function and costs 16x more FFT work.)
+(The alternative, averaging a point field generated on a 4 x 4 sub-grid per
+cell, gives a cell variance 2 % too high — 0.624 instead of 0.612 for xi = 1,
+0.25 m cells — and costs 16x more FFT work.)
 
 Speed (this machine, 2 shared cores; ``validation/random_field_stats.py`` measures it)
 --------------------------------------------------------------------------------------
 Set-up (covariance table + FFT) once per configuration and process (cached),
-then per realization one ``m1 x m2`` rfft/irfft pair and ``m1 m2`` normals:
-reference slope, 4 880 cells: ~1-3 ms per field (set-up 0.05-0.5 s);
-1e6 cells (1000 x 1000): ~0.2-0.4 s per field.  gstools' randomization method
-(default ``mode_no = 1000``) costs ~0.3-0.6 s per 4 880-cell field, is not exact
-(finite number of Fourier modes: the domain average is heavy-tailed for xi = 1)
-and has no local averaging; it is not used at run time.
+then per realization ``m1 m2`` normals and one rfft2/irfft2 pair:
+reference slope (4 575 soil cells, 4 860 field cells, embedding 500-720 x 45):
+0.4-1.0 ms per field, set-up 0.05-0.5 s; 1e6 cells (1000 x 1000, embedding
+~2048 x 2025): 0.23-0.34 s per field, set-up 0.6-1.6 s, for xi = 1, 12, 48.
+gstools 1.7 (randomization method, 1000 modes, point field only): 0.22-0.31 s per
+4 880-cell field, i.e. ~300x slower, with the right variance and correlation but
+not exactly Gaussian over the domain: the excess kurtosis of the domain average
+for xi = 1 was +1.56 (SE 0.40, 150 realizations) against -0.25 here; it has no
+local averaging either.  So gstools is not used at run time.
 
 Reproducibility
 ---------------
@@ -110,7 +118,6 @@ from __future__ import annotations
 
 import csv
 import functools
-import json
 import math
 import time
 from dataclasses import dataclass, replace
@@ -465,7 +472,7 @@ class Embedding:
         return sfft.irfft2(self.eig * sfft.rfft2(W), s=(m2, m1))[:n2, :n1]
 
     def implied_covariance(self) -> np.ndarray:
-        """(m2, m1) covariance table of the generated field (inverse FFT of the clipped spectrum)."""
+        """(m2, m1) covariance table of the generated field (inverse FFT of the used spectrum)."""
         m1, m2 = self.padded
         return sfft.irfft2(self.sqrt_eig ** 2, s=(m2, m1))
 
@@ -478,7 +485,7 @@ def _wrapped_lags(m: int) -> np.ndarray:
 def _table(model, cell, m1, m2, averaging) -> np.ndarray:
     """Symmetric covariance table on the periodic lattice (lags wrapped, Nyquist averaged)."""
     k, l = _wrapped_lags(m1), _wrapped_lags(m2)
-    # compute the half plane l >= 0 (and l = 0, k >= 0 ... kept simple: all l in [0, m2/2])
+    # compute the rows 0 <= l <= m2/2, the others by symmetry C(k, l) = C(-k, -l)
     lh = np.arange(m2 // 2 + 1)
     KK, LL = np.meshgrid(k, lh)
     half = lattice_covariance(model, cell, KK, LL, averaging)
@@ -515,10 +522,10 @@ def _embedding_cached(mkey, cell, shape, averaging, pad_thetas) -> Embedding:
     neg = -eig[eig < 0].sum()
     clipped = float(neg / np.abs(eig).sum())
     if lmin < -1e-10 * lmax and clipped > 1e-6:
-        raise SceneError(f"random field: circulant embedding of {n1} x {n2} cells is not "
-                         f"non-negative definite even with padding to {m1} x {m2} (lambda_min/"
-                         f"lambda_max = {lmin / lmax:.2e}); allowed: smaller theta relative to the "
-                         "field cells or a finer cell_size")
+        raise ValueError(f"circulant embedding of {n1} x {n2} cells is not non-negative "
+                         f"definite even with padding to {m1} x {m2} (lambda_min/lambda_max = "
+                         f"{lmin / lmax:.2e}); allowed: smaller theta relative to the field cells "
+                         "or a finer cell_size")
     eigc = np.maximum(eig, 0.0)
     for a in (tab, eig):
         a.setflags(write=False)
@@ -583,7 +590,8 @@ class FieldLayout:
         s = (np.asarray(x, float) - self.origin) / self.cell
         n1, n2 = self.shape
         tol = 1e-9
-        inside = (s[:, 0] >= -tol) & (s[:, 0] <= n1 + tol) & (s[:, 1] >= -tol) & (s[:, 1] <= n2 + tol)
+        inside = ((s[:, 0] >= -tol) & (s[:, 0] <= n1 + tol)
+                  & (s[:, 1] >= -tol) & (s[:, 1] <= n2 + tol))
         i = np.clip(np.floor(s[:, 0]).astype(np.int64), 0, n1 - 1)
         j = np.clip(np.floor(s[:, 1]).astype(np.int64), 0, n2 - 1)
         return j * n1 + i, inside
@@ -629,8 +637,11 @@ def field_layout(scene: Scene, grid) -> FieldLayout:
 
 def _embedding_for(scene: Scene, layout: FieldLayout) -> Embedding:
     rf = scene.random_field
-    return circulant_embedding(model_from_spec(rf), tuple(layout.cell), layout.shape,
-                               rf.local_averaging)
+    try:
+        return circulant_embedding(model_from_spec(rf), tuple(layout.cell), layout.shape,
+                                   rf.local_averaging)
+    except ValueError as exc:
+        raise SceneError(f"{scene.source}: [random_field.theta_v] {exc}") from None
 
 
 def gaussian_to_property(z, mean, spec: RandomFieldSpec) -> np.ndarray:
@@ -855,8 +866,8 @@ def _levels(c: np.ndarray) -> tuple[np.ndarray, float]:
     return lev[np.searchsorted(u, c)], tol
 
 
-def empirical_variogram(x, y, v, axis: int, max_lag: float | None = None,
-                        min_pairs: int = 30, group=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def empirical_variogram(x, y, v, axis: int, max_lag: float | None = None, min_pairs: int = 30,
+                        group=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Semivariogram along ``axis`` (0: x, 1: y) from pairs on the same row (column).
 
     Rows (columns) are clusters of the other coordinate separated by more than
@@ -1012,10 +1023,27 @@ def _plot_variogram(path, fit: FitResult, title: str):
     plt.close(fig)
 
 
+def _write_field_vtu(path: Path, pts, shown: np.ndarray) -> None:
+    """The material points with the usual point data plus ``random_field`` (the field value,
+    -1 where the field does not apply), written atomically."""
+    import os
+
+    import meshio
+
+    from .output import particle_fields
+    fields = particle_fields(pts)
+    fields["random_field"] = shown
+    mesh = meshio.Mesh(np.hstack([pts.x, np.zeros((pts.n, 1))]),
+                       [("vertex", np.arange(pts.n)[:, None])], point_data=fields)
+    tmp = path.with_name(f".{path.name}.tmp.vtu")
+    mesh.write(tmp, binary=True)
+    os.replace(tmp, path)
+
+
 def field_cli(args) -> int:
     """``fem-rmpm field [SCENE] --seed S --out DIR [--data CSV] [--fit CSV]``."""
     from .grid import make_grid
-    from .output import write_json, write_particles
+    from .output import write_json
     from .particles import seed_particles
     from .scene import load_scene
     t0 = time.perf_counter()
@@ -1050,19 +1078,15 @@ def field_cli(args) -> int:
     if path is not None:
         meas = read_measurements(path)
     values, mask = field_values(scene, grid, pts, seed, meas)
-    peak = np.where(mask & np.isfinite(pts.soil.cohesion_peak), values, pts.soil.cohesion_peak)
-    ratio = np.where(np.isfinite(pts.soil.cohesion_peak),
-                     pts.soil.cohesion_residual / pts.soil.cohesion_peak, 1.0)
-    shown = np.where(mask, values, np.where(np.isfinite(peak), peak, -1.0))
-    from .material import SoilPoints  # noqa: F401  (type of pts.soil)
-    pts.soil = replace(pts.soil, cohesion_peak=np.where(np.isfinite(peak), peak, np.inf),
-                       cohesion_residual=np.where(np.isfinite(peak), peak * ratio, np.inf))
-    write_particles(out / "field.vtu", pts)
-    # the VTU's cohesion_peak of elastic points is -1; the field values are also written here
-    import meshio
-    m = meshio.read(out / "field.vtu")
-    m.point_data["random_field"] = shown
-    m.write(out / "field.vtu", binary=True)
+    base = pts.soil.cohesion_peak
+    finite = np.isfinite(base)
+    peak = np.where(mask & finite, values, base)         # as sample_point_property
+    ratio = np.divide(pts.soil.cohesion_residual, base, out=np.ones(pts.n), where=finite)
+    pts.soil = replace(pts.soil, cohesion_peak=peak,
+                       cohesion_residual=np.where(finite, peak * ratio, np.inf))
+    # the field itself also on points of linear elastic soils (their strength stays infinite)
+    shown = np.where(mask, values, np.where(finite, peak, -1.0))
+    _write_field_vtu(out / "field.vtu", pts, shown)
     xi = rf.anisotropy
     title = (f"{scene.scene.name}: peak cohesion (kPa), {rf.distribution}, COV {rf.cov:g}, "
              f"theta_v {rf.theta_v:g} m, xi = {xi:g}, seed {seed}"

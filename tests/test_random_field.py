@@ -164,7 +164,8 @@ def test_circulant_embedding_is_exact_against_dense_covariance(kind, angle, avg)
     n1, n2 = shape
     i, j = np.meshgrid(np.arange(n1), np.arange(n2))
     i, j = i.ravel(), j.ravel()
-    got = implied[(j[:, None] - j[None, :]) % emb.padded[1], (i[:, None] - i[None, :]) % emb.padded[0]]
+    m1, m2 = emb.padded
+    got = implied[(j[:, None] - j[None, :]) % m2, (i[:, None] - i[None, :]) % m1]
     np.testing.assert_allclose(got, dense, rtol=0, atol=1e-12)
 
 
@@ -391,8 +392,8 @@ def test_conditioning_several_values_in_one_cell_use_gaussian_mean(tmp_path):
     layout = rf.field_layout(scene, grid)
     z = rf.gaussian_field(scene, grid, 1, str(csv), layout)
     cell = layout.locate(np.array([[2.1, 1.1]]))[0][0]
-    assert rf.gaussian_to_property(z.ravel()[cell], MU, scene.random_field) == pytest.approx(20.0,
-                                                                                            rel=1e-9)
+    value = rf.gaussian_to_property(z.ravel()[cell], MU, scene.random_field)
+    assert value == pytest.approx(math.sqrt(16.0 * 25.0), rel=1e-9)          # = 20 kPa
 
 
 # ----------------------------------------------------------------------------- acceptance 5
@@ -428,7 +429,8 @@ def test_variogram_fit_recovers_scales(theta_h, theta_v):
     z = np.concatenate([emb.sample(100 + s).ravel() for s in range(R)])
     spec = make_scene((1.0, 1.0), (0.25, 0.25), {}).random_field
     v = rf.gaussian_to_property(z, MU, spec)
-    fit = rf.fit_scales(np.tile(x, R), np.tile(y, R), v, log=True, group=np.repeat(np.arange(R), len(x)))
+    fit = rf.fit_scales(np.tile(x, R), np.tile(y, R), v, log=True,
+                        group=np.repeat(np.arange(R), len(x)))
     assert fit.theta_h == pytest.approx(theta_h, rel=0.2)
     assert fit.theta_v == pytest.approx(theta_v, rel=0.2)
     assert fit.sill == pytest.approx(math.log(1 + COV ** 2), rel=0.2)
@@ -446,11 +448,13 @@ def test_variogram_fit_from_cpt_profiles_via_cli(tmp_path, capsys):
     spec = make_scene((1.0, 1.0), (0.25, 0.25), {}).random_field
     v = rf.gaussian_to_property(z, MU, spec).ravel()
     rows = zip((i.ravel() + 0.5) * h1, (j.ravel() + 0.5) * h2, v)
-    csv = _write_csv(tmp_path / "rf_cpt.csv", [(f"{a:.4f}", f"{b:.4f}", f"{c:.6f}") for a, b, c in rows])
+    csv = _write_csv(tmp_path / "rf_cpt.csv",
+                     [(f"{a:.4f}", f"{b:.4f}", f"{c:.6f}") for a, b, c in rows])
     scene_path = tmp_path / "rf_scene.toml"
     scene_path.write_text(_SCENE_TOML)
     out = tmp_path / "out"
-    assert cli_main(["field", str(scene_path), "--seed", "1", "--out", str(out), "--fit", str(csv)]) == 0
+    assert cli_main(["field", str(scene_path), "--seed", "1", "--out", str(out),
+                     "--fit", str(csv)]) == 0
     import json
     fit = json.loads((out / "fit.json").read_text())
     assert fit["theta_h"] == pytest.approx(6.0, rel=0.2)
