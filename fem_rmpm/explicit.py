@@ -72,10 +72,10 @@ class Workspace:
     touched: np.ndarray     # (nn,) the touched (active) nodes, first n_touched[0]
     n_touched: np.ndarray   # (1,) int64
     x_old: np.ndarray       # (n, 2) point positions before the move
-    D: np.ndarray           # (n, 4) deformation increment (or geostatic trial strain)
-    W: np.ndarray           # (n, 4) trial left Cauchy-Green tensor, see kernels._trial_pass
+    W: np.ndarray           # (n, 4) trial state (b_tr, or the geostatic trial strain)
     ta: np.ndarray          # (n,) arguments / values of the vectorised exp, log
     tb: np.ndarray          # (n,) arguments / values of the vectorised expm1, arctanh
+    tc: np.ndarray          # (n,) argument of expm1 (kept)
     out: np.ndarray         # (4,) stats of the stress kernel
 
     @classmethod
@@ -85,8 +85,9 @@ class Workspace:
                    v_new=np.zeros((nn, 2)), acc=np.zeros((nn, 2)), p2=np.zeros((nn, 2)),
                    flag=np.zeros(nn, np.uint8), touched=np.zeros(nn, np.int64),
                    n_touched=np.zeros(1, np.int64), x_old=np.zeros((n_points, 2)),
-                   D=np.zeros((n_points, 4)), W=np.zeros((n_points, 4)),
-                   ta=np.zeros(n_points), tb=np.zeros(n_points), out=np.zeros(4))
+                   W=np.zeros((n_points, 4)),
+                   ta=np.zeros(n_points), tb=np.zeros(n_points), tc=np.zeros(n_points),
+                   out=np.zeros(4))
 
 
 def stable_time_step(pts: Particles, cell: np.ndarray, cfl: float) -> float:
@@ -161,7 +162,7 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                     pts.log_strain, pts.plastic_shear_strain, pts.stress, pts.active,
                     s.shear_modulus, s.bulk_modulus, s.cohesion_peak, s.cohesion_residual,
                     s.softening_strain, s.exponential, dt, geostatic, gimp, lp, org, h, nx, ny,
-                    w.p2, org, grid.upper, w.out, w.D, w.W, w.ta, w.tb)
+                    w.p2, org, grid.upper, w.out, w.W, w.ta, w.tb, w.tc)
     o = w.out
     return StepStats(ke, vmax, float(o[0]), float(o[1]), int(o[2]), int(o[3]))
 

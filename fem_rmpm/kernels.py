@@ -325,19 +325,16 @@ def _exp_args(e0, e1, e3):
 
 
 @_inline
-def _exp_sym2_from(e0, e1, e3, e2m, em):
-    """exp(2 E) from ``e2m = exp(2 m)`` and ``em = expm1(y)``, as material.exp_sym2:
-    cosh(y) and sinh(y)/y by their series for y^2 < 1e-6 (terms left out < 1e-28),
-    else from ``expm1`` (no cancellation)."""
+def _exp_sym2_from(e0, e1, e3, e2m, em, y):
+    """exp(2 E) (material.exp_sym2) from ``e2m = exp(2 m)``, ``em = expm1(y)`` and
+    ``y = 2 sqrt(r2)``: cosh(y) = (e^y + e^-y) / 2 and sinh(y) / y =
+    expm1(y) (expm1(y) + 2) / (2 e^y y), accurate for every y > 0 (no cancellation,
+    so no series branch is needed; y = 0 gives 1)."""
     d = 0.5 * (e0 - e1)
-    y2 = 4 * (d * d + e3 * e3)
-    if abs(y2) < _SMALL:
-        ch = 1 + y2 * (1 / 2 + y2 * (1 / 24 + y2 * (1 / 720)))
-        sy = 1 + y2 * (1 / 6 + y2 * (1 / 120 + y2 * (1 / 5040)))
-    else:
-        ey = em + 1.0
-        ch = 0.5 * (ey + 1.0 / ey)
-        sy = em * (em + 2.0) / (2.0 * ey) / math.sqrt(y2)
+    ey = em + 1.0
+    iey = 1.0 / ey
+    ch = 0.5 * (ey + iey)
+    sy = 0.5 * em * (em + 2.0) * iey / y if y > 0 else 1.0
     g = 2 * e2m * sy
     c = e2m * ch
     return c + g * d, c - g * d, g * e3
@@ -345,59 +342,65 @@ def _exp_sym2_from(e0, e1, e3, e2m, em):
 
 @_inline
 def _log_args(axx, ayy, axy):
-    """For 1/2 ln(A) (material.log_sym2): (m, d, axy, x2) and the ufunc arguments
-    ``m^2 - r^2`` (for log) and ``sqrt(x2)`` (for arctanh; 0 where the series is used)."""
+    """For 1/2 ln(A) (material.log_sym2): (m, d, axy, x) with x = r / m, and the
+    ufunc arguments ``m^2 - r^2`` (for log) and ``x`` (for arctanh)."""
     m = 0.5 * (axx + ayy)
     d = 0.5 * (axx - ayy)
     r2 = d * d + axy * axy
-    x2 = r2 / (m * m)
-    return m, d, axy, x2, m * m - r2, (math.sqrt(x2) if abs(x2) >= _SMALL else 0.0)
+    x = math.sqrt(r2) / m
+    return m, d, axy, x, m * m - r2, x
 
 
 @_inline
-def _log_sym2_from(m, d, axy, x2, log_det, atanh_x):
-    """1/2 ln(A) from ``log_det = ln(m^2 - r^2)`` and ``atanh_x = atanh(sqrt(x2))``."""
-    if abs(x2) < _SMALL:                            # 1 + x2/3 + x2^2/5 + x2^3/7 (Horner)
-        ax = 1 + x2 * (1 / 3 + x2 * (1 / 5 + x2 * (1 / 7)))
-    else:
-        ax = atanh_x / math.sqrt(x2)
+def _log_sym2_from(m, d, axy, x, log_det, atanh_x):
+    """1/2 ln(A) from ``log_det = ln(m^2 - r^2)`` and ``atanh_x = atanh(x)``, x = r / m
+    (atanh(x) / x is accurate for every x > 0; x = 0 gives 1)."""
+    ax = atanh_x / x if x > 0 else 1.0
     lp_lm = 0.25 * log_det
     g = 0.5 * ax / m
     return lp_lm + g * d, lp_lm - g * d, g * axy
 
 
+@_inline
+def _trial_b(f00, f01, f10, f11, e0, e1, e3, e2m, em, y):
+    """b_tr = dF exp(2 eps) dF^T from ``e2m = exp(2 m)``, ``em = expm1(y)`` of eps;
+    returns the arguments of :func:`_log_sym2_from` and of the log / arctanh ufuncs."""
+    bxx, byy, bxy = _exp_sym2_from(e0, e1, e3, e2m, em, y)
+    a00 = f00 * bxx + f01 * bxy                     # (dF B) dF^T, as the numpy matmul chain
+    a01 = f00 * bxy + f01 * byy
+    a10 = f10 * bxx + f11 * bxy
+    a11 = f10 * bxy + f11 * byy
+    c00 = a00 * f00 + a01 * f01
+    c01 = a00 * f10 + a01 * f11
+    c10 = a10 * f00 + a11 * f01
+    c11 = a10 * f10 + a11 * f11
+    return _log_args(c00, c11, 0.5 * (c01 + c10))
+
+
 @_kernel
-def _trial_pass(dF, log_strain, active, ta, tb, W):
-    """Pass 2 of the Hencky update: b_tr = dF exp(2 eps) dF^T (``ta``, ``tb`` hold
-    exp(2 m), expm1(y) of eps on entry); W[i] = (m, d, axy, x2) of b_tr and ta, tb
-    the arguments of log and arctanh on exit."""
+def _exp_args_pass(log_strain, active, ta, tb, tc):
+    """Pass 0: ``ta``, ``tb`` = 2 m, y of the current log strains (for exp, expm1); tc = y."""
+    for i in range(log_strain.shape[0]):
+        if active[i]:
+            ta[i], tb[i] = _exp_args(log_strain[i, 0], log_strain[i, 1], log_strain[i, 3])
+        else:
+            ta[i] = 0.0
+            tb[i] = 0.0
+        tc[i] = tb[i]
+
+
+@_kernel
+def _trial_pass(dF, log_strain, active, ta, tb, tc, W):
+    """b_tr for given increments ``dF`` (n, 4) (the material-only path of
+    :func:`stress_update_points`)."""
     for i in range(dF.shape[0]):
         if not active[i]:
             ta[i] = 1.0
             tb[i] = 0.0
             continue
-        f00, f01, f10, f11 = dF[i, 0], dF[i, 1], dF[i, 2], dF[i, 3]
-        bxx, byy, bxy = _exp_sym2_from(log_strain[i, 0], log_strain[i, 1], log_strain[i, 3],
-                                       ta[i], tb[i])
-        a00 = f00 * bxx + f01 * bxy                 # (dF B) dF^T, as the numpy matmul chain
-        a01 = f00 * bxy + f01 * byy
-        a10 = f10 * bxx + f11 * bxy
-        a11 = f10 * bxy + f11 * byy
-        c00 = a00 * f00 + a01 * f01
-        c01 = a00 * f10 + a01 * f11
-        c10 = a10 * f00 + a11 * f01
-        c11 = a10 * f10 + a11 * f11
-        W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i] = _log_args(c00, c11, 0.5 * (c01 + c10))
-
-
-def _hencky_trial(dF, log_strain, active, ta, tb, W):
-    """Passes 2 + ufuncs: on exit ``W``, ``ta``, ``tb`` give eps_tr via _log_sym2_from."""
-    with np.errstate(all="ignore"):     # a non-finite point is reported by the guards
-        np.exp(ta, out=ta)
-        np.expm1(tb, out=tb)
-        _trial_pass(dF, log_strain, active, ta, tb, W)
-        np.log(ta, out=ta)
-        np.arctanh(tb, out=tb)
+        W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i] = _trial_b(
+            dF[i, 0], dF[i, 1], dF[i, 2], dF[i, 3], log_strain[i, 0], log_strain[i, 1],
+            log_strain[i, 3], ta[i], tb[i], tc[i])
 
 
 @_inline
@@ -456,15 +459,14 @@ def _return_map(e0, e1, e2, e3, gam, G, K, cp, cr, gs, expo):
 
 
 @_inline
-def _material_point(geostatic, d0, d1, d2, d3, w0, w1, w2, w3, ta, tb, e2, gam,
-                    G, K, cp, cr, gs, expo):
+def _material_point(geostatic, w0, w1, w2, w3, ta, tb, e2, gam, G, K, cp, cr, gs, expo):
     """Trial log strain, then the return mapping, for one point.
 
-    Geostatic (material.small_strain_update): ``d`` holds the trial strain.
+    Geostatic (material.small_strain_update): ``w`` holds the trial strain.
     Finite strain (material.stress_update): ``w``, ``ta``, ``tb`` hold b_tr
-    (see :func:`_trial_pass`).  Returns ``(e0, e1, e2, e3, gamma_p, t0, t1, t2, t3)``."""
+    (see :func:`_trial_b`).  Returns ``(e0, e1, e2, e3, gamma_p, t0, t1, t2, t3)``."""
     if geostatic:
-        return _return_map(d0, d1, d2, d3, gam, G, K, cp, cr, gs, expo)
+        return _return_map(w0, w1, w2, w3, gam, G, K, cp, cr, gs, expo)
     x0, x1, x3 = _log_sym2_from(w0, w1, w2, w3, ta, tb)
     return _return_map(x0, x1, e2 + 0.0, x3, gam, G, K, cp, cr, gs, expo)
 
@@ -507,17 +509,18 @@ def _velocity_gradient(sh, vn):
 
 
 @_kernel
-def _gradient_pass(x_old, active, log_strain, dt, geostatic, gimp, lp, org, h, nx, ny, vn,
-                   D, ta, tb):
-    """Pass 1: velocity gradient at the positions before the move; ``D[i]`` = the
-    Hughes-Winget increment dF (row-major), or, geostatic, the small-strain trial
-    strain; ``ta``, ``tb`` = 2 m, y of the current log strain (for exp, expm1)."""
+def _kinematics_pass(x_old, active, log_strain, F, vol, dt, geostatic, gimp, lp, org, h, nx, ny,
+                     vn, W, ta, tb, tc):
+    """Pass 1: velocity gradient at the positions before the move.  Geostatic: ``W[i]`` =
+    the small-strain trial strain.  Finite strain: Hughes-Winget increment dF, F <- dF F,
+    V <- det(dF) V, and b_tr from ``ta``, ``tb`` = exp(2 m), expm1(y) of the current
+    log strain (``W``, ``ta``, ``tb`` then hold the log / arctanh arguments)."""
     o0, o1, h0, h1 = org[0], org[1], h[0], h[1]
     ih0, ih1 = 1.0 / h0, 1.0 / h1
     for i in range(x_old.shape[0]):
-        ta[i] = 0.0
-        tb[i] = 0.0
         if not active[i]:
+            ta[i] = 1.0
+            tb[i] = 0.0
             continue
         if gimp:
             sg = _gimp(x_old[i, 0], x_old[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1, nx, ny)
@@ -527,21 +530,28 @@ def _gradient_pass(x_old, active, log_strain, dt, geostatic, gimp, lp, org, h, n
             L00, L01, L10, L11 = _velocity_gradient(sq, vn)
         e0, e1, e2, e3 = log_strain[i, 0], log_strain[i, 1], log_strain[i, 2], log_strain[i, 3]
         if geostatic:
-            D[i, 0] = e0 + L00 * dt
-            D[i, 1] = e1 + L11 * dt
-            D[i, 2] = e2 + 0.0
-            D[i, 3] = e3 + 0.5 * (L01 * dt + L10 * dt)
-        else:
-            D[i, 0], D[i, 1], D[i, 2], D[i, 3] = _hughes_winget(L00, L01, L10, L11, dt)
-            ta[i], tb[i] = _exp_args(e0, e1, e3)
+            W[i, 0] = e0 + L00 * dt
+            W[i, 1] = e1 + L11 * dt
+            W[i, 2] = e2 + 0.0
+            W[i, 3] = e3 + 0.5 * (L01 * dt + L10 * dt)
+            continue
+        f00, f01, f10, f11 = _hughes_winget(L00, L01, L10, L11, dt)
+        g00, g01, g10, g11 = F[i, 0, 0], F[i, 0, 1], F[i, 1, 0], F[i, 1, 1]
+        F[i, 0, 0] = f00 * g00 + f01 * g10
+        F[i, 0, 1] = f00 * g01 + f01 * g11
+        F[i, 1, 0] = f10 * g00 + f11 * g10
+        F[i, 1, 1] = f10 * g01 + f11 * g11
+        vol[i] = vol[i] * (f00 * f11 - f01 * f10)
+        W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i] = _trial_b(
+            f00, f01, f10, f11, e0, e1, e3, ta[i], tb[i], tc[i])
 
 
 @_kernel
-def _finish_pass(x, v, mass, vol, vol0, F, log_strain, gamma_p, stress, active,
-                 G, K, cp, cr, gs, expo, geostatic, D, W, ta, tb, lo, hi, out):
-    """Pass 3: trial strain, return mapping, volume, F, Cauchy stress ``tau V0 / V``;
-    ``out`` (4,) = max P-wave speed sqrt(M / rho), max |v|, number of non-finite
-    points, number outside [lo, hi] (for the next CFL step and the guards)."""
+def _finish_pass(x, v, mass, vol, vol0, log_strain, gamma_p, stress, active,
+                 G, K, cp, cr, gs, expo, geostatic, W, ta, tb, lo, hi, out):
+    """Pass 2: trial strain, return mapping, Cauchy stress ``tau V0 / V``; ``out`` (4,) =
+    max P-wave speed sqrt(M / rho), max |v|, number of non-finite points, number
+    outside [lo, hi] (for the next CFL step and the guards)."""
     c2max = 0.0
     vmax2 = 0.0
     n_bad = 0
@@ -549,26 +559,15 @@ def _finish_pass(x, v, mass, vol, vol0, F, log_strain, gamma_p, stress, active,
     for i in range(x.shape[0]):
         if not active[i]:
             continue
-        f00, f01, f10, f11 = D[i, 0], D[i, 1], D[i, 2], D[i, 3]
-        r = _material_point(geostatic, f00, f01, f10, f11, W[i, 0], W[i, 1], W[i, 2], W[i, 3],
-                            ta[i], tb[i], log_strain[i, 2], gamma_p[i],
-                            G[i], K[i], cp[i], cr[i], gs[i], expo[i])
-        if geostatic:
-            J = 1.0
-        else:
-            J = f00 * f11 - f01 * f10
-            g00, g01, g10, g11 = F[i, 0, 0], F[i, 0, 1], F[i, 1, 0], F[i, 1, 1]
-            F[i, 0, 0] = f00 * g00 + f01 * g10
-            F[i, 0, 1] = f00 * g01 + f01 * g11
-            F[i, 1, 0] = f10 * g00 + f11 * g10
-            F[i, 1, 1] = f10 * g01 + f11 * g11
-        V = vol[i] * J
-        vol[i] = V
+        r = _material_point(geostatic, W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i],
+                            log_strain[i, 2], gamma_p[i], G[i], K[i], cp[i], cr[i], gs[i],
+                            expo[i])
         log_strain[i, 0] = r[0]
         log_strain[i, 1] = r[1]
         log_strain[i, 2] = r[2]
         log_strain[i, 3] = r[3]
         gamma_p[i] = r[4]
+        V = vol[i]
         ratio = vol0[i] / V
         s0 = r[5] * ratio
         s1 = r[6] * ratio
@@ -598,53 +597,57 @@ def _finish_pass(x, v, mass, vol, vol0, F, log_strain, gamma_p, stress, active,
 
 def update_stress(x, x_old, v, mass, vol, vol0, F, log_strain, gamma_p, stress, active,
                   G, K, cp, cr, gs, expo, dt, geostatic, gimp, lp, org, h, nx, ny, vn,
-                  lo, hi, out, D, W, ta, tb):
+                  lo, hi, out, W, ta, tb, tc):
     """Stage 3c: velocity gradient from the re-mapped nodal velocities ``vn`` at the
     positions before the move (``x_old``), deformation increment (geostatic: small
-    strain, J = 1), Hencky/von Mises stress update, volume, F, Cauchy stress; see
-    :func:`_finish_pass` for ``out``.  ``D`` (n, 4), ``W`` (n, 4), ``ta``, ``tb`` (n,)
-    are scratch."""
-    _gradient_pass(x_old, active, log_strain, dt, geostatic, gimp, lp, org, h, nx, ny, vn,
-                   D, ta, tb)
-    if not geostatic:
-        _hencky_trial(D, log_strain, active, ta, tb, W)
-    _finish_pass(x, v, mass, vol, vol0, F, log_strain, gamma_p, stress, active,
-                 G, K, cp, cr, gs, expo, geostatic, D, W, ta, tb, lo, hi, out)
+    strain, J = 1), F, volume, Hencky/von Mises stress update, Cauchy stress; see
+    :func:`_finish_pass` for ``out``.  ``W`` (n, 4), ``ta``, ``tb``, ``tc`` (n,) are scratch."""
+    with np.errstate(all="ignore"):     # a non-finite point is reported by the guards
+        if not geostatic:
+            _exp_args_pass(log_strain, active, ta, tb, tc)
+            np.exp(ta, out=ta)
+            np.expm1(tb, out=tb)
+        _kinematics_pass(x_old, active, log_strain, F, vol, dt, geostatic, gimp, lp, org, h,
+                         nx, ny, vn, W, ta, tb, tc)
+        if not geostatic:
+            np.log(ta, out=ta)
+            np.arctanh(tb, out=tb)
+    _finish_pass(x, v, mass, vol, vol0, log_strain, gamma_p, stress, active,
+                 G, K, cp, cr, gs, expo, geostatic, W, ta, tb, lo, hi, out)
 
 
 # --------------------------------------------------------------------- vectorised material (tests)
 @_jit
-def _material_pass(geostatic, D, W, ta, tb, log_strain, gamma_p, G, K, cp, cr, gs, expo):
-    n = D.shape[0]
+def _material_pass(geostatic, W, ta, tb, log_strain, gamma_p, G, K, cp, cr, gs, expo):
+    n = W.shape[0]
     eps = np.empty((n, 4))
     gam = np.empty(n)
     tau = np.empty((n, 4))
     for i in range(n):
-        r = _material_point(geostatic, D[i, 0], D[i, 1], D[i, 2], D[i, 3],
-                            W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i],
+        r = _material_point(geostatic, W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i],
                             log_strain[i, 2], gamma_p[i], G[i], K[i], cp[i], cr[i], gs[i], expo[i])
         eps[i, 0], eps[i, 1], eps[i, 2], eps[i, 3], gam[i] = r[0], r[1], r[2], r[3], r[4]
         tau[i, 0], tau[i, 1], tau[i, 2], tau[i, 3] = r[5], r[6], r[7], r[8]
     return eps, gam, tau
 
 
-@_jit
-def _exp_args_pass(log_strain, ta, tb):
-    for i in range(log_strain.shape[0]):
-        ta[i], tb[i] = _exp_args(log_strain[i, 0], log_strain[i, 1], log_strain[i, 3])
-
-
 def stress_update_points(dF, log_strain, gamma_p, soil):
-    """material.stress_update through the kernels' passes: ``dF`` (n, 2, 2),
+    """material.stress_update through the kernels' Hencky passes: ``dF`` (n, 2, 2),
     ``log_strain`` (n, 4), ``gamma_p`` (n,), ``soil`` a SoilPoints.  Returns
     ``(log_strain, gamma_p, tau)``."""
     n = len(gamma_p)
     D = np.ascontiguousarray(dF, dtype=float).reshape(n, 4)
     ls = np.ascontiguousarray(log_strain, dtype=float)
-    W, ta, tb = np.empty((n, 4)), np.empty(n), np.empty(n)
-    _exp_args_pass(ls, ta, tb)
-    _hencky_trial(D, ls, np.ones(n, dtype=bool), ta, tb, W)
-    return _material_pass(False, D, W, ta, tb, ls, np.asarray(gamma_p, float), *_soil(soil))
+    act = np.ones(n, dtype=bool)
+    W, ta, tb, tc = np.empty((n, 4)), np.empty(n), np.empty(n), np.empty(n)
+    _exp_args_pass(ls, act, ta, tb, tc)
+    with np.errstate(all="ignore"):
+        np.exp(ta, out=ta)
+        np.expm1(tb, out=tb)
+        _trial_pass(D, ls, act, ta, tb, tc, W)
+        np.log(ta, out=ta)
+        np.arctanh(tb, out=tb)
+    return _material_pass(False, W, ta, tb, ls, np.asarray(gamma_p, float), *_soil(soil))
 
 
 def small_strain_update_points(grad_du, log_strain, gamma_p, soil):
@@ -652,11 +655,10 @@ def small_strain_update_points(grad_du, log_strain, gamma_p, soil):
     n = len(gamma_p)
     L = np.asarray(grad_du, dtype=float)
     e = np.asarray(log_strain, dtype=float)
-    D = np.stack([e[:, 0] + L[:, 0, 0], e[:, 1] + L[:, 1, 1], e[:, 2] + 0.0,
+    W = np.stack([e[:, 0] + L[:, 0, 0], e[:, 1] + L[:, 1, 1], e[:, 2] + 0.0,
                   e[:, 3] + 0.5 * (L[:, 0, 1] + L[:, 1, 0])], axis=1)
     z = np.zeros(n)
-    return _material_pass(True, D, np.zeros((n, 4)), z, z, e, np.asarray(gamma_p, float),
-                          *_soil(soil))
+    return _material_pass(True, W, z, z, e, np.asarray(gamma_p, float), *_soil(soil))
 
 
 def _soil(s):

@@ -1,0 +1,339 @@
+"""Benchmark of the explicit step: MPUPS, ns per particle-step, per-stage breakdown,
+memory per realization, compile cost (issue 7).  Plain script:
+
+    nice python validation/bench_explicit.py              # all sizes, ~10 min on 2 cores
+    python validation/bench_explicit.py --quick           # reference slope only
+
+Cases: the reference slope ``meshes/slope_elastic.toml`` (0.25 m cells, 18 260
+points, the headline) and variants with finer or coarser cells (1/3, 0.1, 1/30 m:
+~1e4, ~1e5, ~1e6 points), built with :func:`fem_rmpm.scene.with_value`.
+
+What is timed: ``run_explicit`` itself (the whole time loop: CFL step, the step,
+the guards, rest checks), for a fixed number of steps, from a fresh copy of the
+points, after a warm-up run (so the numba compile cost, reported separately, is
+not in the MPUPS).  Two phases: ``finite`` (large deformation: Hughes-Winget +
+Hencky update, points move) and ``geostatic`` (small strain, points fixed).
+MPUPS = points x steps / time; median of ``--repeats`` runs, wall clock and
+process CPU time both (the machine is shared: CPU time is the less noisy one).
+
+Per-stage breakdown: numba — each kernel called and timed alone, in the order of
+``explicit_step``; numpy — the reference step's stages timed the same way.
+
+Memory: ``tracemalloc`` peak of the arrays of one realization (grid, points,
+workspace, a few steps), and the peak RSS of a fresh process that prepares and
+runs 50 steps of the reference slope (interpreter + numpy/scipy/scikit-fem/numba
+included), next to the RSS of the same process after imports only.
+
+Compile cost: a fresh process with an empty ``NUMBA_CACHE_DIR`` (cold compile) and
+a second one with that cache filled (cache load): the time to the end of the first
+step.  Writes ``validation/out/bench_explicit.json``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from fem_rmpm import kernels as K  # noqa: E402
+from fem_rmpm.explicit import (Workspace, explicit_step, map_to_nodes, run_explicit,  # noqa: E402
+                               solve_on_mesh, stable_time_step)
+from fem_rmpm.grid import make_grid  # noqa: E402
+from fem_rmpm.material import hughes_winget_increment, stress_update  # noqa: E402
+from fem_rmpm.particles import seed_particles  # noqa: E402
+from fem_rmpm.scene import load_scene, with_values  # noqa: E402
+from fem_rmpm.shape import shape_at_points  # noqa: E402
+
+OUT = ROOT / "validation" / "out"
+REFERENCE = ROOT / "meshes" / "slope_elastic.toml"
+CASES = {"1e4": 1 / 3, "ref": 0.25, "1e5": 0.1, "1e6": 1 / 30}   # cell size (m)
+WORK_TARGET = 1.2e7          # point-steps per timed run (~1 s at 1e7 MPUPS)
+
+
+def make_case(cell: float, phase: str, softening: bool = False):
+    changes = {"grid.cell": [cell, cell], "solver.gravity_ramp_time": 1.0,
+               "solver.gravity_phase": "dynamic" if phase == "finite" else "geostatic",
+               "solver.geostatic_time": 1e6, "solver.output_interval": 1e6,
+               "solver.rest_velocity": 0.0}
+    if softening:
+        changes.update({"soil.model": "von_mises_softening", "soil.cohesion_peak": 8.0,
+                        "soil.cohesion_residual": 4.0, "soil.softening_strain": 0.5})
+    scene = with_values(load_scene(REFERENCE), changes)
+    grid = make_grid(scene)
+    return scene, grid, seed_particles(scene, grid)
+
+
+def with_steps(scene, grid, pts, steps):
+    dt = stable_time_step(pts, grid.cell, scene.solver.cfl)
+    return with_values(scene, {"solver.t_end": steps * dt * 0.999})
+
+
+def time_runs(scene, grid, pts0, kernel, repeats):
+    """Median wall / CPU ns per particle-step of run_explicit over ``repeats`` fresh runs."""
+    walls, cpus, steps = [], [], 0
+    run_explicit(scene, grid, pts0.copy(), kernel=kernel)            # warm-up (compile, caches)
+    for _ in range(repeats):
+        pts = pts0.copy()
+        w0, c0 = time.perf_counter(), time.process_time()
+        rec = run_explicit(scene, grid, pts, kernel=kernel)
+        w1, c1 = time.perf_counter(), time.process_time()
+        steps = rec.steps
+        walls.append((w1 - w0) / (steps * pts.n) * 1e9)
+        cpus.append((c1 - c0) / (steps * pts.n) * 1e9)
+    return {"steps": steps, "ns_wall_runs": walls, "ns_cpu_runs": cpus,
+            "ns_wall": float(np.median(walls)), "ns_cpu": float(np.median(cpus)),
+            "mpups_wall": 1e3 / float(np.median(walls)), "mpups_cpu": 1e3 / float(np.median(cpus))}
+
+
+def stages_numba(scene, grid, pts, geostatic, steps):
+    """Median ns per particle of each kernel, called in the order of explicit_step."""
+    w = Workspace.for_grid(grid, pts.n)
+    g = np.array(scene.gravity_vector)
+    sv, s = scene.solver, pts.soil
+    org, h, (nx, ny), lp = grid.origin, grid.cell, grid.shape, w.x_old
+    names = ("1 p2g", "2 nodal_solve", "3a g2p", "3b nodal_velocity",
+             "3c stress: exp args + exp/expm1 ufuncs", "3c stress: L, dF, F, V, trial b",
+             "3c stress: log/atanh ufuncs", "3c stress: return map + stress")
+    T = {k: [] for k in names}
+    clk = time.perf_counter
+    explicit_step(grid, pts, 1e-4, g, sv.damping, sv.flip, sv.shape, geostatic, "numba", w)
+    for _ in range(steps):
+        dt = stable_time_step(pts, grid.cell, sv.cfl)
+        t = [clk()]
+        K.p2g(pts.x, pts.velocity, pts.mass, pts.volume, pts.stress, pts.active, g[0], g[1],
+              False, lp, org, h, nx, ny, w.m, w.p, w.f, w.flag, w.touched, w.n_touched)
+        t.append(clk())
+        K.nodal_solve(w.m, w.p, w.f, grid.fixed, dt, sv.damping, w.touched, w.n_touched,
+                      w.v_new, w.acc)
+        t.append(clk())
+        K.g2p(pts.x, pts.velocity, pts.mass, pts.active, dt, sv.flip, geostatic,
+              pts.u_geostatic, False, lp, org, h, nx, ny, w.v_new, w.acc, w.touched,
+              w.n_touched, w.p2, w.x_old)
+        t.append(clk())
+        K.nodal_velocity(w.m, w.p2, grid.fixed, w.touched, w.n_touched)
+        t.append(clk())
+        if not geostatic:
+            with np.errstate(all="ignore"):
+                K._exp_args_pass(pts.log_strain, pts.active, w.ta, w.tb, w.tc)
+                np.exp(w.ta, out=w.ta)
+                np.expm1(w.tb, out=w.tb)
+        t.append(clk())
+        K._kinematics_pass(w.x_old, pts.active, pts.log_strain, pts.F, pts.volume, dt, geostatic,
+                           False, lp, org, h, nx, ny, w.p2, w.W, w.ta, w.tb, w.tc)
+        t.append(clk())
+        if not geostatic:
+            with np.errstate(all="ignore"):
+                np.log(w.ta, out=w.ta)
+                np.arctanh(w.tb, out=w.tb)
+        t.append(clk())
+        K._finish_pass(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.log_strain,
+                       pts.plastic_shear_strain, pts.stress, pts.active, s.shear_modulus,
+                       s.bulk_modulus, s.cohesion_peak, s.cohesion_residual, s.softening_strain,
+                       s.exponential, geostatic, w.W, w.ta, w.tb, grid.origin, grid.upper, w.out)
+        t.append(clk())
+        for k, a, b in zip(names, t[:-1], t[1:]):
+            T[k].append((b - a) / pts.n * 1e9)
+    return {k: float(np.median(v)) for k, v in T.items()}
+
+
+def stages_numpy(scene, grid, pts, geostatic, steps):
+    """Median ns per particle of the numpy reference step's stages."""
+    from fem_rmpm.material import small_strain_update
+    g = np.array(scene.gravity_vector)
+    sv = scene.solver
+    names = ("1 shape (locate + Q4)", "1 map_to_nodes", "2 solve_on_mesh",
+             "3 g2p + move + remap", "3 velocity gradient + stress update + state")
+    T = {k: [] for k in names}
+    clk = time.perf_counter
+    nn = grid.n_nodes
+    for _ in range(steps):
+        dt = stable_time_step(pts, grid.cell, sv.cfl)
+        t = [clk()]
+        x, v, mass, vol = pts.x, pts.velocity, pts.mass, pts.volume
+        _, nodes, N, dN, _ = shape_at_points(grid, x, "standard")
+        t.append(clk())
+        m, p, f = map_to_nodes(nodes, N, dN, mass, v, pts.stress, vol, g, nn)
+        t.append(clk())
+        _, v_new, a = solve_on_mesh(m, p, f, grid.fixed, dt, sv.damping)
+        t.append(clk())
+        v_pic = np.einsum("pa,pak->pk", N, v_new[nodes])
+        v = v + dt * np.einsum("pa,pak->pk", N, a[nodes])
+        x = x if geostatic else x + dt * v_pic
+        _, p2, _ = map_to_nodes(nodes, N, dN, mass, v, pts.stress * 0, vol, g * 0, nn)
+        t.append(clk())
+        v_nodes = np.where(grid.fixed, 0.0, p2 / np.where(m > 1e-14, m, 1.0)[:, None])
+        L = np.einsum("pak,pal->pkl", v_nodes[nodes], dN)
+        if geostatic:
+            ls, gp, tau = small_strain_update(L * dt, pts.log_strain, pts.plastic_shear_strain,
+                                              pts.soil)
+            J = 1.0
+        else:
+            dF = hughes_winget_increment(L, dt)
+            ls, gp, tau = stress_update(dF, pts.log_strain, pts.plastic_shear_strain, pts.soil)
+            J = np.linalg.det(dF)
+            pts.F[:] = dF @ pts.F
+        pts.x[:], pts.velocity[:], pts.volume[:] = x, v, vol * J
+        pts.log_strain[:], pts.plastic_shear_strain[:] = ls, gp
+        pts.stress[:] = tau * (pts.volume0 / pts.volume)[:, None]
+        t.append(clk())
+        for k, a_, b_ in zip(names, t[:-1], t[1:]):
+            T[k].append((b_ - a_) / pts.n * 1e9)
+    return {k: float(np.median(v)) for k, v in T.items()}
+
+
+def traced_memory(cell):
+    """tracemalloc peak (MB) of one realization's arrays: grid, points, workspace, 5 steps."""
+    tracemalloc.start()
+    scene, grid, pts = make_case(cell, "finite")
+    w = Workspace.for_grid(grid, pts.n)
+    g = np.array(scene.gravity_vector)
+    for _ in range(5):
+        explicit_step(grid, pts, stable_time_step(pts, grid.cell, 0.5), g, 0.7, 1.0,
+                      "standard", False, "numba", w)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return peak / 2**20
+
+
+_CHILD = r"""
+import resource, sys, time
+t0 = time.perf_counter()
+sys.path.insert(0, {root!r})
+import numpy as np
+from fem_rmpm import api
+from fem_rmpm.explicit import Workspace, explicit_step, stable_time_step
+rss_imports = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+scene = api.load_scene({ref!r})
+grid, pts = api.prepare(scene)
+w = Workspace.for_grid(grid, pts.n)
+g = np.array(scene.gravity_vector)
+t1 = time.perf_counter()
+explicit_step(grid, pts, stable_time_step(pts, grid.cell, 0.5), g, 0.7, 1.0, "standard", False, "numba", w)
+t2 = time.perf_counter()
+for k in range(50):
+    explicit_step(grid, pts, stable_time_step(pts, grid.cell, 0.5), g, 0.7, 1.0, "standard", k < 10, "numba", w)
+print(rss_imports, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, t1 - t0, t2 - t1)
+"""
+
+
+def child_process(cache_dir):
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache_dir)
+    code = _CHILD.format(root=str(ROOT), ref=str(REFERENCE))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True).stdout.split()
+    rss_imports, rss_peak, t_setup, t_first = map(float, out[-4:])
+    return {"rss_after_imports_mb": rss_imports, "rss_peak_mb": rss_peak,
+            "imports_and_setup_s": t_setup, "first_step_s": t_first}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="reference slope only, fewer repeats")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--out", default=str(OUT / "bench_explicit.json"))
+    args = ap.parse_args(argv)
+    cases = ["ref"] if args.quick else list(CASES)
+    repeats = 3 if args.quick else args.repeats
+    res = {"machine": {"platform": platform.platform(), "processor": platform.processor(),
+                       "cpus": os.cpu_count(), "python": platform.python_version(),
+                       "numpy": np.__version__, "numba": __import__("numba").__version__,
+                       "load_avg_start": os.getloadavg()},
+           "repeats": repeats, "cases": {}}
+
+    with tempfile.TemporaryDirectory() as cache:
+        res["compile"] = {"cold_cache": child_process(cache), "warm_cache": child_process(cache)}
+    c = res["compile"]
+    print(f"numba first step: cold compile {c['cold_cache']['first_step_s']:.1f} s, "
+          f"from cache {c['warm_cache']['first_step_s']:.2f} s (kept out of the MPUPS)")
+    print(f"RSS of a realization process (reference slope): peak "
+          f"{c['warm_cache']['rss_peak_mb']:.0f} MB, of which after imports "
+          f"{c['warm_cache']['rss_after_imports_mb']:.0f} MB")
+
+    for name in cases:
+        cell = CASES[name]
+        entry = {"cell": cell}
+        for phase in ("finite", "geostatic"):
+            scene, grid, pts = make_case(cell, phase)
+            steps = int(np.clip(WORK_TARGET / pts.n, 10, 600))
+            sc = with_steps(scene, grid, pts, steps)
+            r = {"points": pts.n, "active_nodes_of_grid": None,
+                 "numba": time_runs(sc, grid, pts, "numba", repeats if pts.n < 5e5 else 3)}
+            r["stages_numba_ns"] = stages_numba(scene, grid, pts.copy(), phase == "geostatic",
+                                                max(10, min(100, steps)))
+            if name in ("ref", "1e4"):
+                sc_np = with_steps(scene, grid, pts, max(10, steps // 10))
+                r["numpy"] = time_runs(sc_np, grid, pts, "numpy", 3)
+                r["stages_numpy_ns"] = stages_numpy(scene, grid, pts.copy(),
+                                                    phase == "geostatic", 10)
+            w = Workspace.for_grid(grid, pts.n)
+            K.p2g(pts.x, pts.velocity, pts.mass, pts.volume, pts.stress, pts.active, 0.0, 0.0,
+                  False, w.x_old, grid.origin, grid.cell, *grid.shape, w.m, w.p, w.f, w.flag,
+                  w.touched, w.n_touched)
+            r["active_nodes_of_grid"] = [int(w.n_touched[0]), grid.n_nodes]
+            entry[phase] = r
+            nb = r["numba"]
+            line = (f"{name:>4} {phase:9} {pts.n:>8d} pts {nb['steps']:>4d} steps  numba "
+                    f"{nb['mpups_wall']:6.2f} MPUPS wall ({nb['ns_wall']:6.1f} ns)  "
+                    f"{nb['mpups_cpu']:6.2f} MPUPS cpu ({nb['ns_cpu']:6.1f} ns)")
+            if "numpy" in r:
+                line += f"   numpy {r['numpy']['mpups_cpu']:5.2f} MPUPS cpu ({r['numpy']['ns_cpu']:6.0f} ns)"
+            print(line, flush=True)
+        if name == "ref":
+            scene, grid, pts = make_case(cell, "finite", softening=True)
+            sc = with_steps(scene, grid, pts, 400)
+            entry["finite_softening"] = {"points": pts.n,
+                                         "numba": time_runs(sc, grid, pts, "numba", repeats)}
+            nb = entry["finite_softening"]["numba"]
+            print(f" ref finite, von Mises softening: {nb['mpups_wall']:.2f} MPUPS wall, "
+                  f"{nb['mpups_cpu']:.2f} cpu", flush=True)
+        entry["tracemalloc_peak_mb"] = traced_memory(cell)
+        res["cases"][name] = entry
+
+    print("\nper-stage breakdown, ns per particle-step (median), numba kernels:")
+    for name in cases:
+        for phase in ("finite", "geostatic"):
+            st = res["cases"][name][phase]["stages_numba_ns"]
+            print(f"  {name:>4} {phase:9} " + "  ".join(f"{k.split(' ', 1)[1]} {v:.1f}"
+                                                         for k, v in st.items() if v > 0)
+                  + f"  | sum {sum(st.values()):.1f}")
+    for name in cases:
+        for phase in ("finite", "geostatic"):
+            st = res["cases"][name][phase].get("stages_numpy_ns")
+            if st:
+                print(f"  {name:>4} {phase:9} numpy: " + "  ".join(f"{k} {v:.0f}" for k, v in st.items())
+                      + f"  | sum {sum(st.values()):.0f}")
+    print("\nmemory per realization (tracemalloc peak of the arrays, MB): "
+          + ", ".join(f"{n} {res['cases'][n]['tracemalloc_peak_mb']:.1f}" for n in cases))
+    if "1e4" in res["cases"] and "1e6" in res["cases"]:
+        for phase in ("finite", "geostatic"):
+            a = res["cases"]["1e4"][phase]["numba"]["mpups_cpu"]
+            b = res["cases"]["1e6"][phase]["numba"]["mpups_cpu"]
+            res.setdefault("scaling_1e6_over_1e4_cpu", {})[phase] = b / a
+            print(f"scaling {phase}: MPUPS(1e6) / MPUPS(1e4) = {b / a:.2f} (cpu time)")
+    ref = res["cases"]["ref"]["finite"]["numba"]
+    res["headline"] = {"case": "reference slope, finite-strain phase, numba, run_explicit",
+                       "points": res["cases"]["ref"]["finite"]["points"],
+                       "mpups_wall": ref["mpups_wall"], "mpups_cpu": ref["mpups_cpu"],
+                       "rss_peak_mb": c["warm_cache"]["rss_peak_mb"]}
+    res["machine"]["load_avg_end"] = os.getloadavg()
+    print(f"\nHEADLINE reference slope ({res['headline']['points']} points): "
+          f"{ref['mpups_wall']:.2f} MPUPS wall, {ref['mpups_cpu']:.2f} MPUPS cpu "
+          f"(median of {repeats}); load average {res['machine']['load_avg_end'][0]:.1f}")
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(res, indent=1))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
