@@ -148,6 +148,46 @@ def test_separable_quadrature_matches_closed_form(angle):
     assert closed[3, 4] == pytest.approx(g_design(0.25, th_x) * g_design(0.125, th_y), rel=1e-12)
 
 
+def nquad_separable_rotated(theta_h, theta_v, cell, k, l, angle_deg):
+    """[V83] tent-weighted integral of the rotated separable Markov correlation by nquad,
+    with the kink lines p = 0 and q = 0 passed as break points."""
+    a = math.radians(angle_deg)
+    R = np.array([[math.cos(a), math.sin(a)], [-math.sin(a), math.cos(a)]]) @ np.diag(cell)
+
+    def rho(sv, tv):
+        S, T = k + sv, l + tv
+        p, q = R[0, 0] * S + R[0, 1] * T, R[1, 0] * S + R[1, 1] * T
+        return math.exp(-2.0 * (abs(p) / theta_h + abs(q) / theta_v))
+
+    total = 0.0
+    for s0, s1 in ((-1, 0), (0, 1)):
+        for t0, t1 in ((-1, 0), (0, 1)):
+            def inner(sv, s0=s0, t0=t0, t1=t1):
+                pts = [-R[r, 0] * (k + sv) / R[r, 1] - l for r in (0, 1) if R[r, 1] != 0]
+                return {"points": [p for p in pts if t0 < p < t1], "limit": 200,
+                        "epsabs": 1e-15, "epsrel": 1e-13}
+            outer = [-R[r, 1] * (l + tt) / R[r, 0] - k for r in (0, 1) for tt in (t0, t1)
+                     if R[r, 0] != 0]
+            v, _ = integrate.nquad(lambda tv, sv: (1 - abs(sv)) * (1 - abs(tv)) * rho(sv, tv),
+                                   [[t0, t1], [s0, s1]],
+                                   opts=[inner, {"points": [p for p in outer if s0 < p < s1],
+                                                 "limit": 200, "epsabs": 1e-15,
+                                                 "epsrel": 1e-13}])
+            total += v
+    return total
+
+
+def test_rotated_separable_local_averages_against_nquad():
+    """[V83] the separable Markov model turned by 20 deg has kink lines crossing the cells;
+    the library's fan quadrature equals a kink-aware adaptive integral to 1e-10."""
+    model = rf.MarkovModel(6.0, 0.5, 20.0, "markov_separable")
+    lags = [(0, 0), (1, 0), (0, 1), (3, 2), (-7, -1)]
+    K, L = np.array(lags).T
+    ours = rf.lattice_covariance(model, (0.25, 0.25), K, L)
+    ref = [nquad_separable_rotated(6.0, 0.5, (0.25, 0.25), k, l, 20.0) for k, l in lags]
+    np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-10)
+
+
 @pytest.mark.parametrize("kind,angle,avg", [("markov_elliptic", 0.0, True),
                                             ("markov_elliptic", 30.0, True),
                                             ("markov_separable", 30.0, True),
@@ -259,6 +299,41 @@ def test_statistics_5000_realizations_slow(xi):
     for axis, lag, target, est, se in _check_statistics(scene, 5000, (1, 2, 4, 8), (1, 2, 4, 8),
                                                         th, THETA_V, seed0=500_000 * xi):
         assert abs(est - target) < max(0.02, 5 * se)
+
+
+def test_rotated_layering_and_separable_from_scene():
+    """Scene keys correlation and layering_angle_deg (DESIGN section 4): 600 realizations of a
+    separable field with layering at 30 deg reproduce the covariance of local averages [V83]
+    at lags (1, 0), (0, 1), (1, 1), (1, -1) within 5 SE (the diagonal lags differ)."""
+    scene = make_scene((8.0, 4.0), (0.25, 0.25), {"anisotropy": 4.0, "layering_angle_deg": 30.0,
+                                                  "correlation": "markov_separable"})
+    Z, layout = fields_of(scene, range(600))
+    model = rf.model_from_spec(scene.random_field)
+    for k, l in [(0, 0), (1, 0), (0, 1), (1, 1), (1, -1)]:
+        a = Z[:, max(0, -l):Z.shape[1] - max(0, l), :Z.shape[2] - k]
+        b = Z[:, max(0, l):Z.shape[1] - max(0, -l) or None, k:]
+        prod = (a * b).reshape(len(Z), -1).mean(axis=1)
+        target = float(rf.lattice_covariance(model, layout.cell, k, l))
+        assert abs(prod.mean() - target) < 5 * prod.std(ddof=1) / math.sqrt(len(Z)), (k, l)
+    assert (float(rf.lattice_covariance(model, layout.cell, 1, 1))
+            > float(rf.lattice_covariance(model, layout.cell, 1, -1)) + 0.05)
+
+
+def test_field_cell_size_and_zero_cov():
+    """[FG08] field cells larger than the grid cells: every point takes the value of the 1 m
+    field cell holding its initial position; cov = 0 gives the mean everywhere [D7]."""
+    scene = make_scene((6.0, 3.0), (0.25, 0.25), {"anisotropy": 2.0, "cell_size": 1.0})
+    grid = make_grid(scene)
+    pts = seed_particles(scene, grid)
+    layout = rf.field_layout(scene, grid)
+    assert layout.shape == (6, 3)
+    vals = rf.sample_point_property(scene, grid, pts, 4)
+    cell = np.floor(pts.x0[:, 1]).astype(int) * 6 + np.floor(pts.x0[:, 0]).astype(int)
+    for c in range(18):
+        assert np.unique(vals[cell == c]).size == 1
+    assert np.unique(vals).size == 18
+    flat = with_value(scene, "random_field.cov", 0.0)
+    np.testing.assert_array_equal(rf.sample_point_property(flat, grid, pts, 4), MU)
 
 
 # ----------------------------------------------------------------------------- acceptance 2
@@ -539,7 +614,8 @@ anisotropy = 12.0
 
 def test_field_cli_writes_vtu_png_and_summary(tmp_path, capsys):
     """`fem-rmpm field SCENE --seed S --out DIR` (issue 5): VTU with the field on the points,
-    PNG, JSON; the VTU cohesion equals the API's realization [FG08]; bad data -> exit 2."""
+    PNG, JSON; the VTU cohesion equals the API's realization [FG08]; a scene without
+    [random_field] shows the default (literature) field [D7]; bad data -> exit 2."""
     import meshio
     scene_path = tmp_path / "rf_scene.toml"
     scene_path.write_text(_SCENE_TOML)
@@ -553,6 +629,10 @@ def test_field_cli_writes_vtu_png_and_summary(tmp_path, capsys):
     scene = api.load_scene(scene_path)
     grid, pts = api.prepare(scene, seed=3)
     np.testing.assert_allclose(m.point_data["cohesion_peak"], pts.soil.cohesion_peak, rtol=1e-12)
+    plain = tmp_path / "rf_plain.toml"                       # no [random_field]: default field
+    plain.write_text(_SCENE_TOML.replace("[random_field]\nanisotropy = 12.0\n", ""))
+    assert cli_main(["field", str(plain), "--seed", "3", "--out", str(tmp_path / "plain")]) == 0
+    assert "default field" in capsys.readouterr().out
     bad = _write_csv(tmp_path / "rf_bad.csv", [(30.0, 1.0, 20.0)])
     assert cli_main(["field", str(scene_path), "--out", str(out), "--data", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
