@@ -990,7 +990,8 @@ def _plot_realization(path, scene, pts, values, mask, title):
     X = to_true_frame(pts.x0, scene.scene.frame_angle_deg)
     span = np.ptp(X, axis=0) + 1e-9
     fig, ax = plt.subplots(figsize=(11, float(np.clip(1.4 + 8.5 * span[1] / span[0], 2.5, 9.0))))
-    spacing = float(np.min(pts.half_width)) * 2.0 if pts.half_width is not None else 0.1
+    # Gauss points are not evenly spaced: squares 1.3x the mean spacing leave no gaps
+    spacing = 1.3 * float(np.min(pts.half_width)) * 2.0 if pts.half_width is not None else 0.1
     if (~mask).any():
         plot_field(ax, X[~mask], np.zeros((~mask).sum()), spacing, cmap="Greys", vmin=-1, vmax=4)
     sc = plot_field(ax, X[mask], values[mask], spacing, cmap="jet")

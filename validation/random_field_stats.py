@@ -164,7 +164,8 @@ def realizations_figure(path, seed=2017):
     base = with_value(base, "soil.cohesion_peak", 20.0)
     base = with_value(base, "soil.cohesion_residual", 4.0)
     base = with_value(base, "soil.model", "von_mises_softening")
-    fig, axes = plt.subplots(3, 1, figsize=(12, 7.2), sharex=True, layout="constrained")
+    fig, axes = plt.subplots(3, 1, figsize=(9, 9.4), sharex=True)
+    fig.subplots_adjust(left=0.08, right=0.84, top=0.96, bottom=0.06, hspace=0.22)
     info = []
     for ax, xi, tag in zip(axes, (1, 12, 48), "abc"):
         scene = with_value(base, "random_field.anisotropy", float(xi))
@@ -172,7 +173,7 @@ def realizations_figure(path, seed=2017):
         pts = seed_particles(scene, grid)
         c = rf.sample_point_property(scene, grid, pts, seed)
         X = to_true_frame(pts.x0, scene.scene.frame_angle_deg)
-        sc = plot_field(ax, X, c, 0.125, vmin=8, vmax=40, cmap="jet")
+        sc = plot_field(ax, X, c, 0.16, vmin=8, vmax=40, cmap="jet")   # Gauss points: gaps at 0.125
         ax.set_aspect("equal")
         ax.set_ylabel("Y (m)")
         ax.set_title(f"({tag}) xi = {xi}, random field of peak cohesion (kPa), seed {seed}",
@@ -180,7 +181,8 @@ def realizations_figure(path, seed=2017):
         info.append({"xi": xi, "min": float(c.min()), "mean": float(c.mean()),
                      "max": float(c.max()), "points": int(len(c))})
     axes[-1].set_xlabel("X, true horizontal (m)")
-    fig.colorbar(sc, ax=axes.tolist(), label="peak cohesion (kPa)", shrink=0.6, aspect=30)
+    cax = fig.add_axes([0.87, 0.25, 0.02, 0.5])
+    fig.colorbar(sc, cax=cax, label="peak cohesion (kPa)")
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return info
