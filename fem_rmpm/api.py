@@ -52,9 +52,33 @@ def prepare(scene: Scene, seed: int | None = None) -> tuple[Grid, Particles]:
         from .random_field import sample_point_property
         seed = scene.montecarlo.seed if seed is None else seed
         peak = sample_point_property(scene, grid, pts, seed)
-        ratio = pts.soil.cohesion_residual / pts.soil.cohesion_peak
-        pts.soil = dataclasses.replace(pts.soil, cohesion_peak=peak, cohesion_residual=peak * ratio)
+        old_peak = pts.soil.cohesion_peak
+        finite = np.isfinite(old_peak)                 # elastic points keep c = inf
+        ratio = np.divide(pts.soil.cohesion_residual, old_peak, out=np.ones_like(old_peak),
+                          where=finite)
+        pts.soil = dataclasses.replace(pts.soil, cohesion_peak=np.where(finite, peak, old_peak),
+                                       cohesion_residual=np.where(finite, peak * ratio, old_peak))
+        _check_point_strength(scene, pts, seed)
     return grid, pts
+
+
+def _check_point_strength(scene: Scene, pts: Particles, seed) -> None:
+    """A random field scales peak and residual cohesion together, so a strong point has a
+    steeper softening modulus h = (c_p - c_r) / softening_strain; the return mapping needs
+    h < G (else the local problem snaps back).  Stop with a clear error otherwise."""
+    s = pts.soil
+    finite = np.isfinite(s.cohesion_peak)
+    bad = finite & ~s.exponential & (np.where(finite, s.cohesion_peak - s.cohesion_residual, 0.0)
+                                     / s.softening_strain >= s.shear_modulus)
+    bad |= finite & ~(s.cohesion_peak > 0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise SimulationError(
+            f"realization seed {seed}: material point {i} at x = {pts.x0[i, 0]:.2f}, "
+            f"y = {pts.x0[i, 1]:.2f} m draws cohesion_peak = {s.cohesion_peak[i]:.4g} kPa, "
+            f"whose linear softening modulus is not below the shear modulus "
+            f"{s.shear_modulus[i]:.4g} kPa (or is not positive); increase [[soil]] "
+            "softening_strain or lower [random_field] cov")
 
 
 def _run_scheme(scene, grid, pts, on_output, progress):
