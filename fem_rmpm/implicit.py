@@ -78,8 +78,8 @@ preconditioned by pyamg smoothed aggregation whose near-null space is the three
 2-D rigid-body modes (the default constant vectors fail to converge on
 elasticity) and a sparse-LU coarse solve; the hierarchy is built once per step
 and reused by its Newton iterations; GMRES takes over if CG fails (softening
-makes the tangent indefinite).  SuperLU wins up to ~10^4 DOFs, pyamg from
-~10^5 (``validation/bench_implicit.py``).  The inner tolerance follows the
+makes the tangent indefinite).  Measured (``validation/bench_implicit.py``, one
+BLAS thread): the two are comparable at 10^4 DOFs, pyamg is ~2x faster at 10^5.  The inner tolerance follows the
 residual (inexact Newton with forcing term ``min(1e-3, max(1e-12, 0.1 r_k))``),
 which keeps the outer convergence quadratic.
 
@@ -463,7 +463,6 @@ class LinearSolver:
     def __init__(self, kind: str = "superlu"):
         self.kind = kind
         self._ml = None
-        self.info: dict = {}
 
     def new_step(self) -> None:
         self._ml = None
