@@ -770,8 +770,11 @@ def run_implicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
         stats.update(last_converged_step=state["step"], last_converged_time=state["t"],
                      failed_step=label, failed_residuals=failure.residuals)
         rec.steps, rec.time = state["step"], state["t"]
+        rec.error, rec.stop_reason = msg, "error"
+        rec.wall_time = time.perf_counter() - wall0
         exc = SimulationError(msg)
-        exc.solver_stats = stats
+        exc.solver_stats = stats          # merged into summary.json by api.run
+        exc.record = rec                  # the record up to the last converged step
         raise exc
 
     def advance(kind, a0, a1, label, time_of, gravity_of):
