@@ -118,8 +118,8 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
         rec = _run_scheme(scene, grid, pts, on_output, bar.update_to if bar else None)
     except SimulationError as exc:
         error = exc
-        rec = RunRecord(scheme=scene.solver.scheme, error=str(exc), stop_reason="error")
-        rec.solver.update(getattr(exc, "solver_stats", {}) or {})
+        rec = getattr(exc, "record", None) or RunRecord(scheme=scene.solver.scheme)
+        rec.error, rec.stop_reason = str(exc), "error"
     finally:
         if bar:
             bar.close()

@@ -38,9 +38,12 @@ def _cmd_run(a) -> int:
     scene = load_scene(a.scene)
     res = api.run(scene, out=a.out, seed=a.seed, progress=not a.quiet)
     s, m = res.summary, res.measures
-    print(f"{scene.scene.name}: {s['scheme']} run of {s['particles']} material points, "
-          f"{s['steps']} steps to t = {s['simulated_time']:.3g} s ({s['stop_reason']}) in "
-          f"{s['wall_time']:.1f} s wall ({s['ns_per_particle_step']:.0f} ns per point-step); "
+    if s["stop_reason"] == "load applied":
+        steps = f"{s['steps']} load steps (load factor 1)"
+    else:
+        steps = f"{s['steps']} steps to t = {s['simulated_time']:.3g} s ({s['stop_reason']})"
+    print(f"{scene.scene.name}: {s['scheme']} run of {s['particles']} material points, {steps} "
+          f"in {s['wall_time']:.1f} s wall ({s['ns_per_particle_step']:.0f} ns per point-step); "
           f"max displacement {m['max_displacement']:.3g} m, failed = {m['failed']}, run-out "
           f"{m['runout_distance']:.2f} m, retrogression {m['retrogression_distance']:.2f} m, "
           f"sliding area {m['sliding_area']:.1f} m2; {s['frozen_points']['count']} points "

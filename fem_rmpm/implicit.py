@@ -103,7 +103,7 @@ from scipy.sparse.linalg import splu
 
 from .explicit import RunRecord, SimulationError, check_points
 from .grid import Grid
-from .material import (SoilPoints, _return_map, exp_sym2, kirchhoff_stress, log_sym2,
+from .material import (SoilPoints, return_map, exp_sym2, kirchhoff_stress, log_sym2,
                        small_strain_update, stress_update)
 from .particles import Particles
 from .scene import Scene, SceneError
@@ -157,10 +157,10 @@ def _stress_of(eps: np.ndarray, gamma_p: np.ndarray, soil: SoilPoints) -> np.nda
     if elastic.all():
         return kirchhoff_stress(eps, soil)
     if not elastic.any():
-        return _return_map(eps, gamma_p, soil)[2]
+        return return_map(eps, gamma_p, soil)[2]
     tau = kirchhoff_stress(eps, soil)
     idx = np.nonzero(~elastic)[0]
-    tau[idx] = _return_map(eps[idx], gamma_p[idx], soil.take(idx))[2]
+    tau[idx] = return_map(eps[idx], gamma_p[idx], soil.take(idx))[2]
     return tau
 
 
@@ -181,7 +181,7 @@ def _stress_derivative(eps_c: np.ndarray, gamma_p: np.ndarray, soil: SoilPoints,
         sp_ = soil.take(idx)
         for k in range(3):
             e = eps_c[k * n + idx]
-            d[k * n + idx] = _return_map(e, gamma_p[idx] + 0 * e[:, 0], sp_)[2].imag / step
+            d[k * n + idx] = return_map(e, gamma_p[idx] + 0 * e[:, 0], sp_)[2].imag / step
     return d
 
 

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["SoilPoints", "kirchhoff_stress", "sqrt_j2", "cohesion", "stress_update",
-           "small_strain_update",
+           "small_strain_update", "return_map",
            "spatial_tangent", "hughes_winget_increment", "exp_sym2", "log_sym2"]
 
 _SMALL = 1e-6   # switch to series below this |x^2|
@@ -149,7 +149,7 @@ def _plastic_multiplier(q_tr, gamma_p, soil: SoilPoints):
     return np.where(soil.exponential, d_exp, d_lin)
 
 
-def _return_map(eps_tr: np.ndarray, gamma_p: np.ndarray, soil: SoilPoints):
+def return_map(eps_tr: np.ndarray, gamma_p: np.ndarray, soil: SoilPoints):
     """Radial return of trial log strains (n, 4); returns (eps_e, gamma_p, tau)."""
     tau_tr = kirchhoff_stress(eps_tr, soil)
     q_tr = sqrt_j2(tau_tr)
@@ -190,7 +190,7 @@ def stress_update(dF: np.ndarray, log_strain: np.ndarray, gamma_p: np.ndarray, s
     btr = dF @ B @ np.swapaxes(dF, 1, 2)
     exx, eyy, exy = log_sym2(btr[:, 0, 0], btr[:, 1, 1], 0.5 * (btr[:, 0, 1] + btr[:, 1, 0]))
     eps_tr = np.stack([exx, eyy, log_strain[:, 2] + 0 * exx, exy], axis=1)
-    return _return_map(eps_tr, gamma_p + 0 * exx, soil)
+    return return_map(eps_tr, gamma_p + 0 * exx, soil)
 
 
 def small_strain_update(grad_du: np.ndarray, log_strain: np.ndarray, gamma_p: np.ndarray,
@@ -204,7 +204,7 @@ def small_strain_update(grad_du: np.ndarray, log_strain: np.ndarray, gamma_p: np
     deps = 0.5 * (grad_du + np.swapaxes(grad_du, 1, 2))
     eps_tr = log_strain + np.stack([deps[:, 0, 0], deps[:, 1, 1], 0 * deps[:, 0, 0],
                                     deps[:, 0, 1]], axis=1)
-    return _return_map(eps_tr, gamma_p + 0 * deps[:, 0, 0], soil)
+    return return_map(eps_tr, gamma_p + 0 * deps[:, 0, 0], soil)
 
 
 def spatial_tangent(dF: np.ndarray, log_strain: np.ndarray, gamma_p: np.ndarray,
