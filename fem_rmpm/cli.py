@@ -33,9 +33,36 @@ def _scene_arg(p: argparse.ArgumentParser, optional: bool = False) -> None:
                    if optional else "scene file (TOML)")
 
 
+def parse_settings(items: list[str] | None, source: str) -> dict:
+    """``--set key=value`` pairs; values are TOML literals (parsed by tomllib, never eval)."""
+    import tomllib
+    out = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise InputError(f"--set {item!r}: expected KEY=VALUE, e.g. solver.scheme=\"implicit\"")
+        try:
+            out[key] = tomllib.loads(f"v = {value.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            try:   # a bare word is taken as a string: solver.scheme=implicit
+                out[key] = tomllib.loads(f'v = "{value.strip()}"')["v"]
+            except tomllib.TOMLDecodeError:
+                raise InputError(f"--set {item!r}: {value!r} is not a TOML value") from None
+    return out
+
+
+def scene_from_args(a):
+    """Load the scene named on the command line and apply its ``--set`` changes."""
+    from .scene import with_values
+    scene = load_scene(a.scene)
+    changes = parse_settings(getattr(a, "set", None), a.scene)
+    return with_values(scene, changes) if changes else scene
+
+
 def _cmd_run(a) -> int:
     from . import api
-    scene = load_scene(a.scene)
+    scene = scene_from_args(a)
     res = api.run(scene, out=a.out, seed=a.seed, progress=not a.quiet)
     s, m = res.summary, res.measures
     if s["stop_reason"] == "load applied":
@@ -54,7 +81,7 @@ def _cmd_run(a) -> int:
 def _cmd_fem(a) -> int:
     import numpy as np
     from . import api
-    scene = load_scene(a.scene)
+    scene = scene_from_args(a)
     res = api.fem(scene, out=a.out)
     print(f"{scene.scene.name}: static FEM on {len(res.cells)} Q4 elements; max |u| = "
           f"{np.abs(res.displacement).max():.4g} m, min sigma_yy = {res.stress[:, 1].min():.4g} "
@@ -83,11 +110,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, help="output directory")
     r.add_argument("--seed", type=int, default=None, help="random-field seed (default: scene's)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="change a scene value, e.g. --set solver.scheme=implicit "
+                   "--set 'grid.cell=[0.5, 0.5]' (repeatable; TOML values)")
     r.set_defaults(func=_cmd_run)
 
     f = sub.add_parser("fem", help="static small-strain FEM gravity reference (scikit-fem)")
     _scene_arg(f, optional=True)
     f.add_argument("--out", required=True)
+    f.add_argument("--set", action="append", metavar="KEY=VALUE", help="as for run")
     f.set_defaults(func=_cmd_fem)
 
     m = sub.add_parser("mc", help="Monte Carlo campaign on Dask (default: small campaign of "

@@ -6,6 +6,7 @@ traceback, and no output directory created.
 """
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
@@ -100,3 +101,24 @@ def test_shipped_scenes_load(meshes):
     assert files
     for f in files:
         load_scene(f)
+
+
+def test_set_option_changes_scene_and_rejects_bad_values(tmp_path, capsys, meshes):
+    """`--set KEY=VALUE` applies a validated change (TOML literal, bare words are strings);
+    a bad key or value is a one-line error, exit 2, no output directory."""
+    out = tmp_path / "fem"
+    code = main(["fem", str(meshes / "column.toml"), "--out", str(out),
+                 "--set", "soil.youngs_modulus=2000", "--set", "scene.name=stiff"])
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["scene"]["soil"][0]["youngs_modulus"] == 2000.0
+    assert summary["scene"]["scene"]["name"] == "stiff"
+    # half the compliance: the top settlement halves (closed form u ~ 1/M)
+    assert abs(summary["max_displacement"] - 0.16873 / 2) < 1e-4
+    for bad, word in (("soil.youngs_modulus=-5", "youngs_modulus"), ("solver.cfll=1", "cfll"),
+                      ("novalue", "KEY=VALUE")):
+        bad_out = tmp_path / "bad"
+        code = main(["fem", str(meshes / "column.toml"), "--out", str(bad_out), "--set", bad])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and len(err.splitlines()) == 1 and word in err, err
+        assert not bad_out.exists()
