@@ -140,8 +140,11 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     ``kernel``: ``"numba"`` (default, compiled) or ``"numpy"`` (reference);
     ``work``: nodal arrays reused between steps (numba; made here if not given).
     """
-    if (kernel or DEFAULT_KERNEL) == "numpy":
+    kernel = kernel or DEFAULT_KERNEL
+    if kernel == "numpy":
         return explicit_step_numpy(grid, pts, dt, gravity, damping, flip, shape, geostatic)
+    if kernel != "numba":
+        raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
     from . import kernels as K
     w = work if work is not None else Workspace.for_grid(grid, pts.n)
     s, org, h, (nx, ny), gimp = pts.soil, grid.origin, grid.cell, grid.shape, shape == "gimp"

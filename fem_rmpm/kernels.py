@@ -55,9 +55,11 @@ def _q4(x0, x1, o0, o1, h0, h1, ih0, ih1, nx, ny):
 
     Same arithmetic as :func:`fem_rmpm.grid.locate` + :func:`fem_rmpm.shape.q4_values`
     (local coordinates in [0, 1], cell clipped into the grid, nodes counter-clockwise
-    from the lower left); gradients use ``ih = 1 / h`` (a multiply, not a divide)."""
-    s0 = (x0 - o0) / h0
-    s1 = (x1 - o1) / h1
+    from the lower left), except that ``ih = 1 / h`` is multiplied, not divided by
+    (a point within one rounding of a cell edge may so be placed in the neighbour
+    cell: Q4 is continuous there, only its gradient jumps)."""
+    s0 = (x0 - o0) * ih0
+    s1 = (x1 - o1) * ih1
     i = min(max(int(math.floor(s0)), 0), nx - 1)
     j = min(max(int(math.floor(s1)), 0), ny - 1)
     s = s0 - i
@@ -87,11 +89,11 @@ def _gimp_1d(d, h, lp):
 
 
 @_inline
-def _gimp(x0, x1, lp0, lp1, o0, o1, h0, h1, nx, ny):
+def _gimp(x0, x1, lp0, lp1, o0, o1, h0, h1, ih0, ih1, nx, ny):
     """uGIMP basis at one point: the 3 x 3 nodes around it as tuples of 9, as
     :func:`fem_rmpm.shape.gimp_at_points` (y-major, nodes beyond the edge clipped onto it)."""
-    s0 = (x0 - o0) / h0
-    s1 = (x1 - o1) / h1
+    s0 = (x0 - o0) * ih0
+    s1 = (x1 - o1) * ih1
     i = min(max(int(math.floor(s0)), 0), nx - 1)
     j = min(max(int(math.floor(s1)), 0), ny - 1)
     fi = i - 1 if s0 - i < 0.5 else i
@@ -144,7 +146,8 @@ def gimp_shape(x, lp, org, h, nx, ny):
     N = np.empty((n, 9))
     dN = np.empty((n, 9, 2))
     for i in range(n):
-        a, b, c, d = _gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1, nx, ny)
+        a, b, c, d = _gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1, ih0, ih1,
+                           nx, ny)
         for k in range(9):
             nodes[i, k], N[i, k], dN[i, k, 0], dN[i, k, 1] = a[k], b[k], c[k], d[k]
     return nodes, N, dN
@@ -203,7 +206,7 @@ def p2g(x, v, mass, vol, stress, active, gx, gy, gimp, lp, org, h, nx, ny,
         if not active[i]:
             continue
         if gimp:
-            sg = _gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1, nx, ny)
+            sg = _gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1, ih0, ih1, nx, ny)
             nt = _scatter(sg, i, x, v, mass, vol, stress, gx, gy, m, p, f, flag, touched, nt)
         else:
             sq = _q4(x[i, 0], x[i, 1], o0, o1, h0, h1, ih0, ih1, nx, ny)
@@ -293,7 +296,7 @@ def g2p(x, v, mass, active, dt, flip, geostatic, u_geo, gimp, lp, org, h, nx, ny
         if not active[i]:
             continue
         if gimp:
-            sg = _gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1, nx, ny)
+            sg = _gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1, ih0, ih1, nx, ny)
             s2 = _g2p_point(sg, i, x, v, mass, dt, flip, geostatic, u_geo, v_new, acc, p2, x_old)
         else:
             sq = _q4(x[i, 0], x[i, 1], o0, o1, h0, h1, ih0, ih1, nx, ny)
@@ -342,22 +345,23 @@ def _exp_sym2_from(e0, e1, e3, e2m, em, y):
 
 @_inline
 def _log_args(axx, ayy, axy):
-    """For 1/2 ln(A) (material.log_sym2): (m, d, axy, x) with x = r / m, and the
+    """For 1/2 ln(A) (material.log_sym2): (1 / m, d, axy, x) with x = r / m, and the
     ufunc arguments ``m^2 - r^2`` (for log) and ``x`` (for arctanh)."""
     m = 0.5 * (axx + ayy)
     d = 0.5 * (axx - ayy)
     r2 = d * d + axy * axy
-    x = math.sqrt(r2) / m
-    return m, d, axy, x, m * m - r2, x
+    im = 1.0 / m
+    x = math.sqrt(r2) * im
+    return im, d, axy, x, m * m - r2, x
 
 
 @_inline
-def _log_sym2_from(m, d, axy, x, log_det, atanh_x):
-    """1/2 ln(A) from ``log_det = ln(m^2 - r^2)`` and ``atanh_x = atanh(x)``, x = r / m
-    (atanh(x) / x is accurate for every x > 0; x = 0 gives 1)."""
+def _log_sym2_from(im, d, axy, x, log_det, atanh_x):
+    """1/2 ln(A) from ``im = 1 / m``, ``log_det = ln(m^2 - r^2)`` and ``atanh_x =
+    atanh(x)``, x = r / m (atanh(x) / x is accurate for every x > 0; x = 0 gives 1)."""
     ax = atanh_x / x if x > 0 else 1.0
     lp_lm = 0.25 * log_det
-    g = 0.5 * ax / m
+    g = 0.5 * ax * im
     return lp_lm + g * d, lp_lm - g * d, g * axy
 
 
@@ -417,7 +421,7 @@ def _cohesion(gam, cp, cr, gs, expo):
 
 @_inline
 def _return_map(e0, e1, e2, e3, gam, G, K, cp, cr, gs, expo):
-    """Radial return of a trial log strain (material._return_map) for one point.
+    """Radial return of a trial log strain (material.return_map) for one point.
     Returns ``(e0, e1, e2, e3, gamma_p, t0, t1, t2, t3)``."""
     lam = K - 2 / 3 * G
     vol = e0 + e1 + e2
@@ -523,7 +527,8 @@ def _kinematics_pass(x_old, active, log_strain, F, vol, dt, geostatic, gimp, lp,
             tb[i] = 0.0
             continue
         if gimp:
-            sg = _gimp(x_old[i, 0], x_old[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1, nx, ny)
+            sg = _gimp(x_old[i, 0], x_old[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1, ih0, ih1,
+                       nx, ny)
             L00, L01, L10, L11 = _velocity_gradient(sg, vn)
         else:
             sq = _q4(x_old[i, 0], x_old[i, 1], o0, o1, h0, h1, ih0, ih1, nx, ny)
@@ -578,7 +583,7 @@ def _finish_pass(x, v, mass, vol, vol0, log_strain, gamma_p, stress, active,
         stress[i, 2] = s2
         stress[i, 3] = s3
         # for the next CFL step (max of sqrt = sqrt of max) and the guards
-        c2max = max(c2max, (K[i] + 4.0 / 3.0 * G[i]) / (mass[i] / V))
+        c2max = max(c2max, (K[i] + 4.0 / 3.0 * G[i]) * V / mass[i])
         v0 = v[i, 0]
         v1 = v[i, 1]
         s2v = v0 * v0 + v1 * v1
