@@ -1,0 +1,218 @@
+"""Figures of a Monte Carlo campaign (matplotlib, Agg backend), one PNG each.
+
+* ``exceedance.png`` — empirical exceedance curves P[X > x] = (number of ``ok``
+  realizations with X > x) / N of run-out, retrogression and sliding area, one
+  curve per case (a deterministic case is a vertical dashed line);
+* ``histograms.png`` — their histograms (shared bins per measure);
+* ``convergence.png`` — the running P(failure) against N with the Wilson 95 %
+  band, and the running mean run-out with mean +- 1.96 SE (SE = s / sqrt(N));
+* ``cases.png`` — the final plastic shear strain of one kept realization per
+  case (the first kept ``ok`` realization with VTK), side by side, true frame,
+  one colour scale (0 to 1, the literature's range).
+"""
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from .output import to_true_frame
+
+__all__ = ["campaign_figures", "plot_exceedance", "plot_histograms", "plot_convergence",
+           "plot_cases", "final_snapshot"]
+
+_MEASURES = (("runout_distance", "run-out distance (m)"),
+             ("retrogression_distance", "retrogression distance (m)"),
+             ("sliding_area", "sliding area (m$^2$ per m)"))
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _values(records, case: str, key: str) -> np.ndarray:
+    return np.array([float(r["measures"][key]) for r in records
+                     if r["case"] == case and r["status"] == "ok"])
+
+
+def plot_exceedance(path: Path, cases, records) -> Path:
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    for ax, (key, lab) in zip(axes, _MEASURES):
+        for k, c in enumerate(cases):
+            x = np.sort(_values(records, c.name, key))
+            if len(x) == 0:
+                continue
+            col = f"C{k}"
+            if c.deterministic:
+                ax.axvline(x[0], color=col, ls="--", label=f"{c.label}")
+                continue
+            n = len(x)
+            p = 1.0 - np.arange(1, n + 1) / n            # P[X > x_(i)]
+            ax.step(np.r_[x[0], x], np.r_[1.0, p], where="post", color=col,
+                    label=f"{c.label} (N = {n})")
+        ax.set_xlabel(lab)
+        ax.set_ylim(-0.02, 1.02)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("P[X > x]")
+    axes[0].legend(fontsize=8)
+    fig.suptitle("Exceedance probability (empirical, over finished realizations)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_histograms(path: Path, cases, records) -> Path:
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    for ax, (key, lab) in zip(axes, _MEASURES):
+        allv = np.concatenate([_values(records, c.name, key) for c in cases] or [np.zeros(0)])
+        if len(allv) == 0:
+            continue
+        lo, hi = float(allv.min()), float(allv.max())
+        bins = np.linspace(lo, hi if hi > lo else lo + 1.0, 16)
+        for k, c in enumerate(cases):
+            v = _values(records, c.name, key)
+            if len(v) == 0:
+                continue
+            if c.deterministic:
+                ax.axvline(v[0], color=f"C{k}", ls="--", label=c.label)
+            else:
+                ax.hist(v, bins=bins, histtype="step", lw=1.6, color=f"C{k}",
+                        label=f"{c.label} (N = {len(v)})")
+        ax.set_xlabel(lab)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("realizations")
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _wilson(k, n, z=1.959963984540054):
+    p = k / n
+    den = 1 + z * z / n
+    mid = (p + z * z / (2 * n)) / den
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return np.clip(mid - half, 0, 1), np.clip(mid + half, 0, 1)
+
+
+def plot_convergence(path: Path, cases, stats, runouts: dict) -> Path:
+    """``runouts``: case -> run-out of the ok realizations in index order."""
+    plt = _plt()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 3.8))
+    for k, c in enumerate(cases):
+        conv = stats[c.name].get("convergence")
+        if not conv or c.deterministic:
+            continue
+        n = np.array(conv["n"], dtype=float)
+        p = np.array(conv["p_failure"])
+        lo, hi = _wilson(np.round(p * n), n)
+        col = f"C{k}"
+        a1.plot(n, p, "-o", ms=3, color=col, label=c.label)
+        a1.fill_between(n, lo, hi, color=col, alpha=0.15)
+        m = np.array(conv["mean_runout"])
+        a2.plot(n, m, "-o", ms=3, color=col, label=c.label)
+        ro = np.array(runouts.get(c.name, []))
+        if len(ro) == len(n) and len(ro) > 1:   # running SE of the mean (ddof 1)
+            se = np.array([np.std(ro[:i], ddof=1) / math.sqrt(i) if i > 1 else np.nan
+                           for i in range(1, len(ro) + 1)])
+            a2.fill_between(n, m - 1.96 * se, m + 1.96 * se, color=col, alpha=0.15)
+    a1.set_xlabel("realizations N")
+    a1.set_ylabel("P(failure)")
+    a1.set_ylim(-0.02, 1.02)
+    a1.set_title("P(failure) with Wilson 95 % band", fontsize=10)
+    a2.set_xlabel("realizations N")
+    a2.set_ylabel("mean run-out (m)")
+    a2.set_title("mean run-out +- 1.96 SE", fontsize=10)
+    for a in (a1, a2):
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def final_snapshot(vtk_dir: Path):
+    """(points (n, 2) grid frame, plastic shear strain (n,), time) of the last entry
+    of ``vtk_dir/particles.pvd`` (our own PvdSeries file), or None."""
+    pvd = Path(vtk_dir) / "particles.pvd"
+    if not pvd.exists():
+        return None
+    try:
+        ds = ET.parse(pvd).getroot().findall(".//DataSet")
+    except ET.ParseError:
+        return None
+    if not ds:
+        return None
+    import meshio
+    last = ds[-1]
+    mesh = meshio.read(pvd.parent / last.get("file"))
+    return (np.asarray(mesh.points[:, :2]), np.asarray(mesh.point_data["plastic_shear_strain"]),
+            float(last.get("timestep")))
+
+
+def plot_cases(path: Path, panels, frame_angle_deg: float, spacing: float) -> Path:
+    """``panels``: list of (title, x (n, 2) grid frame, plastic shear strain (n,))."""
+    from .plots import plot_field
+    plt = _plt()
+    Xs = [to_true_frame(x, frame_angle_deg) for _, x, _ in panels]
+    allX = np.vstack(Xs)
+    fig, axes = plt.subplots(len(panels), 1, figsize=(11, 1.0 + 2.0 * len(panels)),
+                             squeeze=False, sharex=True)
+    sc = None
+    for ax, (title, _, v), X in zip(axes[:, 0], panels, Xs):
+        sc = plot_field(ax, X, v, spacing, 0.0, 1.0, cmap="turbo")
+        ax.set_aspect("equal")
+        ax.set_xlim(allX[:, 0].min() - 1, allX[:, 0].max() + 1)
+        ax.set_ylim(allX[:, 1].min() - 1, allX[:, 1].max() + 1)
+        ax.set_ylabel("Y (m)")
+        ax.set_title(title, fontsize=9, loc="left")
+    axes[-1, 0].set_xlabel("X, true horizontal (m)")
+    fig.colorbar(sc, ax=axes[:, 0].tolist(), label="plastic shear strain (-)", shrink=0.8,
+                 extend="max")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def campaign_figures(out: Path, cases, stats, records, layout, scene) -> list[Path]:
+    """All figures of a campaign into ``out``; returns their paths."""
+    out = Path(out)
+    figs = [plot_exceedance(out / "exceedance.png", cases, records),
+            plot_histograms(out / "histograms.png", cases, records)]
+    runouts = {}
+    for c in cases:
+        ok = sorted((r for r in records if r["case"] == c.name and r["status"] == "ok"),
+                    key=lambda r: r["index"])
+        runouts[c.name] = [float(r["measures"]["runout_distance"]) for r in ok]
+    if any(not c.deterministic and stats[c.name].get("convergence") for c in cases):
+        figs.append(plot_convergence(out / "convergence.png", cases, stats, runouts))
+    panels = []
+    for c in cases:
+        ok = sorted((r for r in records if r["case"] == c.name and r["status"] == "ok"
+                     and r.get("vtk")), key=lambda r: r["index"])
+        for r in ok:
+            snap = final_snapshot(out / r["vtk"])
+            if snap is None:
+                continue
+            x, g, t = snap
+            m = r["measures"]
+            panels.append((f"{c.label}: realization {r['index']} (seed {r['seed']}), t = "
+                           f"{t:.1f} s; run-out {m['runout_distance']:.1f} m, retrogression "
+                           f"{m['retrogression_distance']:.1f} m, sliding area "
+                           f"{m['sliding_area']:.0f} m2", x, g))
+            break
+    if panels:
+        spacing = float(min(scene.grid.cell)) / 2
+        figs.append(plot_cases(out / "cases.png", panels, scene.scene.frame_angle_deg, spacing))
+    return figs
+
