@@ -513,8 +513,8 @@ class NewtonResult:
 
 
 def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterations: int,
-           tol: float, modes=None) -> NewtonResult:
-    """Full Newton-Raphson on the free DOFs.
+           tol: float, modes=None, line_search: int = 4) -> NewtonResult:
+    """Full Newton-Raphson on the free DOFs, with a backtracking line search.
 
     ``evaluate(du) -> (R, ref, state)``: residual (free DOFs), its reference
     norm and whatever the caller needs at convergence; may raise
@@ -522,20 +522,27 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
     last evaluated ``du``.  Converged when ``|R| <= tol ref0`` and the correction
     the next iteration would make, estimated as ``|delta_k| r_{k+1} / r_k``, is
     ``<= sqrt(tol) |du|`` (see the module docstring).
+
+    Line search: a full correction that does not lower the residual is halved up
+    to ``line_search`` times (the last, smallest one is kept if none helps).  Near
+    the solution full steps always lower the residual, so quadratic convergence is
+    untouched; far from it, or where the softening law has a kink (the linear law
+    reaching the residual cohesion), it stops the 2-cycles Newton otherwise falls into.
     """
+    def _evaluate(u):
+        try:
+            return evaluate(u)
+        except NewtonFailure as exc:
+            raise NewtonFailure(exc.reason, res) from None
+
     du = du0.copy()
     res: list[float] = []
     t_sol = 0.0
-    ref0 = None
     last_delta = 0.0
+    R, ref, state = _evaluate(du)
+    ref0 = max(ref, float(np.linalg.norm(R)))
     for it in range(max_iterations + 1):
-        try:
-            R, ref, state = evaluate(du)
-        except NewtonFailure as exc:
-            raise NewtonFailure(exc.reason, res) from None
         rn = float(np.linalg.norm(R))
-        if ref0 is None:
-            ref0 = max(ref, rn)
         r = rn / ref0 if ref0 > 0 else 0.0
         res.append(r)
         if not math.isfinite(r):
@@ -556,8 +563,14 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         except LinearSolveError as exc:
             raise NewtonFailure(f"linear solve failed ({exc})", res) from None
         t_sol += time.perf_counter() - t1
-        du = du + delta
-        last_delta = float(np.linalg.norm(delta))
+        alpha = 1.0
+        for _ in range(line_search + 1):
+            R, ref, state = _evaluate(du + alpha * delta)
+            if float(np.linalg.norm(R)) < rn or alpha < 0.5 ** (line_search - 0.5):
+                break
+            alpha *= 0.5
+        du = du + alpha * delta
+        last_delta = alpha * float(np.linalg.norm(delta))
     raise NewtonFailure(f"not converged in {max_iterations} iterations", res)
 
 
@@ -702,12 +715,16 @@ class _Stepper:
 
 # ----------------------------------------------------------------------------- driver
 def _advice(kind: str, sv) -> str:
-    more = (f"increase [solver] load_steps (now {sv.load_steps})" if kind != "dynamic"
-            else f"reduce [solver] dt (now {sv.dt:g} s)")
-    return (f"{more}, max_iterations (now {sv.max_iterations}) or max_cuts (now {sv.max_cuts}), "
-            f"or loosen tolerance (now {sv.tolerance:g}); a residual that stalls instead of "
-            "falling quadratically means the soil cannot carry the load (limit load reached): "
-            "run it with dynamic = true")
+    if kind == "dynamic":
+        return (f"reduce [solver] dt (now {sv.dt:g} s), increase max_iterations (now "
+                f"{sv.max_iterations}) or max_cuts (now {sv.max_cuts}), or loosen tolerance "
+                f"(now {sv.tolerance:g}); a residual that stalls at a level points to a kink "
+                "in the material response (softening reaching the residual cohesion): "
+                "softening = \"exponential\" is smooth")
+    return (f"increase [solver] load_steps (now {sv.load_steps}), max_iterations (now "
+            f"{sv.max_iterations}) or max_cuts (now {sv.max_cuts}), or loosen tolerance (now "
+            f"{sv.tolerance:g}); a residual that stalls instead of falling quadratically means "
+            "the soil cannot carry the load (limit load reached): run it with dynamic = true")
 
 
 def run_implicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
