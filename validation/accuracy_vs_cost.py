@@ -142,12 +142,13 @@ def slope_error(pts, ref):
 
 
 # --------------------------------------------------------------------------- Pareto
-def pareto(rows):
-    """Indices of the rows not dominated in (wall time, error), sorted by time."""
+def pareto(rows, rtol=1e-3):
+    """Indices of the rows not dominated in (wall time, error), sorted by time; a slower
+    run joins the front only if its error is lower by more than ``rtol`` (relative)."""
     order = sorted(range(len(rows)), key=lambda i: (rows[i]["wall_s"], rows[i]["error"]))
     front, best = [], np.inf
     for i in order:
-        if rows[i]["error"] < best:
+        if rows[i]["error"] < best * (1 - rtol):
             front.append(i)
             best = rows[i]["error"]
     return front
@@ -222,10 +223,21 @@ def plot(res, path):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--plot-only", action="store_true",
+                    help="redraw the PNG from the JSON of a previous run")
     ap.add_argument("--out", default=str(OUT))
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.plot_only:
+        res = json.loads((out / "accuracy_vs_cost.json").read_text())
+        for prob in ("column", "slope"):
+            rows = [r for r in res["runs"] if r["problem"] == prob and r.get("error") is not None]
+            res[f"pareto_{prob}"] = [{k: rows[i][k] for k in ("label", "size", "ppc", "wall_s",
+                                                              "error")} for i in pareto(rows)]
+        (out / "accuracy_vs_cost.json").write_text(json.dumps(res, indent=1))
+        plot(res, out / "accuracy_vs_cost.png")
+        return
     has_implicit = _implicit() is not None
     res = {"implicit_available": has_implicit, "load_avg_start": os.getloadavg(), "runs": []}
     # warm-up: compile / load the numba kernels outside any timed run

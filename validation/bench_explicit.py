@@ -219,10 +219,13 @@ grid, pts = api.prepare(scene)
 w = Workspace.for_grid(grid, pts.n)
 g = np.array(scene.gravity_vector)
 t1 = time.perf_counter()
-explicit_step(grid, pts, stable_time_step(pts, grid.cell, 0.5), g, 0.7, 1.0, "standard", False, "numba", w)
+def step(geo):
+    dt = stable_time_step(pts, grid.cell, 0.5)
+    explicit_step(grid, pts, dt, g, 0.7, 1.0, "standard", geo, "numba", w)
+step(False)
 t2 = time.perf_counter()
 for k in range(50):
-    explicit_step(grid, pts, stable_time_step(pts, grid.cell, 0.5), g, 0.7, 1.0, "standard", k < 10, "numba", w)
+    step(k < 10)
 print(rss_imports, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, t1 - t0, t2 - t1)
 """
 
@@ -287,7 +290,8 @@ def main(argv=None):
                     f"{nb['mpups_wall']:6.2f} MPUPS wall ({nb['ns_wall']:6.1f} ns)  "
                     f"{nb['mpups_cpu']:6.2f} MPUPS cpu ({nb['ns_cpu']:6.1f} ns)")
             if "numpy" in r:
-                line += f"   numpy {r['numpy']['mpups_cpu']:5.2f} MPUPS cpu ({r['numpy']['ns_cpu']:6.0f} ns)"
+                npy = r["numpy"]
+                line += f"   numpy {npy['mpups_cpu']:5.2f} MPUPS cpu ({npy['ns_cpu']:6.0f} ns)"
             print(line, flush=True)
         if name == "ref":
             scene, grid, pts = make_case(cell, "finite", softening=True)
@@ -311,7 +315,8 @@ def main(argv=None):
         for phase in ("finite", "geostatic"):
             st = res["cases"][name][phase].get("stages_numpy_ns")
             if st:
-                print(f"  {name:>4} {phase:9} numpy: " + "  ".join(f"{k} {v:.0f}" for k, v in st.items())
+                print(f"  {name:>4} {phase:9} numpy: "
+                      + "  ".join(f"{k} {v:.0f}" for k, v in st.items())
                       + f"  | sum {sum(st.values()):.0f}")
     print("\nmemory per realization (tracemalloc peak of the arrays, MB): "
           + ", ".join(f"{n} {res['cases'][n]['tracemalloc_peak_mb']:.1f}" for n in cases))
