@@ -166,8 +166,10 @@ def plot_cases(path: Path, panels, frame_angle_deg: float, spacing: float) -> Pa
     plt = _plt()
     Xs = [to_true_frame(x, frame_angle_deg) for _, x, _ in panels]
     allX = np.vstack(Xs)
-    fig, axes = plt.subplots(len(panels), 1, figsize=(11, 1.0 + 2.0 * len(panels)),
-                             squeeze=False, sharex=True)
+    span = np.ptp(allX, axis=0) + 2.0
+    h = min(4.0, max(1.2, 9.5 * span[1] / span[0]))       # panel height for equal aspect
+    fig, axes = plt.subplots(len(panels), 1, figsize=(11, 0.8 + (h + 0.45) * len(panels)),
+                             squeeze=False, sharex=True, layout="constrained")
     sc = None
     for ax, (title, _, v), X in zip(axes[:, 0], panels, Xs):
         sc = plot_field(ax, X, v, spacing, 0.0, 1.0, cmap="turbo")
@@ -177,8 +179,9 @@ def plot_cases(path: Path, panels, frame_angle_deg: float, spacing: float) -> Pa
         ax.set_ylabel("Y (m)")
         ax.set_title(title, fontsize=9, loc="left")
     axes[-1, 0].set_xlabel("X, true horizontal (m)")
-    fig.colorbar(sc, ax=axes[:, 0].tolist(), label="plastic shear strain (-)", shrink=0.8,
+    fig.colorbar(sc, ax=axes[:, 0].tolist(), label="plastic shear strain (-)", shrink=0.9,
                  extend="max")
+    fig.suptitle("Final state of one realization per case", fontsize=11)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -206,8 +209,9 @@ def campaign_figures(out: Path, cases, stats, records, layout, scene) -> list[Pa
                 continue
             x, g, t = snap
             m = r["measures"]
-            panels.append((f"{c.label}: realization {r['index']} (seed {r['seed']}), t = "
-                           f"{t:.1f} s; run-out {m['runout_distance']:.1f} m, retrogression "
+            who = "" if c.deterministic else f" #{r['index']} (seed {r['seed']})"
+            panels.append((f"{c.label}{who}, t = {t:.1f} s: run-out "
+                           f"{m['runout_distance']:.1f} m, retrogression "
                            f"{m['retrogression_distance']:.1f} m, sliding area "
                            f"{m['sliding_area']:.0f} m2", x, g))
             break

@@ -149,7 +149,7 @@ from .scene import Scene, SceneError, scene_from_dict, scene_to_dict, with_value
 __all__ = ["CampaignError", "Case", "LITERATURE_CASES", "parse_case", "literature_cases",
            "realization_seed", "run_realization", "run_campaign", "run_campaign_cli",
            "CampaignResult", "case_statistics", "read_results", "parse_keep_vtk",
-           "worker_environment", "RESULT_COLUMNS"]
+           "worker_environment", "start_local_cluster", "summary_text", "RESULT_COLUMNS"]
 
 FORMAT = "fem_rmpm campaign 1"
 #: The literature cases of the reference slope (Wang, Vardon & Hicks 2017).
@@ -630,10 +630,8 @@ def _usable_cpus() -> int:
 
 def _start_client(workers: int | None, scheduler: str | None, n_tasks: int):
     """(client, cluster or None, description)."""
-    import logging
-
     import dask
-    from distributed import Client, LocalCluster
+    from distributed import Client
     if scheduler:
         timeout = dask.config.get("distributed.comm.timeouts.connect")
         try:
@@ -645,13 +643,25 @@ def _start_client(workers: int | None, scheduler: str | None, n_tasks: int):
         n = len(client.scheduler_info(n_workers=-1).get("workers", {}))
         return client, None, f"the Dask cluster at {scheduler} ({n} workers now)"
     k = workers or max(1, min(_usable_cpus(), n_tasks))
+    client, cluster = start_local_cluster(k)
+    return client, cluster, f"{k} local worker process{'es' if k > 1 else ''}"
+
+
+def start_local_cluster(workers: int):
+    """``(client, cluster)``: a LocalCluster of ``workers`` single-thread processes with
+    :func:`worker_environment` set before they start (close both when done)."""
+    import logging
+
+    import dask
+    from distributed import Client, LocalCluster
     env = {f"distributed.nanny.pre-spawn-environ.{key}": val
            for key, val in worker_environment().items()}
     with dask.config.set(env):
-        cluster = LocalCluster(n_workers=k, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
-    client = Client(cluster, set_as_default=False)
-    return client, cluster, f"{k} local worker process{'es' if k > 1 else ''}"
+        # ":0": the scheduler's HTTP server (and the dashboard, if bokeh is installed) on a
+        # free port; None would still bind 8787 and warn when another cluster holds it
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=":0", silence_logs=logging.ERROR)
+    return Client(cluster, set_as_default=False), cluster
 
 
 class _Progress:
@@ -723,13 +733,14 @@ def _case_realizations(case: Case, n: int) -> int:
 def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
                  cases: Sequence[str | Case] | None = None, workers: int | None = None,
                  scheduler: str | None = None, force: bool = False, keep_vtk=None,
-                 progress: bool = True, figures: bool = True) -> CampaignResult:
+                 progress: bool = True, figures: bool = True, client=None) -> CampaignResult:
     """Run (or finish) a campaign in ``out``; see the module docstring.
 
     ``realizations``: N per case (default ``[montecarlo] realizations``);
     ``cases``: case texts for :func:`parse_case` or :class:`Case` objects
     (default: the scene itself); ``workers``: local worker processes;
-    ``scheduler``: address of a running Dask scheduler instead; ``keep_vtk``: see
+    ``scheduler``: address of a running Dask scheduler instead; ``client``: an
+    existing ``distributed.Client`` to use (left open); ``keep_vtk``: see
     :func:`parse_keep_vtk`.  Raises :class:`CampaignError` (bad input, other
     campaign in ``out``, unreachable scheduler) before anything is written."""
     t_start = time.perf_counter()
@@ -740,6 +751,8 @@ def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers <= 0):
         raise CampaignError(f"--workers {workers}: expected a positive integer")
+    if client is not None and (workers is not None or scheduler):
+        raise CampaignError("give a client, or workers, or a scheduler address")
     if workers is not None and scheduler:
         raise CampaignError("--workers starts a local cluster; with --scheduler the "
                             "cluster's own workers are used: give one of the two")
@@ -769,17 +782,23 @@ def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
                           "vtk_dir": str(vtk.resolve()) if vtk is not None else None,
                           "vtk_rel": str(vtk.relative_to(out)) if vtk is not None else None})
     skipped = len(finished)
-    client = cluster = None
+    own = client is None
+    cluster = None
     desc, lost = "no workers needed", []
+    if not own:
+        desc = f"the given Dask client ({len(client.nthreads())} workers)"
     compute_time = 0.0
-    if tasks:
-        client, cluster, desc = _start_client(workers, scheduler, len(tasks))
+    if own and tasks and scheduler:  # before anything is written: unreachable -> error
+        client, cluster, desc = _start_client(None, scheduler, len(tasks))
     try:
         with _Lock(out):
+            _check_directory(out, doc)   # again, now that no one else can write here
             if not (out / "campaign.json").exists():
                 write_json(out / "campaign.json", doc)
             _clean_temporaries(out)
             if tasks:
+                if client is None:
+                    client, cluster, desc = _start_client(workers, None, len(tasks))
                 t0 = time.perf_counter()
                 lost = _compute(client, tasks, lay, finished, progress, scene.scene.name)
                 compute_time = time.perf_counter() - t0
@@ -787,7 +806,7 @@ def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
                              len(tasks) - len(lost), skipped, lost, desc, t_start,
                              compute_time, figures)
     finally:
-        if client is not None:
+        if own and client is not None:
             client.close(timeout=10)
         if cluster is not None:
             cluster.close(timeout=10)
