@@ -243,11 +243,11 @@ def child_process(cache_dir):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="reference slope only, fewer repeats")
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=None, help="runs per case (5; --quick: 3)")
     ap.add_argument("--out", default=str(OUT / "bench_explicit.json"))
     args = ap.parse_args(argv)
     cases = ["ref"] if args.quick else list(CASES)
-    repeats = 3 if args.quick else args.repeats
+    repeats = args.repeats or (3 if args.quick else 5)
     res = {"machine": {"platform": platform.platform(), "processor": platform.processor(),
                        "cpus": os.cpu_count(), "python": platform.python_version(),
                        "numpy": np.__version__, "numba": __import__("numba").__version__,
