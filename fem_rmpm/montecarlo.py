@@ -26,7 +26,7 @@ What a campaign is
   atomically (temporary file + rename) as ``records/realization_00012.json``
   (``records/<case>/...`` with several cases): case, index, seed, status ``ok`` |
   ``failed``, the error message of a failed realization, scheme, steps,
-  simulated and wall time, the scalar measures (:mod:`fem_rmpm.measures`) and the
+  simulated, wall and CPU time, the scalar measures (:mod:`fem_rmpm.measures`) and the
   worker; its final surface profile goes to ``profiles/`` the same way.
   ``results.csv`` is rebuilt from the records (one row per realization, sorted by
   case and index, floats written with ``repr`` so they round-trip bitwise; wall
@@ -287,7 +287,7 @@ def run_realization(task: dict) -> dict:
         "error": None, "vtk": task.get("vtk_rel"),
         "worker": {"host": socket.gethostname(), "pid": os.getpid()},
     }
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         vtk_dir = task.get("vtk_dir")
         res = api.run(task["scene"], out=vtk_dir, seed=rec["seed"], progress=False,
@@ -305,6 +305,7 @@ def run_realization(task: dict) -> dict:
                    measures={k: m.get(k) for k in MEASURE_KEYS},
                    final_profile=m.get("final_profile"))
     rec["wall_time"] = time.perf_counter() - t0
+    rec["cpu_time"] = time.process_time() - c0     # of the worker process (s)
     return rec
 
 
@@ -688,6 +689,7 @@ class _Progress:
             self.failed += 1
         else:
             self.lost += 1
+        self.running = max(0, self.running - 1)     # until the next poll of the scheduler
         if self.bar is not None:
             self.bar.update(1)
             self._post()
@@ -799,6 +801,9 @@ def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
             if tasks:
                 if client is None:
                     client, cluster, desc = _start_client(workers, None, len(tasks))
+                if progress:
+                    print(f"fem-rmpm mc: {len(tasks)} realization(s) to run ({skipped} "
+                          f"already finished) on {desc}; records in {out}", file=sys.stderr)
                 t0 = time.perf_counter()
                 lost = _compute(client, tasks, lay, finished, progress, scene.scene.name)
                 compute_time = time.perf_counter() - t0
@@ -873,6 +878,7 @@ def _finish(out, scene, cases, counts, lay, finished, computed, skipped, lost, d
     stats = {c.name: case_statistics([r for r in records if r["case"] == c.name],
                                      counts[c.name]) for c in cases}
     walls = [r["wall_time"] for r in records if r.get("wall_time") is not None]
+    cpus = [r["cpu_time"] for r in records if r.get("cpu_time") is not None]
     res = CampaignResult(out, cases, counts, stats, computed, skipped, lost,
                          time.perf_counter() - t_start, compute_time, desc)
     extra = sum(1 for (c, i) in finished if i >= counts[c])
@@ -889,6 +895,8 @@ def _finish(out, scene, cases, counts, lay, finished, computed, skipped, lost, d
                      "realizations_per_hour": res.realizations_per_hour},
         "realization_wall_time": {"mean": float(np.mean(walls)) if walls else None,
                                   "total": float(np.sum(walls)) if walls else None},
+        "realization_cpu_time": {"mean": float(np.mean(cpus)) if cpus else None,
+                                 "total": float(np.sum(cpus)) if cpus else None},
         "records_beyond_n": extra,
     }
     write_json(out / "summary.json", summary)
