@@ -132,6 +132,7 @@ class SolverSpec:
     rest_energy_ratio: float = 1e-6      # ... and kinetic energy below this fraction of its peak
     output_interval: float = 0.5         # s between particle snapshots
     flip: float = 1.0                    # FLIP fraction of the particle velocity update (1 = FLIP, 0 = PIC)
+    kernel: str = "numba"                # explicit step: "numba" (compiled) | "numpy" (reference)
     edge_policy: str = "freeze"          # what happens to points reaching the grid edge
     # implicit
     load_steps: int = 1                  # quasi-static: number of load steps
@@ -231,6 +232,7 @@ _CHOICES: dict[str, tuple[str, ...]] = {
     "solver.scheme": SCHEMES, "solver.shape": SHAPES, "solver.edge_policy": EDGE_POLICIES,
     "solver.linear_solver": ("superlu", "pyamg"),
     "solver.gravity_phase": ("dynamic", "geostatic"),
+    "solver.kernel": ("numba", "numpy"),
 }
 
 
