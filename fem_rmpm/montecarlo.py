@@ -35,7 +35,7 @@ What a campaign is
 * **Identity and resuming.** ``campaign.json`` holds the campaign seed and each
   case's scene (as :func:`fem_rmpm.scene.scene_to_dict`, without the keys that do
   not change a realization: ``montecarlo.realizations``, ``montecarlo.keep_vtk``,
-  ``[output]``).  Re-running the same command computes only the realizations
+  ``scene.description``, ``[output]``).  Re-running the same command computes only the realizations
   without a record; a larger N appends; ``--force`` recomputes (each record is
   replaced only when its new one is complete).  Another scene in the same
   directory is an error that names the first differing key; nothing is
@@ -161,7 +161,8 @@ MEASURE_KEYS = ("failed", "sliding_area", "runout_distance", "retrogression_dist
 RESULT_COLUMNS = ("case", "index", "seed", "status", *MEASURE_KEYS, "stop_reason", "steps",
                   "simulated_time", "particles", "frozen_points", "scheme", "error")
 #: Keys that do not change a realization (left out of the campaign identity).
-_NOT_IDENTITY = {"montecarlo": ("realizations", "keep_vtk"), "output": None}
+_NOT_IDENTITY = {"montecarlo": ("realizations", "keep_vtk", "cases"), "output": None,
+                 "scene": ("description",)}
 _MALLOC = {"MALLOC_TRIM_THRESHOLD_": 2**30, "MALLOC_MMAP_THRESHOLD_": 2**25}
 _THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 
@@ -272,6 +273,14 @@ def _raise_malloc_thresholds() -> None:
         pass
 
 
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+        return version("fem_rmpm")
+    except Exception:  # noqa: BLE001 - informative only
+        return "unknown"
+
+
 def run_realization(task: dict) -> dict:
     """The Dask task: run realization ``task["index"]`` of ``task["case"]`` and return
     its record (a JSON-ready dict).  Never raises for a failing realization: the
@@ -286,6 +295,7 @@ def run_realization(task: dict) -> dict:
         "seed": int(task["seed"]), "scheme": task["scene"].solver.scheme, "status": "ok",
         "error": None, "vtk": task.get("vtk_rel"),
         "worker": {"host": socket.gethostname(), "pid": os.getpid()},
+        "fem_rmpm": _version(),
     }
     t0, c0 = time.perf_counter(), time.process_time()
     try:
@@ -312,7 +322,12 @@ def run_realization(task: dict) -> dict:
 # --------------------------------------------------------------------------- campaign directory
 
 def _identity_dict(scene: Scene) -> dict:
-    d = json.loads(json.dumps(scene_to_dict(scene)))
+    return _strip_identity(json.loads(json.dumps(scene_to_dict(scene))))
+
+
+def _strip_identity(d: dict) -> dict:
+    """Drop the keys that do not change a realization (also from stored campaign files)."""
+    d = json.loads(json.dumps(d))
     for sec, keys in _NOT_IDENTITY.items():
         if keys is None:
             d.pop(sec, None)
@@ -405,7 +420,7 @@ def _check_directory(out: Path, doc: dict) -> bool:
         raise CampaignError(f"{out}: holds a campaign of the cases {old_names}, not "
                             f"{new_names}; nothing was changed; choose another --out")
     for o, n in zip(old["cases"], doc["cases"]):
-        diff = _first_difference(n["scene"], o["scene"])
+        diff = _first_difference(n["scene"], _strip_identity(o.get("scene", {})))
         if diff:
             where = f"case {n['name']}: " if len(new_names) > 1 else ""
             raise CampaignError(f"{out}: holds the campaign of a different scene ({where}"

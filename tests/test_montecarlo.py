@@ -442,9 +442,11 @@ def test_directory_of_another_campaign_is_refused_untouched(tmp_path, capsys):
     (junk / "notes.txt").write_text("mine")
     assert "not a campaign" in _one_line_error(capsys, ["mc", str(TINY), "--out", str(junk)])
     assert [p.name for p in junk.iterdir()] == ["notes.txt"]
-    # the same scene from another path, another N and keep_vtk: the same campaign
+    # the same scene from another path, with another N, keep_vtk, description: the same
+    # campaign (those keys do not change a realization)
     same = tmp_path / "same.toml"
-    same.write_text(TINY.read_text().replace("keep_vtk = 1", "keep_vtk = 0"))
+    same.write_text(TINY.read_text().replace("keep_vtk = 1", "keep_vtk = 0").replace(
+        'name = "mc_tiny"', 'name = "mc_tiny"\ndescription = "another description"'))
     assert cli.main(["mc", str(same), "-n", "3", "--out", str(out), "--workers", "1",
                      "--quiet"]) == 0
     assert _summary(out)["this_run"]["computed"] == 1
