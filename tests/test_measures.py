@@ -104,3 +104,20 @@ def test_points_leaving_the_grid_stop_the_run_if_asked(meshes, tmp_path, capsys)
     err = capsys.readouterr().err
     assert code == 3
     assert "left the grid" in err and "edge_policy" in err
+
+
+def test_reference_slope_case_i_fails_and_comes_to_rest(meshes, tmp_path):
+    """Issue 4 acceptance 3 (explicit; ~30 s on one core): the homogeneous reference slope (infinite-
+    slope factor of safety c/(gamma H sin b cos b) = 0.62 < 1, DESIGN section 6) fails under
+    its own weight, runs out and comes to rest inside the valley; summary.json holds every
+    measure, nothing is NaN and no point leaves the grid unreported."""
+    res = api.run(load_scene(meshes / "slope_reference.toml"), out=tmp_path / "case_i")
+    s = json.loads((tmp_path / "case_i" / "summary.json").read_text())
+    m = s["measures"]
+    assert s["stop_reason"] == "at rest" and s["status"] == "ok"
+    assert m["failed"] and m["runout_distance"] > 10.0 and m["retrogression_distance"] > 10.0
+    assert m["sliding_area"] > 0.5 * res.particles.volume0.sum()
+    assert m["time_to_rest"] == s["simulated_time"]
+    assert s["frozen_points"]["count"] == int((~res.particles.active).sum())
+    assert np.all(np.isfinite(res.particles.stress)) and np.all(np.isfinite(res.particles.x))
+    assert (tmp_path / "case_i" / "plastic_shear_strain.png").exists()
