@@ -42,6 +42,7 @@ class RunResult:
     measures: dict
     summary: dict
     out: Path | None
+    snapshots: list = dataclasses.field(default_factory=list)  # [(t, x (n, 2), gamma_p (n,))]
 
 
 def prepare(scene: Scene, seed: int | None = None) -> tuple[Grid, Particles]:
@@ -134,7 +135,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
             _figures(out, scene, grid, snapshots, measures)
     if error is not None:
         raise error
-    return RunResult(scene, seed, grid, pts, rec, measures, summary, out)
+    return RunResult(scene, seed, grid, pts, rec, measures, summary, out, snapshots)
 
 
 def _summary(scene, seed, pts, rec, measures) -> dict:

@@ -28,7 +28,14 @@ def case(scene, cell, softening_strain):
     s = with_values(scene, {"grid.cell": [cell, cell], "soil.softening_strain": softening_strain})
     res = api.run(s, vtk=False, figures=False)
     m = res.measures
-    return {"cell": cell, "softening_strain": softening_strain, "points": res.particles.n,
+    # how fast the failure grows: sliding area (points moved > threshold) at early times
+    thr = s.montecarlo.failure_displacement
+    early = {}
+    for t, x, _ in res.snapshots:
+        if t <= 6.0 + 1e-9:
+            moved = np.linalg.norm(x - res.particles.x0, axis=1) > thr
+            early[round(t, 2)] = float(res.particles.volume0[moved].sum())
+    return {"early_sliding_area": early,"cell": cell, "softening_strain": softening_strain, "points": res.particles.n,
             "steps": res.record.steps, "t": res.record.time, "stop": res.record.stop_reason,
             "wall": res.record.wall_time, "runout": m["runout_distance"],
             "retrogression": m["retrogression_distance"], "sliding_area": m["sliding_area"],
@@ -53,12 +60,19 @@ def main():
         print(f"{cell:7.3f} {gs:7.2f} {r['points']:7d} {r['steps']:6d} {r['t']:6.1f} "
               f"{r['runout']:9.2f} {r['retrogression']:8.2f} {r['sliding_area']:8.1f} {rest:>7} "
               f"{r['frozen']:6d} {r['wall']:7.1f}", flush=True)
+    print("sliding area (m2) at early times, showing how fast the failure grows:")
+    times = sorted(rows[0]["early_sliding_area"])
+    print(f"{'cell m':>7} {'gamma_r':>7} " + " ".join(f"{'t=' + format(t, 'g'):>7}" for t in times))
+    for r in rows:
+        e = r["early_sliding_area"]
+        print(f"{r['cell']:7.3f} {r['softening_strain']:7.2f} "
+              + " ".join(f"{e.get(t, float('nan')):7.1f}" for t in times))
     OUT.mkdir(exist_ok=True)
     (OUT / "slope_sensitivity.json").write_text(json.dumps(rows, indent=1))
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(11, 4))
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(11, 7.5))
     init = np.array(rows[0]["initial"])
     ax.plot(init[:, 0], init[:, 1], "k--", lw=1, label="initial surface")
     for r in rows:
@@ -71,6 +85,14 @@ def main():
     ax.set_aspect("equal")
     ax.legend(fontsize=7)
     ax.set_title("Reference slope case (i): final surface vs cell size and softening rate")
+    for r in rows:
+        e = sorted(r["early_sliding_area"].items())
+        ax2.plot([t for t, _ in e], [a for _, a in e], "o-",
+                 label=f"h = {r['cell']} m, gamma_r = {r['softening_strain']}")
+    ax2.set_xlabel("time (s)")
+    ax2.set_ylabel("sliding area (m2)")
+    ax2.set_title("How fast the failure spreads")
+    ax2.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(OUT / "slope_sensitivity.png", dpi=120)
     print(f"wrote {OUT / 'slope_sensitivity.png'}")
