@@ -70,6 +70,7 @@ def plot_exceedance(path: Path, cases, records) -> Path:
 
 def plot_histograms(path: Path, cases, records) -> Path:
     plt = _plt()
+    from matplotlib.ticker import MaxNLocator
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
     for ax, (key, lab) in zip(axes, _MEASURES):
         allv = np.concatenate([_values(records, c.name, key) for c in cases] or [np.zeros(0)])
@@ -87,6 +88,7 @@ def plot_histograms(path: Path, cases, records) -> Path:
                 ax.hist(v, bins=bins, histtype="step", lw=1.6, color=f"C{k}",
                         label=f"{c.label} (N = {len(v)})")
         ax.set_xlabel(lab)
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("realizations")
     axes[0].legend(fontsize=8)

@@ -39,7 +39,10 @@ What a campaign is
   without a record; a larger N appends; ``--force`` recomputes (each record is
   replaced only when its new one is complete).  Another scene in the same
   directory is an error that names the first differing key; nothing is
-  overwritten.  A lock file stops two commands from working on one directory at
+  overwritten.  A key that fem_rmpm gained after the campaign started is no
+  difference while it holds its default.  The identity is the scene, not the code:
+  a campaign resumed after upgrading fem_rmpm mixes versions (each record names
+  its ``fem_rmpm`` version); use ``--force`` or a new directory to recompute.  A lock file stops two commands from working on one directory at
   the same time (released by the kernel even if the client is killed).
 * **Failures.** A realization that fails (:class:`fem_rmpm.explicit.SimulationError`:
   unstable, a random-field value the material cannot take, ...; or any other
@@ -337,12 +340,47 @@ def _strip_identity(d: dict) -> dict:
     return d
 
 
+def _json_form(v: Any) -> Any:
+    """A default value as scene_to_dict writes it (tuples -> lists, inf -> 'inf')."""
+    if isinstance(v, (list, tuple)):
+        return [_json_form(x) for x in v]
+    if isinstance(v, float) and not math.isfinite(v):
+        return str(v)
+    return v
+
+
+def _field_default(path: str) -> tuple[bool, Any]:
+    """(True, default as written by scene_to_dict) of a scene key like ``solver.kernel``
+    or ``soil[0].model``; (False, None) if the key is unknown or has no default."""
+    from . import scene as S
+    classes = {"scene": S.SceneInfo, "grid": S.GridSpec, "boundary": S.BoundarySpec,
+               "soil": S.SoilSpec, "bedrock": S.BedrockSpec,
+               "random_field": S.RandomFieldSpec, "solver": S.SolverSpec,
+               "montecarlo": S.MonteCarloSpec, "output": S.OutputSpec}
+    section, _, name = path.partition(".")
+    cls = classes.get(section.split("[")[0])
+    if cls is None or "." in name:
+        return False, None
+    for f in dataclasses.fields(cls):
+        if f.name == name and f.default is not dataclasses.MISSING:
+            return True, _json_form(f.default)
+    return False, None
+
+
 def _first_difference(a: Any, b: Any, path: str = "") -> str | None:
+    """First difference of scene dicts ``a`` (this scene) and ``b`` (the campaign's).
+    A key only in ``a`` that holds its default value is no difference: it is a key added
+    to fem_rmpm after the campaign started, whose default keeps the old behaviour."""
     if isinstance(a, dict) and isinstance(b, dict):
         for k in sorted(set(a) | set(b)):
             if k not in a or k not in b:
-                return f"{path}.{k}".strip(".") + (" (only in this scene)" if k in a
-                                                  else " (only in the campaign's scene)")
+                key = f"{path}.{k}".strip(".")
+                if k in a:
+                    has, default = _field_default(key)
+                    if has and a[k] == default:
+                        continue
+                return key + (" (only in this scene)" if k in a
+                              else " (only in the campaign's scene)")
             d = _first_difference(a[k], b[k], f"{path}.{k}")
             if d:
                 return d
@@ -947,11 +985,15 @@ def summary_text(res: CampaignResult) -> str:
     """The final one-paragraph-per-case summary printed by ``fem-rmpm mc``."""
     lines = []
     rph = res.realizations_per_hour
-    lines.append(
-        f"Campaign in {res.out}: {sum(res.realizations.values())} realizations in "
-        f"{len(res.cases)} case(s); this run computed {res.computed} (skipped "
-        f"{res.skipped} already finished) on {res.workers} in {res.wall_time:.1f} s"
-        + (f" ({rph:.0f} realizations/hour)" if rph else "") + ".")
+    head = (f"Campaign in {res.out}: {sum(res.realizations.values())} realizations in "
+            f"{len(res.cases)} case(s); ")
+    if res.computed or res.lost:
+        head += (f"this run computed {res.computed} (skipped {res.skipped} already "
+                 f"finished) on {res.workers} in {res.wall_time:.1f} s"
+                 + (f" ({rph:.0f} realizations/hour)" if rph else "") + ".")
+    else:
+        head += f"all {res.skipped} had finished before; tables and figures rebuilt."
+    lines.append(head)
     for c in res.cases:
         s = res.stats[c.name]
         head = f"  {c.label}: " + ("deterministic (no random field), 1 realization; "

@@ -452,6 +452,22 @@ def test_directory_of_another_campaign_is_refused_untouched(tmp_path, capsys):
     assert _summary(out)["this_run"]["computed"] == 1
 
 
+def test_a_scene_key_added_later_with_its_default_keeps_the_campaign(tmp_path):
+    """A campaign started before fem_rmpm grew a scene key (here: its stored scene lacks
+    [solver] kernel) is still the same campaign when the key holds its default; another
+    value of the key is a different scene."""
+    scene = api.load_scene(TINY)
+    doc = mc._campaign_doc([mc.parse_case("scene", scene)], scene.montecarlo.seed)
+    old = json.loads(json.dumps(doc))
+    del old["cases"][0]["scene"]["solver"]["kernel"]
+    (tmp_path / "campaign.json").write_text(json.dumps(old))
+    assert mc._check_directory(tmp_path, doc) is True
+    other = api.with_value(scene, "solver.kernel", "numpy")
+    with pytest.raises(mc.CampaignError, match=r"solver\.kernel \(only in this scene\)"):
+        mc._check_directory(tmp_path, mc._campaign_doc([mc.parse_case("scene", other)],
+                                                       scene.montecarlo.seed))
+
+
 def test_a_running_campaign_locks_its_directory(tmp_path, capsys):
     out = tmp_path / "locked"
     out.mkdir()
