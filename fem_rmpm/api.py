@@ -127,7 +127,8 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     rec.wall_time = time.perf_counter() - wall0
     measures = compute_measures(pts, scene.scene.frame_angle_deg,
                                 scene.montecarlo.failure_displacement, grid.cell,
-                                rec.time if rec.stop_reason == "at rest" else None)
+                                rec.time if rec.stop_reason == "at rest" else None,
+                                snapshots=snapshots, grid=grid)
     summary = _summary(scene, seed, pts, rec, measures)
     if out is not None:
         write_json(out / "summary.json", summary)

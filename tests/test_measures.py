@@ -121,3 +121,24 @@ def test_reference_slope_case_i_fails_and_comes_to_rest(meshes, tmp_path):
     assert s["frozen_points"]["count"] == int((~res.particles.active).sum())
     assert np.all(np.isfinite(res.particles.stress)) and np.all(np.isfinite(res.particles.x))
     assert (tmp_path / "case_i" / "plastic_shear_strain.png").exists()
+
+
+def test_slip_surface_height_and_intact_blocks_of_prescribed_slides(meshes):
+    """A slide of everything above y = 1.5 m has its failure surface at the highest point
+    that stayed (the Gauss point just below 1.5 m); two separate, unsheared moved blocks
+    count as two intact blocks, and the same blocks fully sheared count as none."""
+    from fem_rmpm.measures import intact_blocks, slip_surface_height
+    scene, grid, pts = _slope(meshes)
+    upper = (pts.x0[:, 1] > 1.5) & (pts.x0[:, 0] > 10) & (pts.x0[:, 0] < 50)
+    pts.x[upper, 0] += 2.0
+    sliding = np.linalg.norm(pts.x - pts.x0, axis=1) > 0.5
+    expected = pts.x0[(pts.x0[:, 1] < 1.5), 1].max()
+    assert math.isclose(slip_surface_height(pts.x0, sliding, 0.25), expected, rel_tol=1e-12)
+    x = pts.x0.copy()
+    a = (pts.x0[:, 0] > 10) & (pts.x0[:, 0] < 20)
+    b = (pts.x0[:, 0] > 30) & (pts.x0[:, 0] < 40)
+    x[a, 0] += 1.0
+    x[b, 0] += 1.0
+    gam = np.zeros(pts.n)
+    assert intact_blocks(x, pts.x0, gam, 0.5, grid.origin, grid.cell, grid.shape) == 2
+    assert intact_blocks(x, pts.x0, gam + 1.0, 0.5, grid.origin, grid.cell, grid.shape) == 0
