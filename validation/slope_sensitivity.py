@@ -31,15 +31,17 @@ def case(scene, cell, softening_strain):
     # how fast the failure grows: sliding area (points moved > threshold) at early times
     thr = s.montecarlo.failure_displacement
     early = {}
-    for t, x, _ in res.snapshots:
-        if t <= 6.0 + 1e-9:
-            moved = np.linalg.norm(x - res.particles.x0, axis=1) > thr
-            early[round(t, 2)] = float(res.particles.volume0[moved].sum())
+    times = np.array([t for t, *_ in res.snapshots])
+    for target in range(0, 7):                  # nearest snapshot to t = 0, 1, ..., 6 s
+        t, x, _ = res.snapshots[int(np.argmin(np.abs(times - target)))]
+        moved = np.linalg.norm(x - res.particles.x0, axis=1) > thr
+        early[float(target)] = float(res.particles.volume0[moved].sum())
     return {"early_sliding_area": early,"cell": cell, "softening_strain": softening_strain, "points": res.particles.n,
             "steps": res.record.steps, "t": res.record.time, "stop": res.record.stop_reason,
             "wall": res.record.wall_time, "runout": m["runout_distance"],
             "retrogression": m["retrogression_distance"], "sliding_area": m["sliding_area"],
             "time_to_rest": m["time_to_rest"], "frozen": len(res.record.frozen_points),
+            "blocks": m["intact_blocks"], "slip_height": m["slip_surface_height"],
             "profile": m["final_profile"], "initial": m["initial_profile"]}
 
 
@@ -52,14 +54,14 @@ def main():
                                           (0.25, 1.0)]
     rows = []
     print(f"{'cell m':>7} {'gamma_r':>7} {'points':>7} {'steps':>6} {'t s':>6} {'run-out m':>9} "
-          f"{'retro m':>8} {'area m2':>8} {'rest s':>7} {'frozen':>6} {'wall s':>7}")
+          f"{'retro m':>8} {'area m2':>8} {'rest s':>7} {'frozen':>6} {'blocks':>6} {'wall s':>7}")
     for cell, gs in runs:
         r = case(scene, cell, gs)
         rows.append(r)
         rest = f"{r['time_to_rest']:.1f}" if r["time_to_rest"] else "-"
         print(f"{cell:7.3f} {gs:7.2f} {r['points']:7d} {r['steps']:6d} {r['t']:6.1f} "
               f"{r['runout']:9.2f} {r['retrogression']:8.2f} {r['sliding_area']:8.1f} {rest:>7} "
-              f"{r['frozen']:6d} {r['wall']:7.1f}", flush=True)
+              f"{r['frozen']:6d} {r['blocks']:6d} {r['wall']:7.1f}", flush=True)
     print("sliding area (m2) at early times, showing how fast the failure grows:")
     times = sorted(rows[0]["early_sliding_area"])
     print(f"{'cell m':>7} {'gamma_r':>7} " + " ".join(f"{'t=' + format(t, 'g'):>7}" for t in times))
