@@ -725,15 +725,17 @@ class _Progress:
         if enabled and total:
             from tqdm import tqdm
             self.bar = tqdm(total=total, desc=desc, unit="real", dynamic_ncols=True,
+                            postfix=self._text(),
                             bar_format="{l_bar}{bar}| {n}/{total} [{elapsed}<{remaining}, "
-                                       "{rate_fmt}] {postfix}")
-            self._post()
+                                       "{rate_fmt}{postfix}]")
+
+    def _text(self) -> str:
+        return (f"ok {self.ok}, failed {self.failed}, running {self.running}"
+                + (f", lost {self.lost}" if self.lost else ""))
 
     def _post(self):
         if self.bar is not None:
-            self.bar.set_postfix_str(f"ok {self.ok}, failed {self.failed}, running "
-                                     f"{self.running}" + (f", lost {self.lost}" if self.lost
-                                                          else ""), refresh=True)
+            self.bar.set_postfix_str(self._text(), refresh=True)
 
     def done(self, status: str):
         if status == "ok":
@@ -744,8 +746,8 @@ class _Progress:
             self.lost += 1
         self.running = max(0, self.running - 1)     # until the next poll of the scheduler
         if self.bar is not None:
+            self.bar.set_postfix_str(self._text(), refresh=False)
             self.bar.update(1)
-            self._post()
 
     def set_running(self, n: int):
         if n != self.running:
