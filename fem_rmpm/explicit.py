@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .grid import Grid
+from .locking import bbar_gradient, fbar_increment, host_cells
 from .material import hughes_winget_increment, small_strain_update, stress_update
 from .particles import Particles
 from .scene import Scene
@@ -77,6 +78,11 @@ class Workspace:
     tb: np.ndarray          # (n,) arguments / values of the vectorised expm1, arctanh
     tc: np.ndarray          # (n,) argument of expm1 (kept)
     out: np.ndarray         # (4,) stats of the stress kernel
+    # F-bar (fbar = True): host cells, increments, per-cell sums of V and V dJ
+    host: np.ndarray = None  # (n,) int64
+    D: np.ndarray = None     # (n, 4)
+    cv: np.ndarray = None    # (n_cells,)
+    cvj: np.ndarray = None   # (n_cells,)
 
     @classmethod
     def for_grid(cls, grid: Grid, n_points: int) -> "Workspace":
@@ -87,7 +93,9 @@ class Workspace:
                    n_touched=np.zeros(1, np.int64), x_old=np.zeros((n_points, 2)),
                    W=np.zeros((n_points, 4)),
                    ta=np.zeros(n_points), tb=np.zeros(n_points), tc=np.zeros(n_points),
-                   out=np.zeros(4))
+                   out=np.zeros(4), host=np.zeros(n_points, np.int64),
+                   D=np.zeros((n_points, 4)), cv=np.zeros(grid.n_cells),
+                   cvj=np.zeros(grid.n_cells))
 
 
 def stable_time_step(pts: Particles, cell: np.ndarray, cfl: float) -> float:
@@ -132,17 +140,20 @@ def solve_on_mesh(m, p, f, fixed, dt, damping):
 def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                   damping: float, flip: float = 1.0, shape: str = "standard",
                   geostatic: bool = False, kernel: str | None = None,
-                  work: Workspace | None = None) -> StepStats:
+                  work: Workspace | None = None, fbar: bool = False) -> StepStats:
     """Advance the active points by one explicit MUSL step of ``dt`` seconds (in place).
 
     ``geostatic``: points stay where they are and strains are small (the in-situ
     gravity phase); the displacement is accumulated in ``pts.u_geostatic``.
     ``kernel``: ``"numba"`` (default, compiled) or ``"numpy"`` (reference);
     ``work``: nodal arrays reused between steps (numba; made here if not given).
+    ``fbar``: the F-bar locking remedy (:mod:`fem_rmpm.locking`): each point's volume
+    change is replaced by the volume-weighted mean of its host cell (geostatic: B-bar).
     """
     kernel = kernel or DEFAULT_KERNEL
     if kernel == "numpy":
-        return explicit_step_numpy(grid, pts, dt, gravity, damping, flip, shape, geostatic)
+        return explicit_step_numpy(grid, pts, dt, gravity, damping, flip, shape, geostatic,
+                                   fbar)
     if kernel != "numba":
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
     from . import kernels as K
@@ -165,14 +176,15 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                     pts.log_strain, pts.plastic_shear_strain, pts.stress, pts.active,
                     s.shear_modulus, s.bulk_modulus, s.cohesion_peak, s.cohesion_residual,
                     s.softening_strain, s.exponential, dt, geostatic, gimp, lp, org, h, nx, ny,
-                    w.p2, org, grid.upper, w.out, w.W, w.ta, w.tb, w.tc)
+                    w.p2, org, grid.upper, w.out, w.W, w.ta, w.tb, w.tc, fbar, w.host, w.D,
+                    w.cv, w.cvj)
     o = w.out
     return StepStats(ke, vmax, float(o[0]), float(o[1]), int(o[2]), int(o[3]))
 
 
 def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                         damping: float, flip: float = 1.0, shape: str = "standard",
-                        geostatic: bool = False) -> StepStats:
+                        geostatic: bool = False, fbar: bool = False) -> StepStats:
     """Reference numpy implementation of :func:`explicit_step` (same arguments).
 
     ``geostatic``: points stay where they are and strains are small (the in-situ
@@ -197,11 +209,15 @@ def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarr
     v_nodes = np.where(grid.fixed, 0.0, p2 / np.where(m > _MASS_TOL, m, 1.0)[:, None])
     L = np.einsum("pak,pal->pkl", v_nodes[nodes], dN)          # velocity gradient
     state = (pts.log_strain[act], pts.plastic_shear_strain[act], pts.soil.take(act))
+    host = host_cells(grid, pts.x[act]) if fbar else None      # cells before the move
     if geostatic:
-        log_strain, gamma_p, tau = small_strain_update(L * dt, *state)
+        H = bbar_gradient(L * dt, vol, host, grid.n_cells) if fbar else L * dt
+        log_strain, gamma_p, tau = small_strain_update(H, *state)
         dF, J = np.eye(2), 1.0
     else:
         dF = hughes_winget_increment(L, dt)
+        if fbar:
+            dF = fbar_increment(dF, vol, host, grid.n_cells)[0]
         log_strain, gamma_p, tau = stress_update(dF, *state)
         J = np.linalg.det(dF)
     pts.x[act], pts.velocity[act], pts.volume[act] = x, v, vol * J
@@ -301,7 +317,7 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
         ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
         damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
         stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape, geostatic,
-                              kernel, work)
+                              kernel, work, bool(sv.fbar))
         t += dt
         step += 1
         rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)

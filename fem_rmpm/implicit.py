@@ -83,6 +83,24 @@ BLAS thread): the two are comparable at 10^4 DOFs, pyamg is ~2x faster at 10^5. 
 residual (inexact Newton with forcing term ``min(1e-3, max(1e-12, 0.1 r_k))``),
 which keeps the outer convergence quadratic.
 
+**Volumetric locking** (``[solver] fbar = true``): F-bar with cell averaging
+(:mod:`fem_rmpm.locking`, de Souza Neto et al. 1996): the material sees
+``dF_bar = (dJ_bar / dJ)^(1/2) dF``, ``dJ_bar`` the volume-weighted mean over the
+points of the host cell (geostatic steps: B-bar, its small-strain linearisation).
+The internal force keeps ``sum_p V0 tau(dF_bar) g`` with the true spatial gradients
+``g``; the consistent tangent gains the analytic cell-coupling term
+:meth:`StepSystem.fbar_tangent` (rank one per point), so Newton stays quadratic
+(``tests/test_locking.py``).  Points store ``F <- dF_bar F`` and ``V = det(F) V0``.
+
+**Prescribed displacements** (``[[prescribed]]`` regions, quasi-static or geostatic
+load steps only): the grid nodes in a region's polygon are removed from the free
+DOFs and move by the load-factor increment times the region's displacement; the
+reaction ``f_int - f_ext`` summed over each region (kN per m, the force the region
+exerts on the soil) is recorded per step in ``record.solver["steps"][k]["reactions"]``.
+A displacement-controlled footing is a region on the surface (``meshes/footing.toml``).
+The nodes stay where they are (the grid is reset every step): the footing keeps
+contact while the soil under it has moved less than about 0.7 of a cell.
+
 **Basis** (``[solver] shape``): with the standard Q4 basis the points sit on
 the Gauss points only in the first step; once they move, cell crossing makes
 the point-quadrature error O(1) (a cell holds 3 or 5 points instead of 4) and
@@ -102,7 +120,9 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from .explicit import RunRecord, SimulationError, check_points
-from .grid import Grid
+from .grid import Grid, points_in_polygon
+from .locking import (bbar_gradient, fbar_increment, fbar_q, fbar_tangent_correction,
+                      fbar_weights, host_cells)
 from .material import (SoilPoints, return_map, exp_sym2, kirchhoff_stress, log_sym2,
                        small_strain_update, stress_update)
 from .particles import Particles
@@ -272,8 +292,11 @@ class StepSystem:
     and the sums go straight into the CSR data array at precomputed positions.
     """
 
-    def __init__(self, grid: Grid, x: np.ndarray, shape: str = "standard", half_width=None):
+    def __init__(self, grid: Grid, x: np.ndarray, shape: str = "standard", half_width=None,
+                 fixed: np.ndarray | None = None):
         self.grid = grid
+        fixed = grid.fixed if fixed is None else fixed      # (n_nodes, 2) prescribed DOFs
+        self.host = host_cells(grid, x)                     # F-bar cells
         _, nodes, N, dN, _ = shape_at_points(grid, x, shape, half_width)
         self.nodes, self.N, self.dN = nodes, N, dN
         n, k = nodes.shape
@@ -283,7 +306,7 @@ class StepSystem:
         touch = (N != 0) | (dN != 0).any(axis=2)     # uGIMP lists nodes with zero weight
         used[nodes[touch]] = True
         self.used = used
-        free_mask = (used[:, None] & ~grid.fixed).ravel()      # dof = 2 node + comp
+        free_mask = (used[:, None] & ~fixed).ravel()           # dof = 2 node + comp
         self.free_dofs = np.nonzero(free_mask)[0]
         self.n_free = nf = len(self.free_dofs)
         fnum = np.full(2 * nn, -1, dtype=np.int64)
@@ -324,9 +347,11 @@ class StepSystem:
         """Nodal vector (n_nodes, 2) at the points (n, 2)."""
         return np.einsum("pa,pai->pi", self.N, nodal[self.nodes])
 
-    def to_nodes(self, free_vec: np.ndarray) -> np.ndarray:
-        """Free-DOF vector -> nodal (n_nodes, 2) with zeros at prescribed DOFs."""
-        full = np.zeros(2 * self.grid.n_nodes)
+    def to_nodes(self, free_vec: np.ndarray, prescribed: np.ndarray | None = None) -> np.ndarray:
+        """Free-DOF vector -> nodal (n_nodes, 2); the other DOFs are zero, or take the
+        values of ``prescribed`` (n_nodes, 2) if given."""
+        full = np.zeros(2 * self.grid.n_nodes) if prescribed is None else \
+            np.array(prescribed, dtype=float).ravel()
         full[self.free_dofs] = free_vec
         return full.reshape(-1, 2)
 
@@ -337,10 +362,23 @@ class StepSystem:
                            minlength=2 * self.grid.n_nodes)
         return full[self.free_dofs]
 
-    def internal_force(self, V0: np.ndarray, tau4: np.ndarray, g: np.ndarray) -> np.ndarray:
-        """``f_ai = sum_p V0_p tau_ij g_aj`` on the free DOFs (kN per m)."""
+    def internal_force(self, V0: np.ndarray, tau4: np.ndarray, g: np.ndarray,
+                       full: bool = False) -> np.ndarray:
+        """``f_ai = sum_p V0_p tau_ij g_aj`` on the free DOFs (kN per m); ``full``: on all
+        DOFs, as (n_nodes, 2) (for the reactions at prescribed DOFs)."""
         T = _tensor(tau4) * V0[:, None, None]
-        return self._scatter(np.matmul(g, T))          # (g T)_ai = g_aj T_ji, T symmetric
+        per_point = np.matmul(g, T)                     # (g T)_ai = g_aj T_ji, T symmetric
+        if full:
+            return np.bincount(self.point_dofs.ravel(), per_point.ravel(),
+                               minlength=2 * self.grid.n_nodes).reshape(-1, 2)
+        return self._scatter(per_point)
+
+    def fbar_tangent(self, V0: np.ndarray, g: np.ndarray, Q: np.ndarray,
+                     w: np.ndarray) -> sp.csr_matrix:
+        """The F-bar coupling term of the tangent on the free DOFs
+        (:func:`fem_rmpm.locking.fbar_tangent_correction`)."""
+        return fbar_tangent_correction(self.fnum[self.point_dofs], V0, g, Q, w, self.host,
+                                       self.n_free)
 
     def body_force(self, mass: np.ndarray, gravity) -> np.ndarray:
         """``f_ai = sum_p m_p g_i N_a`` on the free DOFs (kN per m)."""
@@ -588,8 +626,17 @@ class _Stepper:
     def __init__(self, scene: Scene, grid: Grid, pts: Particles, solver: LinearSolver):
         self.scene, self.grid, self.pts, self.solver = scene, grid, pts, solver
         self.sv = scene.solver
+        self.fbar = bool(self.sv.fbar)
         self.g_full = np.array(scene.gravity_vector, dtype=float)
         self.acc = np.zeros((pts.n, 2))          # point accelerations (dynamic)
+        self.regions = prescribed_nodes(scene, grid)
+        mask = np.zeros((grid.n_nodes, 2), dtype=bool)
+        target = np.zeros((grid.n_nodes, 2))     # prescribed displacement at load factor 1
+        for r in self.regions:
+            mask |= r["mask"]
+            target[r["mask"]] = np.broadcast_to(r["displacement"], r["mask"].shape)[r["mask"]]
+        self.presc_mask, self.presc_target = mask, target
+        self.fixed = grid.fixed | mask
 
     def _setup(self):
         pts = self.pts
@@ -598,22 +645,31 @@ class _Stepper:
             raise SimulationError("no active material point left (all frozen at the grid "
                                   "edge); enlarge [grid] size")
         sys_ = StepSystem(self.grid, pts.x[act], self.sv.shape,
-                          pts.half_width[act] if pts.half_width is not None else None)
+                          pts.half_width[act] if pts.half_width is not None else None,
+                          fixed=self.fixed)
         return act, sys_
 
     # -- geostatic (small strain, fixed geometry) and quasi-static / dynamic large deformation
-    def step(self, kind: str, lf_new: float, dt: float = 0.0) -> _StepOutcome:
+    def step(self, kind: str, lf_new: float, dt: float = 0.0,
+             lf_old: float | None = None) -> _StepOutcome:
         """``kind``: "geostatic" | "static" | "dynamic"; ``lf_new`` the gravity factor at
-        the end of the step; ``dt`` the time step (dynamic)."""
+        the end of the step; ``dt`` the time step (dynamic); ``lf_old`` the load factor at
+        its start (prescribed displacements grow by ``(lf_new - lf_old)`` x their value)."""
         pts = self.pts
         clock = {"material": 0.0, "assembly": 0.0}
         t_setup = time.perf_counter()
         act, S = self._setup()
         t_setup = time.perf_counter() - t_setup
         V0, mass = pts.volume0[act], pts.mass[act]
+        Vn = pts.volume[act]                          # F-bar weights: volumes at step start
         ls0, gp0, soil = pts.log_strain[act], pts.plastic_shear_strain[act], pts.soil.take(act)
         f_ext = S.body_force(mass, lf_new * self.g_full)
         dyn = kind == "dynamic"
+        presc = None
+        if self.presc_mask.any():
+            if dyn or lf_old is None:
+                raise SimulationError("prescribed displacements need quasi-static load steps")
+            presc = np.where(self.presc_mask, (lf_new - lf_old) * self.presc_target, 0.0)
         if dyn:
             m_nodes = S.lumped_mass(mass)
             has = m_nodes > _MASS_TOL
@@ -626,16 +682,19 @@ class _Stepper:
         else:
             du0 = np.zeros(S.n_free)
         cache = {}
+        nc = self.grid.n_cells
 
         def evaluate(du_free):
             t0 = time.perf_counter()
-            H = S.gradient(S.to_nodes(du_free))
+            H = S.gradient(S.to_nodes(du_free, presc))
             if kind == "geostatic":
+                Hm = bbar_gradient(H, Vn, S.host, nc) if self.fbar else H
                 t1 = time.perf_counter()
-                ls, gp, tau = small_strain_update(H, ls0, gp0, soil)
+                ls, gp, tau = small_strain_update(Hm, ls0, gp0, soil)
                 t2 = time.perf_counter()
                 g = S.dN
-                cache.update(H=H, g=g)
+                cache.update(H=Hm, g=g, tau=tau)
+                dFm = None
             else:
                 dF = _EYE + H
                 Finv, det = _inv2(dF)
@@ -643,20 +702,27 @@ class _Stepper:
                     i = act[np.argmin(det)]
                     raise NewtonFailure(f"material point {i} inverted (det dF = "
                                         f"{det.min():.3g})", [])
+                if self.fbar:
+                    dFm, J, _ = fbar_increment(dF, Vn, S.host, nc)
+                    cache["w"] = fbar_weights(Vn, J, S.host, nc)
+                else:
+                    dFm = dF
                 t1 = time.perf_counter()
-                ls, gp, tau = stress_update(dF, ls0, gp0, soil)
+                ls, gp, tau = stress_update(dFm, ls0, gp0, soil)
                 t2 = time.perf_counter()
                 g = np.matmul(S.dN, Finv)
-                cache.update(H=H, dF=dF, g=g, tau=tau)
+                cache.update(H=H, dF=dFm, g=g, tau=tau)
             f_int = S.internal_force(V0, tau, g)
             clock["material"] += t2 - t1
             clock["assembly"] += time.perf_counter() - t0 - (t2 - t1)
             R = f_ext - f_int
             ref = float(np.linalg.norm(f_ext))
+            if presc is not None:      # the prescribed motion drives the step
+                ref = max(ref, float(np.linalg.norm(S.internal_force(V0, tau, g, full=True))))
             if dyn:
                 a_new = c * (du_free - dt * v_n) - a_n
                 R = R - m_free * a_new
-            return R, ref, (ls, gp, tau)
+            return R, ref, (ls, gp, tau, dFm)
 
         def tangent():
             t0 = time.perf_counter()
@@ -669,6 +735,11 @@ class _Stepper:
                                              tau=cache["tau"])
             t1 = time.perf_counter()
             K = S.tangent(V0, cache["g"], A, diagonal=(c * m_free) if dyn else None)
+            if self.fbar:
+                geo = kind == "geostatic"
+                w = Vn / np.bincount(S.host, Vn, minlength=nc)[S.host] if geo else cache["w"]
+                K = K + S.fbar_tangent(V0, cache["g"], fbar_q(A, None if geo else cache["tau"]),
+                                       w)
             clock["material"] += t1 - t0
             clock["assembly"] += time.perf_counter() - t1
             return K
@@ -679,24 +750,38 @@ class _Stepper:
         res.t_material, res.t_assembly, res.t_setup = (clock["material"], clock["assembly"],
                                                        t_setup)
 
+        def reactions():
+            """Force (kN/m) of each prescribed region on the soil: f_int - f_ext there."""
+            if presc is None:
+                return {}
+            _, _, tau, _ = res.state
+            g = S.dN if kind == "geostatic" else np.matmul(
+                S.dN, _inv2(_EYE + S.gradient(S.to_nodes(res.du, presc)))[0])
+            r = S.internal_force(V0, tau, g, full=True) - np.bincount(
+                S.point_dofs.ravel(), (S.N[:, :, None] * mass[:, None, None]
+                                       * (lf_new * self.g_full)).ravel(),
+                minlength=2 * self.grid.n_nodes).reshape(-1, 2)
+            return {"reactions": {reg["name"]: [float(v) for v in r[reg["nodes"]].sum(axis=0)]
+                                  for reg in self.regions}}
+
         def commit():
-            ls, gp, tau = res.state
-            du_nodes = S.to_nodes(res.du)
+            ls, gp, tau, dFm = res.state
+            info = reactions()
+            du_nodes = S.to_nodes(res.du, presc)
             u_p = S.interpolate(du_nodes)
             pts.log_strain[act], pts.plastic_shear_strain[act] = ls, gp
             if kind == "geostatic":
                 pts.u_geostatic[act] += u_p
                 pts.stress[act] = tau
-                return {}
-            dF = _EYE + S.gradient(du_nodes)
+                return info
             pts.x[act] = pts.x[act] + u_p
-            pts.F[act] = dF @ pts.F[act]
+            pts.F[act] = dFm @ pts.F[act]
             F = pts.F[act]
             J = F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
             pts.volume[act] = J * V0
             pts.stress[act] = tau / J[:, None]
             if not dyn:
-                return {}
+                return info
             a_new = c * (res.du - dt * v_n) - a_n
             v_new = v_n + 0.5 * dt * (a_n + a_new)
             a_nodes, v_nodes = S.to_nodes(a_new), S.to_nodes(v_new)
@@ -711,6 +796,34 @@ class _Stepper:
                     "max_speed": float(np.sqrt(np.max(np.sum(v_pic * v_pic, 1), initial=0.0)))}
 
         return _StepOutcome(res, commit)
+
+
+def prescribed_nodes(scene: Scene, grid: Grid) -> list[dict]:
+    """The ``[[prescribed]]`` regions of a scene on its grid: per region its ``name``, the
+    ``nodes`` in or on its polygon, the (n_nodes, 2) ``mask`` of prescribed components
+    and the ``displacement`` (2,) at load factor 1.  A region that holds no grid node is
+    a :class:`SceneError`."""
+    out = []
+    p = grid.nodes
+    tol = 1e-6 * float(np.min(grid.cell))
+    for i, pr in enumerate(getattr(scene, "prescribed", ())):
+        poly = np.asarray(pr.polygon, dtype=float)
+        on = points_in_polygon(p, poly)
+        for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+            ab = b - a
+            t = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-300), 0.0, 1.0)
+            on |= np.linalg.norm(p - (a + t[:, None] * ab), axis=1) <= tol
+        nodes = np.nonzero(on)[0]
+        if len(nodes) == 0:
+            raise SceneError(f"{scene.source}: [prescribed[{i}].polygon] holds no grid node; "
+                             "allowed: a polygon containing or touching grid nodes (m)")
+        mask = np.zeros((grid.n_nodes, 2), dtype=bool)
+        comps = [k for k, c in enumerate("xy") if c in pr.components]
+        mask[np.ix_(nodes, comps)] = True
+        out.append({"name": pr.name if pr.name != "prescribed" or len(scene.prescribed) == 1
+                    else f"{pr.name}{i}", "nodes": nodes, "mask": mask,
+                    "displacement": np.array(pr.displacement, dtype=float)})
+    return out
 
 
 # ----------------------------------------------------------------------------- driver
@@ -751,9 +864,6 @@ def run_implicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     has been passed to ``on_output``.
     """
     sv = scene.solver
-    if sv.fbar:
-        raise SceneError(f"{scene.source}: [solver.fbar] the F-bar remedy is not available "
-                         "with scheme = \"implicit\"; allowed: fbar = false")
     rec = RunRecord(scheme="implicit")
     solver = LinearSolver(sv.linear_solver)
     stepper = _Stepper(scene, grid, pts, solver)
@@ -800,7 +910,8 @@ def run_implicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
         while pos < a1 - 1e-12 * max(1.0, abs(a1)):
             h = min(size, a1 - pos)
             try:
-                out = stepper.step(kind, gravity_of(pos + h), h if kind == "dynamic" else 0.0)
+                out = stepper.step(kind, gravity_of(pos + h), h if kind == "dynamic" else 0.0,
+                                   None if kind == "dynamic" else gravity_of(pos))
             except NewtonFailure as f:
                 last = f
                 if cuts >= sv.max_cuts:
@@ -823,6 +934,8 @@ def run_implicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
                                    ("time" if kind == "dynamic" else "load_factor"): pos,
                                    "size": h, "iterations": res.iterations, "cuts": cuts,
                                    "residuals": res.residuals})
+            if "reactions" in info:
+                stats["steps"][-1]["reactions"] = info.pop("reactions")
             check_points(grid, pts, state["step"], state["t"], sv.edge_policy, rec)
             yield info
 

@@ -605,20 +605,105 @@ def _finish_pass(x, v, mass, vol, vol0, log_strain, gamma_p, stress, active,
     out[3] = n_out
 
 
+@_kernel
+def _fbar_gradient_pass(x_old, active, vol, dt, geostatic, gimp, lp, org, h, nx, ny, vn,
+                        host, D, cv, cvj):
+    """F-bar pass 1 (:mod:`fem_rmpm.locking`): per point the host cell at ``x_old`` and the
+    increment ``D`` (n, 4) — finite strain: the Hughes-Winget dF; geostatic: grad(du) =
+    L dt — and per cell the sums of ``V`` and ``V dJ`` (geostatic: ``V tr grad(du)``),
+    in point order as ``np.bincount``.  ``vol`` is read, not changed."""
+    o0, o1, h0, h1 = org[0], org[1], h[0], h[1]
+    ih0, ih1 = 1.0 / h0, 1.0 / h1
+    for i in range(x_old.shape[0]):
+        if not active[i]:
+            continue
+        ci = min(max(int(math.floor((x_old[i, 0] - o0) * ih0)), 0), nx - 1)
+        cj = min(max(int(math.floor((x_old[i, 1] - o1) * ih1)), 0), ny - 1)
+        c = cj * nx + ci
+        host[i] = c
+        cv[c] = 0.0
+        cvj[c] = 0.0
+    for i in range(x_old.shape[0]):
+        if not active[i]:
+            continue
+        if gimp:
+            sg = _gimp(x_old[i, 0], x_old[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1, ih0, ih1,
+                       nx, ny)
+            L00, L01, L10, L11 = _velocity_gradient(sg, vn)
+        else:
+            sq = _q4(x_old[i, 0], x_old[i, 1], o0, o1, h0, h1, ih0, ih1, nx, ny)
+            L00, L01, L10, L11 = _velocity_gradient(sq, vn)
+        if geostatic:
+            g00, g01, g10, g11 = L00 * dt, L01 * dt, L10 * dt, L11 * dt
+            j = g00 + g11
+        else:
+            g00, g01, g10, g11 = _hughes_winget(L00, L01, L10, L11, dt)
+            j = g00 * g11 - g01 * g10
+        D[i, 0] = g00
+        D[i, 1] = g01
+        D[i, 2] = g10
+        D[i, 3] = g11
+        c = host[i]
+        cv[c] += vol[i]
+        cvj[c] += vol[i] * j
+
+
+@_kernel
+def _fbar_apply_pass(active, log_strain, F, vol, geostatic, host, D, cv, cvj, W, ta, tb, tc):
+    """F-bar pass 2: the cell mean replaces each point's volume change.  Finite strain:
+    dF_bar = (dJ_bar / dJ)^(1/2) dF, then F, V and b_tr as :func:`_kinematics_pass`;
+    geostatic (B-bar): grad(du) + 1/2 (mean tr - tr) I, the trial strain into ``W``."""
+    for i in range(D.shape[0]):
+        if not active[i]:
+            ta[i] = 1.0
+            tb[i] = 0.0
+            continue
+        c = host[i]
+        mean = cvj[c] / cv[c]
+        g00, g01, g10, g11 = D[i, 0], D[i, 1], D[i, 2], D[i, 3]
+        e0, e1, e2, e3 = log_strain[i, 0], log_strain[i, 1], log_strain[i, 2], log_strain[i, 3]
+        if geostatic:
+            corr = 0.5 * (mean - (g00 + g11))
+            W[i, 0] = e0 + (g00 + corr)
+            W[i, 1] = e1 + (g11 + corr)
+            W[i, 2] = e2 + 0.0
+            W[i, 3] = e3 + 0.5 * (g01 + g10)
+            continue
+        sc = math.sqrt(mean / (g00 * g11 - g01 * g10))
+        f00, f01, f10, f11 = sc * g00, sc * g01, sc * g10, sc * g11
+        a00, a01, a10, a11 = F[i, 0, 0], F[i, 0, 1], F[i, 1, 0], F[i, 1, 1]
+        F[i, 0, 0] = f00 * a00 + f01 * a10
+        F[i, 0, 1] = f00 * a01 + f01 * a11
+        F[i, 1, 0] = f10 * a00 + f11 * a10
+        F[i, 1, 1] = f10 * a01 + f11 * a11
+        vol[i] = vol[i] * (f00 * f11 - f01 * f10)
+        W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i] = _trial_b(
+            f00, f01, f10, f11, e0, e1, e3, ta[i], tb[i], tc[i])
+
+
 def update_stress(x, x_old, v, mass, vol, vol0, F, log_strain, gamma_p, stress, active,
                   G, K, cp, cr, gs, expo, dt, geostatic, gimp, lp, org, h, nx, ny, vn,
-                  lo, hi, out, W, ta, tb, tc):
+                  lo, hi, out, W, ta, tb, tc, fbar=False, host=None, D=None, cv=None,
+                  cvj=None):
     """Stage 3c: velocity gradient from the re-mapped nodal velocities ``vn`` at the
     positions before the move (``x_old``), deformation increment (geostatic: small
     strain, J = 1), F, volume, Hencky/von Mises stress update, Cauchy stress; see
-    :func:`_finish_pass` for ``out``.  ``W`` (n, 4), ``ta``, ``tb``, ``tc`` (n,) are scratch."""
+    :func:`_finish_pass` for ``out``.  ``W`` (n, 4), ``ta``, ``tb``, ``tc`` (n,) are scratch.
+    ``fbar``: the F-bar remedy (:mod:`fem_rmpm.locking`) with the scratch arrays ``host``
+    (n,) int64, ``D`` (n, 4) and the per-cell sums ``cv``, ``cvj`` (n_cells,)."""
     with np.errstate(all="ignore"):     # a non-finite point is reported by the guards
         if not geostatic:
             _exp_args_pass(log_strain, active, ta, tb, tc)
             np.exp(ta, out=ta)
             np.expm1(tb, out=tb)
-        _kinematics_pass(x_old, active, log_strain, F, vol, dt, geostatic, gimp, lp, org, h,
-                         nx, ny, vn, W, ta, tb, tc)
+        if fbar:
+            _fbar_gradient_pass(x_old, active, vol, dt, geostatic, gimp, lp, org, h, nx, ny, vn,
+                                host, D, cv, cvj)
+            _fbar_apply_pass(active, log_strain, F, vol, geostatic, host, D, cv, cvj, W, ta, tb,
+                             tc)
+        else:
+            _kinematics_pass(x_old, active, log_strain, F, vol, dt, geostatic, gimp, lp, org, h,
+                             nx, ny, vn, W, ta, tb, tc)
         if not geostatic:
             np.log(ta, out=ta)
             np.arctanh(tb, out=tb)

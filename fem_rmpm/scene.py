@@ -22,7 +22,7 @@ from typing import Any
 
 __all__ = [
     "SceneError", "Scene", "SceneInfo", "GridSpec", "BoundarySpec", "SoilSpec",
-    "BedrockSpec", "RandomFieldSpec", "SolverSpec", "MonteCarloSpec", "OutputSpec",
+    "BedrockSpec", "PrescribedSpec", "RandomFieldSpec", "SolverSpec", "MonteCarloSpec", "OutputSpec",
     "load_scene", "scene_from_dict", "with_value", "with_values", "scene_to_dict",
 ]
 
@@ -103,6 +103,21 @@ class BedrockSpec:
 
 
 @dataclass(frozen=True)
+class PrescribedSpec:
+    """Displacement control of grid nodes (a rigid footing, a moving wall): every grid node
+    in or on ``polygon`` gets the displacement ``displacement`` (m) in the components
+    ``components`` ("xy": both, e.g. a rough footing; "y" or "x": one, e.g. a smooth
+    footing).  The displacement is reached at the end of loading: with implicit
+    quasi-static (or geostatic) load steps each step adds its share (the load factor
+    increment times ``displacement``).  A component prescribed here wins over a fixed
+    or roller boundary.  The reaction (kN per m) of each region is recorded per step."""
+    polygon: tuple[tuple[float, float], ...]
+    displacement: tuple[float, float]    # m, at load factor 1
+    components: str = "xy"
+    name: str = "prescribed"
+
+
+@dataclass(frozen=True)
 class RandomFieldSpec:
     property: str = "cohesion_peak"
     distribution: str = "lognormal"      # "normal" | "lognormal"
@@ -142,7 +157,7 @@ class SolverSpec:
     tolerance: float = 1e-9              # relative residual
     max_cuts: int = 4                    # step cuts before giving up
     linear_solver: str = "superlu"       # "superlu" | "pyamg"
-    fbar: bool = False                   # F-bar locking remedy
+    fbar: bool = False                   # F-bar locking remedy (cell-averaged volume change)
 
 
 @dataclass(frozen=True)
@@ -166,6 +181,7 @@ class Scene:
     boundary: BoundarySpec
     soils: tuple[SoilSpec, ...]
     bedrock: tuple[BedrockSpec, ...] = ()
+    prescribed: tuple[PrescribedSpec, ...] = ()
     random_field: RandomFieldSpec | None = None
     solver: SolverSpec = field(default_factory=SolverSpec)
     montecarlo: MonteCarloSpec = field(default_factory=MonteCarloSpec)
@@ -183,7 +199,7 @@ class Scene:
 # --------------------------------------------------------------------------- validation
 
 _SECTIONS = {"scene": SceneInfo, "grid": GridSpec, "boundary": BoundarySpec, "soil": SoilSpec,
-             "bedrock": BedrockSpec, "random_field": RandomFieldSpec, "solver": SolverSpec,
+             "bedrock": BedrockSpec, "prescribed": PrescribedSpec, "random_field": RandomFieldSpec, "solver": SolverSpec,
              "montecarlo": MonteCarloSpec, "output": OutputSpec}
 
 # (low, high, low_inclusive, high_inclusive) for numeric keys
@@ -233,7 +249,11 @@ _CHOICES: dict[str, tuple[str, ...]] = {
     "solver.linear_solver": ("superlu", "pyamg"),
     "solver.gravity_phase": ("dynamic", "geostatic"),
     "solver.kernel": ("numba", "numpy"),
+    "prescribed.components": ("xy", "x", "y"),
 }
+
+
+_LISTS = ("soil", "bedrock", "prescribed")     # sections that are arrays of tables
 
 
 def _fail(source: str, key: str, msg: str) -> SceneError:
@@ -360,6 +380,10 @@ def _check_scene(s: Scene) -> None:
                 if not (x0 - tol <= px <= x0 + gx + tol and y0 - tol <= py <= y0 + gy + tol):
                     raise _fail(src, f"{key}.polygon", f"point ({px:g}, {py:g}) m lies outside "
                                 f"the grid [{x0:g}, {x0 + gx:g}] x [{y0:g}, {y0 + gy:g}] m")
+    for i, pr in enumerate(s.prescribed):
+        if s.solver.scheme != "implicit" or s.solver.dynamic:
+            raise _fail(src, f"prescribed[{i}]", "prescribed displacements need load steps; "
+                        "allowed: [solver] scheme = \"implicit\" with dynamic = false")
     if s.random_field is not None:
         rf = s.random_field
         if rf.soil is not None and rf.soil not in names:
@@ -376,20 +400,23 @@ def scene_from_dict(data: dict, source: str = "<dict>") -> Scene:
     unknown = sorted(set(data) - set(_SECTIONS))
     if unknown:
         raise _fail(source, unknown[0], "unknown section; allowed: "
-                    + ", ".join(f"[{k}]" for k in _SECTIONS if k not in ("soil", "bedrock"))
-                    + ", [[soil]], [[bedrock]]")
+                    + ", ".join(f"[{k}]" for k in _SECTIONS if k not in _LISTS)
+                    + ", [[soil]], [[bedrock]], [[prescribed]]")
     if "soil" not in data:
         raise _fail(source, "soil", "missing required section [[soil]]")
     soils_raw = data["soil"] if isinstance(data["soil"], list) else [data["soil"]]
     soils = tuple(_build(source, "soil", SoilSpec, d) for d in soils_raw)
     rock_raw = data.get("bedrock", [])
     rock_raw = rock_raw if isinstance(rock_raw, list) else [rock_raw]
+    presc_raw = data.get("prescribed", [])
+    presc_raw = presc_raw if isinstance(presc_raw, list) else [presc_raw]
     scene = Scene(
         scene=_build(source, "scene", SceneInfo, data.get("scene", {})),
         grid=_build(source, "grid", GridSpec, data.get("grid", {})),
         boundary=_build(source, "boundary", BoundarySpec, data.get("boundary", {})),
         soils=soils,
         bedrock=tuple(_build(source, "bedrock", BedrockSpec, d) for d in rock_raw),
+        prescribed=tuple(_build(source, "prescribed", PrescribedSpec, d) for d in presc_raw),
         random_field=(_build(source, "random_field", RandomFieldSpec, data["random_field"])
                       if "random_field" in data else None),
         solver=_build(source, "solver", SolverSpec, data.get("solver", {})),
@@ -430,6 +457,8 @@ def scene_to_dict(scene: Scene) -> dict:
     out["soil"] = [dataclasses.asdict(s) for s in scene.soils]
     if scene.bedrock:
         out["bedrock"] = [dataclasses.asdict(b) for b in scene.bedrock]
+    if scene.prescribed:
+        out["prescribed"] = [dataclasses.asdict(b) for b in scene.prescribed]
     if scene.random_field is not None:
         out["random_field"] = dataclasses.asdict(scene.random_field)
 
@@ -468,11 +497,14 @@ def with_values(scene: Scene, changes: dict[str, Any]) -> Scene:
         section, _, name = key.partition(".")
         if not name:
             raise SceneError(f"{scene.source}: [{key}] expected a dotted key like 'solver.cfl'")
-        if section.startswith("soil"):
+        if section.split("[")[0] in _LISTS:
+            base = section.split("[")[0]
+            if base not in data:
+                raise _fail(scene.source, key, "the scene has no such table")
             idx = None
             if "[" in section:
                 idx = int(section[section.index("[") + 1:section.index("]")])
-            targets = data["soil"] if idx is None else [data["soil"][idx]]
+            targets = data[base] if idx is None else [data[base][idx]]
             for t in targets:
                 t[name] = value
         elif section == "random_field" and "random_field" not in data:
