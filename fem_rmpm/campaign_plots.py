@@ -3,7 +3,9 @@
 * ``exceedance.png`` — empirical exceedance curves P[X > x] = (number of ``ok``
   realizations with X > x) / N of run-out, retrogression and sliding area, one
   curve per case (a deterministic case is a vertical dashed line);
-* ``histograms.png`` — their histograms (shared bins per measure);
+* ``histograms.png`` — their histograms (shared bins per measure), and those of the
+  measures of the mechanism when recorded (slip-surface height, intact blocks, sliding
+  area at the mechanism time: the literature's distinctions between the cases);
 * ``convergence.png`` — the running P(failure) against N with the Wilson 95 %
   band, and the running mean run-out with mean +- 1.96 SE (SE = s / sqrt(N));
 * ``cases.png`` — the final plastic shear strain of one kept realization per
@@ -26,6 +28,10 @@ __all__ = ["campaign_figures", "plot_exceedance", "plot_histograms", "plot_conve
 _MEASURES = (("runout_distance", "run-out distance (m)"),
              ("retrogression_distance", "retrogression distance (m)"),
              ("sliding_area", "sliding area (m$^2$ per m)"))
+#: Measures of the mechanism (fem_rmpm.measures), shown in the histograms when recorded.
+_MECHANISM = (("slip_surface_height", "slip-surface height above the base (m)"),
+              ("intact_blocks", "intact blocks at the mechanism time"),
+              ("sliding_area_early", "sliding area at the mechanism time (m$^2$)"))
 
 
 def _plt():
@@ -37,7 +43,8 @@ def _plt():
 
 def _values(records, case: str, key: str) -> np.ndarray:
     return np.array([float(r["measures"][key]) for r in records
-                     if r["case"] == case and r["status"] == "ok"])
+                     if r["case"] == case and r["status"] == "ok"
+                     and (r["measures"] or {}).get(key) is not None])
 
 
 def plot_exceedance(path: Path, cases, records) -> Path:
@@ -71,13 +78,25 @@ def plot_exceedance(path: Path, cases, records) -> Path:
 def plot_histograms(path: Path, cases, records) -> Path:
     plt = _plt()
     from matplotlib.ticker import MaxNLocator
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    for ax, (key, lab) in zip(axes, _MEASURES):
+    ok = [r for r in records if r["status"] == "ok"]
+    panels = list(_MEASURES) + [(k, lab) for k, lab in _MECHANISM
+                                if ok and all((r["measures"] or {}).get(k) is not None
+                                              for r in ok)]
+    rows = (len(panels) + 2) // 3
+    fig, axes = plt.subplots(rows, 3, figsize=(13, 0.6 + 3.3 * rows), squeeze=False)
+    axes = axes.ravel()
+    for ax in axes[len(panels):]:
+        ax.set_visible(False)
+    for ax, (key, lab) in zip(axes, panels):
         allv = np.concatenate([_values(records, c.name, key) for c in cases] or [np.zeros(0)])
         if len(allv) == 0:
             continue
         lo, hi = float(allv.min()), float(allv.max())
-        bins = np.linspace(lo, hi if hi > lo else lo + 1.0, 16)
+        if key == "intact_blocks":       # counts: one bin per integer
+            bins = np.arange(lo - 0.5, hi + 1.5)
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        else:
+            bins = np.linspace(lo, hi if hi > lo else lo + 1.0, 16)
         for k, c in enumerate(cases):
             v = _values(records, c.name, key)
             if len(v) == 0:

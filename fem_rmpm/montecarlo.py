@@ -157,12 +157,16 @@ __all__ = ["CampaignError", "Case", "LITERATURE_CASES", "parse_case", "literatur
 FORMAT = "fem_rmpm campaign 1"
 #: The literature cases of the reference slope (Wang, Vardon & Hicks 2017).
 LITERATURE_CASES = ("homogeneous", "xi=1", "xi=12", "xi=48")
-#: Scalar measures copied from :func:`fem_rmpm.measures.compute_measures` into records.
+#: The first measure columns of ``results.csv``; every other scalar measure of
+#: :func:`fem_rmpm.measures.compute_measures` (slip-surface height, intact blocks, ...)
+#: follows in alphabetical order.  Profiles (lists) go to ``profiles/``.
 MEASURE_KEYS = ("failed", "sliding_area", "runout_distance", "retrogression_distance",
                 "max_displacement", "time_to_rest")
-#: Columns of ``results.csv``.
+#: Columns of ``results.csv`` (extra measure columns are inserted before ``stop_reason``).
 RESULT_COLUMNS = ("case", "index", "seed", "status", *MEASURE_KEYS, "stop_reason", "steps",
                   "simulated_time", "particles", "frozen_points", "scheme", "error")
+#: Measures that are settings, not results (left out of the statistics).
+_NOT_STATISTICS = ("failed", "failure_displacement", "mechanism_time", "time_to_rest")
 #: Keys that do not change a realization (left out of the campaign identity).
 _NOT_IDENTITY = {"montecarlo": ("realizations", "keep_vtk", "cases"), "output": None,
                  "scene": ("description",)}
@@ -284,6 +288,23 @@ def _version() -> str:
         return "unknown"
 
 
+def _plain(v: Any) -> Any:
+    """numpy scalars -> Python scalars (repr of np.float64 is not a number in numpy 2)."""
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v)
+    return v
+
+
+def _scalar_measures(m: dict) -> dict:
+    """The scalar measures (numbers, booleans, None) of a realization, Python types."""
+    return {k: _plain(v) for k, v in m.items()
+            if v is None or isinstance(v, (bool, int, float, np.bool_, np.integer, np.floating))}
+
+
 def run_realization(task: dict) -> dict:
     """The Dask task: run realization ``task["index"]`` of ``task["case"]`` and return
     its record (a JSON-ready dict).  Never raises for a failing realization: the
@@ -315,7 +336,7 @@ def run_realization(task: dict) -> dict:
         rec.update(steps=s["steps"], simulated_time=s["simulated_time"],
                    stop_reason=s["stop_reason"], particles=s["particles"],
                    frozen_points=s["frozen_points"]["count"],
-                   measures={k: m.get(k) for k in MEASURE_KEYS},
+                   measures=_scalar_measures(m),
                    final_profile=m.get("final_profile"))
     rec["wall_time"] = time.perf_counter() - t0
     rec["cpu_time"] = time.process_time() - c0     # of the worker process (s)
@@ -525,22 +546,28 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
-def _row(rec: dict) -> dict:
+def result_columns(records: Iterable[dict]) -> list[str]:
+    """RESULT_COLUMNS with the extra scalar measures of ``records`` (sorted) inserted."""
+    extra = sorted({k for r in records for k in (r.get("measures") or {})} - set(MEASURE_KEYS))
+    i = RESULT_COLUMNS.index("stop_reason")
+    return [*RESULT_COLUMNS[:i], *extra, *RESULT_COLUMNS[i:]]
+
+
+def _row(rec: dict, columns: Sequence[str]) -> dict:
     m = rec.get("measures") or {}
-    row = {k: rec.get(k) for k in RESULT_COLUMNS if k not in MEASURE_KEYS}
-    row.update({k: m.get(k) for k in MEASURE_KEYS})
-    return {k: _fmt(row.get(k)) for k in RESULT_COLUMNS}
+    return {k: _fmt(m.get(k) if k in m or k not in rec else rec.get(k)) for k in columns}
 
 
 def write_results(path: Path, records: Iterable[dict], order: Sequence[str]) -> None:
     """``results.csv`` from records, sorted by case (campaign order) and index (atomic)."""
     rank = {c: i for i, c in enumerate(order)}
     rows = sorted(records, key=lambda r: (rank.get(r["case"], len(rank)), r["index"]))
+    columns = result_columns(rows)
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=RESULT_COLUMNS, lineterminator="\n")
+    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow(_row(r))
+        w.writerow(_row(r, columns))
     from .output import _atomic_write_bytes
     _atomic_write_bytes(path, buf.getvalue().encode())
 
@@ -560,6 +587,8 @@ def read_results(path: str | Path) -> list[dict]:
                     out[k] = v == "1"
                 elif k in ("case", "status", "stop_reason", "scheme", "error"):
                     out[k] = v
+                elif re.fullmatch(r"-?[0-9]+", v):
+                    out[k] = int(v)          # integer measures (floats are written as repr)
                 else:
                     out[k] = float(v)
             rows.append(out)
@@ -609,7 +638,7 @@ def case_statistics(rows: Sequence[dict], requested: int | None = None) -> dict:
         "se": math.sqrt(p * (1 - p) / n) if n else None,
         "wilson95": list(wilson_interval(k, n)) if n else None,
     }
-    for key in ("runout_distance", "retrogression_distance", "sliding_area", "max_displacement"):
+    for key in _statistic_names(ok):
         out[key] = _describe(np.array([float(_measure(r, key)) for r in ok]))
     if n:
         nn = np.arange(1, n + 1)
@@ -619,6 +648,19 @@ def case_statistics(rows: Sequence[dict], requested: int | None = None) -> dict:
                               "se": np.sqrt(pr * (1 - pr) / nn).tolist(),
                               "mean_runout": (np.cumsum(ro) / nn).tolist()}
     return out
+
+
+def _statistic_names(ok: Sequence[dict]) -> list[str]:
+    """Numeric result measures present in every row (records or results.csv rows)."""
+    core = ["runout_distance", "retrogression_distance", "sliding_area", "max_displacement"]
+    if not ok:
+        return core
+    other = set(RESULT_COLUMNS) - set(MEASURE_KEYS)
+    names = [set((r.get("measures") or {}) if "measures" in r else set(r) - other) for r in ok]
+    extra = sorted(set.intersection(*names) - set(core) - set(_NOT_STATISTICS))
+    extra = [k for k in extra if all(isinstance(_measure(r, k), (int, float))
+                                     and not isinstance(_measure(r, k), bool) for r in ok)]
+    return core + extra
 
 
 def _measure(r: dict, key: str):
@@ -983,6 +1025,11 @@ def campaign_cases(scene: Scene, scene_path: str | Path | None = None) -> list[s
     return ["scene"]
 
 
+_MECHANISM_TEXT = (("slip_surface_height", "slip-surface height", " m"),
+                   ("intact_blocks", "intact blocks", ""),
+                   ("sliding_area_early", "early sliding area", " m2"))
+
+
 def summary_text(res: CampaignResult) -> str:
     """The final one-paragraph-per-case summary printed by ``fem-rmpm mc``."""
     lines = []
@@ -1010,8 +1057,10 @@ def summary_text(res: CampaignResult) -> str:
         if c.deterministic:
             r, t, a = (s[k]["mean"] for k in ("runout_distance", "retrogression_distance",
                                               "sliding_area"))
+            mech = "".join(f", {lab} {s[k]['mean']:.2f}{unit}"
+                           for k, lab, unit in _MECHANISM_TEXT if k in s)
             lines.append(head + f"failed = {bool(s['slope_failures'])}, run-out {r:.2f} m, "
-                         f"retrogression {t:.2f} m, sliding area {a:.1f} m2")
+                         f"retrogression {t:.2f} m, sliding area {a:.1f} m2{mech}")
             continue
         lo, hi = s["wilson95"]
         txt = (f"P(failure) = {s['p_failure']:.3f} +- {s['se']:.3f} (SE sqrt(p(1-p)/N); "
@@ -1022,6 +1071,10 @@ def summary_text(res: CampaignResult) -> str:
             d = s[key]
             txt += (f"; {lab} mean {d['mean']:.2f} +- {d['se']:.2f} {unit} "
                     f"(5/50/95 %: {d['q05']:.2f}/{d['q50']:.2f}/{d['q95']:.2f})")
+        mech = [(k, lab, unit) for k, lab, unit in _MECHANISM_TEXT if k in s]
+        if mech:
+            txt += "; mean " + ", ".join(f"{lab} {s[k]['mean']:.2f}{unit}"
+                                         for k, lab, unit in mech)
         conv = s.get("convergence")
         if conv and s["ok"] >= 4:
             idx = sorted({s["ok"] // 4 - 1, s["ok"] // 2 - 1, s["ok"] - 1})

@@ -192,12 +192,14 @@ def test_one_and_two_workers_give_identical_tables(tmp_path):
     assert len({r["seed"] for r in rows}) == 6
     # the realizations differ (the seed drives the random field) ...
     assert len({r["sliding_area"] for r in rows}) > 1
-    # ... and a realization is a pure function of (scene, seed)
+    # ... and a realization is a pure function of (scene, seed): every scalar measure of
+    # api.run is a column of the table, bitwise equal
     for r in rows[:2]:
         res = api.run(scene, seed=mc.realization_seed(scene.montecarlo.seed, r["index"]))
-        for key in ("sliding_area", "runout_distance", "retrogression_distance",
-                    "max_displacement"):
-            assert res.measures[key] == r[key]
+        scalars = {k: v for k, v in res.measures.items() if not isinstance(v, list)}
+        assert {"sliding_area", "runout_distance", "retrogression_distance"} <= set(scalars)
+        for key, value in scalars.items():
+            assert r[key] == value, key
     pids = {json.loads(p.read_text())["worker"]["pid"] for p in _records(tmp_path / "w2")}
     assert len(pids) == 2, "both workers of the 2-worker cluster computed realizations"
 
