@@ -50,11 +50,13 @@ def main(argv=None) -> int:
     p.add_argument("--scheduler", default=None)
     p.add_argument("--keep-vtk", default="1", help="VTK of the first K per case (default 1)")
     p.add_argument("--out", default=str(HERE / "out" / "montecarlo_cases"))
+    p.add_argument("--force", action="store_true", help="recompute finished realizations")
     p.add_argument("--quiet", action="store_true")
     a = p.parse_args(argv)
     scene = api.load_scene(a.scene)
     res = run_campaign(scene, a.out, a.n, cases=LITERATURE_CASES, workers=a.workers,
-                       scheduler=a.scheduler, keep_vtk=a.keep_vtk, progress=not a.quiet)
+                       scheduler=a.scheduler, keep_vtk=a.keep_vtk, force=a.force,
+                       progress=not a.quiet)
     print(summary_text(res))
     print("Figures: " + ", ".join(str(f) for f in res.figures))
     return 3 if res.lost else 0
