@@ -404,6 +404,12 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys):
         err = _one_line_error(capsys, ["mc", str(TINY), "--out", str(out), *argv])
         assert words in err
         assert not out.exists()
+    afile = tmp_path / "afile"
+    afile.write_text("mine")
+    assert "not a directory" in _one_line_error(capsys, ["mc", str(TINY), "--out", str(afile)])
+    assert "cannot write" in _one_line_error(capsys, ["mc", str(TINY), "--out",
+                                                      str(afile / "sub")])
+    assert afile.read_text() == "mine"
     with socket.socket() as s:        # a port nobody listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
