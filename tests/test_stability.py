@@ -100,3 +100,19 @@ def test_cell_crossing_gimp_converges_standard_stalls(scheme, cells):
     assert not all(b < a for a, b in zip(std, std[1:]))
     assert std[-1] > 0.5 * std[0]
     assert gimp[-1] < std[-1]
+
+
+@pytest.mark.slow
+def test_validation_scripts_write_their_figures():
+    """validation/stability_map.py (--quick) and validation/footing.py (--quick) run to the end
+    and write one PNG per study (issue 8: CFL, cell crossing, locking, points per cell,
+    footing)."""
+    import subprocess
+    import sys
+    root = MESHES.parent
+    for script in ("stability_map.py", "footing.py"):
+        subprocess.run([sys.executable, str(root / "validation" / script), "--quick"],
+                       check=True, cwd=root, capture_output=True)
+    for name in ("stability_cfl", "stability_cell_crossing", "stability_locking",
+                 "stability_ppc", "footing"):
+        assert (root / "validation" / "out" / f"{name}.png").stat().st_size > 10_000
