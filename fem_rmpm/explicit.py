@@ -16,6 +16,12 @@ One step has the three stages of the method (Wang et al. 2016, Fig. 1):
 
 The mesh is "reset" by construction: the grid is fixed and only the points move.
 
+Volumetric locking (``[solver] fbar = true``, :mod:`.locking`): F-bar with cell
+averaging — each point's deformation increment takes the volume-weighted mean volume
+change of its host cell, ``dF_bar = (dJ_bar / dJ)^(1/2) dF`` (geostatic steps: the
+small-strain B-bar); about 5 % more time per step (Q4, measured on the reference slope).
+The stable step (CFL) is mapped in :mod:`.stability` and ``validation/stability_map.py``.
+
 Two implementations of the same step, equal to round-off (``tests/test_kernels.py``):
 ``kernel="numba"`` (default) runs the compiled serial loops of :mod:`.kernels`
 (~10x faster, only the nodes the points touch take part);

@@ -24,6 +24,11 @@ it can be timed alone (``validation/bench_explicit.py``):
    arctanh after the kinematics pass) are numpy's SIMD ufuncs over all points:
    ~4 ns per point against ~35 ns for scalar libm calls inside the loop.
 
+With F-bar (``update_stress(..., fbar=True)``) the kinematics pass is replaced by two:
+:func:`_fbar_gradient_pass` (increments and per-cell sums of ``V`` and ``V dJ``, in
+point order) and :func:`_fbar_apply_pass` (the cell mean replaces each point's volume
+change, then F, V and b_tr).
+
 Every formula is the one of the numpy path, in the same order where it matters
 (the scatter sums points in the same order as ``np.bincount``), so the two
 agree to round-off (``tests/test_kernels.py``: 1e-12 relative over several
