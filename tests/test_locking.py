@@ -7,7 +7,6 @@ sigma_yy = -gamma (H - y), sigma_xx = sigma_zz = K0 sigma_yy, K0 = nu / (1 - nu)
 """
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
