@@ -166,6 +166,8 @@ class MonteCarloSpec:
     seed: int = 2017
     failure_displacement: float = 0.5    # m; a point with |u| above this counts as sliding
     keep_vtk: int = 2                    # keep VTK output of the first k realizations
+    cases: tuple[str, ...] = ()          # variants run side by side: "homogeneous", "xi=12",
+    #                                      "<section.key>=<value>" (fem_rmpm.montecarlo.parse_case)
 
 
 @dataclass(frozen=True)
@@ -291,6 +293,10 @@ def _coerce(source: str, key: str, value: Any, default: Any, annotation: str) ->
         if not isinstance(value, str):
             raise _fail(source, key, f"expected a string, got {value!r}")
         return value
+    if ann == "tuple[str,...]":
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            raise _fail(source, key, f"expected a list of strings, got {value!r}")
+        return tuple(value)
     if ann == "tuple[float,float]":
         if isinstance(value, (int, float)) and not isinstance(value, bool) and key == "grid.cell":
             value = [value, value]

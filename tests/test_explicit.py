@@ -166,3 +166,15 @@ def test_too_large_cfl_stops_with_clear_error(tmp_path, capsys, meshes):
         for v in meshio.read(f).point_data.values():
             assert np.all(np.isfinite(v))
     assert "nan" not in (out / "summary.json").read_text().lower()
+
+
+def test_written_files_are_readable_by_others(column_run):
+    """Atomic writes go through mkstemp (mode 0600); the final files get the usual
+    0644-minus-umask mode so a shared cluster file system can read them."""
+    import os
+    import stat
+    scene, res = column_run
+    mode = stat.S_IMODE(os.stat(res.out / "summary.json").st_mode)
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert mode == 0o644 & ~umask
