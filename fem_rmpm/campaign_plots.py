@@ -162,9 +162,10 @@ def plot_convergence(path: Path, cases, stats, runouts: dict) -> Path:
     return path
 
 
-def final_snapshot(vtk_dir: Path):
-    """(points (n, 2) grid frame, plastic shear strain (n,), time) of the last entry
-    of ``vtk_dir/particles.pvd`` (our own PvdSeries file), or None."""
+def snapshot_at(vtk_dir: Path, time: float | None = None):
+    """(points (n, 2) grid frame, plastic shear strain (n,), time) of the entry of
+    ``vtk_dir/particles.pvd`` (our own PvdSeries file) nearest to ``time`` (None: the
+    last), or None."""
     pvd = Path(vtk_dir) / "particles.pvd"
     if not pvd.exists():
         return None
@@ -175,13 +176,20 @@ def final_snapshot(vtk_dir: Path):
     if not ds:
         return None
     import meshio
-    last = ds[-1]
-    mesh = meshio.read(pvd.parent / last.get("file"))
+    times = np.array([float(d.get("timestep")) for d in ds])
+    entry = ds[-1] if time is None else ds[int(np.argmin(np.abs(times - time)))]
+    mesh = meshio.read(pvd.parent / entry.get("file"))
     return (np.asarray(mesh.points[:, :2]), np.asarray(mesh.point_data["plastic_shear_strain"]),
-            float(last.get("timestep")))
+            float(entry.get("timestep")))
 
 
-def plot_cases(path: Path, panels, frame_angle_deg: float, spacing: float) -> Path:
+def final_snapshot(vtk_dir: Path):
+    """The last snapshot of a kept realization (see :func:`snapshot_at`)."""
+    return snapshot_at(vtk_dir, None)
+
+
+def plot_cases(path: Path, panels, frame_angle_deg: float, spacing: float,
+               title: str = "Final state of one realization per case") -> Path:
     """``panels``: list of (title, x (n, 2) grid frame, plastic shear strain (n,))."""
     from .plots import plot_field
     plt = _plt()
@@ -192,17 +200,17 @@ def plot_cases(path: Path, panels, frame_angle_deg: float, spacing: float) -> Pa
     fig, axes = plt.subplots(len(panels), 1, figsize=(11, 0.8 + (h + 0.45) * len(panels)),
                              squeeze=False, sharex=True, layout="constrained")
     sc = None
-    for ax, (title, _, v), X in zip(axes[:, 0], panels, Xs):
+    for ax, (label, _, v), X in zip(axes[:, 0], panels, Xs):
         sc = plot_field(ax, X, v, spacing, 0.0, 1.0, cmap="turbo")
         ax.set_aspect("equal")
         ax.set_xlim(allX[:, 0].min() - 1, allX[:, 0].max() + 1)
         ax.set_ylim(allX[:, 1].min() - 1, allX[:, 1].max() + 1)
         ax.set_ylabel("Y (m)")
-        ax.set_title(title, fontsize=9, loc="left")
+        ax.set_title(label, fontsize=9, loc="left")
     axes[-1, 0].set_xlabel("X, true horizontal (m)")
     fig.colorbar(sc, ax=axes[:, 0].tolist(), label="plastic shear strain (-)", shrink=0.9,
                  extend="max")
-    fig.suptitle("Final state of one realization per case", fontsize=11)
+    fig.suptitle(title, fontsize=11)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -220,24 +228,32 @@ def campaign_figures(out: Path, cases, stats, records, layout, scene) -> list[Pa
         runouts[c.name] = [float(r["measures"]["runout_distance"]) for r in ok]
     if any(not c.deterministic and stats[c.name].get("convergence") for c in cases):
         figs.append(plot_convergence(out / "convergence.png", cases, stats, runouts))
-    panels = []
-    for c in cases:
-        ok = sorted((r for r in records if r["case"] == c.name and r["status"] == "ok"
-                     and r.get("vtk")), key=lambda r: r["index"])
-        for r in ok:
-            snap = final_snapshot(out / r["vtk"])
-            if snap is None:
-                continue
-            x, g, t = snap
-            m = r["measures"]
-            who = "" if c.deterministic else f" #{r['index']} (seed {r['seed']})"
-            panels.append((f"{c.label}{who}, t = {t:.1f} s: run-out "
-                           f"{m['runout_distance']:.1f} m, retrogression "
-                           f"{m['retrogression_distance']:.1f} m, sliding area "
-                           f"{m['sliding_area']:.0f} m2", x, g))
-            break
-    if panels:
-        spacing = float(min(scene.grid.cell)) / 2
-        figs.append(plot_cases(out / "cases.png", panels, scene.scene.frame_angle_deg, spacing))
+    mech_t = next((float(r["measures"].get("mechanism_time") or 3.0) for r in records
+                   if r.get("measures")), 3.0)
+    for name, when, title in (
+            ("cases.png", None, "Final state of one realization per case"),
+            ("cases_mechanism.png", mech_t, f"One realization per case at t = {mech_t:g} s: "
+             "how the mass breaks up")):
+        panels = []
+        for c in cases:
+            ok = sorted((r for r in records if r["case"] == c.name and r["status"] == "ok"
+                         and r.get("vtk")), key=lambda r: r["index"])
+            for r in ok:
+                snap = snapshot_at(out / r["vtk"], when)
+                if snap is None:
+                    continue
+                x, g, t = snap
+                m = r["measures"]
+                who = "" if c.deterministic else f" #{r['index']} (seed {r['seed']})"
+                what = (f"run-out {m['runout_distance']:.1f} m, retrogression "
+                        f"{m['retrogression_distance']:.1f} m, sliding area "
+                        f"{m['sliding_area']:.0f} m2" if when is None else
+                        f"{m.get('intact_blocks')} intact blocks")
+                panels.append((f"{c.label}{who}, t = {t:.1f} s: {what}", x, g))
+                break
+        if panels:
+            spacing = float(min(scene.grid.cell)) / 2
+            figs.append(plot_cases(out / name, panels, scene.scene.frame_angle_deg, spacing,
+                                   title))
     return figs
 
