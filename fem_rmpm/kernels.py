@@ -522,6 +522,15 @@ def _velocity_gradient(sh, vn):
     return L00, L01, L10, L11
 
 
+@_inline
+def _point_velocity_gradient(i, x, lp, gimp, o0, o1, h0, h1, ih0, ih1, nx, ny, vn):
+    """Velocity gradient at point ``i`` from nodal velocities ``vn`` (Q4 or uGIMP basis)."""
+    if gimp:
+        return _velocity_gradient(_gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1,
+                                        ih0, ih1, nx, ny), vn)
+    return _velocity_gradient(_q4(x[i, 0], x[i, 1], o0, o1, h0, h1, ih0, ih1, nx, ny), vn)
+
+
 @_kernel
 def _kinematics_pass(x_old, active, log_strain, F, vol, dt, geostatic, gimp, lp, org, h, nx, ny,
                      vn, W, ta, tb, tc):
@@ -536,13 +545,8 @@ def _kinematics_pass(x_old, active, log_strain, F, vol, dt, geostatic, gimp, lp,
             ta[i] = 1.0
             tb[i] = 0.0
             continue
-        if gimp:
-            sg = _gimp(x_old[i, 0], x_old[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1, ih0, ih1,
-                       nx, ny)
-            L00, L01, L10, L11 = _velocity_gradient(sg, vn)
-        else:
-            sq = _q4(x_old[i, 0], x_old[i, 1], o0, o1, h0, h1, ih0, ih1, nx, ny)
-            L00, L01, L10, L11 = _velocity_gradient(sq, vn)
+        L00, L01, L10, L11 = _point_velocity_gradient(i, x_old, lp, gimp, o0, o1, h0, h1,
+                                                      ih0, ih1, nx, ny, vn)
         e0, e1, e2, e3 = log_strain[i, 0], log_strain[i, 1], log_strain[i, 2], log_strain[i, 3]
         if geostatic:
             W[i, 0] = e0 + L00 * dt
@@ -631,13 +635,8 @@ def _fbar_gradient_pass(x_old, active, vol, dt, geostatic, gimp, lp, org, h, nx,
     for i in range(x_old.shape[0]):
         if not active[i]:
             continue
-        if gimp:
-            sg = _gimp(x_old[i, 0], x_old[i, 1], lp[i, 0], lp[i, 1], o0, o1, h0, h1, ih0, ih1,
-                       nx, ny)
-            L00, L01, L10, L11 = _velocity_gradient(sg, vn)
-        else:
-            sq = _q4(x_old[i, 0], x_old[i, 1], o0, o1, h0, h1, ih0, ih1, nx, ny)
-            L00, L01, L10, L11 = _velocity_gradient(sq, vn)
+        L00, L01, L10, L11 = _point_velocity_gradient(i, x_old, lp, gimp, o0, o1, h0, h1,
+                                                      ih0, ih1, nx, ny, vn)
         if geostatic:
             g00, g01, g10, g11 = L00 * dt, L01 * dt, L10 * dt, L11 * dt
             j = g00 + g11
@@ -741,7 +740,7 @@ def stress_update_points(dF, log_strain, gamma_p, soil):
     act = np.ones(n, dtype=bool)
     W, ta, tb, tc = np.empty((n, 4)), np.empty(n), np.empty(n), np.empty(n)
     _exp_args_pass(ls, act, ta, tb, tc)
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):     # non-finite values propagate to the caller's guards
         np.exp(ta, out=ta)
         np.expm1(tb, out=tb)
         _trial_pass(D, ls, act, ta, tb, tc, W)
