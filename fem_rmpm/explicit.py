@@ -331,6 +331,9 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
             check_points(grid, pts, step, t, sv.edge_policy, rec)
             if stats.n_outside:      # points were frozen: next CFL step from the numpy helper
                 stats.wave_speed = None
+            if not pts.active.any():
+                rec.stop_reason = "all points left the grid"
+                break
         if stats.max_speed * dt > 0.5 * float(np.min(grid.cell)):
             raise SimulationError(
                 f"step {step} (t = {t:.4g} s): a material point moved {stats.max_speed * dt:.3g} m "

@@ -142,3 +142,14 @@ def test_slip_surface_height_and_intact_blocks_of_prescribed_slides(meshes):
     gam = np.zeros(pts.n)
     assert intact_blocks(x, pts.x0, gam, 0.5, grid.origin, grid.cell, grid.shape) == 2
     assert intact_blocks(x, pts.x0, gam + 1.0, 0.5, grid.origin, grid.cell, grid.shape) == 0
+
+
+def test_run_ends_cleanly_when_every_point_has_left_the_grid(meshes, tmp_path):
+    """With policy 'freeze', a block that slides wholly off a free edge ends the run with
+    stop reason 'all points left the grid'; every point is frozen and reported, none lost."""
+    scene = with_values(_falling_block(meshes, "freeze"), {"solver.t_end": 3.0})
+    res = api.run(scene, out=tmp_path / "gone")
+    s = json.loads((tmp_path / "gone" / "summary.json").read_text())
+    assert s["stop_reason"] == "all points left the grid" and s["status"] == "ok"
+    assert s["frozen_points"]["count"] == res.particles.n
+    assert s["simulated_time"] < 3.0
