@@ -523,6 +523,28 @@ def _velocity_gradient(sh, vn):
 
 
 @_inline
+def _small_strain_trial(i, g00, g01, g10, g11, e0, e1, e2, e3, W):
+    """Geostatic trial strain of point ``i``: eps + sym(grad du) into ``W``."""
+    W[i, 0] = e0 + g00
+    W[i, 1] = e1 + g11
+    W[i, 2] = e2 + 0.0
+    W[i, 3] = e3 + 0.5 * (g01 + g10)
+
+
+@_inline
+def _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, F, vol, W, ta, tb, tc):
+    """Finite strain at point ``i``: F <- dF F, V <- det(dF) V, trial b_tr into W, ta, tb."""
+    a00, a01, a10, a11 = F[i, 0, 0], F[i, 0, 1], F[i, 1, 0], F[i, 1, 1]
+    F[i, 0, 0] = f00 * a00 + f01 * a10
+    F[i, 0, 1] = f00 * a01 + f01 * a11
+    F[i, 1, 0] = f10 * a00 + f11 * a10
+    F[i, 1, 1] = f10 * a01 + f11 * a11
+    vol[i] = vol[i] * (f00 * f11 - f01 * f10)
+    W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i] = _trial_b(
+        f00, f01, f10, f11, e0, e1, e3, ta[i], tb[i], tc[i])
+
+
+@_inline
 def _point_velocity_gradient(i, x, lp, gimp, o0, o1, h0, h1, ih0, ih1, nx, ny, vn):
     """Velocity gradient at point ``i`` from nodal velocities ``vn`` (Q4 or uGIMP basis)."""
     if gimp:
@@ -549,20 +571,10 @@ def _kinematics_pass(x_old, active, log_strain, F, vol, dt, geostatic, gimp, lp,
                                                       ih0, ih1, nx, ny, vn)
         e0, e1, e2, e3 = log_strain[i, 0], log_strain[i, 1], log_strain[i, 2], log_strain[i, 3]
         if geostatic:
-            W[i, 0] = e0 + L00 * dt
-            W[i, 1] = e1 + L11 * dt
-            W[i, 2] = e2 + 0.0
-            W[i, 3] = e3 + 0.5 * (L01 * dt + L10 * dt)
+            _small_strain_trial(i, L00 * dt, L01 * dt, L10 * dt, L11 * dt, e0, e1, e2, e3, W)
             continue
         f00, f01, f10, f11 = _hughes_winget(L00, L01, L10, L11, dt)
-        g00, g01, g10, g11 = F[i, 0, 0], F[i, 0, 1], F[i, 1, 0], F[i, 1, 1]
-        F[i, 0, 0] = f00 * g00 + f01 * g10
-        F[i, 0, 1] = f00 * g01 + f01 * g11
-        F[i, 1, 0] = f10 * g00 + f11 * g10
-        F[i, 1, 1] = f10 * g01 + f11 * g11
-        vol[i] = vol[i] * (f00 * f11 - f01 * f10)
-        W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i] = _trial_b(
-            f00, f01, f10, f11, e0, e1, e3, ta[i], tb[i], tc[i])
+        _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, F, vol, W, ta, tb, tc)
 
 
 @_kernel
@@ -668,21 +680,11 @@ def _fbar_apply_pass(active, log_strain, F, vol, geostatic, host, D, cv, cvj, W,
         e0, e1, e2, e3 = log_strain[i, 0], log_strain[i, 1], log_strain[i, 2], log_strain[i, 3]
         if geostatic:
             corr = 0.5 * (mean - (g00 + g11))
-            W[i, 0] = e0 + (g00 + corr)
-            W[i, 1] = e1 + (g11 + corr)
-            W[i, 2] = e2 + 0.0
-            W[i, 3] = e3 + 0.5 * (g01 + g10)
+            _small_strain_trial(i, g00 + corr, g01, g10, g11 + corr, e0, e1, e2, e3, W)
             continue
         sc = math.sqrt(mean / (g00 * g11 - g01 * g10))
         f00, f01, f10, f11 = sc * g00, sc * g01, sc * g10, sc * g11
-        a00, a01, a10, a11 = F[i, 0, 0], F[i, 0, 1], F[i, 1, 0], F[i, 1, 1]
-        F[i, 0, 0] = f00 * a00 + f01 * a10
-        F[i, 0, 1] = f00 * a01 + f01 * a11
-        F[i, 1, 0] = f10 * a00 + f11 * a10
-        F[i, 1, 1] = f10 * a01 + f11 * a11
-        vol[i] = vol[i] * (f00 * f11 - f01 * f10)
-        W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i] = _trial_b(
-            f00, f01, f10, f11, e0, e1, e3, ta[i], tb[i], tc[i])
+        _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, F, vol, W, ta, tb, tc)
 
 
 def update_stress(x, x_old, v, mass, vol, vol0, F, log_strain, gamma_p, stress, active,
