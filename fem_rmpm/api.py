@@ -112,7 +112,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
         out.mkdir(parents=True, exist_ok=True)
         if vtk:
             write_grid(out / "grid.vtu", grid, np.nonzero(soil_cells(scene, grid) >= 0)[0])
-    bar = _progress_bar(scene) if progress else None
+    bar = _Bar(scene) if progress else None
     wall0 = time.perf_counter()
     error = None
     try:
@@ -207,10 +207,6 @@ class _Bar:
 
     def close(self):
         self.bar.close()
-
-
-def _progress_bar(scene: Scene) -> _Bar:
-    return _Bar(scene)
 
 
 def read_summary(out: str | Path) -> dict:

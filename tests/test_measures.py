@@ -89,7 +89,6 @@ def test_points_leaving_the_grid_stop_the_run_if_asked(meshes, tmp_path, capsys)
     """Policy 'stop': a clear error naming the point and what to change; exit code 3."""
     scene_file = tmp_path / "block.toml"
     from fem_rmpm.scene import scene_to_dict
-    import tomllib  # noqa: F401  (the file is written by hand below)
     scene = _falling_block(meshes, "stop")
     d = scene_to_dict(scene)
     lines = []
