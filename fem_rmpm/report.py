@@ -1,0 +1,312 @@
+"""The campaign report: one self-contained HTML page, ``report.html``.
+
+``fem-rmpm report DIR`` (and ``fem-rmpm mc`` at the end of a campaign) reads what a
+campaign directory holds — ``summary.json`` (statistics per case), ``campaign.json``
+(identity: campaign seed, each case's scene), ``records/`` (one JSON record per
+realization), the figures (``*.png``) and the kept VTK (``vtk/...``) — and writes
+``DIR/report.html``:
+
+* **Provenance**: scene, fem_rmpm version(s) of the records, campaign seed and seed
+  rule, realizations per case, cost (wall and CPU time, core-hours), workers;
+* **Results per case**: N, P(failure) with its standard error and Wilson 95 % interval,
+  and mean / standard error / 5-50-95 % quantiles of every measure the summary holds
+  (run-out, retrogression, sliding area, ..., factor of safety when computed);
+* **Realizations that failed numerically**, with their messages;
+* **Figures**: every PNG of the campaign directory, embedded as ``data:`` URIs;
+* **Representative realizations**: per case, among the realizations with kept VTK,
+  the ones with the median and the largest run-out, with their plastic-strain figure
+  and a relative link to their ``particles.pvd`` (open it in ParaView).
+
+The page needs no network and no other file to render (the VTK links point into
+the campaign directory).  A small inline script marks ``<body data-images-loaded>``
+with the number of images that decoded, so a headless browser can check the page.
+"""
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+import json
+import math
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+__all__ = ["write_report", "report_html", "ReportError"]
+
+#: Figures written by the campaign, in the order the report shows them, with captions.
+FIGURES = (
+    ("exceedance.png", "Exceedance probability P[X > x] of run-out, retrogression and "
+                       "sliding area, per case (empirical, over finished realizations)."),
+    ("histograms.png", "Histograms of the measures per case."),
+    ("convergence.png", "Running P(failure) with its Wilson 95 % band and running mean "
+                        "run-out with +- 1.96 standard errors, against N."),
+    ("cases.png", "Final plastic shear strain of one kept realization per case."),
+    ("cases_mechanism.png", "One kept realization per case at the mechanism time."),
+)
+
+#: Measures shown first in the per-case table (others follow in the summary's order).
+MAIN_MEASURES = (("runout_distance", "run-out (m)"),
+                 ("retrogression_distance", "retrogression (m)"),
+                 ("sliding_area", "sliding area (m²/m)"))
+
+
+class ReportError(ValueError):
+    """The directory is not a finished campaign (no ``summary.json``), or it is unreadable."""
+
+
+# ----------------------------------------------------------------------------- reading
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise
+    except (OSError, ValueError) as exc:
+        raise ReportError(f"{path}: cannot be read as JSON ({exc})") from None
+
+
+def _records(campaign: Path) -> list[dict]:
+    root = campaign / "records"
+    if not root.is_dir():
+        return []
+    out = []
+    for p in sorted(root.rglob("realization_*.json")):
+        try:
+            out.append(json.loads(p.read_text(encoding="utf-8")))
+        except (OSError, ValueError):
+            continue   # a record being replaced right now; the summary still counts it
+    return out
+
+
+# ----------------------------------------------------------------------------- formatting
+
+def _esc(x: Any) -> str:
+    return html.escape(str(x), quote=True)
+
+
+def _num(x: Any, digits: int = 3) -> str:
+    if x is None:
+        return "–"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, int):
+        return str(x)
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return _esc(x)
+    if not math.isfinite(v):
+        return _esc(v)
+    if v != 0 and (abs(v) >= 1e5 or abs(v) < 1e-3):
+        return f"{v:.{digits}g}"
+    return f"{v:.{digits}g}" if abs(v) < 1 else f"{v:.{max(digits - 1, 1)}f}".rstrip("0").rstrip(".")
+
+
+def _png_data_uri(path: Path) -> str:
+    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def _figure(path: Path, caption: str, alt: str) -> str:
+    return (f'<figure><img src="{_png_data_uri(path)}" alt="{_esc(alt)}">'
+            f"<figcaption>{_esc(caption)}</figcaption></figure>")
+
+
+def _table(header: Sequence[str], rows: Iterable[Iterable[str]], cls: str = "") -> str:
+    head = "".join(f"<th>{h}</th>" for h in header)
+    head = f"<thead><tr>{head}</tr></thead>" if any(header) else ""
+    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
+    return f'<table class="{cls}">{head}<tbody>{body}</tbody></table>'
+
+
+# ----------------------------------------------------------------------------- sections
+
+def _provenance(summary: dict, campaign: dict, records: list[dict]) -> str:
+    versions = sorted({str(r.get("fem_rmpm")) for r in records if r.get("fem_rmpm")})
+    this_run = summary.get("this_run", {})
+    cpu = summary.get("realization_cpu_time", {}).get("total")
+    wall = summary.get("realization_wall_time", {}).get("total")
+    rows = [
+        ("scene", _esc(summary.get("scene", "?"))),
+        ("scene file", _esc(summary.get("scene_file") or "embedded default")),
+        ("fem_rmpm version of the records", _esc(", ".join(versions) or "?")),
+        ("campaign seed", _esc(summary.get("campaign_seed", campaign.get("campaign_seed")))),
+        ("seed of realization i", _esc(campaign.get("seed_rule", "?"))),
+        ("realizations", _esc(", ".join(f"{c.get('label', c.get('name'))}: {c.get('ok', 0)} ok"
+                                         f" of {c.get('requested', c.get('realizations', '?'))}"
+                                         for c in summary.get("cases", [])))),
+        ("failure criterion", f"a point moved more than {_num(summary.get('failure_displacement'))} m"),
+        ("cost (all records)", f"{_num(cpu)} s CPU = {_num((cpu or 0) / 3600, 3)} core-hours; "
+                               f"{_num(wall)} s wall summed over realizations"),
+        ("last command", f"computed {_esc(this_run.get('computed', '?'))} realization(s) on "
+                         f"{_esc(this_run.get('workers', '?'))} in {_num(this_run.get('wall_time'))} s"),
+    ]
+    return "<h2>Scene and provenance</h2>" + _table(("", ""), rows, "kv")
+
+
+#: Units of the measures the campaign records (shown in the measures table).
+UNITS = {"runout_distance": "m", "retrogression_distance": "m", "sliding_area": "m²/m",
+         "max_displacement": "m", "slip_surface_height": "m", "sliding_area_early": "m²/m",
+         "intact_blocks": "count", "time_to_rest": "s", "mechanism_time": "s",
+         "factor_of_safety": "–"}
+
+
+def _measure_keys(cases: list[dict]) -> list[str]:
+    keys = [m for m, _ in MAIN_MEASURES]
+    for c in cases:
+        keys += [k for k, v in c.items() if isinstance(v, dict) and "mean" in v and k not in keys]
+    return keys
+
+
+def _label(c: dict) -> str:
+    return _esc(c.get("label", c.get("name"))) + (" <small>(deterministic)</small>"
+                                                    if c.get("deterministic") else "")
+
+
+def _results(summary: dict) -> str:
+    cases = summary.get("cases", [])
+    rows = []
+    for c in cases:
+        w = c.get("wilson95") or [None, None]
+        rows.append([_label(c), _num(c.get("ok")), _num(c.get("numerical_failures")),
+                     _num(c.get("slope_failures")),
+                     f"{_num(c.get('p_failure'))} ± {_num(c.get('se'))}",
+                     f"[{_num(w[0])}, {_num(w[1])}]"])
+    head = ("case", "N finished", "numerical failures", "slope failures",
+            "P(failure) ± SE", "Wilson 95 %")
+    mrows = []
+    for key in _measure_keys(cases):
+        row = [f"{_esc(key.replace('_', ' '))} <small>({_esc(UNITS.get(key, '?'))})</small>"]
+        for c in cases:
+            s = c.get(key)
+            row.append("–" if not isinstance(s, dict) else
+                       f"{_num(s.get('mean'))} ± {_num(s.get('se'))}<br><small>"
+                       f"[{_num(s.get('q05'))}, {_num(s.get('q50'))}, {_num(s.get('q95'))}]"
+                       "</small>")
+        mrows.append(row)
+    return ("<h2>Results per case</h2><p>P(failure): fraction of finished realizations in "
+            "which a point moved more than the failure displacement; SE = sqrt(p (1 - p) / N); "
+            "Wilson 95 % score interval.</p>" + _table(head, rows, "cases")
+            + "<p>Measures: mean ± standard error of the mean, [5 %, 50 %, 95 %] "
+            "quantiles, over the finished realizations of each case.</p>"
+            + _table(["measure"] + [_label(c) for c in cases], mrows, "measures"))
+
+
+def _failures(records: list[dict]) -> str:
+    bad = [r for r in records if r.get("status") != "ok"]
+    if not bad:
+        return "<h2>Numerical failures</h2><p>None: every realization finished.</p>"
+    rows = [[_esc(r.get("case")), _num(r.get("index")), _esc(r.get("seed")),
+             _esc(r.get("error") or "")] for r in bad]
+    return ("<h2>Numerical failures</h2><p>Realizations that stopped with an error are "
+            "recorded and left out of the statistics.</p>"
+            + _table(("case", "index", "seed", "message"), rows))
+
+
+def _figures(campaign: Path) -> str:
+    parts, known = [], set()
+    for name, caption in FIGURES:
+        known.add(name)
+        if (campaign / name).is_file():
+            parts.append(_figure(campaign / name, caption, name))
+    for p in sorted(campaign.glob("*.png")):
+        if p.name not in known:
+            parts.append(_figure(p, p.stem.replace("_", " "), p.name))
+    return "<h2>Figures</h2>" + ("".join(parts) or "<p>No figure was written.</p>")
+
+
+def _representatives(campaign: Path, records: list[dict]) -> str:
+    by_case: dict[str, list[dict]] = {}
+    for r in records:
+        if r.get("status") == "ok":
+            by_case.setdefault(str(r.get("case")), []).append(r)
+    parts = []
+    for case, recs in by_case.items():
+        kept = [r for r in recs if r.get("vtk") and (campaign / r["vtk"]).is_dir()
+                and (r.get("measures") or {}).get("runout_distance") is not None]
+        if not kept:
+            parts.append(f"<h3>{_esc(case)}</h3><p>No realization of this case kept its VTK "
+                         "(use <code>--keep-vtk</code> to keep some).</p>")
+            continue
+        kept.sort(key=lambda r: (float(r["measures"]["runout_distance"]), r["index"]))
+        picks = [("median run-out", kept[(len(kept) - 1) // 2]), ("largest run-out", kept[-1])]
+        if picks[0][1] is picks[1][1]:
+            picks = [("median and largest run-out", kept[-1])]
+        cells = []
+        for what, r in picks:
+            vtk = campaign / r["vtk"]
+            fig = vtk / "plastic_shear_strain.png"
+            m = r["measures"]
+            text = (f"{_esc(what)} among {len(kept)} kept: realization {r['index']} "
+                    f"(seed {r['seed']}), run-out {_num(m.get('runout_distance'))} m, "
+                    f"sliding area {_num(m.get('sliding_area'))} m², "
+                    f"failed: {_num(m.get('failed'))}. "
+                    f'<a href="{_esc(r["vtk"])}/particles.pvd">particles.pvd</a> · '
+                    f'<a href="{_esc(r["vtk"])}/grid.vtu">grid.vtu</a>')
+            img = _figure(fig, f"realization {r['index']}", fig.name) if fig.is_file() else ""
+            cells.append(f'<div class="rep">{img}<p>{text}</p></div>')
+        parts.append(f"<h3>{_esc(case)}</h3><div class=\"reps\">{''.join(cells)}</div>")
+    return "<h2>Representative realizations</h2>" + "".join(parts)
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:2em auto;max-width:1300px;
+color:#222;line-height:1.4;padding:0 1em}
+h1{font-size:1.6em;margin-bottom:.2em}h2{border-bottom:1px solid #ccc;margin-top:1.6em}
+table{border-collapse:collapse;margin:.6em 0;font-size:.9em}
+td,th{border:1px solid #ccc;padding:.3em .6em;text-align:left;vertical-align:top}
+th{background:#f2f2f2}table.kv td:first-child{font-weight:600;white-space:nowrap}
+figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}
+figcaption{font-size:.9em;color:#555}.reps{display:flex;gap:1.5em;flex-wrap:wrap}
+.rep{flex:1 1 500px}small{color:#666}code{background:#f4f4f4;padding:0 .2em}
+"""
+
+_SCRIPT = """
+var femRmpmErrors = 0;
+window.addEventListener('error', function () {
+  femRmpmErrors += 1;
+  if (document.body) { document.body.setAttribute('data-errors', String(femRmpmErrors)); }
+}, true);
+window.addEventListener('load', function () {
+  var imgs = Array.prototype.slice.call(document.images);
+  var ok = imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; }).length;
+  document.body.setAttribute('data-images-loaded', ok + '/' + imgs.length);
+  document.body.setAttribute('data-errors', String(femRmpmErrors));
+});
+"""
+
+
+def report_html(campaign_dir: str | Path) -> str:
+    """The report page of a campaign directory, as one HTML string (see the module doc)."""
+    campaign = Path(campaign_dir)
+    try:
+        summary = _read_json(campaign / "summary.json")
+    except FileNotFoundError:
+        raise ReportError(f"{campaign}: no summary.json here (not a finished campaign "
+                          "directory; run `fem-rmpm mc ... --out DIR` first)") from None
+    try:
+        identity = _read_json(campaign / "campaign.json")
+    except FileNotFoundError:
+        identity = {}
+    records = _records(campaign)
+    title = f"fem_rmpm campaign report: {summary.get('scene', campaign.name)}"
+    made = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    body = "".join((
+        f"<h1>{_esc(title)}</h1><p><small>Written {made} from {_esc(campaign.resolve())}. "
+        'Files: <a href="results.csv">results.csv</a> · <a href="summary.json">summary.json</a>'
+        ' · <a href="records/">records/</a></small></p>',
+        _provenance(summary, identity, records), _results(summary), _failures(records),
+        _figures(campaign), _representatives(campaign, records)))
+    return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
+            f"<title>{_esc(title)}</title><style>{_CSS}</style><script>{_SCRIPT}</script>"
+            f"</head><body>{body}</body></html>\n")
+
+
+def write_report(campaign_dir: str | Path) -> Path:
+    """Write ``report.html`` into the campaign directory (atomically) and return its path."""
+    campaign = Path(campaign_dir)
+    text = report_html(campaign)
+    path = campaign / "report.html"
+    tmp = path.with_name(".report.html.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)
+    return path
