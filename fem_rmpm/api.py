@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .explicit import RunRecord, SimulationError, run_explicit
+from .explicit import run_explicit
+from .run import RunRecord, SimulationError
 from .fem import FemResult, solve_static
 from .grid import Grid, make_grid
 from .measures import compute_measures

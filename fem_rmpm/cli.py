@@ -11,7 +11,7 @@ import sys
 from importlib import resources
 from pathlib import Path
 
-from .explicit import SimulationError
+from .run import SimulationError
 from .output import OutputError
 from .scene import SceneError, load_scene
 

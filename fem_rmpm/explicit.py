@@ -30,9 +30,8 @@ reference.
 """
 from __future__ import annotations
 
-import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -40,19 +39,16 @@ from .grid import Grid
 from .locking import bbar_gradient, fbar_increment, host_cells
 from .material import hughes_winget_increment, small_strain_update, stress_update
 from .particles import Particles
+from .run import RunRecord, SimulationError, at_rest, check_points
 from .scene import Scene
 from .shape import shape_at_points
 
-__all__ = ["SimulationError", "StepStats", "Workspace", "explicit_step", "explicit_step_numpy",
+__all__ = ["StepStats", "Workspace", "explicit_step", "explicit_step_numpy",
            "stable_time_step", "run_explicit", "KERNELS", "DEFAULT_KERNEL"]
 
 _MASS_TOL = 1e-14
 KERNELS = ("numba", "numpy")
 DEFAULT_KERNEL = "numba"
-
-
-class SimulationError(RuntimeError):
-    """A run cannot go on; the message says what, where, at which step and what to change."""
 
 
 @dataclass
@@ -236,54 +232,6 @@ def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarr
     return StepStats(ke, float(np.sqrt(speed2.max(initial=0.0))))
 
 
-@dataclass
-class RunRecord:
-    """What happened in a run (filled by the scheme, written to summary.json)."""
-    scheme: str
-    steps: int = 0
-    time: float = 0.0
-    wall_time: float = 0.0
-    stop_reason: str = ""
-    dt_min: float = math.inf
-    dt_max: float = 0.0
-    energy: list = field(default_factory=list)       # [(t, kinetic energy kJ/m)]
-    frozen_points: list = field(default_factory=list)  # indices of points frozen at the edge
-    error: str | None = None
-    solver: dict = field(default_factory=dict)
-
-
-def check_points(grid: Grid, pts: Particles, step: int, t: float, policy: str,
-                 record: RunRecord) -> None:
-    """Guard after each step: a non-finite state stops the run with a clear error.
-
-    Points can only leave the grid through a ``free`` edge (fixed and roller
-    edges stop them).  Policy ``freeze``: such a point is kept where it is,
-    inactive (no mass, no force, no motion) and listed in ``summary.json``;
-    ``stop``: the run ends with an error naming the point."""
-    act = np.nonzero(pts.active)[0]
-    bad = ~(np.isfinite(pts.x[act]).all(1) & np.isfinite(pts.velocity[act]).all(1)
-            & np.isfinite(pts.stress[act]).all(1))
-    if bad.any():
-        i = act[np.argmax(bad)]
-        raise SimulationError(
-            f"step {step} (t = {t:.4g} s): non-finite state at material point {i} (started at "
-            f"x = {pts.x0[i, 0]:.3f}, y = {pts.x0[i, 1]:.3f} m); the explicit scheme went "
-            "unstable — reduce [solver] cfl (default 0.5) or check the material constants")
-    lo, hi = grid.origin, grid.upper
-    out = ((pts.x[act] < lo) | (pts.x[act] > hi)).any(axis=1)
-    if out.any():
-        idx = act[out]
-        if policy == "stop":
-            i = idx[0]
-            raise SimulationError(
-                f"step {step} (t = {t:.4g} s): {len(idx)} material point(s) left the grid, "
-                f"first point {i} at x = {pts.x[i, 0]:.3f}, y = {pts.x[i, 1]:.3f} m; enlarge "
-                "[grid] size or set [solver] edge_policy = \"freeze\"")
-        pts.active[idx] = False
-        pts.velocity[idx] = 0.0
-        record.frozen_points.extend(int(i) for i in idx)
-
-
 def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
                  progress=None, kernel: str | None = None) -> RunRecord:
     """Time loop of the explicit scheme.
@@ -347,14 +295,14 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
         if on_output and t >= next_out - 1e-12:
             on_output(t, pts)
             next_out += sv.output_interval
-        at_rest = (t >= sv.gravity_ramp_time and stats.max_speed < sv.rest_velocity
-                   and stats.kinetic_energy <= sv.rest_energy_ratio * ke_peak)
-        if geostatic and (at_rest or t >= sv.geostatic_time):
+        rest = at_rest(t, sv.gravity_ramp_time, stats.max_speed, stats.kinetic_energy, ke_peak,
+                       sv.rest_velocity, sv.rest_energy_ratio)
+        if geostatic and (rest or t >= sv.geostatic_time):
             geostatic = False
             rec.solver["geostatic_end_time"] = t
-            rec.solver["geostatic_at_rest"] = bool(at_rest)
+            rec.solver["geostatic_at_rest"] = bool(rest)
             continue
-        if at_rest:
+        if rest:
             rec.stop_reason = "at rest"
             break
     else:

@@ -67,7 +67,7 @@ correction eps leaves a residual ~eps^2, hence the square root).  A linear step
 converges after one iteration.  A step that fails (``max_iterations``
 reached, a non-finite residual, an inverted point ``det dF <= 0`` or a failed
 linear solve) is cut in half and retried, at most ``max_cuts`` times; then
-:class:`~fem_rmpm.explicit.SimulationError` names the step, the residual
+:class:`~fem_rmpm.run.SimulationError` names the step, the residual
 history and what to change.  The state of the last converged step is kept (and
 written), nothing non-finite is ever accepted.
 
@@ -119,7 +119,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from .explicit import RunRecord, SimulationError, check_points
+from .run import RunRecord, SimulationError, at_rest, check_points
 from .grid import Grid, points_in_polygon
 from .locking import (bbar_gradient, fbar_increment, fbar_q, fbar_tangent_correction,
                       fbar_weights, host_cells)
@@ -974,7 +974,7 @@ def run_implicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
         while t < sv.t_end - 1e-12:
             t1 = min(t + sv.dt, sv.t_end)
             label = f"time step {n_dyn + 1} (t = {t:.4g} -> {t1:.4g} s)"
-            at_rest = False
+            rest = False
             for info in advance("dynamic", t, t1, label, lambda p: p, gravity_of):
                 tt = state["t"]
                 h = stats["steps"][-1]["size"]
@@ -982,8 +982,8 @@ def run_implicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
                 ke = info.get("kinetic_energy", 0.0)
                 ke_peak = max(ke_peak, ke)
                 rec.energy.append((tt, ke))
-                at_rest = (tt >= ramp and info.get("max_speed", 0.0) < sv.rest_velocity
-                           and ke <= sv.rest_energy_ratio * ke_peak)
+                rest = at_rest(tt, ramp, info.get("max_speed", 0.0), ke, ke_peak,
+                               sv.rest_velocity, sv.rest_energy_ratio)
             t = t1
             n_dyn += 1
             if progress:
@@ -991,7 +991,7 @@ def run_implicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
             if on_output and t >= next_out - 1e-12:
                 output(t)
                 next_out += sv.output_interval
-            if at_rest:
+            if rest:
                 rec.stop_reason = "at rest"
                 break
         rec.time = t

@@ -44,7 +44,7 @@ What a campaign is
   a campaign resumed after upgrading fem_rmpm mixes versions (each record names
   its ``fem_rmpm`` version); use ``--force`` or a new directory to recompute.  A lock file stops two commands from working on one directory at
   the same time (released by the kernel even if the client is killed).
-* **Failures.** A realization that fails (:class:`fem_rmpm.explicit.SimulationError`:
+* **Failures.** A realization that fails (:class:`fem_rmpm.run.SimulationError`:
   unstable, a random-field value the material cannot take, ...; or any other
   exception in the realization) is recorded with ``status = failed`` and its
   message and the campaign goes on.  Statistics use the ``ok`` realizations; the
@@ -327,7 +327,7 @@ def run_realization(task: dict) -> dict:
         res = api.run(task["scene"], out=vtk_dir, seed=rec["seed"], progress=False,
                       vtk=vtk_dir is not None, figures=vtk_dir is not None)
     except Exception as exc:       # noqa: BLE001 - every failure is data, recorded
-        from .explicit import SimulationError
+        from .run import SimulationError
         msg = str(exc) if isinstance(exc, SimulationError) else f"{type(exc).__name__}: {exc}"
         rec.update(status="failed", error=" ".join(msg.split()) or type(exc).__name__,
                    measures=None, final_profile=None)

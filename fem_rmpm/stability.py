@@ -27,7 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .explicit import SimulationError, explicit_step_numpy, run_explicit, stable_time_step
+from .explicit import explicit_step_numpy, run_explicit, stable_time_step
+from .run import SimulationError
 from .grid import make_grid
 from .material import kirchhoff_stress
 from .particles import seed_particles

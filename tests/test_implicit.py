@@ -20,7 +20,7 @@ from scipy.special import lambertw
 from fem_rmpm import api
 from fem_rmpm import implicit as imp
 from fem_rmpm.cli import main
-from fem_rmpm.explicit import SimulationError
+from fem_rmpm.run import SimulationError
 from fem_rmpm.fem import solve_static
 from fem_rmpm.grid import make_grid
 from fem_rmpm.material import SoilPoints, small_strain_update, spatial_tangent, stress_update

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 from fem_rmpm import kernels as K
-from fem_rmpm.explicit import (SimulationError, Workspace, explicit_step, run_explicit,
-                               stable_time_step)
+from fem_rmpm.explicit import Workspace, explicit_step, run_explicit, stable_time_step
 from fem_rmpm.grid import make_grid
 from fem_rmpm.material import SoilPoints, small_strain_update, stress_update
 from fem_rmpm.particles import seed_particles
+from fem_rmpm.run import SimulationError
 from fem_rmpm.scene import load_scene, with_value, with_values
 from fem_rmpm.shape import gimp_at_points, skfem_point_basis
 
@@ -178,7 +178,7 @@ def test_run_explicit_numba_equals_numpy_run(meshes):
 
 
 def test_non_finite_state_stops_numba_run_like_numpy(meshes):
-    """Reference: the guard of check_points (explicit.py) — a NaN stress stops both kernels."""
+    """Reference: the guard of check_points (run.py) — a NaN stress stops both kernels."""
     scene = with_value(load_scene(meshes / "column.toml"), "solver.t_end", 0.1)
     for kernel in ("numpy", "numba"):
         grid = make_grid(scene)

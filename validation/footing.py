@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fem_rmpm.explicit import SimulationError
+from fem_rmpm.run import SimulationError
 from fem_rmpm.grid import make_grid
 from fem_rmpm.implicit import run_implicit
 from fem_rmpm.particles import seed_particles
