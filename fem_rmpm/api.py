@@ -14,12 +14,14 @@ from __future__ import annotations
 import dataclasses
 import json
 import platform
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .budget import check_budget
 from .explicit import run_explicit
 from .run import RunRecord, SimulationError
 from .fem import FemResult, solve_static
@@ -48,6 +50,7 @@ class RunResult:
 
 def prepare(scene: Scene, seed: int | None = None) -> tuple[Grid, Particles]:
     """Grid and seeded material points; with a random field, the realization ``seed``."""
+    check_budget(scene)                        # refuse before allocating (BudgetError)
     grid = make_grid(scene)
     pts = seed_particles(scene, grid)
     if scene.random_field is not None:
@@ -97,6 +100,9 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     Raises :class:`SimulationError` when the run cannot go on (after writing what
     it has, with the error, to ``out``).
     """
+    estimate = check_budget(scene)
+    if progress:
+        print(f"{scene.scene.name}: {estimate.describe()}", file=sys.stderr, flush=True)
     grid, pts = prepare(scene, seed)
     out = Path(out) if out is not None else None
     vtk = scene.output.vtk if vtk is None else vtk
@@ -131,6 +137,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
                                 rec.time if rec.stop_reason == "at rest" else None,
                                 snapshots=snapshots, grid=grid)
     summary = _summary(scene, seed, pts, rec, measures)
+    summary["estimate"] = estimate.to_dict()
     if out is not None:
         write_json(out / "summary.json", summary)
         if figures and snapshots and error is None:
@@ -171,6 +178,7 @@ def _figures(out, scene, grid, snapshots, measures):
 def fem(scene: Scene, out: str | Path | None = None) -> FemResult:
     """Static small-strain FEM reference (scikit-fem); writes ``fem.vtu`` and a summary."""
     t0 = time.perf_counter()
+    check_budget(scene)
     res = solve_static(scene)
     if out is not None:
         import meshio

@@ -1,0 +1,215 @@
+"""Size and cost of a run, estimated from the scene alone, before anything is allocated.
+
+:func:`estimate_run` returns a :class:`RunEstimate`: material points, grid cells and
+nodes, peak memory, time steps and an approximate wall time.  It uses arithmetic on
+the scene only (polygon areas, grid size, CFL step), so it takes microseconds even
+for a grid of 10^10 cells.  :func:`check_budget` refuses a run whose memory estimate
+exceeds the limit (:func:`memory_limit_bytes`) with :class:`BudgetError`, a
+:class:`~fem_rmpm.scene.SceneError` (exit 2 on the command line) whose one-line
+message carries the estimate.
+
+How the figures are made (all approximate; the run's own ``summary.json`` has the
+real ones):
+
+* points = sum over soils of (polygon area inside the grid) / (hx hy) x n^2, with
+  n = ``points_per_cell_dir`` (a cell is soil when its centre is inside the polygon,
+  so the count is within one cell row of the boundary of this);
+* nodes = (nx + 1)(ny + 1), cells = nx ny: the whole rectangle is allocated;
+* memory = :data:`BASE_BYTES` (the interpreter with numpy, scipy, numba, scikit-fem)
+  + :data:`BYTES_PER_CELL` x cells + :data:`BYTES_PER_POINT` x points + 24 B per
+  point per kept snapshot (position and plastic strain, one snapshot per
+  ``output_interval`` up to ``t_end``).  The two per-item constants were fitted to
+  ``tracemalloc`` peaks of seeding plus the explicit workspace on the reference
+  slope at 0.25 and 0.125 m cells and on the column at 0.01 m (within 0.3 %);
+* explicit steps = ``t_end / dt`` with the CFL step at rest
+  ``dt = cfl h_min / c_p``, c_p = sqrt(M / rho) the largest P-wave speed of the
+  soils (M the constrained modulus, rho = unit weight / g).  Moving points shorten
+  the step and a run that comes to rest stops early: on the reference slope
+  (0.25 m) this gives 8 628 steps against 11 560 taken in 34.4 s (at rest);
+* implicit steps = ``load_steps`` (quasi-static) or ``t_end / dt`` (dynamic);
+* wall time = steps x points x the cost per point-step: :data:`NS_PER_POINT_STEP`.
+  The explicit numba figure, 84 ns, is the whole-run figure of the reference slope
+  case (i) (18 260 points, 11 560 steps, 17.7 s wall) on an idle 2-core AMD EPYC
+  virtual machine (Python 3.11, numba, one thread).  uGIMP costs 2.1x, F-bar 1.05x
+  and the numpy kernel about 2.7 us.  The implicit figure, 35 us per point-step, is
+  the README's dynamic implicit run of the reference slope (1 788 Newmark steps in
+  about 19 minutes on a shared core), so it may be 2x high on an idle machine.
+  The numba compile of a first run (about 12 s, cached on disk) is not included.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import asdict, dataclass
+
+from .scene import Scene, SceneError
+
+__all__ = ["RunEstimate", "BudgetError", "estimate_run", "check_budget",
+           "memory_limit_bytes", "MEMORY_LIMIT_ENV"]
+
+#: Environment variable that sets the memory limit in GiB (default: 75 % of the RAM).
+MEMORY_LIMIT_ENV = "FEM_RMPM_MEMORY_LIMIT_GB"
+BASE_BYTES = 200e6          # interpreter + numpy/scipy/numba/scikit-fem, measured RSS ~190 MB
+BYTES_PER_CELL = 148.0      # mesh nodes and cells, node flags, seeding temporaries, workspace
+BYTES_PER_POINT = 380.0     # point state (Particles) + explicit workspace per point
+BYTES_PER_POINT_SNAPSHOT = 24.0
+#: Whole-run cost per point-step (ns) by (scheme, kernel or shape); see the module docstring.
+NS_PER_POINT_STEP = {"explicit": 84.0, "explicit_gimp_factor": 2.1, "explicit_fbar_factor": 1.05,
+                     "explicit_numpy": 2700.0, "implicit": 35000.0}
+COST_MACHINE = {"explicit": "idle 2-core AMD EPYC VM", "implicit": "shared 2-core AMD EPYC VM"}
+
+
+class BudgetError(SceneError):
+    """The run is larger than the memory limit (its message carries the estimate)."""
+
+
+@dataclass(frozen=True)
+class RunEstimate:
+    """Approximate size and cost of one run (see the module docstring for how)."""
+    scheme: str
+    points: int
+    cells: int
+    nodes: int
+    memory_bytes: float      # peak, B
+    dt: float                # s, explicit CFL step at rest (implicit: the step)
+    steps: int               # upper bound: runs that come to rest stop earlier
+    ns_per_point_step: float
+    wall_time: float         # s, approximate (steps x points x cost)
+    machine: str = ""        # where the cost per point-step was measured
+
+    def describe(self) -> str:
+        """One line for the start of a run."""
+        return (f"estimate: {self.points:,} material points, {self.nodes:,} grid nodes, "
+                f"{_fmt_bytes(self.memory_bytes)} memory, up to {self.steps:,} {self.scheme} "
+                f"steps of {self.dt:.3g} s, about {_fmt_time(self.wall_time)} wall "
+                f"({self.ns_per_point_step:.0f} ns per point-step, {self.machine})")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _fmt_bytes(b: float) -> str:
+    for unit, f in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20)):
+        if b >= f:
+            return f"{b / f:.3g} {unit}"
+    return f"{b / 2**10:.3g} KiB"
+
+
+def _fmt_time(s: float) -> str:
+    if s >= 86400:
+        return f"{s / 86400:.3g} days"
+    if s >= 3600:
+        return f"{s / 3600:.3g} h"
+    if s >= 60:
+        return f"{s / 60:.3g} min"
+    return f"{s:.2g} s"
+
+
+def _polygon_area(poly, lo, hi) -> float:
+    """Area (m2) of ``poly`` clipped to the rectangle [lo, hi] (Sutherland-Hodgman)."""
+    pts = [tuple(p) for p in poly]
+    for axis, bound, keep_below in ((0, lo[0], False), (0, hi[0], True),
+                                    (1, lo[1], False), (1, hi[1], True)):
+        out = []
+        for k, cur in enumerate(pts):
+            prev = pts[k - 1]
+            cin = (cur[axis] <= bound) if keep_below else (cur[axis] >= bound)
+            pin = (prev[axis] <= bound) if keep_below else (prev[axis] >= bound)
+            if cin != pin:
+                t = (bound - prev[axis]) / (cur[axis] - prev[axis])
+                out.append(tuple(prev[i] + t * (cur[i] - prev[i]) for i in range(2)))
+            if cin:
+                out.append(cur)
+        pts = out
+        if not pts:
+            return 0.0
+    return 0.5 * abs(sum(pts[k - 1][0] * p[1] - p[0] * pts[k - 1][1] for k, p in enumerate(pts)))
+
+
+def _grid_geometry(scene: Scene):
+    """(origin, cell, (nx, ny)) without building the mesh."""
+    if scene.grid.file is not None:
+        from .grid import _grid_from_file
+        origin, cell, shape = _grid_from_file(scene.grid.file, scene.source)
+        return tuple(map(float, origin)), tuple(map(float, cell)), tuple(map(int, shape))
+    cell = scene.grid.cell
+    shape = (int(round(scene.grid.size[0] / cell[0])), int(round(scene.grid.size[1] / cell[1])))
+    return scene.grid.origin, cell, shape
+
+
+def _p_wave_speed(scene: Scene) -> float:
+    g = scene.scene.gravity if scene.scene.gravity > 0 else 9.81
+    return max(math.sqrt(s.constrained_modulus / (s.unit_weight / g)) for s in scene.soils)
+
+
+def _cost(scene: Scene) -> float:
+    sv = scene.solver
+    if sv.scheme == "implicit":
+        return NS_PER_POINT_STEP["implicit"]
+    if getattr(sv, "kernel", "numba") == "numpy":
+        return NS_PER_POINT_STEP["explicit_numpy"]
+    ns = NS_PER_POINT_STEP["explicit"]
+    if sv.shape == "gimp":
+        ns *= NS_PER_POINT_STEP["explicit_gimp_factor"]
+    if sv.fbar:
+        ns *= NS_PER_POINT_STEP["explicit_fbar_factor"]
+    return ns
+
+
+def estimate_run(scene: Scene) -> RunEstimate:
+    """Estimate points, nodes, memory, steps and wall time of one run of ``scene``."""
+    origin, cell, (nx, ny) = _grid_geometry(scene)
+    hi = (origin[0] + cell[0] * nx, origin[1] + cell[1] * ny)
+    cell_area = cell[0] * cell[1]
+    points = int(round(sum(_polygon_area(s.polygon, origin, hi) / cell_area
+                           * s.points_per_cell_dir ** 2 for s in scene.soils)))
+    cells, nodes = nx * ny, (nx + 1) * (ny + 1)
+    sv = scene.solver
+    if sv.scheme == "implicit":
+        dt = sv.dt if sv.dynamic else 1.0 / sv.load_steps
+        steps = math.ceil(sv.t_end / sv.dt) if sv.dynamic else sv.load_steps
+    else:
+        dt = sv.cfl * min(cell) / _p_wave_speed(scene)
+        steps = math.ceil(sv.t_end / dt)
+    snapshots = (math.floor(sv.t_end / sv.output_interval) + 2) if sv.scheme == "explicit" \
+        or sv.dynamic else steps + 1
+    memory = (BASE_BYTES + BYTES_PER_CELL * cells + BYTES_PER_POINT * points
+              + BYTES_PER_POINT_SNAPSHOT * points * snapshots)
+    ns = _cost(scene)
+    return RunEstimate(scheme=sv.scheme, points=points, cells=cells, nodes=nodes,
+                       memory_bytes=float(memory), dt=float(dt), steps=int(steps),
+                       ns_per_point_step=ns, wall_time=steps * points * ns * 1e-9,
+                       machine=COST_MACHINE[sv.scheme])
+
+
+def memory_limit_bytes() -> float:
+    """The memory limit (B): ``$FEM_RMPM_MEMORY_LIMIT_GB`` GiB, else 75 % of the RAM."""
+    raw = os.environ.get(MEMORY_LIMIT_ENV)
+    if raw:
+        try:
+            gb = float(raw)
+        except ValueError:
+            gb = float("nan")
+        if not (gb > 0 and math.isfinite(gb)):
+            raise SceneError(f"${MEMORY_LIMIT_ENV}: [] {raw!r} is not a memory size; allowed: "
+                             "a positive number of GiB, e.g. 8")
+        return gb * 2**30
+    try:
+        ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):   # pragma: no cover - non-POSIX
+        ram = 8 * 2**30
+    return 0.75 * ram
+
+
+def check_budget(scene: Scene, limit_bytes: float | None = None) -> RunEstimate:
+    """The estimate of ``scene``; raises :class:`BudgetError` if its memory exceeds
+    ``limit_bytes`` (default :func:`memory_limit_bytes`)."""
+    est = estimate_run(scene)
+    limit = memory_limit_bytes() if limit_bytes is None else float(limit_bytes)
+    if est.memory_bytes > limit:
+        raise BudgetError(
+            f"{scene.source}: [grid.cell] run too large: {est.describe()}; this exceeds "
+            f"the memory limit of {_fmt_bytes(limit)}; allowed: a coarser [grid] cell (now "
+            f"{list(scene.grid.cell)} m), a smaller grid, or a higher limit with "
+            f"{MEMORY_LIMIT_ENV}=<GiB>")
+    return est
