@@ -1,0 +1,355 @@
+"""The three kinds of implicit step over one shared system.
+
+:class:`ImplicitSystem` holds what every step of a run shares (grid, points, prescribed
+regions, linear solver); :meth:`ImplicitSystem.begin` builds the grid-reset
+:class:`StepData` of one step (basis at the step-start positions, step-start material
+state, external force).  A step kind is a small class with
+
+* ``predictor(st)``: the starting increment of the Newton iteration,
+* ``residual(st, du) -> (R, ref, state)``: out-of-balance force on the free DOFs, its
+  reference norm and the material state at ``du``,
+* ``tangent(st) -> K``: the consistent tangent at the last evaluated ``du``,
+* ``commit(st, result) -> info``: applies the converged step to the points,
+
+and :meth:`StepKind.solve` runs the Newton iteration of one step with them.  The kinds:
+:class:`Geostatic` (small strain, fixed geometry), :class:`QuasiStatic` (large
+deformation load step) and :class:`NewmarkDynamic` (trapezoidal rule, lumped mass).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..grid import Grid, points_in_polygon
+from ..locking import bbar_gradient, fbar_increment, fbar_q, fbar_weights
+from ..material import SoilPoints, small_strain_update, stress_update
+from ..particles import Particles
+from ..run import SimulationError
+from ..scene import Scene, SceneError
+from .assembly import StepSystem
+from .linear import LinearSolver
+from .newton import NewtonFailure, NewtonResult, newton
+from .tangent import elastic_left_cauchy_green, finite_strain_tangent, inv2, small_strain_tangent
+
+__all__ = ["ImplicitSystem", "StepData", "StepKind", "Geostatic", "QuasiStatic",
+           "NewmarkDynamic", "prescribed_nodes"]
+
+_MASS_TOL = 1e-14
+_EYE = np.eye(2)
+
+
+@dataclass
+class StepData:
+    """One step's grid-reset system and the step-start state of its active points."""
+    S: StepSystem
+    act: np.ndarray                 # indices of the active points
+    V0: np.ndarray                  # initial volumes (m2 per m)
+    Vn: np.ndarray                  # volumes at step start (F-bar weights)
+    mass: np.ndarray                # t per m
+    ls0: np.ndarray                 # elastic log strain at step start (n, 4)
+    gp0: np.ndarray                 # plastic shear strain at step start (n,)
+    soil: SoilPoints
+    f_ext: np.ndarray               # body force on the free DOFs at the step end (kN per m)
+    lf_new: float                   # gravity factor at the step end
+    presc: np.ndarray | None        # prescribed nodal increment (n_nodes, 2), or None
+    dt: float = 0.0                 # time step (s), dynamic steps
+    cache: dict = field(default_factory=dict)     # the last evaluation, for the tangent
+    clock: dict = field(default_factory=lambda: {"material": 0.0, "assembly": 0.0})
+
+
+@dataclass
+class StepOutcome:
+    result: NewtonResult
+    commit: object                  # callable applying the converged step to the points
+
+
+class ImplicitSystem:
+    """What all steps of an implicit run share: scene, grid, points (changed only by a
+    step's ``commit``), prescribed regions, the linear solver and the point accelerations."""
+
+    def __init__(self, scene: Scene, grid: Grid, pts: Particles, solver: LinearSolver):
+        self.scene, self.grid, self.pts, self.solver = scene, grid, pts, solver
+        self.sv = scene.solver
+        self.fbar = bool(self.sv.fbar)
+        self.g_full = np.array(scene.gravity_vector, dtype=float)
+        self.acc = np.zeros((pts.n, 2))          # point accelerations (dynamic)
+        self.regions = prescribed_nodes(scene, grid)
+        mask = np.zeros((grid.n_nodes, 2), dtype=bool)
+        target = np.zeros((grid.n_nodes, 2))     # prescribed displacement at load factor 1
+        for r in self.regions:
+            mask |= r["mask"]
+            target[r["mask"]] = np.broadcast_to(r["displacement"], r["mask"].shape)[r["mask"]]
+        self.presc_mask, self.presc_target = mask, target
+        self.fixed = grid.fixed | mask
+
+    def begin(self, lf_new: float, lf_old: float | None, dt: float = 0.0) -> StepData:
+        """The grid-reset system of a step ending at gravity factor ``lf_new``; prescribed
+        displacements grow by ``(lf_new - lf_old)`` x their value (``lf_old = None``: a
+        dynamic step, which cannot carry them)."""
+        pts = self.pts
+        act = np.nonzero(pts.active)[0]
+        if len(act) == 0:
+            raise SimulationError("no active material point left (all frozen at the grid "
+                                  "edge); enlarge [grid] size")
+        S = StepSystem(self.grid, pts.x[act], self.sv.shape,
+                       pts.half_width[act] if pts.half_width is not None else None,
+                       fixed=self.fixed)
+        mass = pts.mass[act]
+        presc = None
+        if self.presc_mask.any():
+            if lf_old is None:
+                raise SimulationError("prescribed displacements need quasi-static load steps")
+            presc = np.where(self.presc_mask, (lf_new - lf_old) * self.presc_target, 0.0)
+        return StepData(S, act, pts.volume0[act], pts.volume[act], mass, pts.log_strain[act],
+                        pts.plastic_shear_strain[act], pts.soil.take(act),
+                        S.body_force(mass, lf_new * self.g_full), lf_new, presc, dt)
+
+    def reactions(self, st: StepData, du: np.ndarray, tau: np.ndarray,
+                  g: np.ndarray) -> dict:
+        """Force (kN/m) of each prescribed region on the soil: f_int - f_ext there."""
+        if st.presc is None:
+            return {}
+        S = st.S
+        r = S.internal_force(st.V0, tau, g, full=True) - np.bincount(
+            S.point_dofs.ravel(), (S.N[:, :, None] * st.mass[:, None, None]
+                                   * (st.lf_new * self.g_full)).ravel(),
+            minlength=2 * self.grid.n_nodes).reshape(-1, 2)
+        return {"reactions": {reg["name"]: [float(v) for v in r[reg["nodes"]].sum(axis=0)]
+                              for reg in self.regions}}
+
+
+class StepKind:
+    """A kind of implicit step: ``residual``, ``tangent`` and ``commit`` over the shared
+    :class:`ImplicitSystem` (see the module docstring)."""
+    name = ""
+    dynamic = False
+
+    def __init__(self, system: ImplicitSystem):
+        self.sys = system
+
+    # -- hooks of the subclasses
+    def predictor(self, st: StepData) -> np.ndarray:
+        return np.zeros(st.S.n_free)
+
+    def material(self, st: StepData, H: np.ndarray):
+        """Stress update at the displacement-increment gradient ``H`` (n, 2, 2):
+        ``(log_strain, gamma_p, tau, g, dF)`` with ``g`` the spatial gradients."""
+        raise NotImplementedError
+
+    def inertia(self, st: StepData, du: np.ndarray, R: np.ndarray) -> np.ndarray:
+        return R
+
+    # -- the Newton pieces
+    def residual(self, st: StepData, du: np.ndarray):
+        """``(R, ref, state)``: ``R = f_ext - f_int`` (minus inertia) on the free DOFs,
+        ``ref`` the norm it is measured against, ``state = (ls, gp, tau, dF)``."""
+        S = st.S
+        t0 = time.perf_counter()
+        H = S.gradient(S.to_nodes(du, st.presc))
+        t_mat = st.clock["material"]
+        ls, gp, tau, g, dFm = self.material(st, H)
+        f_int = S.internal_force(st.V0, tau, g)
+        R = st.f_ext - f_int
+        ref = float(np.linalg.norm(st.f_ext))
+        if st.presc is not None:      # the prescribed motion drives the step
+            ref = max(ref, float(np.linalg.norm(S.internal_force(st.V0, tau, g, full=True))))
+        R = self.inertia(st, du, R)
+        st.clock["assembly"] += time.perf_counter() - t0 - (st.clock["material"] - t_mat)
+        return R, ref, (ls, gp, tau, dFm)
+
+    def point_tangent(self, st: StepData):
+        """``(A, Q, w)``: the point tangent (n, 2, 2, 2, 2), and with F-bar the
+        coupling factors :func:`fem_rmpm.locking.fbar_q` and the cell weights."""
+        raise NotImplementedError
+
+    def diagonal(self, st: StepData):
+        return None
+
+    def tangent(self, st: StepData):
+        t0 = time.perf_counter()
+        A, Q, w = self.point_tangent(st)
+        t1 = time.perf_counter()
+        S, g = st.S, st.cache["g"]
+        K = S.tangent(st.V0, g, A, diagonal=self.diagonal(st))
+        if self.sys.fbar:
+            K = K + S.fbar_tangent(st.V0, g, Q, w)
+        st.clock["material"] += t1 - t0
+        st.clock["assembly"] += time.perf_counter() - t1
+        return K
+
+    def commit(self, st: StepData, res: NewtonResult) -> dict:
+        raise NotImplementedError
+
+    # -- one step
+    def solve(self, lf_old: float, lf_new: float, dt: float = 0.0) -> StepOutcome:
+        """Newton iteration of one step from gravity factor ``lf_old`` to ``lf_new`` (of
+        ``dt`` seconds if dynamic); nothing changes until ``outcome.commit()``."""
+        sys_, sv = self.sys, self.sys.sv
+        t_setup = time.perf_counter()
+        st = sys_.begin(lf_new, None if self.dynamic else lf_old, dt)
+        t_setup = time.perf_counter() - t_setup
+        du0 = self.predictor(st)
+        sys_.solver.new_step()
+        res = newton(lambda du: self.residual(st, du), lambda: self.tangent(st), du0,
+                     sys_.solver, sv.max_iterations, sv.tolerance,
+                     modes=st.S.rigid_body_modes)
+        res.t_material, res.t_assembly, res.t_setup = (st.clock["material"],
+                                                       st.clock["assembly"], t_setup)
+        return StepOutcome(res, lambda: self.commit(st, res))
+
+
+class Geostatic(StepKind):
+    """Gravity on the fixed in-situ geometry, small strain: the points do not move (the
+    displacement goes to ``pts.u_geostatic``); B-bar with F-bar on."""
+    name = "geostatic"
+
+    def material(self, st, H):
+        sys_ = self.sys
+        Hm = bbar_gradient(H, st.Vn, st.S.host, sys_.grid.n_cells) if sys_.fbar else H
+        t1 = time.perf_counter()
+        ls, gp, tau = small_strain_update(Hm, st.ls0, st.gp0, st.soil)
+        st.clock["material"] += time.perf_counter() - t1
+        st.cache.update(H=Hm, g=st.S.dN, tau=tau)
+        return ls, gp, tau, st.S.dN, None
+
+    def point_tangent(self, st):
+        _, A = small_strain_tangent(st.cache["H"], st.ls0, st.gp0, st.soil)
+        if not self.sys.fbar:
+            return A, None, None
+        S, Vn = st.S, st.Vn
+        w = Vn / np.bincount(S.host, Vn, minlength=self.sys.grid.n_cells)[S.host]
+        return A, fbar_q(A, None), w
+
+    def commit(self, st, res):
+        ls, gp, tau, _ = res.state
+        info = self.sys.reactions(st, res.du, tau, st.S.dN)
+        pts, act = self.sys.pts, st.act
+        pts.log_strain[act], pts.plastic_shear_strain[act] = ls, gp
+        pts.u_geostatic[act] += st.S.interpolate(st.S.to_nodes(res.du, st.presc))
+        pts.stress[act] = tau
+        return info
+
+
+class QuasiStatic(StepKind):
+    """A large-deformation load step (updated Lagrangian, Hencky/Kirchhoff): the points
+    move by the converged increment, ``F <- dF F``, ``V = det(F) V0``."""
+    name = "static"
+
+    def material(self, st, H):
+        sys_ = self.sys
+        dF = _EYE + H
+        Finv, det = inv2(dF)
+        if not np.all(det > 0):
+            i = st.act[np.argmin(det)]
+            raise NewtonFailure(f"material point {i} inverted (det dF = {det.min():.3g})", [])
+        if sys_.fbar:
+            dFm, J, _ = fbar_increment(dF, st.Vn, st.S.host, sys_.grid.n_cells)
+            st.cache["w"] = fbar_weights(st.Vn, J, st.S.host, sys_.grid.n_cells)
+        else:
+            dFm = dF
+        t1 = time.perf_counter()
+        ls, gp, tau = stress_update(dFm, st.ls0, st.gp0, st.soil)
+        st.clock["material"] += time.perf_counter() - t1
+        g = np.matmul(st.S.dN, Finv)
+        st.cache.update(H=H, dF=dFm, g=g, tau=tau)
+        return ls, gp, tau, g, dFm
+
+    def point_tangent(self, st):
+        c = st.cache
+        if "b_e" not in c:
+            c["b_e"] = elastic_left_cauchy_green(st.ls0)
+        _, A = finite_strain_tangent(c["dF"], st.ls0, st.gp0, st.soil, b_e=c["b_e"],
+                                     tau=c["tau"])
+        return (A, fbar_q(A, c["tau"]), c["w"]) if self.sys.fbar else (A, None, None)
+
+    def commit(self, st, res):
+        ls, gp, tau, dFm = res.state
+        S, pts, act = st.S, self.sys.pts, st.act
+        du_nodes = S.to_nodes(res.du, st.presc)
+        info = {}
+        if st.presc is not None:
+            info = self.sys.reactions(st, res.du, tau,
+                                      np.matmul(S.dN, inv2(_EYE + S.gradient(du_nodes))[0]))
+        pts.log_strain[act], pts.plastic_shear_strain[act] = ls, gp
+        pts.x[act] = pts.x[act] + S.interpolate(du_nodes)
+        pts.F[act] = dFm @ pts.F[act]
+        F = pts.F[act]
+        J = F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
+        pts.volume[act] = J * st.V0
+        pts.stress[act] = tau / J[:, None]
+        return info
+
+
+class NewmarkDynamic(QuasiStatic):
+    """Newmark trapezoidal rule (``beta = 1/4, gamma = 1/2``) with the lumped nodal mass:
+    ``a_{n+1} = 4/dt^2 (du - dt v_n) - a_n``, residual ``f_ext - f_int - m a_{n+1}``,
+    tangent ``K + 4 m / dt^2``; the point velocities are updated FLIP-like, blended with
+    PIC by ``[solver] flip``."""
+    name = "dynamic"
+    dynamic = True
+
+    def predictor(self, st):
+        S, pts, act, mass, dt = st.S, self.sys.pts, st.act, st.mass, st.dt
+        m_nodes = S.lumped_mass(mass)
+        has = m_nodes > _MASS_TOL
+        inv_m = np.where(has, 1.0 / np.where(has, m_nodes, 1.0), 0.0)[:, None]
+        v_n = (S.momentum(mass, pts.velocity[act]) * inv_m).ravel()[S.free_dofs]
+        a_n = (S.momentum(mass, self.sys.acc[act]) * inv_m).ravel()[S.free_dofs]
+        st.cache.update(v_n=v_n, a_n=a_n, m_free=np.repeat(m_nodes, 2)[S.free_dofs],
+                        c=4.0 / (dt * dt))
+        return dt * v_n + 0.5 * dt * dt * a_n
+
+    def _acceleration(self, st, du):
+        c = st.cache
+        return c["c"] * (du - st.dt * c["v_n"]) - c["a_n"]
+
+    def inertia(self, st, du, R):
+        return R - st.cache["m_free"] * self._acceleration(st, du)
+
+    def diagonal(self, st):
+        return st.cache["c"] * st.cache["m_free"]
+
+    def commit(self, st, res):
+        super().commit(st, res)
+        S, pts, act, c = st.S, self.sys.pts, st.act, st.cache
+        v_n, a_n = c["v_n"], c["a_n"]
+        a_new = self._acceleration(st, res.du)
+        v_new = v_n + 0.5 * st.dt * (a_n + a_new)
+        v_pic = S.interpolate(S.to_nodes(v_new))
+        flip = self.sys.sv.flip
+        pts.velocity[act] = flip * (pts.velocity[act] + S.interpolate(S.to_nodes(v_new - v_n))) \
+            + (1 - flip) * v_pic
+        self.sys.acc[act] = S.interpolate(S.to_nodes(a_new))
+        ke = 0.5 * float(np.sum(c["m_free"] * v_new * v_new))
+        return {"kinetic_energy": ke,
+                "max_speed": float(np.sqrt(np.max(np.sum(v_pic * v_pic, 1), initial=0.0)))}
+
+
+def prescribed_nodes(scene: Scene, grid: Grid) -> list[dict]:
+    """The ``[[prescribed]]`` regions of a scene on its grid: per region its ``name``, the
+    ``nodes`` in or on its polygon, the (n_nodes, 2) ``mask`` of prescribed components
+    and the ``displacement`` (2,) at load factor 1.  A region that holds no grid node is
+    a :class:`SceneError`."""
+    out = []
+    p = grid.nodes
+    tol = 1e-6 * float(np.min(grid.cell))
+    for i, pr in enumerate(getattr(scene, "prescribed", ())):
+        poly = np.asarray(pr.polygon, dtype=float)
+        on = points_in_polygon(p, poly)
+        for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+            ab = b - a
+            t = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-300), 0.0, 1.0)
+            on |= np.linalg.norm(p - (a + t[:, None] * ab), axis=1) <= tol
+        nodes = np.nonzero(on)[0]
+        if len(nodes) == 0:
+            raise SceneError(f"{scene.source}: [prescribed[{i}].polygon] holds no grid node; "
+                             "allowed: a polygon containing or touching grid nodes (m)")
+        mask = np.zeros((grid.n_nodes, 2), dtype=bool)
+        comps = [k for k, c in enumerate("xy") if c in pr.components]
+        mask[np.ix_(nodes, comps)] = True
+        out.append({"name": pr.name if pr.name != "prescribed" or len(scene.prescribed) == 1
+                    else f"{pr.name}{i}", "nodes": nodes, "mask": mask,
+                    "displacement": np.array(pr.displacement, dtype=float)})
+    return out
