@@ -19,16 +19,21 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import meshio
 import numpy as np
+from tqdm import tqdm
 
 from .budget import check_budget
 from .explicit import run_explicit
 from .run import RunRecord, SimulationError
 from .fem import FemResult, solve_static
 from .grid import Grid, make_grid
+from .implicit import run_implicit
 from .measures import compute_measures
 from .output import PvdSeries, write_grid, write_json
 from .particles import Particles, seed_particles, soil_cells
+from .plots import plot_profile, plot_snapshots
+from .random_field import sample_point_property
 from .scene import Scene, SceneError, load_scene, scene_to_dict, with_value
 
 __all__ = ["load_scene", "with_value", "prepare", "run", "fem", "RunResult", "SceneError",
@@ -54,7 +59,6 @@ def prepare(scene: Scene, seed: int | None = None) -> tuple[Grid, Particles]:
     grid = make_grid(scene)
     pts = seed_particles(scene, grid)
     if scene.random_field is not None:
-        from .random_field import sample_point_property
         seed = scene.montecarlo.seed if seed is None else seed
         peak = sample_point_property(scene, grid, pts, seed)
         old_peak = pts.soil.cohesion_peak
@@ -88,7 +92,6 @@ def _check_point_strength(scene: Scene, pts: Particles, seed) -> None:
 
 def _run_scheme(scene, grid, pts, on_output, progress):
     if scene.solver.scheme == "implicit":
-        from .implicit import run_implicit
         return run_implicit(scene, grid, pts, on_output=on_output, progress=progress)
     return run_explicit(scene, grid, pts, on_output=on_output, progress=progress)
 
@@ -164,7 +167,6 @@ def _summary(scene, seed, pts, rec, measures) -> dict:
 
 
 def _figures(out, scene, grid, snapshots, measures):
-    from .plots import plot_profile, plot_snapshots
     times = np.array([t for t, *_ in snapshots])
     targets = times[-1] * np.array([0.0, 0.1, 0.25, 0.5, 1.0])   # early failure in detail
     pick = sorted({int(np.argmin(np.abs(times - tt))) for tt in targets})
@@ -181,7 +183,6 @@ def fem(scene: Scene, out: str | Path | None = None) -> FemResult:
     check_budget(scene)
     res = solve_static(scene)
     if out is not None:
-        import meshio
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         used = np.unique(res.grid.cells[res.cells])
@@ -204,7 +205,6 @@ def fem(scene: Scene, out: str | Path | None = None) -> FemResult:
 
 class _Bar:
     def __init__(self, scene: Scene):
-        from tqdm import tqdm
         self.t_end = scene.solver.t_end
         self.bar = tqdm(total=round(self.t_end, 6), unit="s sim", desc=scene.scene.name,
                         bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s [{elapsed}<{remaining}] {postfix}")

@@ -3,28 +3,41 @@
 Exit codes: 0 success, 2 bad input (scene, data file, options), 3 the
 simulation failed (unstable, Newton did not converge, ...), 130 interrupted.
 Errors are one line on stderr, never a traceback (``--debug`` shows it).
+The CLI is the top layer: nothing in the package imports it.
 """
 from __future__ import annotations
 
 import argparse
 import sys
+import time
+import tomllib
+from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 
-from .run import SimulationError
-from .output import OutputError
-from .scene import SceneError, load_scene
+import numpy as np
 
-__all__ = ["main", "default_scene_path"]
+from . import api
+from .campaign import LITERATURE_CASES, CampaignResult, run_campaign
+from .errors import InputError
+from .field_output import plot_realization, plot_variogram, write_field_vtu
+from .grid import make_grid
+from .output import OutputError, write_json
+from .particles import seed_particles
+from .random_field import (embedding_for, field_layout, field_values, fit_scales,
+                           read_measurements)
+from .random_field.conditioning import resolve_data_path
+from .run import SimulationError
+from .scene import RandomFieldSpec, Scene, SceneError, load_scene, with_value, with_values
+
+__all__ = ["main", "default_scene_path", "build_parser", "parse_settings", "summary_text",
+           "campaign_cases", "InputError"]
 
 
 def default_scene_path() -> Path:
-    """The embedded default scene: the reference slope of the RMPM paper (DESIGN section 6)."""
+    """The embedded default scene: the reference slope of the RMPM paper (Wang, Vardon &
+    Hicks 2017; ``fem_rmpm/data/slope_reference.toml``)."""
     return Path(str(resources.files("fem_rmpm") / "data" / "slope_reference.toml"))
-
-
-class InputError(ValueError):
-    """Bad command-line input other than the scene file."""
 
 
 def _scene_arg(p: argparse.ArgumentParser, optional: bool = False) -> None:
@@ -35,7 +48,6 @@ def _scene_arg(p: argparse.ArgumentParser, optional: bool = False) -> None:
 
 def parse_settings(items: list[str] | None, source: str) -> dict:
     """``--set key=value`` pairs; values are TOML literals (parsed by tomllib, never eval)."""
-    import tomllib
     out = {}
     for item in items or []:
         key, sep, value = item.partition("=")
@@ -54,14 +66,12 @@ def parse_settings(items: list[str] | None, source: str) -> dict:
 
 def scene_from_args(a):
     """Load the scene named on the command line and apply its ``--set`` changes."""
-    from .scene import with_values
     scene = load_scene(a.scene)
     changes = parse_settings(getattr(a, "set", None), a.scene)
     return with_values(scene, changes) if changes else scene
 
 
 def _cmd_run(a) -> int:
-    from . import api
     scene = scene_from_args(a)
     res = api.run(scene, out=a.out, seed=a.seed, progress=not a.quiet)
     s, m = res.summary, res.measures
@@ -79,8 +89,6 @@ def _cmd_run(a) -> int:
 
 
 def _cmd_fem(a) -> int:
-    import numpy as np
-    from . import api
     scene = scene_from_args(a)
     res = api.fem(scene, out=a.out)
     print(f"{scene.scene.name}: static FEM on {len(res.cells)} Q4 elements; max |u| = "
@@ -89,14 +97,212 @@ def _cmd_fem(a) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- mc
+
+def _is_default_scene(path: str | Path) -> bool:
+    try:
+        return Path(path).resolve() == default_scene_path().resolve()
+    except OSError:  # pragma: no cover
+        return False
+
+
+def campaign_cases(scene: Scene, scene_path: str | Path | None = None) -> list[str]:
+    """Cases of a campaign run from the command line: ``[montecarlo] cases`` if the scene
+    has that key, the four :data:`LITERATURE_CASES` for the embedded default scene,
+    else the scene itself."""
+    listed = tuple(getattr(scene.montecarlo, "cases", ()) or ())
+    if listed:
+        return list(listed)
+    if scene_path is not None and _is_default_scene(scene_path):
+        return list(LITERATURE_CASES)
+    return ["scene"]
+
+
+_MECHANISM_TEXT = (("slip_surface_height", "slip-surface height", " m"),
+                   ("intact_blocks", "intact blocks", ""),
+                   ("sliding_area_early", "early sliding area", " m2"))
+
+
+def summary_text(res: CampaignResult) -> str:
+    """The final one-paragraph-per-case summary printed by ``fem-rmpm mc``."""
+    lines = []
+    rph = res.realizations_per_hour
+    head = (f"Campaign in {res.out}: {sum(res.realizations.values())} realizations in "
+            f"{len(res.cases)} case(s); ")
+    if res.computed or res.lost:
+        head += (f"this run computed {res.computed} (skipped {res.skipped} already "
+                 f"finished) on {res.workers} in {res.wall_time:.1f} s"
+                 + (f" ({rph:.0f} realizations/hour)" if rph else "") + ".")
+    else:
+        head += f"all {res.skipped} had finished before; tables and figures rebuilt."
+    lines.append(head)
+    for c in res.cases:
+        s = res.stats[c.name]
+        head = f"  {c.label}: " + ("deterministic (no random field), 1 realization; "
+                                   if c.deterministic else f"N = {s['ok']} ok")
+        if not c.deterministic:
+            head += (f", {s['numerical_failures']} failed numerically" if
+                     s["numerical_failures"] else "") + "; "
+        if s["ok"] == 0:
+            lines.append(head + "no realization finished"
+                         + (f" (first error: {s['errors'][0]['error']})" if s["errors"] else ""))
+            continue
+        if c.deterministic:
+            r, t, a = (s[k]["mean"] for k in ("runout_distance", "retrogression_distance",
+                                              "sliding_area"))
+            mech = "".join(f", {lab} {s[k]['mean']:.2f}{unit}"
+                           for k, lab, unit in _MECHANISM_TEXT if k in s)
+            lines.append(head + f"failed = {bool(s['slope_failures'])}, run-out {r:.2f} m, "
+                         f"retrogression {t:.2f} m, sliding area {a:.1f} m2{mech}")
+            continue
+        lo, hi = s["wilson95"]
+        txt = (f"P(failure) = {s['p_failure']:.3f} +- {s['se']:.3f} (SE sqrt(p(1-p)/N); "
+               f"Wilson 95 % [{lo:.2f}, {hi:.2f}])")
+        for key, lab, unit in (("runout_distance", "run-out", "m"),
+                               ("retrogression_distance", "retrogression", "m"),
+                               ("sliding_area", "sliding area", "m2")):
+            d = s[key]
+            txt += (f"; {lab} mean {d['mean']:.2f} +- {d['se']:.2f} {unit} "
+                    f"(5/50/95 %: {d['q05']:.2f}/{d['q50']:.2f}/{d['q95']:.2f})")
+        mech = [(k, lab, unit) for k, lab, unit in _MECHANISM_TEXT if k in s]
+        if mech:
+            txt += "; mean " + ", ".join(f"{lab} {s[k]['mean']:.2f}{unit}"
+                                         for k, lab, unit in mech)
+        conv = s.get("convergence")
+        if conv and s["ok"] >= 4:
+            idx = sorted({s["ok"] // 4 - 1, s["ok"] // 2 - 1, s["ok"] - 1})
+            txt += ("; with N = " + ", ".join(str(conv["n"][i]) for i in idx)
+                    + ": P(failure) " + ", ".join(f"{conv['p_failure'][i]:.2f}" for i in idx)
+                    + ", mean run-out " + ", ".join(f"{conv['mean_runout'][i]:.1f}" for i in idx)
+                    + " m")
+        lines.append(head + txt)
+        if s["numerical_failures"]:
+            e = s["errors"][0]
+            lines.append(f"    first failed realization: #{e['index']} (seed {e['seed']}): "
+                         f"{e['error']}")
+    if res.lost:
+        lines.append(f"  {len(res.lost)} realization(s) LOST (their workers died; no record): "
+                     + "; ".join(res.lost[:3]) + " -- re-run the same command to compute them")
+    figs = ", ".join(p.name for p in res.figures)
+    lines.append(f"Output: results.csv, summary.json, records/"
+                 + (", vtk/" if (res.out / "vtk").exists() else "")
+                 + (f", {figs}" if figs else "") + f" in {res.out}")
+    return "\n".join(lines)
+
+
 def _cmd_mc(a) -> int:
-    from .montecarlo import run_campaign_cli
-    return run_campaign_cli(a)
+    """``fem-rmpm mc``: returns 0, or 3 if realizations were lost (re-run to finish)."""
+    scene = load_scene(a.scene)
+    cases = campaign_cases(scene, a.scene)
+    res = run_campaign(scene, a.out, realizations=a.realizations, cases=cases,
+                       workers=a.workers, scheduler=a.scheduler, force=a.force,
+                       keep_vtk=a.keep_vtk, progress=not a.quiet)
+    print(summary_text(res))
+    return 3 if res.lost else 0
+
+
+# --------------------------------------------------------------------------- field
+
+def _field_scene(a) -> tuple[Scene, str]:
+    """The scene of ``fem-rmpm field``; without a ``[random_field]``, the literature's
+    default field (and a note saying so)."""
+    scene = load_scene(a.scene)
+    if scene.random_field is not None:
+        return scene, ""
+    scene = with_value(scene, "random_field.anisotropy", RandomFieldSpec().anisotropy)
+    return scene, (" The scene has no [random_field] section, so this is the default field "
+                   "(add [random_field] to use a field in runs).")
+
+
+def _field_fit(path: str, rf: RandomFieldSpec, out: Path) -> str:
+    """``--fit CSV``: fit the scales, write ``fit.json`` and ``variogram.png``, print the
+    result; returns the sentence for the final summary."""
+    meas = read_measurements(path, key="fit")
+    fit = fit_scales(meas.x, meas.y, meas.value, log=rf.distribution == "lognormal",
+                     source=meas.source, group=meas.group)
+    write_json(out / "fit.json", {"data": meas.source, **fit.as_dict()})
+    plot_variogram(out / "variogram.png", fit, f"{Path(meas.source).name}: Markov fit")
+    print(f"fit of {meas.source}: theta_v = {fit.theta_v:.4g} m, theta_h = "
+          f"{fit.theta_h:.4g} m (xi = {fit.anisotropy:.3g}), sill {fit.sill:.3g}"
+          f"{' of ln(value)' if fit.log else ''}; written {out / 'fit.json'}")
+    return (f" The variogram fit of {Path(meas.source).name} gives theta_v = "
+            f"{fit.theta_v:.3g} m and theta_h = {fit.theta_h:.3g} m (set them with "
+            "random_field.theta_v / anisotropy to use them).")
+
+
+def _field_on_points(pts, values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Give the points the realization's peak cohesion (as ``api.prepare``, residual in
+    proportion); returns the value shown per point: the field on the field's soils, the
+    peak cohesion elsewhere, -1 on linear elastic points (infinite strength)."""
+    base = pts.soil.cohesion_peak
+    finite = np.isfinite(base)
+    peak = np.where(mask & finite, values, base)         # as sample_point_property
+    ratio = np.divide(pts.soil.cohesion_residual, base, out=np.ones(pts.n), where=finite)
+    pts.soil = replace(pts.soil, cohesion_peak=peak,
+                       cohesion_residual=np.where(finite, peak * ratio, np.inf))
+    return np.where(mask, values, np.where(finite, peak, -1.0))
+
+
+def _field_text(scene: Scene, seed: int, layout, emb, meas, v: np.ndarray) -> str:
+    """The one-paragraph summary of ``fem-rmpm field`` (without note, fit and output)."""
+    rf = scene.random_field
+    xi = rf.anisotropy
+    avg = (f"local averages over {layout.cell[0]:g} x {layout.cell[1]:g} m cells (variance "
+           f"{emb.variance:.3f})" if rf.local_averaging else
+           f"point values at the centres of {layout.cell[0]:g} x {layout.cell[1]:g} m cells")
+    return (f"{scene.scene.name}: {rf.distribution} random field of {rf.property} (COV "
+            f"{rf.cov:g}, theta_v {rf.theta_v:g} m, theta_h {rf.theta_v * xi:g} m, xi {xi:g}, "
+            f"{rf.correlation.replace('markov_', '')} Markov, layering "
+            f"{rf.layering_angle_deg:g} deg to the grid x axis) as {avg} on {layout.shape[0]} x "
+            f"{layout.shape[1]} field cells, seed {seed}, circulant embedding {emb.padded[0]} x "
+            f"{emb.padded[1]} (lambda_min/lambda_max {emb.lambda_min / emb.lambda_max:.1e}, "
+            f"{'exact' if emb.clipped == 0 else f'clipped {emb.clipped:.1e}'})"
+            + (f", conditioned on {len(meas.x)} measurements of {meas.source}" if meas else "")
+            + f"; {len(v)} material points get {v.min():.3g} to {v.max():.3g} kPa "
+            f"(mean {v.mean():.3g}, COV {v.std() / v.mean():.3g}).")
 
 
 def _cmd_field(a) -> int:
-    from .random_field import field_cli
-    return field_cli(a)
+    """``fem-rmpm field [SCENE] --seed S --out DIR [--data CSV] [--fit CSV]``."""
+    t0 = time.perf_counter()
+    scene, note = _field_scene(a)
+    rf = scene.random_field
+    seed = scene.montecarlo.seed if getattr(a, "seed", None) is None else int(a.seed)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    fit_text = _field_fit(a.fit, rf, out) if getattr(a, "fit", None) else ""
+    grid = make_grid(scene)
+    pts = seed_particles(scene, grid)
+    layout = field_layout(scene, grid)
+    emb = embedding_for(scene, layout)
+    path = resolve_data_path(scene, getattr(a, "data", None))
+    meas = read_measurements(path) if path is not None else None
+    values, mask = field_values(scene, grid, pts, seed, meas)
+    shown = _field_on_points(pts, values, mask)
+    write_field_vtu(out / "field.vtu", pts, shown)
+    title = (f"{scene.scene.name}: peak cohesion (kPa), {rf.distribution}, COV {rf.cov:g}, "
+             f"theta_v {rf.theta_v:g} m, xi = {rf.anisotropy:g}, seed {seed}"
+             + (f", conditioned on {len(meas.x)} data" if meas is not None else ""))
+    plot_realization(out / "field.png", scene, pts, shown, mask, title)
+    v = values[mask]
+    write_json(out / "field.json", {
+        "scene_file": scene.source, "seed": seed,
+        "random_field": {k: getattr(rf, k) for k in rf.__dataclass_fields__},
+        "field_cells": list(layout.shape), "field_cell_size": layout.cell.tolist(),
+        "embedding": list(emb.padded), "lambda_min": emb.lambda_min,
+        "lambda_min_over_max": emb.lambda_min / emb.lambda_max, "clipped": emb.clipped,
+        "cell_variance": emb.variance, "points": int(mask.sum()),
+        "min": float(v.min()), "mean": float(v.mean()), "max": float(v.max()),
+        "std": float(v.std()), "conditioned_on": None if meas is None else meas.source,
+        "wall_time": time.perf_counter() - t0})
+    print(_field_text(scene, seed, layout, emb, meas, v) + f"{note}{fit_text} Output: "
+          f"{out / 'field.vtu'}, {out / 'field.png'}, {out / 'field.json'} "
+          f"({time.perf_counter() - t0:.2f} s).")
+    return 0
+
+
+# --------------------------------------------------------------------------- parser and main
+
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -167,7 +167,7 @@ class MonteCarloSpec:
     failure_displacement: float = 0.5    # m; a point with |u| above this counts as sliding
     keep_vtk: int = 2                    # keep VTK output of the first k realizations
     cases: tuple[str, ...] = ()          # variants run side by side: "homogeneous", "xi=12",
-    #                                      "<section.key>=<value>" (fem_rmpm.montecarlo.parse_case)
+    #                                      "<section.key>=<value>" (fem_rmpm.campaign.parse_case)
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,8 @@ import pytest
 
 from fem_rmpm import api
 from fem_rmpm import cli
-from fem_rmpm import montecarlo as mc
+from fem_rmpm import campaign as mc
+from fem_rmpm.campaign import store
 
 DATA = Path(__file__).resolve().parent / "data"
 TINY = DATA / "mc_tiny.toml"
@@ -361,7 +362,7 @@ def test_failed_realization_is_recorded_with_its_message(tmp_path, client):
             assert r["sliding_area"] is not None
     st = res.stats["scene"]
     assert st["numerical_failures"] == len(expected) and st["ok"] == 8 - len(expected)
-    assert "failed numerically" in mc.summary_text(res)
+    assert "failed numerically" in cli.summary_text(res)
     # re-running does not retry recorded failures (they are results); --force would
     assert mc.run_campaign(scene, tmp_path / "fail2", 8, client=client, progress=False,
                            figures=False).computed == 0
@@ -465,21 +466,21 @@ def test_a_scene_key_added_later_with_its_default_keeps_the_campaign(tmp_path):
     [solver] kernel) is still the same campaign when the key holds its default; another
     value of the key is a different scene."""
     scene = api.load_scene(TINY)
-    doc = mc._campaign_doc([mc.parse_case("scene", scene)], scene.montecarlo.seed)
+    doc = store.campaign_doc([mc.parse_case("scene", scene)], scene.montecarlo.seed)
     old = json.loads(json.dumps(doc))
     del old["cases"][0]["scene"]["solver"]["kernel"]
     (tmp_path / "campaign.json").write_text(json.dumps(old))
-    assert mc._check_directory(tmp_path, doc) is True
+    assert store.check_directory(tmp_path, doc) is True
     other = api.with_value(scene, "solver.kernel", "numpy")
     with pytest.raises(mc.CampaignError, match=r"solver\.kernel \(only in this scene\)"):
-        mc._check_directory(tmp_path, mc._campaign_doc([mc.parse_case("scene", other)],
+        store.check_directory(tmp_path, store.campaign_doc([mc.parse_case("scene", other)],
                                                        scene.montecarlo.seed))
 
 
 def test_a_running_campaign_locks_its_directory(tmp_path, capsys):
     out = tmp_path / "locked"
     out.mkdir()
-    with mc._Lock(out):
+    with store.Lock(out):
         err = _one_line_error(capsys, ["mc", str(TINY), "-n", "1", "--out", str(out),
                                        "--workers", "1"])
     assert "being run by pid" in err
@@ -512,15 +513,15 @@ def test_literature_cases_with_kept_vtk_and_figures(tmp_path, client):
     assert [c["name"] for c in camp["cases"]] == ["homogeneous", "xi1", "xi12", "xi48"]
     assert "random_field" not in camp["cases"][0]["scene"]
     assert camp["cases"][3]["scene"]["random_field"]["anisotropy"] == 48.0
-    text = mc.summary_text(res)
+    text = cli.summary_text(res)
     assert "deterministic" in text and "xi = 12" in text and "P(failure)" in text
 
 
 def test_default_scene_runs_the_literature_cases():
     """`fem-rmpm mc` without SCENE runs the four literature cases of the embedded default."""
     path = cli.default_scene_path()
-    assert mc.campaign_cases(api.load_scene(path), path) == list(mc.LITERATURE_CASES)
-    assert mc.campaign_cases(api.load_scene(TINY), TINY) == ["scene"]
+    assert cli.campaign_cases(api.load_scene(path), path) == list(mc.LITERATURE_CASES)
+    assert cli.campaign_cases(api.load_scene(TINY), TINY) == ["scene"]
 
 
 # --------------------------------------------------------------------------- acceptance 6

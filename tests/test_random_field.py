@@ -31,6 +31,7 @@ from scipy import integrate
 
 from fem_rmpm import api
 from fem_rmpm import random_field as rf
+from fem_rmpm.random_field import embedding as rf_embedding
 from fem_rmpm.cli import main as cli_main
 from fem_rmpm.grid import make_grid
 from fem_rmpm.particles import seed_particles
@@ -392,9 +393,9 @@ def test_same_seed_same_field_any_process_and_order():
     scene = make_scene((30.0, 5.0), (0.25, 0.25), {"anisotropy": 12.0})
     grid = make_grid(scene)
     seeds = [5, 3, 11]
-    rf._embedding_cached.cache_clear()
+    rf_embedding._embedding_cached.cache_clear()
     forward = {s: rf.gaussian_field(scene, grid, s) for s in seeds}
-    rf._embedding_cached.cache_clear()
+    rf_embedding._embedding_cached.cache_clear()
     backward = {s: rf.gaussian_field(scene, grid, s) for s in reversed(seeds)}
     for s in seeds:
         np.testing.assert_array_equal(forward[s], backward[s])

@@ -39,8 +39,8 @@ N_DOCUMENTED = 6
 
 def main(argv=None) -> int:
     from fem_rmpm import api
-    from fem_rmpm.cli import default_scene_path
-    from fem_rmpm.montecarlo import LITERATURE_CASES, run_campaign, summary_text
+    from fem_rmpm.campaign import LITERATURE_CASES, run_campaign
+    from fem_rmpm.cli import default_scene_path, summary_text
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scene", default=str(default_scene_path()),
                    help="scene (default: the embedded reference slope)")

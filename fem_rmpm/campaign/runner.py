@@ -1,0 +1,281 @@
+"""The campaign loop: plan what is left to do, compute it on Dask, write each record as it
+arrives, rebuild ``results.csv``, ``summary.json`` and the figures."""
+from __future__ import annotations
+
+import sys
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from distributed import as_completed
+from tqdm import tqdm
+
+from ..campaign_plots import campaign_figures
+from ..output import write_json
+from ..scene import Scene
+from .cases import CampaignError, Case, parse_case, realization_seed
+from .cluster import start_client
+from .keep_vtk import kept, parse_keep_vtk
+from .statistics import case_statistics
+from .store import (Layout, Lock, campaign_doc, check_directory, clean_temporaries,
+                    read_record, write_results)
+from .task import run_realization
+
+__all__ = ["run_campaign", "CampaignResult"]
+
+
+class _Progress:
+    """The progress bar of a campaign (tqdm on stderr): done, ok, failed, running, lost."""
+
+    def __init__(self, total: int, enabled: bool, desc: str):
+        self.bar = None
+        self.ok = self.failed = self.lost = self.running = 0
+        if enabled and total:
+            self.bar = tqdm(total=total, desc=desc, unit="real", dynamic_ncols=True,
+                            postfix=self._text(),
+                            bar_format="{l_bar}{bar}| {n}/{total} [{elapsed}<{remaining}, "
+                                       "{rate_fmt}{postfix}]")
+
+    def _text(self) -> str:
+        return (f"ok {self.ok}, failed {self.failed}, running {self.running}"
+                + (f", lost {self.lost}" if self.lost else ""))
+
+    def _post(self):
+        if self.bar is not None:
+            self.bar.set_postfix_str(self._text(), refresh=True)
+
+    def done(self, status: str):
+        if status == "ok":
+            self.ok += 1
+        elif status == "failed":
+            self.failed += 1
+        else:
+            self.lost += 1
+        self.running = max(0, self.running - 1)     # until the next poll of the scheduler
+        if self.bar is not None:
+            self.bar.set_postfix_str(self._text(), refresh=False)
+            self.bar.update(1)
+
+    def set_running(self, n: int):
+        if n != self.running:
+            self.running = n
+            self._post()
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+
+@dataclass
+class CampaignResult:
+    """What :func:`run_campaign` did: ``stats`` per case (:func:`case_statistics`),
+    ``computed``/``skipped``/``lost`` realizations of this command, its wall time
+    and the number of workers."""
+    out: Path
+    cases: list[Case]
+    realizations: dict[str, int]
+    stats: dict[str, dict]
+    computed: int
+    skipped: int
+    lost: list[str]
+    wall_time: float
+    compute_time: float
+    workers: str
+    figures: list[Path] = field(default_factory=list)
+
+    @property
+    def realizations_per_hour(self) -> float | None:
+        return 3600.0 * self.computed / self.compute_time if self.compute_time > 0 else None
+
+
+def _case_realizations(case: Case, n: int) -> int:
+    return 1 if case.deterministic else n
+
+
+def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
+                 cases: Sequence[str | Case] | None = None, workers: int | None = None,
+                 scheduler: str | None = None, force: bool = False, keep_vtk=None,
+                 progress: bool = True, figures: bool = True, client=None) -> CampaignResult:
+    """Run (or finish) a campaign in ``out``; see the module docstring.
+
+    ``realizations``: N per case (default ``[montecarlo] realizations``);
+    ``cases``: case texts for :func:`parse_case` or :class:`Case` objects
+    (default: the scene itself); ``workers``: local worker processes;
+    ``scheduler``: address of a running Dask scheduler instead; ``client``: an
+    existing ``distributed.Client`` to use (left open); ``keep_vtk``: see
+    :func:`parse_keep_vtk`.  Raises :class:`CampaignError` (bad input, other
+    campaign in ``out``, unreachable scheduler) before anything is written."""
+    t_start = time.perf_counter()
+    out = Path(out)
+    n = scene.montecarlo.realizations if realizations is None else realizations
+    _check_arguments(n, workers, scheduler, client)
+    keep = parse_keep_vtk(keep_vtk, scene.montecarlo.keep_vtk)
+    case_list = [c if isinstance(c, Case) else parse_case(c, scene)
+                 for c in (cases or ["scene"])]
+    names = [c.name for c in case_list]
+    if len(set(names)) != len(names):
+        raise CampaignError(f"case names must be unique, got {names}")
+    counts = {c.name: _case_realizations(c, n) for c in case_list}
+    doc = campaign_doc(case_list, scene.montecarlo.seed)
+    check_directory(out, doc)
+    lay = Layout(out, case_list)
+    tasks, finished = _plan(scene, lay, counts, keep, force)
+    skipped = len(finished)
+    own = client is None
+    cluster = None
+    desc, lost = "no workers needed", []
+    if not own:
+        desc = f"the given Dask client ({len(client.nthreads())} workers)"
+    compute_time = 0.0
+    if own and tasks and scheduler:  # before anything is written: unreachable -> error
+        client, cluster, desc = start_client(None, scheduler, len(tasks))
+    try:
+        with Lock(out):
+            check_directory(out, doc)   # again, now that no one else can write here
+            if not (out / "campaign.json").exists():
+                write_json(out / "campaign.json", doc)
+            clean_temporaries(out)
+            if tasks:
+                if client is None:
+                    client, cluster, desc = start_client(workers, None, len(tasks))
+                if progress:
+                    print(f"fem-rmpm mc: {len(tasks)} realization(s) to run ({skipped} "
+                          f"already finished) on {desc}; records in {out}", file=sys.stderr)
+                t0 = time.perf_counter()
+                lost = _compute(client, tasks, lay, finished, progress, scene.scene.name)
+                compute_time = time.perf_counter() - t0
+            result = _finish(out, scene, case_list, counts, lay, finished,
+                             len(tasks) - len(lost), skipped, lost, desc, t_start,
+                             compute_time, figures)
+    finally:
+        if own and client is not None:
+            client.close(timeout=10)
+        if cluster is not None:
+            cluster.close(timeout=10)
+    return result
+
+
+def _check_arguments(n, workers, scheduler, client) -> None:
+    """Raise CampaignError for a bad N, worker count or cluster choice."""
+    if isinstance(n, bool) or not isinstance(n, int) or n <= 0:
+        raise CampaignError(f"-n {n}: the number of realizations must be a positive integer")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
+                                or workers <= 0):
+        raise CampaignError(f"--workers {workers}: expected a positive integer")
+    if client is not None and (workers is not None or scheduler):
+        raise CampaignError("give a client, or workers, or a scheduler address")
+    if workers is not None and scheduler:
+        raise CampaignError("--workers starts a local cluster; with --scheduler the "
+                            "cluster's own workers are used: give one of the two")
+
+
+def _plan(scene: Scene, lay: Layout, counts: dict[str, int], keep, force: bool
+          ) -> tuple[list[dict], dict]:
+    """What is left to do (read-only): the tasks to run, in index-major order, and the
+    finished records ``{(case, index): record}`` (none with ``force``)."""
+    out = lay.out
+    tasks, finished = [], {}
+    for i in range(max(counts.values())):
+        for c in lay.cases:
+            if i >= counts[c.name]:
+                continue
+            seed = realization_seed(scene.montecarlo.seed, i)
+            rec = None if force else read_record(lay.record(c.name, i))
+            if rec is not None and rec.get("seed") == seed and rec.get("case") == c.name:
+                finished[(c.name, i)] = rec
+                continue
+            vtk = lay.vtk(c.name, i) if kept(keep, i) else None
+            tasks.append({"case": c.name, "index": i, "seed": seed, "scene": c.scene,
+                          "vtk_dir": str(vtk.resolve()) if vtk is not None else None,
+                          "vtk_rel": str(vtk.relative_to(out)) if vtk is not None else None})
+    return tasks, finished
+
+
+def _compute(client, tasks: list[dict], lay: Layout, finished: dict, progress: bool,
+             name: str) -> list[str]:
+    """Submit the tasks, write each record as it arrives; return the lost ones."""
+    token = uuid.uuid4().hex[:8]
+    keys = [f"rmpm-{token}-{t['case']}-{t['index']:05d}" for t in tasks]
+    futures = client.map(run_realization, tasks, key=keys, pure=False, retries=0)
+    by_key = dict(zip(keys, tasks))
+    bar = _Progress(len(tasks), progress, f"{name} mc")
+    lost: list[str] = []
+    ours = set(keys)
+    ac = as_completed(futures, with_results=False, loop=client.loop)
+    last_poll = 0.0
+    try:
+        while not ac.is_empty():
+            batch = ac.next_batch(block=False)
+            if not batch:
+                now = time.monotonic()
+                if bar.bar is not None and now - last_poll > 1.0:
+                    last_poll = now
+                    try:   # executing = assigned to a worker, at most its thread count
+                        proc, threads = client.processing(), client.nthreads()
+                        bar.set_running(sum(min(sum(1 for k in ks if k in ours),
+                                                threads.get(w, 1)) for w, ks in proc.items()))
+                    except Exception:  # noqa: BLE001 - the bar is cosmetic
+                        pass
+                time.sleep(0.05)
+                continue
+            for fut in batch:
+                task = by_key[fut.key]
+                try:
+                    rec = fut.result()
+                except Exception as exc:  # noqa: BLE001 - infrastructure, not the realization
+                    msg = " ".join(str(exc).split())[:300]
+                    lost.append(f"{task['case']} #{task['index']}: {type(exc).__name__}: {msg}")
+                    bar.done("lost")
+                    fut.release()
+                    continue
+                profile = rec.pop("final_profile", None)
+                if profile is not None:
+                    write_json(lay.profile(rec["case"], rec["index"]),
+                               {"case": rec["case"], "index": rec["index"], "seed": rec["seed"],
+                                "final_profile": profile})
+                write_json(lay.record(rec["case"], rec["index"]), rec)
+                finished[(rec["case"], rec["index"])] = rec
+                bar.done(rec["status"])
+                fut.release()
+    finally:
+        bar.close()
+    return lost
+
+
+def _finish(out, scene, cases, counts, lay, finished, computed, skipped, lost, desc,
+            t_start, compute_time, figures) -> CampaignResult:
+    order = [c.name for c in cases]
+    records = [r for (c, i), r in finished.items() if i < counts[c]]
+    write_results(out / "results.csv", records, order)
+    stats = {c.name: case_statistics([r for r in records if r["case"] == c.name],
+                                     counts[c.name]) for c in cases}
+    walls = [r["wall_time"] for r in records if r.get("wall_time") is not None]
+    cpus = [r["cpu_time"] for r in records if r.get("cpu_time") is not None]
+    res = CampaignResult(out, cases, counts, stats, computed, skipped, lost,
+                         time.perf_counter() - t_start, compute_time, desc)
+    extra = sum(1 for (c, i) in finished if i >= counts[c])
+    summary = {
+        "scene": scene.scene.name, "scene_file": scene.source,
+        "campaign_seed": scene.montecarlo.seed,
+        "failure_displacement": scene.montecarlo.failure_displacement,
+        "cases": [{"name": c.name, "spec": c.spec, "label": c.label,
+                   "deterministic": c.deterministic, "realizations": counts[c.name],
+                   **stats[c.name]} for c in cases],
+        "this_run": {"computed": computed, "skipped_finished": skipped, "lost": lost,
+                     "workers": desc, "compute_wall_time": compute_time,
+                     "wall_time": res.wall_time,
+                     "realizations_per_hour": res.realizations_per_hour},
+        "realization_wall_time": {"mean": float(np.mean(walls)) if walls else None,
+                                  "total": float(np.sum(walls)) if walls else None},
+        "realization_cpu_time": {"mean": float(np.mean(cpus)) if cpus else None,
+                                 "total": float(np.sum(cpus)) if cpus else None},
+        "records_beyond_n": extra,
+    }
+    write_json(out / "summary.json", summary)
+    if figures and records:
+        res.figures = campaign_figures(out, cases, stats, records, lay, scene)
+    return res

@@ -1,0 +1,90 @@
+"""Statistics of a case over its realizations: P(failure) with its standard error and
+Wilson interval, moments and quantiles of every numeric measure, convergence with N."""
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+
+from .store import MEASURE_KEYS, RESULT_COLUMNS
+
+__all__ = ["wilson_interval", "case_statistics"]
+
+#: Measures that are settings, not results (left out of the statistics).
+_NOT_STATISTICS = ("failed", "failure_displacement", "mechanism_time", "time_to_rest")
+
+
+def wilson_interval(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion k/n (Wilson 1927)."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    den = 1 + z * z / n
+    mid = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(0.0, mid - half), min(1.0, mid + half))
+
+
+def _describe(x: np.ndarray) -> dict:
+    if len(x) == 0:
+        return {"mean": None, "std": None, "se": None, "q05": None, "q50": None, "q95": None}
+    q = np.quantile(x, [0.05, 0.5, 0.95])
+    std = float(np.std(x, ddof=1)) if len(x) > 1 else 0.0
+    return {"mean": float(np.mean(x)), "std": std, "se": std / math.sqrt(len(x)),
+            "q05": float(q[0]), "q50": float(q[1]), "q95": float(q[2])}
+
+
+def case_statistics(rows: Sequence[dict], requested: int | None = None) -> dict:
+    """Statistics of one case from its rows (``read_results`` or records), in index order.
+
+    ``p_failure`` = k/N over the ``ok`` rows, ``se`` = sqrt(p (1 - p) / N) (binomial
+    standard error), ``wilson95`` its Wilson score interval; for each of
+    ``runout_distance``, ``retrogression_distance``, ``sliding_area``: mean, std
+    (ddof 1), se = std/sqrt(N), quantiles 5/50/95 %; ``convergence``: running
+    N, P(failure), its se and the running mean run-out, in index order."""
+    rows = sorted(rows, key=lambda r: r["index"])
+    ok = [r for r in rows if r["status"] == "ok"]
+    n = len(ok)
+    fails = np.array([bool(_measure(r, "failed")) for r in ok], dtype=float)
+    k = int(fails.sum())
+    p = k / n if n else None
+    out: dict[str, Any] = {
+        "requested": requested, "finished": len(rows), "ok": n,
+        "numerical_failures": len(rows) - n,
+        "errors": [{"index": r["index"], "seed": r["seed"], "error": r.get("error")}
+                   for r in rows if r["status"] != "ok"],
+        "slope_failures": k, "p_failure": p,
+        "se": math.sqrt(p * (1 - p) / n) if n else None,
+        "wilson95": list(wilson_interval(k, n)) if n else None,
+    }
+    for key in _statistic_names(ok):
+        out[key] = _describe(np.array([float(_measure(r, key)) for r in ok]))
+    if n:
+        nn = np.arange(1, n + 1)
+        pr = np.cumsum(fails) / nn
+        ro = np.array([float(_measure(r, "runout_distance")) for r in ok])
+        out["convergence"] = {"n": nn.tolist(), "p_failure": pr.tolist(),
+                              "se": np.sqrt(pr * (1 - pr) / nn).tolist(),
+                              "mean_runout": (np.cumsum(ro) / nn).tolist()}
+    return out
+
+
+def _statistic_names(ok: Sequence[dict]) -> list[str]:
+    """Numeric result measures present in every row (records or results.csv rows)."""
+    core = ["runout_distance", "retrogression_distance", "sliding_area", "max_displacement"]
+    if not ok:
+        return core
+    other = set(RESULT_COLUMNS) - set(MEASURE_KEYS)
+    names = [set((r.get("measures") or {}) if "measures" in r else set(r) - other) for r in ok]
+    extra = sorted(set.intersection(*names) - set(core) - set(_NOT_STATISTICS))
+    extra = [k for k in extra if all(isinstance(_measure(r, k), (int, float))
+                                     and not isinstance(_measure(r, k), bool) for r in ok)]
+    return core + extra
+
+
+def _measure(r: dict, key: str):
+    if "measures" in r:
+        return (r.get("measures") or {}).get(key)
+    return r.get(key)
+

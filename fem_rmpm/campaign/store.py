@@ -1,0 +1,289 @@
+"""The campaign directory: identity (``campaign.json``), layout, lock, records and ``results.csv``."""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import fcntl
+import io
+import json
+import math
+import os
+import re
+import socket
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+from .. import scene as S
+from ..output import _atomic_write_bytes
+from ..scene import Scene, scene_to_dict
+from .cases import CampaignError, Case
+
+__all__ = ["FORMAT", "MEASURE_KEYS", "RESULT_COLUMNS", "result_columns", "write_results",
+           "read_results"]
+
+FORMAT = "fem_rmpm campaign 1"
+#: The first measure columns of ``results.csv``; every other scalar measure of
+#: :func:`fem_rmpm.measures.compute_measures` (slip-surface height, intact blocks, ...)
+#: follows in alphabetical order.  Profiles (lists) go to ``profiles/``.
+MEASURE_KEYS = ("failed", "sliding_area", "runout_distance", "retrogression_distance",
+                "max_displacement", "time_to_rest")
+#: Columns of ``results.csv`` (extra measure columns are inserted before ``stop_reason``).
+RESULT_COLUMNS = ("case", "index", "seed", "status", *MEASURE_KEYS, "stop_reason", "steps",
+                  "simulated_time", "particles", "frozen_points", "scheme", "error")
+#: Keys that do not change a realization (left out of the campaign identity).
+_NOT_IDENTITY = {"montecarlo": ("realizations", "keep_vtk", "cases"), "output": None,
+                 "scene": ("description",)}
+
+
+def _identity_dict(scene: Scene) -> dict:
+    return _strip_identity(json.loads(json.dumps(scene_to_dict(scene))))
+
+
+def _strip_identity(d: dict) -> dict:
+    """Drop the keys that do not change a realization (also from stored campaign files)."""
+    d = json.loads(json.dumps(d))
+    for sec, keys in _NOT_IDENTITY.items():
+        if keys is None:
+            d.pop(sec, None)
+        elif sec in d:
+            for k in keys:
+                d[sec].pop(k, None)
+    return d
+
+
+def _json_form(v: Any) -> Any:
+    """A default value as scene_to_dict writes it (tuples -> lists, inf -> 'inf')."""
+    if isinstance(v, (list, tuple)):
+        return [_json_form(x) for x in v]
+    if isinstance(v, float) and not math.isfinite(v):
+        return str(v)
+    return v
+
+
+def _field_default(path: str) -> tuple[bool, Any]:
+    """(True, default as written by scene_to_dict) of a scene key like ``solver.kernel``
+    or ``soil[0].model``; (False, None) if the key is unknown or has no default."""
+    classes = {"scene": S.SceneInfo, "grid": S.GridSpec, "boundary": S.BoundarySpec,
+               "soil": S.SoilSpec, "bedrock": S.BedrockSpec,
+               "random_field": S.RandomFieldSpec, "solver": S.SolverSpec,
+               "montecarlo": S.MonteCarloSpec, "output": S.OutputSpec}
+    section, _, name = path.partition(".")
+    cls = classes.get(section.split("[")[0])
+    if cls is None or "." in name:
+        return False, None
+    for f in dataclasses.fields(cls):
+        if f.name == name and f.default is not dataclasses.MISSING:
+            return True, _json_form(f.default)
+    return False, None
+
+
+def _first_difference(a: Any, b: Any, path: str = "") -> str | None:
+    """First difference of scene dicts ``a`` (this scene) and ``b`` (the campaign's).
+    A key only in ``a`` that holds its default value is no difference: it is a key added
+    to fem_rmpm after the campaign started, whose default keeps the old behaviour."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            if k not in a or k not in b:
+                key = f"{path}.{k}".strip(".")
+                if k in a:
+                    has, default = _field_default(key)
+                    if has and a[k] == default:
+                        continue
+                return key + (" (only in this scene)" if k in a
+                              else " (only in the campaign's scene)")
+            d = _first_difference(a[k], b[k], f"{path}.{k}")
+            if d:
+                return d
+        return None
+    if isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            return f"{path.strip('.')} ({len(a)} vs {len(b)} entries)"
+        for i, (x, y) in enumerate(zip(a, b)):
+            d = _first_difference(x, y, f"{path}[{i}]")
+            if d:
+                return d
+        return None
+    return None if a == b else f"{path.strip('.')} = {a!r} here, {b!r} in the campaign"
+
+
+def _case_dir(root: Path, case: str, single: bool) -> Path:
+    return root if single else root / case
+
+
+def _record_name(index: int) -> str:
+    return f"realization_{index:05d}.json"
+
+
+@dataclass
+class Layout:
+    out: Path
+    cases: list[Case]
+
+    @property
+    def single(self) -> bool:
+        return len(self.cases) == 1
+
+    def record(self, case: str, index: int) -> Path:
+        return _case_dir(self.out / "records", case, self.single) / _record_name(index)
+
+    def profile(self, case: str, index: int) -> Path:
+        return _case_dir(self.out / "profiles", case, self.single) / _record_name(index)
+
+    def vtk(self, case: str, index: int) -> Path:
+        return _case_dir(self.out / "vtk", case, self.single) / f"realization_{index:05d}"
+
+
+def campaign_doc(cases: list[Case], campaign_seed: int) -> dict:
+    return {"format": FORMAT, "campaign_seed": int(campaign_seed),
+            "seed_rule": "seed_i = SeedSequence([campaign_seed, i]).generate_state(1, "
+                         "uint64)[0] >> 1 (fem_rmpm.campaign.realization_seed)",
+            "cases": [{"name": c.name, "spec": c.spec, "scene": _identity_dict(c.scene)}
+                      for c in cases]}
+
+
+def check_directory(out: Path, doc: dict) -> bool:
+    """Raise CampaignError unless ``out`` is free or holds this campaign; True if it exists."""
+    meta = out / "campaign.json"
+    if out.exists() and not out.is_dir():
+        raise CampaignError(f"{out}: --out is a file, not a directory")
+    if not meta.exists():
+        if out.exists() and any(p.name != ".campaign.lock" for p in out.iterdir()):
+            raise CampaignError(f"{out}: directory is not empty and holds no campaign.json "
+                                "(not a campaign directory); choose another --out")
+        return False
+    try:
+        old = json.loads(meta.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise CampaignError(f"{meta}: unreadable campaign file ({exc}); choose another "
+                            "--out") from None
+    if old.get("format") != FORMAT:
+        raise CampaignError(f"{meta}: not a {FORMAT!r} campaign; choose another --out")
+    if old.get("campaign_seed") != doc["campaign_seed"]:
+        raise CampaignError(f"{out}: holds a campaign with seed {old.get('campaign_seed')}, "
+                            f"this scene has [montecarlo] seed = {doc['campaign_seed']}; "
+                            "nothing was changed; choose another --out")
+    old_names = [c["name"] for c in old.get("cases", [])]
+    new_names = [c["name"] for c in doc["cases"]]
+    if old_names != new_names:
+        raise CampaignError(f"{out}: holds a campaign of the cases {old_names}, not "
+                            f"{new_names}; nothing was changed; choose another --out")
+    for o, n in zip(old["cases"], doc["cases"]):
+        diff = _first_difference(n["scene"], _strip_identity(o.get("scene", {})))
+        if diff:
+            where = f"case {n['name']}: " if len(new_names) > 1 else ""
+            raise CampaignError(f"{out}: holds the campaign of a different scene ({where}"
+                                f"[{diff}]); nothing was changed; choose another --out")
+    return True
+
+
+class Lock:
+    """Exclusive, non-blocking flock on ``out/.campaign.lock`` (freed when the process dies)."""
+
+    def __init__(self, out: Path):
+        self.path = out / ".campaign.lock"
+        self.fh = None
+
+    def __enter__(self):
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.fh = open(self.path, "a+")
+        except OSError as exc:
+            raise CampaignError(f"{self.path.parent}: cannot write the campaign directory "
+                                f"({exc.strerror or exc}); choose another --out") from None
+        try:
+            fcntl.flock(self.fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self.fh.seek(0)
+            who = self.fh.read().strip() or "another process"
+            self.fh.close()
+            raise CampaignError(f"{self.path.parent}: the campaign is being run by {who}; "
+                                "wait for it or choose another --out") from None
+        self.fh.seek(0)
+        self.fh.truncate()
+        self.fh.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
+        self.fh.flush()
+        return self
+
+    def __exit__(self, *exc):
+        fcntl.flock(self.fh, fcntl.LOCK_UN)
+        self.fh.close()
+
+
+def read_record(path: Path) -> dict | None:
+    try:
+        rec = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return rec if isinstance(rec, dict) and rec.get("format") == FORMAT else None
+
+
+def clean_temporaries(out: Path) -> None:
+    """Remove temporary files left by a client killed while writing (never a record)."""
+    for sub in ("records", "profiles"):
+        for p in (out / sub).rglob(".realization_*.tmp"):
+            try:
+                p.unlink()
+            except OSError:
+                pass
+
+
+# --------------------------------------------------------------------------- table and statistics
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return "1" if v else "0"
+    if isinstance(v, float):
+        return repr(v)
+    return str(v)
+
+
+def result_columns(records: Iterable[dict]) -> list[str]:
+    """RESULT_COLUMNS with the extra scalar measures of ``records`` (sorted) inserted."""
+    extra = sorted({k for r in records for k in (r.get("measures") or {})} - set(MEASURE_KEYS))
+    i = RESULT_COLUMNS.index("stop_reason")
+    return [*RESULT_COLUMNS[:i], *extra, *RESULT_COLUMNS[i:]]
+
+
+def _row(rec: dict, columns: Sequence[str]) -> dict:
+    m = rec.get("measures") or {}
+    return {k: _fmt(m.get(k) if k in m or k not in rec else rec.get(k)) for k in columns}
+
+
+def write_results(path: Path, records: Iterable[dict], order: Sequence[str]) -> None:
+    """``results.csv`` from records, sorted by case (campaign order) and index (atomic)."""
+    rank = {c: i for i, c in enumerate(order)}
+    rows = sorted(records, key=lambda r: (rank.get(r["case"], len(rank)), r["index"]))
+    columns = result_columns(rows)
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow(_row(r, columns))
+    _atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def read_results(path: str | Path) -> list[dict]:
+    """Rows of a ``results.csv`` with numbers parsed (empty cells -> None)."""
+    rows = []
+    with open(path, newline="") as fh:
+        for r in csv.DictReader(fh):
+            out: dict[str, Any] = {}
+            for k, v in r.items():
+                if v == "":
+                    out[k] = None
+                elif k in ("index", "seed", "steps", "particles", "frozen_points"):
+                    out[k] = int(v)
+                elif k == "failed":
+                    out[k] = v == "1"
+                elif k in ("case", "status", "stop_reason", "scheme", "error"):
+                    out[k] = v
+                elif re.fullmatch(r"-?[0-9]+", v):
+                    out[k] = int(v)          # integer measures (floats are written as repr)
+                else:
+                    out[k] = float(v)
+            rows.append(out)
+    return rows
+

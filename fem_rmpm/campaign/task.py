@@ -1,0 +1,93 @@
+"""The Dask task of a campaign: one realization of one case, returned as a JSON-ready record."""
+from __future__ import annotations
+
+import ctypes
+import os
+import socket
+import sys
+import time
+from importlib.metadata import PackageNotFoundError, version
+from typing import Any
+
+import numpy as np
+
+from .. import api
+from ..run import SimulationError
+from .store import FORMAT
+
+__all__ = ["run_realization", "MALLOC_THRESHOLDS"]
+
+#: glibc malloc thresholds of campaign workers (see :mod:`fem_rmpm.campaign`, "Dask").
+MALLOC_THRESHOLDS = {"MALLOC_TRIM_THRESHOLD_": 2**30, "MALLOC_MMAP_THRESHOLD_": 2**25}
+
+
+def _raise_malloc_thresholds() -> None:
+    """glibc: raise the mmap and trim thresholds in this process (see :mod:`fem_rmpm.campaign`, "Dask")."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(-3, MALLOC_THRESHOLDS["MALLOC_MMAP_THRESHOLD_"])   # M_MMAP_THRESHOLD
+        libc.mallopt(-1, MALLOC_THRESHOLDS["MALLOC_TRIM_THRESHOLD_"])   # M_TRIM_THRESHOLD
+    except (OSError, AttributeError):  # pragma: no cover - not glibc
+        pass
+
+
+def _version() -> str:
+    try:
+        return version("fem_rmpm")
+    except PackageNotFoundError:  # not installed (run from a source tree)
+        return "unknown"
+
+
+def _plain(v: Any) -> Any:
+    """numpy scalars -> Python scalars (repr of np.float64 is not a number in numpy 2)."""
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v)
+    return v
+
+
+def _scalar_measures(m: dict) -> dict:
+    """The scalar measures (numbers, booleans, None) of a realization, Python types."""
+    return {k: _plain(v) for k, v in m.items()
+            if v is None or isinstance(v, (bool, int, float, np.bool_, np.integer, np.floating))}
+
+
+def run_realization(task: dict) -> dict:
+    """The Dask task: run realization ``task["index"]`` of ``task["case"]`` and return
+    its record (a JSON-ready dict).  Never raises for a failing realization: the
+    error is in the record (``status = "failed"``).
+
+    ``task``: ``case``, ``index``, ``seed``, ``scene`` (a :class:`Scene`), ``vtk_dir``
+    (str or None: write VTK, ``summary.json`` and the plastic strain PNG there)."""
+    _raise_malloc_thresholds()
+    rec: dict[str, Any] = {
+        "format": FORMAT, "case": task["case"], "index": int(task["index"]),
+        "seed": int(task["seed"]), "scheme": task["scene"].solver.scheme, "status": "ok",
+        "error": None, "vtk": task.get("vtk_rel"),
+        "worker": {"host": socket.gethostname(), "pid": os.getpid()},
+        "fem_rmpm": _version(),
+    }
+    t0, c0 = time.perf_counter(), time.process_time()
+    try:
+        vtk_dir = task.get("vtk_dir")
+        res = api.run(task["scene"], out=vtk_dir, seed=rec["seed"], progress=False,
+                      vtk=vtk_dir is not None, figures=vtk_dir is not None)
+    except Exception as exc:       # noqa: BLE001 - every failure is data, recorded
+        msg = str(exc) if isinstance(exc, SimulationError) else f"{type(exc).__name__}: {exc}"
+        rec.update(status="failed", error=" ".join(msg.split()) or type(exc).__name__,
+                   measures=None, final_profile=None)
+    else:
+        s, m = res.summary, res.measures
+        rec.update(steps=s["steps"], simulated_time=s["simulated_time"],
+                   stop_reason=s["stop_reason"], particles=s["particles"],
+                   frozen_points=s["frozen_points"]["count"],
+                   measures=_scalar_measures(m),
+                   final_profile=m.get("final_profile"))
+    rec["wall_time"] = time.perf_counter() - t0
+    rec["cpu_time"] = time.process_time() - c0     # of the worker process (s)
+    return rec
