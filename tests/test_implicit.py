@@ -186,17 +186,20 @@ def test_column_compaction_top_displacement_hencky():
     rho0 = 0.08 t/m3, g = 10, one cell wide, uGIMP, 32 cells, 50 load steps.  The top
     settles -25.940 m (Hencky/Kirchhoff: lambda = exp(-W0(s))); the top material point
     must be within 1 % of the closed form at its initial height, and the stress error
-    norm sum_p |sigma_p - sigma_a| V_p / (rho0 g l0 V0) below 1 %."""
+    norm sum_p |sigma_p - sigma_a| V_p / (rho0 g l0 V0) below 1 %.  These are discretisation
+    errors (32 cells), so the benchmark's 1 % is kept and a regression guard near the
+    achieved figures is added: top 0.726 % (asserts 0.85 %), stress norm 0.609 % (asserts
+    0.7 %); at most 4 Newton iterations per step (asserts 6)."""
     scene = load_scene(MESHES / "compaction.toml")
     grid, pts, rec = _run(scene)
     top = np.argmax(pts.x0[:, 1])
     ua = _hencky_settlement(pts.x0[top, 1], 0.8, 10.0, 50.0)
     assert abs(_hencky_settlement(50.0, 0.8, 10.0, 50.0) - (-25.940)) < 5e-4
-    assert abs(pts.displacement[top, 1] / ua - 1) < 0.01, (pts.displacement[top, 1], ua)
+    assert abs(pts.displacement[top, 1] / ua - 1) < 0.0085, (pts.displacement[top, 1], ua)
     sigma_a = -0.8 * (50.0 - pts.x0[:, 1])
     err = np.sum(np.abs(pts.stress[:, 1] - sigma_a) * pts.volume) / (0.8 * 50.0 * pts.volume0.sum())
-    assert err < 0.01, err
-    assert max(s["iterations"] for s in rec.solver["steps"]) <= 10
+    assert err < 0.007, err
+    assert max(s["iterations"] for s in rec.solver["steps"]) <= 6
 
 
 # ------------------------------------------------------------------ 3. quadratic convergence
@@ -236,7 +239,10 @@ def test_soft_column_large_deformation(steps):
     """Issue 3 acceptance 4 (the case a peer code never converges on): E = 1000 kPa,
     nu = 0.3, unit weight 20, H = 10 m, 0.25 m cells (uGIMP), gravity in 1 and in 10
     load steps: <= 10 Newton iterations per step, settlement within 1 % of the closed
-    form (oedometric Hencky, Cauchy M ln(lambda)/lambda = -gamma (H - Y))."""
+    form (oedometric Hencky, Cauchy M ln(lambda)/lambda = -gamma (H - Y)).
+    Achieved: 1 step -1.1e-4 in 4 iterations (asserts 5e-4); 10 steps +2.0e-3 in 3
+    iterations each (asserts 4e-3: the updated-Lagrangian uGIMP domains move between
+    steps, a load-path discretisation the single step does not have)."""
     scene = load_scene(MESHES / "soft_column.toml")
     _, pts, rec = _run(scene, load_steps=steps)
     its = [s["iterations"] for s in rec.solver["steps"]]
@@ -245,7 +251,8 @@ def test_soft_column_large_deformation(steps):
     top = np.argmax(pts.x0[:, 1])
     ua = _hencky_settlement(pts.x0[top, 1], 20.0, M, 10.0)
     assert ua < -0.6                                       # large: 12 % strain at the base
-    assert abs(pts.displacement[top, 1] / ua - 1) < 0.01, (pts.displacement[top, 1], ua)
+    assert abs(pts.displacement[top, 1] / ua - 1) < (5e-4 if steps == 1 else 4e-3), \
+        (pts.displacement[top, 1], ua)
     assert rec.stop_reason == "load applied"
 
 
@@ -253,8 +260,10 @@ def test_soft_column_large_deformation(steps):
 def test_explicit_and_implicit_agree_on_elastic_slope():
     """Issue 3 acceptance 5, elastic reference slope (DESIGN section 6): the explicit run
     of meshes/slope_elastic.toml (geostatic phase, damped to rest) and the implicit
-    scheme on the same scene agree in stress to < 5 % (volume-weighted relative L2):
-    both the implicit geostatic step and one large-deformation load step."""
+    scheme on the same scene agree in stress (volume-weighted relative L2) for the implicit
+    geostatic step (small strain, the same problem: achieves 6.9e-5, asserts 3e-4) and for
+    one large-deformation load step (finite strain against the explicit small-strain
+    geostatic state: the 1.6e-2 achieved is the geometric non-linearity; asserts 2.5e-2)."""
     scene = load_scene(MESHES / "slope_elastic.toml")
     res = api.run(scene)
     assert res.record.stop_reason == "at rest"
@@ -262,18 +271,23 @@ def test_explicit_and_implicit_agree_on_elastic_slope():
     for kw in (dict(gravity_phase="geostatic"), dict(gravity_phase="dynamic", load_steps=1)):
         _, pts, rec = _run(scene, scheme="implicit", dynamic=False, **kw)
         err = _rel_l2(pts.stress, s_exp, w)
-        assert err < 0.05, (kw, err)
+        assert err < (3e-4 if kw["gravity_phase"] == "geostatic" else 2.5e-2), (kw, err)
 
 
 # ------------------------------------------------------------------ 6. loud failure
 def _plastic_column_file(tmp_path, max_iterations, max_cuts):
-    """meshes/column.toml with von Mises soil (c = 20 kPa) under implicit geostatic load
-    steps: sqrt(J2) = (1 - K0) gamma (H - y) / sqrt(3) reaches c at the base at a load
-    factor of 0.68, so steps 1-7 of 10 are elastic (linear: one Newton iteration) and
-    step 8 is the first plastic one (two iterations)."""
+    """meshes/column.toml with von Mises soil (c = 21 kPa, no softening) under implicit
+    geostatic load steps of 0.1.  Elastic plane strain: sigma_xx = K0 sigma_yy with
+    K0 = nu/(1 - nu) and sigma_zz = nu (sigma_xx + sigma_yy) = K0 sigma_yy, so
+    sqrt(J2) = (1 - K0) |sigma_yy| / sqrt(3).  The Q4 stress is cell-constant, the value at
+    the cell centre, so the base cells (y_c = h/2 = 0.125 m) yield first, at the load factor
+    lambda_y = sqrt(3) c / ((1 - K0) gamma (H - h/2)) = 21 / 28.566 = 0.7351.  Steps 1-7
+    (lambda <= 0.7, 4.8 % below) are elastic (linear: one Newton iteration); step 8 is the
+    first plastic one (two iterations), and so is its half (0.7 -> 0.75, 2 % above yield).
+    (With c = 20 kPa the first yield is at 0.7001, 0.02 % above step 7: too thin a margin.)"""
     text = (MESHES / "column.toml").read_text()
     text = text.replace('model = "linear_elastic"', 'model = "von_mises_softening"\n'
-                        'cohesion_peak = 20.0\ncohesion_residual = 20.0')
+                        'cohesion_peak = 21.0\ncohesion_residual = 21.0')
     text = text.replace('scheme = "explicit"', 'scheme = "implicit"\nload_steps = 10\n'
                         f'max_iterations = {max_iterations}\nmax_cuts = {max_cuts}')
     p = tmp_path / f"plastic_column_{max_iterations}.toml"
@@ -284,16 +298,16 @@ def _plastic_column_file(tmp_path, max_iterations, max_cuts):
 def test_forced_nonconvergence_fails_loudly_and_keeps_output(tmp_path, capsys):
     """Issue 3 acceptance 6: a run that cannot converge (plastic column, max_iterations = 1:
     the elastic steps are linear and converge, the first plastic step needs two iterations,
-    halving it twice does not help) stops with exit code 3 and a one-line error naming the
+    halving it once does not help) stops with exit code 3 and a one-line error naming the
     step, the residual history and what to change; summary.json holds the error and every
     converged step's residuals; the VTK series holds the initial state and each converged
     step, all finite."""
-    scene_file = _plastic_column_file(tmp_path, max_iterations=1, max_cuts=2)
+    scene_file = _plastic_column_file(tmp_path, max_iterations=1, max_cuts=1)
     out = tmp_path / "run"
     code = main(["run", str(scene_file), "--out", str(out), "--quiet"])
     err = capsys.readouterr().err
     assert code == 3
-    assert "Newton did not converge after 2 cut(s)" in err and "geostatic step 8 of 10" in err
+    assert "Newton did not converge after 1 cut(s)" in err and "geostatic step 8 of 10" in err
     assert "relative residuals of the last attempt" in err and "max_iterations (now 1)" in err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "failed" and "Newton did not converge" in summary["error"]
@@ -301,7 +315,7 @@ def test_forced_nonconvergence_fails_loudly_and_keeps_output(tmp_path, capsys):
     assert solver["last_converged_step"] == 7 and len(solver["steps"]) == 7
     assert all(s["residuals"][-1] <= 1e-9 and s["iterations"] == 1 for s in solver["steps"])
     assert len(solver["failed_residuals"]) == 2 and solver["failed_residuals"][-1] > 1e-9
-    assert solver["cuts_total"] == 2
+    assert solver["cuts_total"] == 1
     vtus = sorted(out.glob("particles_*.vtu"))
     assert len(vtus) == 8
     last = meshio.read(vtus[-1])
@@ -319,7 +333,7 @@ def test_forced_nonconvergence_fails_loudly_and_keeps_output(tmp_path, capsys):
 def test_step_cutting_recovers_and_is_recorded():
     """A step that needs 4 iterations with max_iterations = 3 is halved until it converges
     (soft column, one load step): the run succeeds, the cuts are recorded per step, and
-    the settlement still meets the closed form within 1 %."""
+    the settlement still meets the closed form: achieves 1.8e-3 in 3 cuts (asserts 4e-3)."""
     scene = load_scene(MESHES / "soft_column.toml")
     _, pts, rec = _run(scene, load_steps=1, max_iterations=3)
     steps = rec.solver["steps"]
@@ -327,7 +341,7 @@ def test_step_cutting_recovers_and_is_recorded():
     assert abs(sum(s["size"] for s in steps) - 1.0) < 1e-12
     top = np.argmax(pts.x0[:, 1])
     ua = _hencky_settlement(pts.x0[top, 1], 20.0, scene.soils[0].constrained_modulus, 10.0)
-    assert abs(pts.displacement[top, 1] / ua - 1) < 0.01
+    assert abs(pts.displacement[top, 1] / ua - 1) < 4e-3
 
 
 def test_summary_json_holds_residual_history(tmp_path):
@@ -346,20 +360,24 @@ def test_summary_json_holds_residual_history(tmp_path):
 # ------------------------------------------------------------------ linear solvers, dynamics
 def test_pyamg_solver_matches_superlu():
     """The pyamg option (smoothed aggregation with rigid-body modes, as a CG
-    preconditioner) gives the SuperLU solution of the elastic slope's geostatic step."""
+    preconditioner) gives the SuperLU solution of the elastic slope's geostatic step:
+    achieves 7.0e-14 relative (asserts 1e-12), final residual 2.5e-14 (asserts 1e-9, the
+    Newton tolerance)."""
     scene = load_scene(MESHES / "slope_elastic.toml")
     kw = dict(scheme="implicit", gravity_phase="geostatic", dynamic=False)
     _, p1, _ = _run(scene, linear_solver="superlu", **kw)
     _, p2, rec = _run(scene, linear_solver="pyamg", **kw)
     d = np.linalg.norm(p1.u_geostatic - p2.u_geostatic) / np.linalg.norm(p1.u_geostatic)
-    assert d < 1e-8 and rec.solver["steps"][0]["residuals"][-1] < 1e-9
+    assert d < 1e-12 and rec.solver["steps"][0]["residuals"][-1] < 1e-9
 
 
 def test_newmark_sudden_gravity_on_stiff_column():
     """Newmark trapezoidal (beta 1/4, gamma 1/2) on a stiff elastic column (E = 1e5 kPa,
     small strain) under suddenly applied gravity: the undamped response swings to twice
     the static settlement (1-D wave solution: u_max = 2 u_static) with the period of the
-    first mode T = 4 H / c_p (DESIGN section 7: c_p = sqrt(M / rho))."""
+    first mode T = 4 H / c_p (DESIGN section 7: c_p = sqrt(M / rho)).  Sampled every T/40:
+    the amplitude achieves -2.1e-3 (asserts 6e-3); the time of the first minimum is one
+    sample (T/40 = 5 % of T/2) from T/2 (asserts 7.5 %: within 1.5 samples)."""
     scene = load_scene(MESHES / "column.toml")
     scene = dataclasses.replace(scene, soils=(dataclasses.replace(scene.soils[0],
                                                                   youngs_modulus=1e5),))
@@ -376,9 +394,9 @@ def test_newmark_sudden_gravity_on_stiff_column():
     t, u = np.array(hist).T
     Y = pts.x0[top, 1]
     u_static = -(20.0 / M) * (5.0 * Y - Y * Y / 2)
-    assert abs(u.min() / (2 * u_static) - 1) < 0.03
+    assert abs(u.min() / (2 * u_static) - 1) < 6e-3
     t_min = t[np.argmin(u[t < T])]
-    assert abs(t_min / (T / 2) - 1) < 0.1
+    assert abs(t_min / (T / 2) - 1) < 0.075
     assert np.all(np.isfinite(pts.stress))
 
 
