@@ -96,9 +96,17 @@ def fields_of(scene, seeds, data=None):
     return np.stack([rf.gaussian_field(scene, grid, s, data, layout) for s in seeds]), layout
 
 
-def empirical_corr(Z, lag, axis):
-    """Pooled correlation at an integer lag along axis (1: x, 2: y) of fields Z (N, ny, nx)."""
-    m, v = Z.mean(), Z.var()
+def empirical_corr(Z, lag, axis, var=None):
+    """Pooled correlation at an integer lag along axis (1: x, 2: y) of fields Z (N, ny, nx),
+    and its standard error from the spread between realizations.
+
+    With ``var`` (the target variance) the known mean 0 is used and each realization's lag
+    covariance is divided by ``var``: the estimate is then an unbiased mean of N independent
+    values, so ``se`` is its exact standard error, and a wrong variance shows up in it."""
+    if var is None:
+        m, v = Z.mean(), Z.var()
+    else:
+        m, v = 0.0, var
     if axis == 1:
         a, b = Z[:, :, :-lag], Z[:, :, lag:]
     else:
@@ -243,35 +251,42 @@ def test_circulant_and_cholesky_samples_agree():
 
 
 # ----------------------------------------------------------------------------- acceptance 1
-def _check_statistics(scene, n_real, lags_x, lags_y, theta_h, theta_v, seed0):
+def _check_statistics(scene, n_real, lags_x, lags_y, theta_h, theta_v, seed0, n_se=5.0):
+    """Mean, variance and lag correlations of ``n_real`` fields, each within ``n_se``
+    standard errors; the SE of each is the spread of its per-realization value / sqrt(N)
+    (realizations are independent).  Returns the rows (what, lag, target, estimate, se)."""
     Z, layout = fields_of(scene, range(seed0, seed0 + n_real))
     h1, h2 = layout.cell
     var_pred = reference_cov(theta_h, theta_v, h1, h2, 0, 0)
     # mean: domain average per realization, SE from the spread between realizations
     m = Z.mean(axis=(1, 2))
-    assert abs(m.mean()) < 5 * m.std(ddof=1) / math.sqrt(n_real)
-    # variance of the cell-averaged Gaussian vs the variance function prediction
-    assert Z.var() == pytest.approx(var_pred, rel=0.05)
+    assert abs(m.mean()) < n_se * m.std(ddof=1) / math.sqrt(n_real)
+    # variance of the cell-averaged Gaussian (known mean 0) vs the variance function
+    v = (Z ** 2).mean(axis=(1, 2))
+    se_v = v.std(ddof=1) / math.sqrt(n_real)
+    rows = [("variance", 0, var_pred, v.mean(), se_v)]
+    assert abs(v.mean() - var_pred) < n_se * se_v, rows[-1]
     # cohesion mean of a normal field: mu within 5 SE
     c = rf.gaussian_to_property(Z, MU, scene.random_field)
     cm = c.mean(axis=(1, 2))
-    assert abs(cm.mean() - MU) < 5 * cm.std(ddof=1) / math.sqrt(n_real)
-    rows = []
+    assert abs(cm.mean() - MU) < n_se * cm.std(ddof=1) / math.sqrt(n_real)
     for axis, lags in ((1, lags_x), (2, lags_y)):
         for lag in lags:
             kl = (lag, 0) if axis == 1 else (0, lag)
             target = reference_cov(theta_h, theta_v, h1, h2, *kl) / var_pred
-            est, se = empirical_corr(Z, lag, axis)
-            rows.append((axis, lag, target, est, se))
-            assert abs(est - target) < 0.05, (axis, lag, target, est, se)
+            est, se = empirical_corr(Z, lag, axis, var=var_pred)
+            rows.append(("x" if axis == 1 else "y", lag, target, est, se))
+            assert abs(est - target) < n_se * se, rows[-1]
     return rows
 
 
 @pytest.mark.parametrize("xi,size", [(1, (5.0, 5.0)), (12, (60.0, 5.0)), (48, (60.0, 5.0))])
 def test_statistics_500_realizations(xi, size):
     """Acceptance 1 ([FG08], [V83], [D7]): 500 seeded realizations of the cell-averaged field
-    with cells theta/4 along each axis: mean within 5 SE, variance within 5 % of the variance
-    function, correlation of local averages at 0.25, 0.5, 1, 2 theta along x and y within 0.05;
+    with cells theta/4 along each axis: mean, variance (against the variance function) and
+    correlation of local averages at 0.25, 0.5, 1, 2 theta along x and y, each within 5 SE
+    (SE of the variance 0.5 % at xi = 1 and 12, 0.9 % at xi = 48; of a correlation
+    0.004-0.011); measured offsets are within 2.9 SE;
     xi = 48 is theta_h = 24 m on a 60 m x 5 m domain.  (With cells of theta/4 the elliptic
     model is the same problem in scaled coordinates for every xi, on different domains in
     theta units; the literature grid below has the strongly anisotropic cells.)"""
@@ -284,7 +299,8 @@ def test_statistics_500_realizations(xi, size):
 def test_statistics_reference_grid_xi48():
     """Acceptance 1 on the literature's grid ([FG08], [V83]): 0.25 m cells, theta_h = 24 m on
     60 m x 5 m: correlation of local averages at 6, 12, 24, 48 m along x and 0.25, 0.5, 1 m
-    along y within 0.05 (2000 realizations: the domain holds only 2.5 theta_h)."""
+    along y within 5 SE (2000 realizations: the domain holds only 2.5 theta_h; SE of the
+    variance 0.46 %, of a correlation 0.004-0.006; measured offsets within 0.9 SE)."""
     scene = make_scene((60.0, 5.0), (0.25, 0.25), {"anisotropy": 48.0, "distribution": "normal"})
     _check_statistics(scene, 2000, (24, 48, 96, 192), (1, 2, 4), 24.0, THETA_V, seed0=77_000)
 
@@ -292,14 +308,15 @@ def test_statistics_reference_grid_xi48():
 @pytest.mark.slow
 @pytest.mark.parametrize("xi", [1, 12, 48])
 def test_statistics_5000_realizations_slow(xi):
-    """Acceptance 1 with 5000 realizations ([FG08], [V83]); correlations within 0.02."""
+    """Acceptance 1 with 5000 realizations ([FG08], [V83]): every statistic within 5 SE
+    (SE about 0.002 for a correlation) and every correlation also within 0.02."""
     th = xi * THETA_V
     size = (5.0, 5.0) if xi == 1 else (60.0, 5.0)
     scene = make_scene(size, (th / 4, THETA_V / 4),
                        {"anisotropy": float(xi), "distribution": "normal"})
     for axis, lag, target, est, se in _check_statistics(scene, 5000, (1, 2, 4, 8), (1, 2, 4, 8),
                                                         th, THETA_V, seed0=500_000 * xi):
-        assert abs(est - target) < max(0.02, 5 * se)
+        assert abs(est - target) < 0.02
 
 
 def test_rotated_layering_and_separable_from_scene():
@@ -340,16 +357,24 @@ def test_field_cell_size_and_zero_cov():
 # ----------------------------------------------------------------------------- acceptance 2
 def test_lognormal_point_mean_and_cov():
     """Acceptance 2 ([D7] s_ln^2 = ln(1 + v^2), m_ln = ln(mu) - s_ln^2/2): without local
-    averaging the peak cohesion on the material points has mean 20 kPa and COV 0.25 within
-    2 %; all points of a cell share its value, and residual cohesion scales in proportion."""
+    averaging the peak cohesion on the material points has mean 20 kPa, variance
+    (0.25 x 20)^2 = 25 kPa^2 and median 20 exp(-s_ln^2/2) = 19.403 kPa, each within 5 SE
+    over N = 400 realizations (SE from the spread of the per-realization value: the mean
+    1.1e-2 kPa, the variance 0.062 kPa^2, i.e. 0.25 %; the median as the fraction of values
+    below it, 0.5 within 5 SE of 9e-4; measured offsets within 0.7 SE).  All points of a cell share its value, and residual cohesion
+    scales in proportion."""
     scene = make_scene((20.0, 10.0), (0.25, 0.25), {"local_averaging": False})
     grid = make_grid(scene)
     pts = seed_particles(scene, grid)
-    vals = np.stack([rf.sample_point_property(scene, grid, pts, s) for s in range(400)])
-    assert vals.mean() == pytest.approx(MU, rel=0.02)
-    assert vals.std() / vals.mean() == pytest.approx(COV, rel=0.02)
+    N = 400
+    vals = np.stack([rf.sample_point_property(scene, grid, pts, s) for s in range(N)])
     s_ln = math.sqrt(math.log(1 + COV ** 2))
-    assert np.median(vals) == pytest.approx(MU * math.exp(-s_ln ** 2 / 2), rel=0.02)  # 19.403
+    per_real = {"mean": (vals.mean(axis=1), MU),
+                "variance": (((vals - MU) ** 2).mean(axis=1), (COV * MU) ** 2),
+                "below median": ((vals < MU * math.exp(-s_ln ** 2 / 2)).mean(axis=1), 0.5)}
+    for name, (x, target) in per_real.items():
+        se = x.std(ddof=1) / math.sqrt(N)
+        assert abs(x.mean() - target) < 5 * se, (name, x.mean(), target, se)
     per_cell = vals[0].reshape(-1, 4)                          # 4 Gauss points per cell
     np.testing.assert_array_equal(per_cell, per_cell[:, :1].repeat(4, axis=1))
     g, p = api.prepare(scene, seed=3)
@@ -360,7 +385,8 @@ def test_lognormal_point_mean_and_cov():
 
 def test_lognormal_with_averaging_keeps_point_parameters():
     """[FG08] ch. 6 practice: averaged Gaussian (variance gamma) transformed with the point
-    parameters: median exp(m_ln) kept, mean exp(m_ln + s_ln^2 gamma / 2) (within 5 SE)."""
+    parameters: median exp(m_ln) kept (half the values below it) and mean
+    exp(m_ln + s_ln^2 gamma / 2), each within 5 SE over N = 300 realizations."""
     scene = make_scene((10.0, 5.0), (0.25, 0.25), {"anisotropy": 1.0})
     Z, layout = fields_of(scene, range(300))
     gamma = reference_cov(0.5, 0.5, 0.25, 0.25, 0, 0)
@@ -369,7 +395,8 @@ def test_lognormal_with_averaging_keeps_point_parameters():
     target = math.exp(math.log(MU) - s2 / 2 + s2 * gamma / 2)
     cm = c.mean(axis=(1, 2))
     assert abs(cm.mean() - target) < 5 * cm.std(ddof=1) / math.sqrt(len(cm))
-    assert np.median(c) == pytest.approx(math.exp(math.log(MU) - s2 / 2), rel=0.01)
+    below = (c < math.exp(math.log(MU) - s2 / 2)).mean(axis=(1, 2))
+    assert abs(below.mean() - 0.5) < 5 * below.std(ddof=1) / math.sqrt(len(below))
 
 
 # ----------------------------------------------------------------------------- acceptance 3
@@ -428,7 +455,8 @@ def _write_csv(path, rows, header="x,y,value"):
 def test_conditioning_honours_data_and_returns_to_unconditional(tmp_path):
     """Acceptance 4 ([JH78] conditional simulation by simple kriging of the residual, [D7]
     lognormal transform): at the measured cells the field equals the data to 1e-8 kPa in every
-    realization (variance ~0); far away (> 6 theta) mean and variance are unconditional."""
+    realization (variance ~0); far away (> 6 theta) mean and variance are unconditional,
+    within 5 SE over N = 300 realizations (SE of the variance 0.9 %)."""
     scene = make_scene((40.0, 5.0), (0.25, 0.25), {"anisotropy": 4.0})   # theta_h = 2 m
     data = [(5.1, 0.6, 31.0), (5.1, 1.6, 24.0), (5.1, 2.6, 14.5), (5.1, 3.6, 18.0),
             (7.3, 2.1, 26.0), (9.9, 4.9, 12.0)]
@@ -453,7 +481,8 @@ def test_conditioning_honours_data_and_returns_to_unconditional(tmp_path):
     var_u = reference_cov(2.0, 0.5, 0.25, 0.25, 0, 0)
     m = zf.mean(axis=1)
     assert abs(m.mean()) < 5 * m.std(ddof=1) / math.sqrt(N)
-    assert zf.var() == pytest.approx(var_u, rel=0.05)
+    vf = (zf ** 2).mean(axis=1)
+    assert abs(vf.mean() - var_u) < 5 * vf.std(ddof=1) / math.sqrt(N)
     # next to a datum along the layering (0.25 m, theta_h = 2 m) the variance is much reduced
     near, _ = layout.locate(np.array([[4.85, 0.6], [5.35, 0.6]]))
     assert Z.reshape(N, -1)[:, near].var(axis=0).max() < 0.5 * var_u
