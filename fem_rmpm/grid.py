@@ -77,14 +77,20 @@ def _grid_from_file(path: str, source: str) -> tuple[np.ndarray, np.ndarray, tup
     The MPM's fast point location needs an axis-aligned grid of equal cells; a
     file that is not one is rejected with a clear message.
     """
+    import contextlib
+    import io
+
     import meshio
 
     if not Path(path).exists():
         raise SceneError(f"{source}: [grid.file] mesh file {path} not found")
+    said = io.StringIO()       # meshio prints its reasons and may call sys.exit(1)
     try:
-        m = meshio.read(path)
-    except Exception as exc:  # meshio raises many types for unreadable files
-        raise SceneError(f"{source}: [grid.file] cannot read {path} with meshio ({exc})") from None
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            m = meshio.read(path)
+    except (Exception, SystemExit) as exc:  # meshio raises many types for unreadable files
+        why = " ".join(said.getvalue().split())[:200] or str(exc)
+        raise SceneError(f"{source}: [grid.file] cannot read {path} with meshio ({why})") from None
     quads = [c.data for c in m.cells if c.type == "quad"]
     if not quads:
         raise SceneError(f"{source}: [grid.file] {path} holds no quad cells; allowed: a quad mesh")
