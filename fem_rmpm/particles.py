@@ -90,11 +90,14 @@ def _seeding_1d(n: int, shape: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def soil_cells(scene: Scene, grid: Grid) -> np.ndarray:
-    """(n_cells,) soil index of each cell (-1: empty); later soils overwrite earlier ones."""
+    """(n_cells,) soil index of each cell (-1: empty); later soils overwrite earlier ones,
+    and a cell whose centre is inside a ``[[bedrock]]`` polygon is empty (rigid, no points)."""
     owner = np.full(grid.n_cells, -1)
     centres = grid.cell_centres()
     for k, soil in enumerate(scene.soils):
         owner[points_in_polygon(centres, np.array(soil.polygon))] = k
+    for rock in scene.bedrock:
+        owner[points_in_polygon(centres, np.array(rock.polygon))] = -1
     return owner
 
 

@@ -184,3 +184,37 @@ def test_grid_file_errors_are_one_line_exit_2(tmp_path, capsys, case, needle):
     err = _one_line_error(capsys)
     assert needle in err and str(scene) in err and "grid.file" in err and "m.vtu" in err
     assert not out.exists()
+
+
+# ----------------------------------------------------------------------------- [[bedrock]]
+def _rel_l2(a, b, w):
+    return float(np.sqrt(np.sum((a - b) ** 2 * w) / np.sum(b ** 2 * w)))
+
+
+def test_bedrock_fixes_its_nodes_and_holds_no_points(tmp_path):
+    """README "Scene files": `[[bedrock]]` is a rigid region; every grid node in or on it is
+    fixed and no particles are placed in it, even where a soil polygon overlaps it.  The
+    5 m column with bedrock over its lowest 1 m is a 4 m column on a fixed base: 64 points
+    (not 80), all above y = 1 m; the nodes at y <= 1 m fixed in x and y, the others free in
+    y; at rest sigma_yy is the Q4 solution of the 4 m column, h / (2 H') = 3.125e-2 from
+    -gamma (5 - y) in the relative L2 norm (achieves that to 3e-8, asserts 2e-7), and the
+    top point settles -(gamma / M) (H' s - s^2 / 2), s = y - 1 m (achieves 7.0e-4, of
+    which 6.5e-4 is the linear interpolation between exact nodal values; asserts 1.5e-3)."""
+    text = (MESHES / "column.toml").read_text()
+    scene_path = tmp_path / "bedrock.toml"
+    scene_path.write_text(text + "\n[[bedrock]]\npolygon = [[0.0, 0.0], [0.25, 0.0], "
+                          "[0.25, 1.0], [0.0, 1.0]]\n")
+    scene = load_scene(scene_path)
+    grid, pts = api.prepare(scene)
+    assert pts.n == 64 and pts.x0[:, 1].min() > 1.0
+    low = grid.nodes[:, 1] <= 1.0 + 1e-9
+    assert grid.fixed[low].all() and not grid.fixed[~low, 1].any()
+    res = api.run(scene)
+    p = res.particles
+    assert res.record.stop_reason == "at rest"
+    err = _rel_l2(p.stress[:, 1], -20.0 * (5.0 - p.x0[:, 1]), p.volume0)
+    assert abs(err - 0.25 / (2 * 4.0)) < 2e-7
+    M = scene.soils[0].constrained_modulus
+    top = np.argmax(p.x0[:, 1])
+    s = p.x0[top, 1] - 1.0
+    assert abs(p.displacement[top, 1] / (-(20.0 / M) * (4.0 * s - s * s / 2)) - 1) < 1.5e-3
