@@ -218,3 +218,111 @@ def test_bedrock_fixes_its_nodes_and_holds_no_points(tmp_path):
     top = np.argmax(p.x0[:, 1])
     s = p.x0[top, 1] - 1.0
     assert abs(p.displacement[top, 1] / (-(20.0 / M) * (4.0 * s - s * s / 2)) - 1) < 1.5e-3
+
+
+# ----------------------------------------------------------------------------- damping_time
+def _top_history(res):
+    i = int(np.argmax(res.particles.x0[:, 1]))
+    t = np.array([s[0] for s in res.snapshots])
+    return t, np.array([s[1][i, 1] for s in res.snapshots]) - res.particles.x0[i, 1]
+
+
+def test_damping_is_switched_off_after_damping_time():
+    """README "The method": local (Cundall) damping, switched off after `damping_time`.
+    The column under suddenly applied gravity (dynamic phase, no ramp): damping_time = 0 is
+    bitwise the undamped run, which overshoots to about twice the static settlement (the
+    1-D wave solution of a suddenly applied load; achieves 2.11x, asserts > 1.8x); damped
+    throughout it creeps to the static settlement without overshoot (achieves 0.993x,
+    asserts < 1.02x); with damping_time = 0.3 s the history is the damped one up to 0.3 s,
+    bitwise, and departs from it after."""
+    base = _column(**{"solver.gravity_phase": "dynamic", "solver.gravity_ramp_time": 0.0,
+                      "solver.t_end": 1.0, "solver.output_interval": 0.02})
+    M = base.soils[0].constrained_modulus
+    runs = {name: _top_history(api.run(with_values(base, ch))) for name, ch in {
+        "off": {"solver.damping_time": 0.0}, "undamped": {"solver.damping": 0.0},
+        "on": {"solver.damping_time": 1e9}, "switch": {"solver.damping_time": 0.3}}.items()}
+    y = 5.0 - 0.25 * (0.5 - 0.5 / math.sqrt(3))                     # top Gauss point
+    u_static = -(20.0 / M) * (5.0 * y - y * y / 2)
+    np.testing.assert_array_equal(runs["off"][1], runs["undamped"][1])
+    assert runs["undamped"][1].min() < 1.8 * u_static
+    assert runs["on"][1].min() > 1.02 * u_static
+    t, u = runs["switch"]
+    t_on, u_on = runs["on"]
+    early = t <= 0.3
+    np.testing.assert_array_equal(t[early], t_on[:early.sum()])
+    np.testing.assert_array_equal(u[early], u_on[:early.sum()])
+    assert np.abs(u[~early][:5] - u_on[early.sum():early.sum() + 5]).max() > 1e-3
+
+
+# ----------------------------------------------------------------------------- points per cell
+@pytest.mark.parametrize("n", [1, 3])
+def test_points_per_cell_dir_seeds_gauss_points_and_integrates_like_the_fem(n):
+    """README "Seeding": standard Q4, points at the n x n Gauss points with the Gauss weights
+    as volumes (1 point: the centre, the cell area); uGIMP at the centres of n x n equal
+    sub-cells.  With n = 3 the 3 x 3 Gauss rule integrates the Q4 stiffness and the weight
+    exactly, like the FEM's 2 x 2, so one implicit geostatic step is the scikit-fem
+    solution (achieves 2.2e-14, asserts 1e-12)."""
+    from fem_rmpm.fem import solve_static
+    from fem_rmpm.shape import q4_at_points
+    scene = _column(**{"soil.points_per_cell_dir": n})
+    grid, pts = api.prepare(scene)
+    g, w = np.polynomial.legendre.leggauss(n)
+    g, w = (g + 1) / 2, w / 2
+    assert pts.n == 20 * n * n
+    cell0 = pts.x0[: n * n]                                      # the first cell, [0, 0.25]^2
+    expect = np.array([(0.25 * a, 0.25 * b) for b in g for a in g])
+    np.testing.assert_allclose(np.sort(cell0, axis=0), np.sort(expect, axis=0), atol=1e-14)
+    np.testing.assert_allclose(np.sort(pts.volume0[: n * n]),
+                               np.sort(np.outer(w, w).ravel() * 0.0625), rtol=1e-14)
+    gimp = api.prepare(with_values(scene, {"solver.shape": "gimp"}))[1]
+    sub = (np.arange(n) + 0.5) / n * 0.25
+    np.testing.assert_allclose(np.sort(gimp.x0[: n * n], axis=0),
+                               np.sort([(a, b) for b in sub for a in sub], axis=0), atol=1e-14)
+    np.testing.assert_allclose(gimp.volume0, 0.0625 / n ** 2, rtol=1e-14)
+    if n == 3:
+        from fem_rmpm.implicit import run_implicit
+        imp = with_values(scene, {"solver.scheme": "implicit", "solver.load_steps": 1})
+        grid, pts = api.prepare(imp)
+        run_implicit(imp, grid, pts)
+        fem = solve_static(imp, grid)
+        _, nodes, N, _, _ = q4_at_points(grid, pts.x0)
+        u_fem = np.einsum("pa,pak->pk", N, fem.displacement[nodes])
+        assert np.linalg.norm(pts.displacement - u_fem) < 1e-12 * np.linalg.norm(u_fem)
+
+
+# ----------------------------------------------------------------------------- guards
+def test_half_cell_motion_guard_stops_a_finite_run():
+    """README "Guards": a point moving more than half a cell in a step stops the run, naming
+    the step and saying to reduce cfl.  A 1 m block of very soft soil (E = 0.2 kPa, so the
+    CFL step is 0.33 s) in free fall inside an all-free 10 m grid drops 1.05 m in its first
+    step: every value stays finite, so only the motion guard can stop it (the non-finite
+    guard would let it run on)."""
+    from fem_rmpm.run import SimulationError
+    scene = _column(**{"grid.size": [10.0, 10.0], "boundary.left": "free",
+                       "boundary.right": "free", "boundary.bottom": "free",
+                       "boundary.top": "free", "soil.youngs_modulus": 0.2,
+                       "soil.polygon": [[4.0, 6.0], [5.0, 6.0], [5.0, 7.0], [4.0, 7.0]],
+                       "solver.gravity_phase": "dynamic", "solver.gravity_ramp_time": 0.0,
+                       "solver.damping": 0.0})
+    with pytest.raises(SimulationError, match=r"step 1 .*moved 1\.0\d m in one step "
+                                              r"\(> half a cell\).*reduce \[solver\] cfl"):
+        api.run(scene)
+
+
+def test_at_rest_needs_both_the_speed_and_the_energy_criterion():
+    """README "Explicit scheme": the run stops at rest when the max point speed is below
+    `rest_velocity` AND the grid kinetic energy is below `rest_energy_ratio` x its peak.
+    The shared test function, both ways round; and in a run: the column at rest at 7.4 s
+    with the defaults runs on to t_end when either criterion cannot be met."""
+    from fem_rmpm.run import at_rest
+    kw = dict(t=2.0, ramp_time=0.5, rest_velocity=1e-5, rest_energy_ratio=1e-8)
+    assert at_rest(max_speed=1e-6, kinetic_energy=1e-9, kinetic_energy_peak=1.0, **kw)
+    assert not at_rest(max_speed=1e-6, kinetic_energy=1e-7, kinetic_energy_peak=1.0, **kw)
+    assert not at_rest(max_speed=1e-4, kinetic_energy=1e-9, kinetic_energy_peak=1.0, **kw)
+    assert not at_rest(max_speed=1e-6, kinetic_energy=1e-9, kinetic_energy_peak=1.0,
+                       **{**kw, "t": 0.4})                       # gravity still ramping
+    ref = api.run(_column())
+    assert ref.record.stop_reason == "at rest" and 5.0 < ref.record.time < 10.0
+    for change in ({"solver.rest_energy_ratio": 0.0}, {"solver.rest_velocity": 0.0}):
+        r = api.run(_column(**{"solver.t_end": 12.0, **change}))
+        assert r.record.stop_reason == "t_end reached", change
