@@ -326,3 +326,143 @@ def test_at_rest_needs_both_the_speed_and_the_energy_criterion():
     for change in ({"solver.rest_energy_ratio": 0.0}, {"solver.rest_velocity": 0.0}):
         r = api.run(_column(**{"solver.t_end": 12.0, **change}))
         assert r.record.stop_reason == "t_end reached", change
+
+
+def _falling_block(**changes):
+    """A block thrown off the free right edge of a small grid (gravity at 60 degrees)."""
+    return _column(**{
+        "grid.size": [3.0, 2.0], "grid.cell": [0.25, 0.25], "boundary.right": "free",
+        "boundary.bottom": "roller", "scene.frame_angle_deg": 60.0,
+        "soil.polygon": [[0.5, 0.0], [1.5, 0.0], [1.5, 1.0], [0.5, 1.0]],
+        "solver.gravity_phase": "dynamic", "solver.gravity_ramp_time": 0.0,
+        "solver.damping": 0.0, "solver.t_end": 0.7, "solver.edge_policy": "freeze",
+        "solver.output_interval": 0.02, **changes})
+
+
+def test_frozen_points_stay_where_they_left_the_grid(tmp_path):
+    """README "Guards": with edge_policy = "freeze" a point that leaves through a free edge
+    is frozen where it left: just beyond the edge (less than the half cell a point may move
+    in a step), and it never moves again; the particle files mark it `active = 0`."""
+    res = api.run(_falling_block(), out=tmp_path / "o")
+    p, grid = res.particles, res.grid
+    frozen = ~p.active
+    assert 0 < frozen.sum() < p.n
+    beyond = p.x[frozen, 0] - grid.upper[0]
+    assert beyond.min() > 0 and beyond.max() < 0.5 * grid.cell[0]
+    xs = np.stack([s[1] for s in res.snapshots])                    # (snapshots, n, 2)
+    for i in np.nonzero(frozen)[0]:
+        first = int(np.argmax(xs[:, i, 0] > grid.upper[0]))
+        assert np.array_equal(xs[first:, i], np.broadcast_to(p.x[i], xs[first:, i].shape))
+    last = meshio.read(sorted((tmp_path / "o").glob("particles_*.vtu"))[-1])
+    np.testing.assert_array_equal(last.point_data["active"], p.active.astype(int))
+
+
+# ----------------------------------------------------------------------------- output files
+def test_particle_and_grid_fields_are_the_documented_ones(tmp_path):
+    """README "Outputs": the point data of the particle files and the grid file, field by
+    field, on a column of two soils: a von Mises clay (c_p = 8, c_r = 4 kPa, linear
+    softening over gamma_p = 0.5) below y = 2 m that yields under its own weight, and a
+    linear elastic soil above.  cohesion = the softening law of the point's plastic shear
+    strain (-1 for elastic points), cohesion_peak (-1 elastic), soil = the soil index,
+    active = 1, stress in VTK order xx yy zz xy yz xz (kPa), 3-component displacement and
+    velocity, volume and mass; grid.vtu: cell data soil_cell (1 where a soil is) and point
+    data fixed (the fixed components)."""
+    text = (MESHES / "column.toml").read_text().replace(
+        'polygon = [[0.0, 0.0], [0.25, 0.0], [0.25, 5.0], [0.0, 5.0]]',
+        'polygon = [[0.0, 0.0], [0.25, 0.0], [0.25, 2.0], [0.0, 2.0]]').replace(
+        'model = "linear_elastic"', 'model = "von_mises_softening"\ncohesion_peak = 8.0\n'
+        'cohesion_residual = 4.0\nsoftening_strain = 0.5')
+    text += ('\n[[soil]]\nname = "fill"\npolygon = [[0.0, 2.0], [0.25, 2.0], [0.25, 5.0], '
+             '[0.0, 5.0]]\nunit_weight = 20.0\nyoungs_modulus = 1000.0\npoisson_ratio = 0.33\n'
+             'model = "linear_elastic"\n')
+    scene_path = tmp_path / "two_soils.toml"
+    scene_path.write_text(text.replace("t_end = 20.0", "t_end = 2.0"))
+    res = api.run(load_scene(scene_path), out=tmp_path / "o")
+    p = res.particles
+    m = meshio.read(sorted((tmp_path / "o").glob("particles_*.vtu"))[-1])
+    d = m.point_data
+    lower = p.x0[:, 1] < 2.0
+    np.testing.assert_array_equal(d["soil"], np.where(lower, 0, 1))
+    gam = d["plastic_shear_strain"]
+    assert gam[lower].max() > 0.01 and np.all(gam[~lower] == 0)         # the clay yields
+    law = 4.0 + 4.0 * np.clip(1 - gam / 0.5, 0, 1)
+    np.testing.assert_allclose(d["cohesion"], np.where(lower, law, -1.0), rtol=1e-12)
+    np.testing.assert_array_equal(d["cohesion_peak"], np.where(lower, 8.0, -1.0))
+    np.testing.assert_array_equal(d["active"], 1)
+    np.testing.assert_allclose(d["stress"][:, :4], p.stress, rtol=1e-15)
+    np.testing.assert_array_equal(d["stress"][:, 4:], 0.0)
+    for k in ("displacement", "velocity"):
+        assert d[k].shape == (p.n, 3) and np.all(d[k][:, 2] == 0)
+    np.testing.assert_allclose(d["displacement"][:, :2], p.displacement, rtol=1e-15)
+    np.testing.assert_allclose(d["volume"], p.volume, rtol=1e-15)
+    np.testing.assert_allclose(d["mass"], p.mass, rtol=1e-15)
+    np.testing.assert_allclose(m.points[:, :2], p.x, rtol=1e-15)
+    g = meshio.read(tmp_path / "o" / "grid.vtu")
+    np.testing.assert_array_equal(g.cell_data["soil_cell"][0], np.r_[np.ones(20), np.zeros(2)])
+    np.testing.assert_array_equal(g.point_data["fixed"], res.grid.fixed.astype(int))
+
+
+def test_summary_json_holds_the_documented_keys(tmp_path):
+    """README "Outputs": summary.json holds the scene, seed, scheme, status, steps, simulated
+    time, wall time, particle count, ns per point-step, the measures (the documented ones),
+    frozen points, solver statistics and the kinetic-energy history, each with the value of
+    the run."""
+    res = api.run(_falling_block(), out=tmp_path / "o", seed=4)
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    rec, p = res.record, res.particles
+    assert s["scheme"] == "explicit" and s["status"] == "ok" and s["seed"] == 4
+    assert s["steps"] == rec.steps and s["simulated_time"] == pytest.approx(rec.time, rel=1e-12)
+    assert s["particles"] == p.n and s["wall_time"] > 0
+    assert s["ns_per_particle_step"] == pytest.approx(1e9 * s["wall_time"] / (rec.steps * p.n),
+                                                      rel=1e-9)
+    assert s["scene"]["grid"]["size"] == [3.0, 2.0] and s["scene"]["soil"][0]["name"] == "clay"
+    assert s["frozen_points"]["count"] == int((~p.active).sum()) > 0
+    assert s["frozen_points"]["policy"] == "freeze"
+    assert isinstance(s["solver"], dict)
+    ke = np.array(s["kinetic_energy"])
+    assert ke.shape[1] == 2 and np.all(np.diff(ke[:, 0]) > 0) and ke[:, 1].max() > 0
+    for key in ("sliding_area", "failed", "runout_distance", "retrogression_distance",
+                "time_to_rest", "final_profile"):
+        assert key in s["measures"], key
+    assert s["measures"]["failed"] and s["measures"]["time_to_rest"] is None
+
+
+# ----------------------------------------------------------------------------- line search
+class _DenseSolver:
+    """The LinearSolver interface (solve(K, b, modes, rtol)) on a small dense matrix."""
+
+    def solve(self, K, b, modes=None, rtol=1e-10):
+        return np.linalg.solve(np.atleast_2d(K), b)
+
+
+def _two_cycle_problem():
+    """f(u) = sign(u) sqrt(|u|) (per component): the Newton step u - f/f' = -u exactly, so
+    plain Newton 2-cycles between u0 and -u0 for ever, while one halving of the step
+    (u - f/f'/2 = 0) lands on the root."""
+    state = {}
+
+    def evaluate(u):
+        state["u"] = u.copy()
+        return -np.sign(u) * np.sqrt(np.abs(u)), 1.0, None
+
+    def tangent():
+        return np.diag(0.5 / np.sqrt(np.abs(state["u"])))
+    return evaluate, tangent
+
+
+def test_line_search_stops_newton_two_cycles():
+    """README "Implicit scheme": a backtracking line search stops 2-cycles (at the kinks of
+    the softening law).  On a residual where the full Newton step maps u to -u, Newton with
+    the default line search converges (the first halved step hits the root); with the line
+    search off (line_search = 0) it cycles and fails with the cycle in its residuals."""
+    from fem_rmpm.implicit import NewtonFailure, newton
+    evaluate, tangent = _two_cycle_problem()
+    u0 = np.array([0.25, 4.0])                  # powers of 2: every step exact in floating point
+    res = newton(evaluate, tangent, u0, _DenseSolver(), max_iterations=10, tol=1e-9)
+    assert np.abs(res.du).max() < 1e-12
+    evaluate, tangent = _two_cycle_problem()
+    with pytest.raises(NewtonFailure) as failure:
+        newton(evaluate, tangent, u0, _DenseSolver(), max_iterations=10, tol=1e-9,
+               line_search=0)
+    r = np.array(failure.value.residuals)
+    np.testing.assert_allclose(r, r[0], rtol=1e-12)                 # the same residual: a cycle
