@@ -27,6 +27,7 @@ from .particles import seed_particles
 from .random_field import (embedding_for, field_layout, field_values, fit_scales,
                            read_measurements)
 from .random_field.conditioning import resolve_data_path
+from .report import ReportError, write_report
 from .run import SimulationError
 from .scene import RandomFieldSpec, Scene, SceneError, load_scene, with_value, with_values
 
@@ -301,6 +302,16 @@ def _cmd_field(a) -> int:
     return 0
 
 
+def _cmd_report(a) -> int:
+    """``fem-rmpm report DIR``: write DIR/report.html from a campaign directory."""
+    try:
+        path = write_report(a.campaign)
+    except ReportError as exc:
+        raise InputError(f"report: {exc}") from None
+    print(f"Report: {path} (one self-contained page; open it in a browser)")
+    return 0
+
+
 # --------------------------------------------------------------------------- parser and main
 
 
@@ -348,6 +359,11 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--data", default=None, help="CSV x,y,value to condition on (kriging)")
     fl.add_argument("--fit", default=None, help="CSV x,y,value: estimate theta_v, theta_h")
     fl.set_defaults(func=_cmd_field)
+
+    rp = sub.add_parser("report", help="write report.html (one self-contained page) for a "
+                        "campaign directory; `mc` writes it at the end of every campaign")
+    rp.add_argument("campaign", metavar="DIR", help="campaign directory (holds summary.json)")
+    rp.set_defaults(func=_cmd_report)
     return p
 
 

@@ -52,6 +52,25 @@ def campaign(tmp_path_factory) -> Path:
     return out
 
 
+def test_mc_writes_the_report(campaign):
+    """``fem-rmpm mc`` ends by writing report.html beside summary.json."""
+    page = (campaign / "report.html").read_text(encoding="utf-8")
+    assert page.startswith("<!DOCTYPE html>") and "mc_tiny" in page
+
+
+def test_report_command(campaign, tmp_path):
+    """``fem-rmpm report DIR`` rewrites the page; a directory without a campaign is exit 2,
+    one line, and nothing is written there."""
+    (campaign / "report.html").unlink()
+    r = subprocess.run([sys.executable, "-m", "fem_rmpm.cli", "report", str(campaign)],
+                       env=_env(), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and (campaign / "report.html").is_file(), r.stderr
+    r = subprocess.run([sys.executable, "-m", "fem_rmpm.cli", "report", str(tmp_path)],
+                       env=_env(), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and len(r.stderr.splitlines()) == 1, r.stderr
+    assert "no summary.json" in r.stderr and list(tmp_path.iterdir()) == []
+
+
 def test_report_content(campaign):
     """The page holds the provenance, the per-case statistics of ``summary.json`` and every
     PNG of the campaign directory, embedded (no file reference for images)."""

@@ -15,6 +15,7 @@ from tqdm import tqdm
 
 from ..campaign_plots import campaign_figures
 from ..output import write_json
+from ..report import write_report
 from ..scene import Scene
 from .cases import CampaignError, Case, parse_case, realization_seed
 from .cluster import start_client
@@ -278,4 +279,5 @@ def _finish(out, scene, cases, counts, lay, finished, computed, skipped, lost, d
     write_json(out / "summary.json", summary)
     if figures and records:
         res.figures = campaign_figures(out, cases, stats, records, lay, scene)
+        res.figures.append(write_report(out))
     return res
