@@ -1,4 +1,4 @@
-"""Subset simulation over standard-normal noise (fem_rmpm.subset), without the MPM.
+"""Subset simulation over standard-normal noise (fem_rmpm.campaign.subset), without the MPM.
 
 References: the exact probabilities of the limit states below (a linear one, P = Phi(-beta),
 and the exterior of a hypersphere, P = chi-square survival function) and the formulas of
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2, norm
 
-from fem_rmpm.montecarlo import realization_seed
-from fem_rmpm.subset import (CrudeMonteCarlo, SubsetError, SubsetSimulation, SubsetWarning,
+from fem_rmpm.campaign.cases import realization_seed
+from fem_rmpm.campaign.subset import (CrudeMonteCarlo, SubsetError, SubsetSimulation, SubsetWarning,
                              chain_correlation_factor, run_method, subset_simulation)
 
 DIM = 1000

@@ -91,6 +91,9 @@ from typing import Any, Callable, Iterator, Protocol, Sequence
 
 import numpy as np
 
+from ..errors import InputError
+from .cases import realization_seed
+
 __all__ = ["SubsetError", "SubsetWarning", "Sample", "CampaignMethod", "MethodResult",
            "LevelResult", "CrudeMonteCarlo", "SubsetSimulation", "run_method",
            "subset_simulation", "chain_correlation_factor", "standard_noise"]
@@ -100,19 +103,13 @@ TARGET_ACCEPTANCE = 0.44      # Papaioannou et al. 2015
 LAMBDA_INIT = 0.6
 
 
-class SubsetError(ValueError):
+class SubsetError(InputError):
     """Bad input of a campaign method (p0, N, threshold, responses): one line that
     names the option, the value and what is allowed."""
 
 
 class SubsetWarning(UserWarning):
     """The campaign ran, but its estimate needs a caveat (e.g. the threshold is not rare)."""
-
-
-def realization_seed(campaign_seed: int, index: int) -> int:
-    """The seed of crude Monte Carlo realization ``index`` (see the campaign package)."""
-    from .montecarlo import realization_seed as seed_rule
-    return seed_rule(campaign_seed, index)
 
 
 def standard_noise(dim: int) -> Callable[[int], np.ndarray]:
