@@ -193,8 +193,8 @@ def summary_text(res: CampaignResult) -> str:
 
 def _cmd_mc(a) -> int:
     """``fem-rmpm mc``: returns 0, or 3 if realizations were lost (re-run to finish)."""
-    scene = load_scene(a.scene)
-    cases = campaign_cases(scene, a.scene)
+    scene = scene_from_args(a)
+    cases = list(a.case) if a.case else campaign_cases(scene, a.scene)
     res = run_campaign(scene, a.out, realizations=a.realizations, cases=cases,
                        workers=a.workers, scheduler=a.scheduler, force=a.force,
                        keep_vtk=a.keep_vtk, progress=not a.quiet)
@@ -314,56 +314,111 @@ def _cmd_report(a) -> int:
 
 # --------------------------------------------------------------------------- parser and main
 
+EXIT_CODES = """exit codes:
+  0    success
+  2    bad input (scene, data file or option): one line on stderr, nothing written
+  3    the simulation failed (unstable, Newton did not converge, ...); for mc:
+       realizations were lost (their workers died): re-run the command to finish
+  130  interrupted (Ctrl-C): finished output is kept"""
+_SET_HELP = ("change a scene value before running, e.g. --set solver.t_end=5 --set "
+             "'grid.cell=[0.5, 0.5]' --set soil[0].cohesion_peak=20 (repeatable; values are "
+             "TOML literals, a bare word is a string)")
+
+
+def _subcommand(sub, name: str, help: str, description: str | None = None):
+    """A subcommand parser with the exit codes in its ``--help``."""
+    return sub.add_parser(name, help=help, description=description or help, epilog=EXIT_CODES,
+                          formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def _add_run(sub) -> None:
+    r = _subcommand(sub, "run", "one realization (explicit or implicit MPM)",
+                    "Run one realization of a scene: VTK time series, summary.json, figures.")
+    _scene_arg(r, optional=True)
+    r.add_argument("--out", required=True, help="output directory (created)")
+    r.add_argument("--seed", type=int, default=None,
+                   help="random-field seed, an integer >= 0 (default: the scene's "
+                   "[montecarlo] seed); no effect without a [random_field]")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--set", action="append", metavar="KEY=VALUE", help=_SET_HELP)
+    r.set_defaults(func=_cmd_run)
+
+
+def _add_fem(sub) -> None:
+    f = _subcommand(sub, "fem", "static small-strain FEM gravity reference (scikit-fem)")
+    _scene_arg(f, optional=True)
+    f.add_argument("--out", required=True, help="output directory (created): fem.vtu, "
+                   "summary.json")
+    f.add_argument("--set", action="append", metavar="KEY=VALUE", help=_SET_HELP)
+    f.set_defaults(func=_cmd_fem)
+
+
+def _add_mc(sub) -> None:
+    m = _subcommand(sub, "mc", "Monte Carlo campaign on Dask (default: the four literature "
+                    "cases of the reference slope)",
+                    "Run realizations 0..N-1 of one or more cases of a scene on Dask; "
+                    "resumable (re-run the same command to finish or extend it).")
+    _scene_arg(m, optional=True)
+    m.add_argument("-n", "--realizations", type=int, default=None,
+                   help="realizations per random case (default: the scene's [montecarlo] "
+                   "realizations; a case without a random field runs 1)")
+    m.add_argument("--out", default="runs/mc", help="campaign directory (default runs/mc)")
+    m.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help=_SET_HELP + "; applied to every case and recorded in campaign.json")
+    m.add_argument("--case", action="append", metavar="SPEC",
+                   help="a case to run (repeatable), replacing the scene's [montecarlo] "
+                   "cases: 'homogeneous' (no random field), 'xi=12' (anisotropy), 'scene', "
+                   "or '<section.key>=<value>' changes joined by ';'")
+    m.add_argument("--workers", type=int, default=None,
+                   help="local worker processes (default: usable CPUs, at most the "
+                   "realizations to run)")
+    m.add_argument("--scheduler", default=None,
+                   help="address of a running Dask scheduler, e.g. tcp://host:8786, "
+                   "instead of a local cluster")
+    m.add_argument("--force", action="store_true",
+                   help="recompute finished realizations (each record replaced when its "
+                   "new one is complete)")
+    m.add_argument("--keep-vtk", default=None,
+                   help="VTK for the first K realizations of each case (integer) or for "
+                   "indices like 0,5,9 (default: the scene's [montecarlo] keep_vtk)")
+    m.add_argument("--quiet", action="store_true", help="no progress bar")
+    m.set_defaults(func=_cmd_mc)
+
+
+def _add_field(sub) -> None:
+    fl = _subcommand(sub, "field", "one random field on the material points (VTU + PNG)")
+    _scene_arg(fl, optional=True)
+    fl.add_argument("--seed", type=int, default=None,
+                    help="random-field seed, an integer >= 0 (default: the scene's "
+                    "[montecarlo] seed)")
+    fl.add_argument("--out", required=True,
+                    help="output directory (created): field.vtu, field.png, field.json")
+    fl.add_argument("--data", default=None,
+                    help="CSV with header x,y,value (grid frame m, kPa) to condition the "
+                    "field on (simple kriging); default: the scene's [random_field] data")
+    fl.add_argument("--fit", default=None,
+                    help="CSV with header x,y,value[,group]: estimate theta_v and theta_h "
+                    "from its semivariograms (writes fit.json, variogram.png)")
+    fl.set_defaults(func=_cmd_field)
+
+
+def _add_report(sub) -> None:
+    rp = _subcommand(sub, "report", "write report.html (one self-contained page) for a "
+                     "campaign directory; `mc` writes it at the end of every campaign")
+    rp.add_argument("campaign", metavar="DIR", help="campaign directory (holds summary.json)")
+    rp.set_defaults(func=_cmd_report)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``fem-rmpm`` argument parser (one sub-parser per command)."""
     p = argparse.ArgumentParser(prog="fem-rmpm", description="Random Material Point Method "
-                                "for slope run-out risk (MPM on scikit-fem).")
+                                "for slope run-out risk (MPM on scikit-fem).",
+                                epilog=EXIT_CODES,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
-    sub = p.add_subparsers(dest="command", required=True)
-
-    r = sub.add_parser("run", help="one realization (explicit or implicit MPM)")
-    _scene_arg(r, optional=True)
-    r.add_argument("--out", required=True, help="output directory")
-    r.add_argument("--seed", type=int, default=None, help="random-field seed (default: scene's)")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
-    r.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="change a scene value, e.g. --set solver.scheme=implicit "
-                   "--set 'grid.cell=[0.5, 0.5]' (repeatable; TOML values)")
-    r.set_defaults(func=_cmd_run)
-
-    f = sub.add_parser("fem", help="static small-strain FEM gravity reference (scikit-fem)")
-    _scene_arg(f, optional=True)
-    f.add_argument("--out", required=True)
-    f.add_argument("--set", action="append", metavar="KEY=VALUE", help="as for run")
-    f.set_defaults(func=_cmd_fem)
-
-    m = sub.add_parser("mc", help="Monte Carlo campaign on Dask (default: small campaign of "
-                       "the reference slope)")
-    _scene_arg(m, optional=True)
-    m.add_argument("-n", "--realizations", type=int, default=None,
-                   help="number of realizations (default: scene's [montecarlo] realizations)")
-    m.add_argument("--out", default="runs/mc", help="campaign directory (default runs/mc)")
-    m.add_argument("--workers", type=int, default=None, help="local worker processes")
-    m.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")
-    m.add_argument("--force", action="store_true", help="recompute finished realizations")
-    m.add_argument("--keep-vtk", default=None,
-                   help="VTK for the first k realizations (integer) or a list like 0,5,9")
-    m.add_argument("--quiet", action="store_true")
-    m.set_defaults(func=_cmd_mc)
-
-    fl = sub.add_parser("field", help="one random field on the material points (VTU + PNG)")
-    _scene_arg(fl, optional=True)
-    fl.add_argument("--seed", type=int, default=None)
-    fl.add_argument("--out", required=True)
-    fl.add_argument("--data", default=None, help="CSV x,y,value to condition on (kriging)")
-    fl.add_argument("--fit", default=None, help="CSV x,y,value: estimate theta_v, theta_h")
-    fl.set_defaults(func=_cmd_field)
-
-    rp = sub.add_parser("report", help="write report.html (one self-contained page) for a "
-                        "campaign directory; `mc` writes it at the end of every campaign")
-    rp.add_argument("campaign", metavar="DIR", help="campaign directory (holds summary.json)")
-    rp.set_defaults(func=_cmd_report)
+    sub = p.add_subparsers(dest="command", required=True, title="commands")
+    for add in (_add_run, _add_fem, _add_mc, _add_field, _add_report):
+        add(sub)
     return p
 
 
