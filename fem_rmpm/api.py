@@ -25,6 +25,7 @@ from tqdm import tqdm
 
 from .budget import check_budget
 from .explicit import run_explicit
+from .materials import invalid_points
 from .run import RunRecord, SimulationError
 from .fem import FemResult, solve_static
 from .grid import Grid, make_grid
@@ -76,10 +77,7 @@ def _check_point_strength(scene: Scene, pts: Particles, seed) -> None:
     steeper softening modulus h = (c_p - c_r) / softening_strain; the return mapping needs
     h < G (else the local problem snaps back).  Stop with a clear error otherwise."""
     s = pts.soil
-    finite = np.isfinite(s.cohesion_peak)
-    bad = finite & ~s.exponential & (np.where(finite, s.cohesion_peak - s.cohesion_residual, 0.0)
-                                     / s.softening_strain >= s.shear_modulus)
-    bad |= finite & ~(s.cohesion_peak > 0)
+    bad, _ = invalid_points(s)
     if bad.any():
         i = int(np.argmax(bad))
         raise SimulationError(

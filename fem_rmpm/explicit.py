@@ -37,7 +37,7 @@ import numpy as np
 
 from .grid import Grid
 from .locking import bbar_gradient, fbar_increment, host_cells
-from .material import hughes_winget_increment, small_strain_update, stress_update
+from .materials import hughes_winget_increment, small_strain_update, stress_update
 from .particles import Particles
 from .run import RunRecord, SimulationError, at_rest, check_points
 from .scene import Scene
@@ -175,9 +175,8 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                  w.touched, w.n_touched, w.p2, w.x_old)
     K.nodal_velocity(w.m, w.p2, grid.fixed, w.touched, w.n_touched)
     K.update_stress(pts.x, w.x_old, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.F,
-                    pts.log_strain, pts.plastic_shear_strain, pts.stress, pts.active,
-                    s.shear_modulus, s.bulk_modulus, s.cohesion_peak, s.cohesion_residual,
-                    s.softening_strain, s.exponential, dt, geostatic, gimp, lp, org, h, nx, ny,
+                    pts.log_strain, pts.state, pts.stress, pts.active,
+                    s.model, s.params, dt, geostatic, gimp, lp, org, h, nx, ny,
                     w.p2, org, grid.upper, w.out, w.W, w.ta, w.tb, w.tc, fbar, w.host, w.D,
                     w.cv, w.cvj)
     o = w.out
@@ -210,21 +209,21 @@ def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarr
     _, p2, _ = map_to_nodes(nodes, N, dN, mass, v, pts.stress[act] * 0, vol, gravity * 0, nn)
     v_nodes = np.where(grid.fixed, 0.0, p2 / np.where(m > _MASS_TOL, m, 1.0)[:, None])
     L = np.einsum("pak,pal->pkl", v_nodes[nodes], dN)          # velocity gradient
-    state = (pts.log_strain[act], pts.plastic_shear_strain[act], pts.soil.take(act))
+    state = (pts.log_strain[act], pts.state[act], pts.soil.take(act))
     host = host_cells(grid, pts.x[act]) if fbar else None      # cells before the move
     if geostatic:
         H = bbar_gradient(L * dt, vol, host, grid.n_cells) if fbar else L * dt
-        log_strain, gamma_p, tau = small_strain_update(H, *state)
+        log_strain, mstate, tau = small_strain_update(H, *state)
         dF, J = np.eye(2), 1.0
     else:
         dF = hughes_winget_increment(L, dt)
         if fbar:
             dF = fbar_increment(dF, vol, host, grid.n_cells)[0]
-        log_strain, gamma_p, tau = stress_update(dF, *state)
+        log_strain, mstate, tau = stress_update(dF, *state)
         J = np.linalg.det(dF)
     pts.x[act], pts.velocity[act], pts.volume[act] = x, v, vol * J
     pts.F[act] = dF @ pts.F[act]
-    pts.log_strain[act], pts.plastic_shear_strain[act] = log_strain, gamma_p
+    pts.log_strain[act], pts.state[act] = log_strain, mstate
     pts.stress[act] = tau * (pts.volume0[act] / pts.volume[act])[:, None]
     # motion as the grid sees it (FLIP keeps particle velocity modes the grid cannot see)
     speed2 = np.einsum("pk,pk->p", v_pic, v_pic)

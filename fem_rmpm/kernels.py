@@ -44,6 +44,9 @@ import math
 import numpy as np
 from numba import njit
 
+from .materials import registry
+from .materials.dispatch import point_dispatch
+
 __all__ = ["p2g", "nodal_solve", "g2p", "nodal_velocity", "update_stress",
            "q4_shape", "gimp_shape", "stress_update_points", "small_strain_update_points"]
 
@@ -418,71 +421,16 @@ def _trial_pass(dF, log_strain, active, ta, tb, tc, W):
 
 
 @_inline
-def _cohesion(gam, cp, cr, gs, expo):
-    """c(gamma_p) and dc/dgamma_p (material.cohesion) of a softening point (finite cp)."""
-    drop = cp - cr
-    if expo:
-        decay = math.exp(-gam / gs)
-        return cr + drop * decay, -drop / gs * decay
-    if gam < gs:
-        return cp - drop * gam / gs, -drop / gs
-    return cr, 0.0
+def _material_point(version, geostatic, model, w0, w1, w2, w3, ta, tb, e2, state, params, i):
+    """Trial log strain, then the point's model update (one dispatch on its model id).
 
-
-@_inline
-def _return_map(e0, e1, e2, e3, gam, G, K, cp, cr, gs, expo):
-    """Radial return of a trial log strain (material.return_map) for one point.
-    Returns ``(e0, e1, e2, e3, gamma_p, t0, t1, t2, t3)``."""
-    lam = K - 2 / 3 * G
-    vol = e0 + e1 + e2
-    t0 = 2 * G * e0 + lam * vol
-    t1 = 2 * G * e1 + lam * vol
-    t2 = 2 * G * e2 + lam * vol
-    t3 = 2 * G * e3
-    if not math.isfinite(cp):                       # linear elastic point
-        return e0, e1, e2, e3, gam, t0, t1, t2, t3
-    pm = (t0 + t1 + t2) / 3
-    s0 = t0 - pm
-    s1 = t1 - pm
-    s2 = t2 - pm
-    q = math.sqrt(0.5 * (s0 * s0 + s1 * s1 + s2 * s2) + t3 * t3)
-    c0, _ = _cohesion(gam, cp, cr, gs, expo)
-    if not q > c0 * (1 + 1e-12):
-        return e0, e1, e2, e3, gam, t0, t1, t2, t3
-    if expo:                                        # Newton from the perfectly plastic guess
-        dg = (q - c0) / G
-        for _ in range(40):
-            c, dc = _cohesion(gam + dg, cp, cr, gs, expo)
-            step = (q - G * dg - c) / (G + dc)
-            if step == 0.0:                         # fixed point: further passes change nothing
-                break
-            dg = dg + step
-    else:                                           # closed form, softening or residual branch
-        hs = (cp - cr) / gs
-        d1 = (q - c0) / (G - hs)
-        dg = d1 if (gam < gs and gam + d1 <= gs) else (q - cr) / G
-    scale = 1 - G * dg / q
-    vol3 = (e0 + e1 + e2) / 3
-    e0 = (e0 - vol3) * scale + vol3
-    e1 = (e1 - vol3) * scale + vol3
-    e2 = (e2 - vol3) * scale + vol3
-    e3 = e3 * scale
-    vol = e0 + e1 + e2
-    return (e0, e1, e2, e3, gam + dg, 2 * G * e0 + lam * vol, 2 * G * e1 + lam * vol,
-            2 * G * e2 + lam * vol, 2 * G * e3)
-
-
-@_inline
-def _material_point(geostatic, w0, w1, w2, w3, ta, tb, e2, gam, G, K, cp, cr, gs, expo):
-    """Trial log strain, then the return mapping, for one point.
-
-    Geostatic (material.small_strain_update): ``w`` holds the trial strain.
-    Finite strain (material.stress_update): ``w``, ``ta``, ``tb`` hold b_tr
-    (see :func:`_trial_b`).  Returns ``(e0, e1, e2, e3, gamma_p, t0, t1, t2, t3)``."""
+    Geostatic (small strain): ``w`` holds the trial strain.  Finite strain: ``w``,
+    ``ta``, ``tb`` hold b_tr (see :func:`_trial_b`).  Writes ``state[i]``; returns
+    ``(e0, e1, e2, e3, t0, t1, t2, t3)``."""
     if geostatic:
-        return _return_map(w0, w1, w2, w3, gam, G, K, cp, cr, gs, expo)
+        return point_dispatch(version, model, w0, w1, w2, w3, state, params, i)
     x0, x1, x3 = _log_sym2_from(w0, w1, w2, w3, ta, tb)
-    return _return_map(x0, x1, e2 + 0.0, x3, gam, G, K, cp, cr, gs, expo)
+    return point_dispatch(version, model, x0, x1, e2 + 0.0, x3, state, params, i)
 
 
 @_inline
@@ -577,53 +525,82 @@ def _kinematics_pass(x_old, active, log_strain, F, vol, dt, geostatic, gimp, lp,
         _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, F, vol, W, ta, tb, tc)
 
 
-@_kernel
-def _finish_pass(x, v, mass, vol, vol0, log_strain, gamma_p, stress, active,
-                 G, K, cp, cr, gs, expo, geostatic, W, ta, tb, lo, hi, out):
-    """Pass 2: trial strain, return mapping, Cauchy stress ``tau V0 / V``; ``out`` (4,) =
-    max P-wave speed sqrt(M / rho), max |v|, number of non-finite points, number
-    outside [lo, hi] (for the next CFL step and the guards)."""
-    c2max = 0.0
-    vmax2 = 0.0
-    n_bad = 0
-    n_out = 0
-    for i in range(x.shape[0]):
-        if not active[i]:
-            continue
-        r = _material_point(geostatic, W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i],
-                            log_strain[i, 2], gamma_p[i], G[i], K[i], cp[i], cr[i], gs[i],
-                            expo[i])
-        log_strain[i, 0] = r[0]
-        log_strain[i, 1] = r[1]
-        log_strain[i, 2] = r[2]
-        log_strain[i, 3] = r[3]
-        gamma_p[i] = r[4]
-        V = vol[i]
-        ratio = vol0[i] / V
-        s0 = r[5] * ratio
-        s1 = r[6] * ratio
-        s2 = r[7] * ratio
-        s3 = r[8] * ratio
-        stress[i, 0] = s0
-        stress[i, 1] = s1
-        stress[i, 2] = s2
-        stress[i, 3] = s3
-        # for the next CFL step (max of sqrt = sqrt of max) and the guards
-        c2max = max(c2max, (K[i] + 4.0 / 3.0 * G[i]) * V / mass[i])
-        v0 = v[i, 0]
-        v1 = v[i, 1]
-        s2v = v0 * v0 + v1 * v1
-        vmax2 = max(vmax2, s2v)
-        y0 = x[i, 0]
-        y1 = x[i, 1]
-        if not math.isfinite(y0 + y1 + s2v + s0 + s1 + s2 + s3):
-            n_bad += 1
-        elif y0 < lo[0] or y1 < lo[1] or y0 > hi[0] or y1 > hi[1]:
-            n_out += 1
-    out[0] = math.sqrt(c2max)
-    out[1] = math.sqrt(vmax2)
-    out[2] = n_bad
-    out[3] = n_out
+def _make_finish_pass(version):
+    """The finish pass compiled for one registry version (see :mod:`fem_rmpm.materials.dispatch`)."""
+    @_kernel
+    def _finish_pass(x, v, mass, vol, vol0, log_strain, state, stress, active,
+                     model, params, geostatic, W, ta, tb, lo, hi, out):
+        """Pass 2: trial strain, the model update, Cauchy stress ``tau V0 / V``; ``out`` (4,) =
+        max P-wave speed sqrt(M / rho), max |v|, number of non-finite points, number
+        outside [lo, hi] (for the next CFL step and the guards)."""
+        c2max = 0.0
+        vmax2 = 0.0
+        n_bad = 0
+        n_out = 0
+        for i in range(x.shape[0]):
+            if not active[i]:
+                continue
+            r = _material_point(version, geostatic, model[i], W[i, 0], W[i, 1], W[i, 2],
+                                W[i, 3], ta[i], tb[i], log_strain[i, 2], state, params, i)
+            log_strain[i, 0] = r[0]
+            log_strain[i, 1] = r[1]
+            log_strain[i, 2] = r[2]
+            log_strain[i, 3] = r[3]
+            V = vol[i]
+            ratio = vol0[i] / V
+            s0 = r[4] * ratio
+            s1 = r[5] * ratio
+            s2 = r[6] * ratio
+            s3 = r[7] * ratio
+            stress[i, 0] = s0
+            stress[i, 1] = s1
+            stress[i, 2] = s2
+            stress[i, 3] = s3
+            # for the next CFL step (max of sqrt = sqrt of max) and the guards
+            c2max = max(c2max, (params[i, 1] + 4.0 / 3.0 * params[i, 0]) * V / mass[i])
+            v0 = v[i, 0]
+            v1 = v[i, 1]
+            s2v = v0 * v0 + v1 * v1
+            vmax2 = max(vmax2, s2v)
+            y0 = x[i, 0]
+            y1 = x[i, 1]
+            if not math.isfinite(y0 + y1 + s2v + s0 + s1 + s2 + s3):
+                n_bad += 1
+            elif y0 < lo[0] or y1 < lo[1] or y0 > hi[0] or y1 > hi[1]:
+                n_out += 1
+        out[0] = math.sqrt(c2max)
+        out[1] = math.sqrt(vmax2)
+        out[2] = n_bad
+        out[3] = n_out
+    return _finish_pass
+
+
+def _make_material_pass(version):
+    """The vectorised material update (tests) for one registry version."""
+    @_jit
+    def _material_pass(geostatic, W, ta, tb, log_strain, state, model, params):
+        n = W.shape[0]
+        eps = np.empty((n, 4))
+        st = state.copy()
+        tau = np.empty((n, 4))
+        for i in range(n):
+            r = _material_point(version, geostatic, model[i], W[i, 0], W[i, 1], W[i, 2],
+                                W[i, 3], ta[i], tb[i], log_strain[i, 2], st, params, i)
+            eps[i, 0], eps[i, 1], eps[i, 2], eps[i, 3] = r[0], r[1], r[2], r[3]
+            tau[i, 0], tau[i, 1], tau[i, 2], tau[i, 3] = r[4], r[5], r[6], r[7]
+        return eps, st, tau
+    return _material_pass
+
+
+_BY_VERSION: dict = {}
+
+
+def material_kernels():
+    """``(finish_pass, material_pass)`` compiled for the current model registry."""
+    v = registry.version()
+    if v not in _BY_VERSION:
+        _BY_VERSION[v] = (_make_finish_pass(v), _make_material_pass(v))
+    return _BY_VERSION[v]
 
 
 @_kernel
@@ -687,8 +664,8 @@ def _fbar_apply_pass(active, log_strain, F, vol, geostatic, host, D, cv, cvj, W,
         _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, F, vol, W, ta, tb, tc)
 
 
-def update_stress(x, x_old, v, mass, vol, vol0, F, log_strain, gamma_p, stress, active,
-                  G, K, cp, cr, gs, expo, dt, geostatic, gimp, lp, org, h, nx, ny, vn,
+def update_stress(x, x_old, v, mass, vol, vol0, F, log_strain, state, stress, active,
+                  model, params, dt, geostatic, gimp, lp, org, h, nx, ny, vn,
                   lo, hi, out, W, ta, tb, tc, fbar=False, host=None, D=None, cv=None,
                   cvj=None):
     """Stage 3c: velocity gradient from the re-mapped nodal velocities ``vn`` at the
@@ -713,25 +690,11 @@ def update_stress(x, x_old, v, mass, vol, vol0, F, log_strain, gamma_p, stress, 
         if not geostatic:
             np.log(ta, out=ta)
             np.arctanh(tb, out=tb)
-    _finish_pass(x, v, mass, vol, vol0, log_strain, gamma_p, stress, active,
-                 G, K, cp, cr, gs, expo, geostatic, W, ta, tb, lo, hi, out)
+    material_kernels()[0](x, v, mass, vol, vol0, log_strain, state, stress, active,
+                          model, params, geostatic, W, ta, tb, lo, hi, out)
 
 
 # --------------------------------------------------------------------- vectorised material (tests)
-@_jit
-def _material_pass(geostatic, W, ta, tb, log_strain, gamma_p, G, K, cp, cr, gs, expo):
-    n = W.shape[0]
-    eps = np.empty((n, 4))
-    gam = np.empty(n)
-    tau = np.empty((n, 4))
-    for i in range(n):
-        r = _material_point(geostatic, W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i],
-                            log_strain[i, 2], gamma_p[i], G[i], K[i], cp[i], cr[i], gs[i], expo[i])
-        eps[i, 0], eps[i, 1], eps[i, 2], eps[i, 3], gam[i] = r[0], r[1], r[2], r[3], r[4]
-        tau[i, 0], tau[i, 1], tau[i, 2], tau[i, 3] = r[5], r[6], r[7], r[8]
-    return eps, gam, tau
-
-
 def stress_update_points(dF, log_strain, gamma_p, soil):
     """material.stress_update through the kernels' Hencky passes: ``dF`` (n, 2, 2),
     ``log_strain`` (n, 4), ``gamma_p`` (n,), ``soil`` a SoilPoints.  Returns
@@ -748,7 +711,7 @@ def stress_update_points(dF, log_strain, gamma_p, soil):
         _trial_pass(D, ls, act, ta, tb, tc, W)
         np.log(ta, out=ta)
         np.arctanh(tb, out=tb)
-    return _material_pass(False, W, ta, tb, ls, np.asarray(gamma_p, float), *_soil(soil))
+    return _points_update(False, W, ta, tb, ls, gamma_p, soil)
 
 
 def small_strain_update_points(grad_du, log_strain, gamma_p, soil):
@@ -759,9 +722,12 @@ def small_strain_update_points(grad_du, log_strain, gamma_p, soil):
     W = np.stack([e[:, 0] + L[:, 0, 0], e[:, 1] + L[:, 1, 1], e[:, 2] + 0.0,
                   e[:, 3] + 0.5 * (L[:, 0, 1] + L[:, 1, 0])], axis=1)
     z = np.zeros(n)
-    return _material_pass(True, W, z, z, e, np.asarray(gamma_p, float), *_soil(soil))
+    return _points_update(True, W, z, z, e, gamma_p, soil)
 
 
-def _soil(s):
-    return (s.shear_modulus, s.bulk_modulus, s.cohesion_peak, s.cohesion_residual,
-            s.softening_strain, s.exponential)
+def _points_update(geostatic, W, ta, tb, log_strain, state, soil):
+    flat = np.ndim(state) == 1
+    st = np.ascontiguousarray(np.asarray(state, float).reshape(len(W), -1))
+    eps, st, tau = material_kernels()[1](geostatic, W, ta, tb, log_strain, st, soil.model,
+                                         np.ascontiguousarray(soil.params))
+    return eps, (st[:, 0] if flat else st), tau

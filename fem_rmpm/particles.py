@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .grid import Grid, points_in_polygon
-from .material import SoilPoints
+from .materials import MaterialPoints, cohesion, material_points, new_state
 from .scene import Scene, SceneError
 
 __all__ = ["Particles", "seed_particles", "density"]
@@ -39,8 +39,9 @@ class Particles:
     volume: np.ndarray                 # (n,) current
     log_strain: np.ndarray             # (n, 4) elastic Hencky strain [xx, yy, zz, xy]
     stress: np.ndarray                 # (n, 4) Cauchy stress [xx, yy, zz, xy] kPa
-    plastic_shear_strain: np.ndarray   # (n,)
-    soil: SoilPoints                   # constants per point
+    state: np.ndarray                  # (n, S) state variables of the material models;
+    #                                    column 0: plastic shear strain invariant (-)
+    soil: MaterialPoints               # model id and parameter row per point
     soil_id: np.ndarray                # (n,) index into scene.soils
     cell0: np.ndarray                  # (n,) host cell at seeding
     active: np.ndarray                 # (n,) False once frozen at the grid edge
@@ -64,10 +65,18 @@ class Particles:
         return self.x - self.x0 + self.u_geostatic
 
     @property
+    def plastic_shear_strain(self) -> np.ndarray:
+        """(n,) plastic shear strain invariant (-): a view of ``state[:, 0]``."""
+        return self.state[:, 0]
+
+    @plastic_shear_strain.setter
+    def plastic_shear_strain(self, value: np.ndarray) -> None:
+        self.state[:, 0] = value
+
+    @property
     def cohesion(self) -> np.ndarray:
         """Current cohesion c(gamma_p) per point, kPa (inf for elastic points)."""
-        from .material import cohesion
-        return cohesion(self.plastic_shear_strain, self.soil)[0]
+        return cohesion(self.state, self.soil)
 
     def copy(self) -> "Particles":
         arrays = {k: (v.copy() if isinstance(v, np.ndarray) else v)
@@ -127,22 +136,10 @@ def seed_particles(scene: Scene, grid: Grid) -> Particles:
     volume = np.concatenate(vols)
     sp = scene.soils
     rho = np.array([density(s.unit_weight, scene.scene.gravity) for s in sp])[soil_id]
-
-    def per_point(attr):
-        return np.array([float(getattr(s, attr)) for s in sp])[soil_id]
-
-    elastic = np.array([s.model == "linear_elastic" for s in sp])[soil_id]
-    soil = SoilPoints(
-        shear_modulus=np.array([s.shear_modulus for s in sp])[soil_id],
-        bulk_modulus=np.array([s.bulk_modulus for s in sp])[soil_id],
-        cohesion_peak=np.where(elastic, np.inf, per_point("cohesion_peak")),
-        cohesion_residual=np.where(elastic, np.inf, per_point("cohesion_residual")),
-        softening_strain=per_point("softening_strain"),
-        exponential=np.array([s.softening == "exponential" for s in sp])[soil_id],
-    )
+    soil = material_points(sp, soil_id)
     n = len(x)
     return Particles(x=x.copy(), x0=x.copy(), velocity=np.zeros((n, 2)), mass=rho * volume,
                      volume0=volume.copy(), volume=volume.copy(), log_strain=np.zeros((n, 4)),
-                     stress=np.zeros((n, 4)), plastic_shear_strain=np.zeros(n), soil=soil,
+                     stress=np.zeros((n, 4)), state=new_state(soil), soil=soil,
                      soil_id=soil_id, cell0=np.concatenate(cells), active=np.ones(n, dtype=bool),
                      half_width=np.concatenate(half))

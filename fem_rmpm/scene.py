@@ -20,6 +20,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from . import materials
+from .materials.points import soil_values
+
 __all__ = [
     "SceneError", "Scene", "SceneInfo", "GridSpec", "BoundarySpec", "SoilSpec",
     "BedrockSpec", "PrescribedSpec", "RandomFieldSpec", "SolverSpec", "MonteCarloSpec", "OutputSpec",
@@ -35,8 +38,6 @@ class SceneError(ValueError):
 
 
 BOUNDARY_KINDS = ("fixed", "roller", "free")
-MODELS = ("linear_elastic", "von_mises_softening")
-SOFTENING_LAWS = ("linear", "exponential")
 SCHEMES = ("explicit", "implicit")
 SHAPES = ("standard", "gimp")
 EDGE_POLICIES = ("freeze", "stop")
@@ -68,6 +69,10 @@ class BoundarySpec:
 
 @dataclass(frozen=True)
 class SoilSpec:
+    """One ``[[soil]]`` table.  The keys of its material model (``model``, see
+    :mod:`fem_rmpm.materials`) are validated against the model's declared parameters;
+    those of the built-in von Mises model are fields here, those of other models are
+    kept in ``parameters`` (read any of them with :meth:`value`)."""
     polygon: tuple[tuple[float, float], ...]
     unit_weight: float                  # kN/m3
     youngs_modulus: float               # kPa
@@ -80,6 +85,13 @@ class SoilSpec:
     softening: str = "linear"
     softening_strain: float = 0.5       # plastic shear strain (-) at which c reaches residual (linear)
     #                                     or the e-folding strain (exponential)
+    parameters: tuple = ()              # ((name, value), ...) of other models' parameters
+
+    def value(self, name: str, default: Any = None) -> Any:
+        """The value of parameter ``name`` of this soil's model (or ``default``)."""
+        if name in _SOIL_FIELDS:
+            return getattr(self, name)
+        return dict(self.parameters).get(name, default)
 
     @property
     def shear_modulus(self) -> float:
@@ -94,6 +106,11 @@ class SoilSpec:
         """Oedometric (P-wave) modulus M = E(1-nu)/((1+nu)(1-2nu)), kPa."""
         nu = self.poisson_ratio
         return self.youngs_modulus * (1 - nu) / ((1 + nu) * (1 - 2 * nu))
+
+
+_SOIL_FIELDS = ("polygon", "unit_weight", "youngs_modulus", "poisson_ratio", "name",
+                "points_per_cell_dir", "model", "cohesion_peak", "cohesion_residual", "softening",
+                "softening_strain")
 
 
 @dataclass(frozen=True)
@@ -212,9 +229,6 @@ _RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "soil.youngs_modulus": (0, 1e12, False, True),
     "soil.poisson_ratio": (-1, 0.5, False, False),
     "soil.points_per_cell_dir": (1, 8, True, True),
-    "soil.cohesion_peak": (0, math.inf, False, True),
-    "soil.cohesion_residual": (0, math.inf, False, True),
-    "soil.softening_strain": (0, math.inf, False, False),
     "random_field.cov": (0, 10, True, True),
     "random_field.theta_v": (0, math.inf, False, False),
     "random_field.anisotropy": (0, math.inf, False, False),
@@ -243,7 +257,6 @@ _RANGES: dict[str, tuple[float, float, bool, bool]] = {
 _CHOICES: dict[str, tuple[str, ...]] = {
     "boundary.left": BOUNDARY_KINDS, "boundary.right": BOUNDARY_KINDS,
     "boundary.bottom": BOUNDARY_KINDS, "boundary.top": BOUNDARY_KINDS,
-    "soil.model": MODELS, "soil.softening": SOFTENING_LAWS,
     "random_field.distribution": ("normal", "lognormal"),
     "random_field.correlation": ("markov_elliptic", "markov_separable"),
     "random_field.property": ("cohesion_peak",),
@@ -344,6 +357,34 @@ def _build(source: str, section: str, cls: type, data: Any) -> Any:
     return cls(**kwargs)
 
 
+def _build_soil(source: str, data: Any) -> SoilSpec:
+    """A ``[[soil]]`` table: the common keys as any section, the keys of its material
+    model against the model's declared parameters (unit, range or choices)."""
+    if not isinstance(data, dict):
+        raise _fail(source, "soil", f"expected a table, got {type(data).__name__}")
+    name = data.get("model", "linear_elastic")
+    if name not in materials.names():
+        raise _fail(source, "soil.model", f"value {name!r} not allowed; allowed: "
+                    + " | ".join(repr(n) for n in materials.names()))
+    declared = {p.name: p for p in materials.model(name).PARAMETERS}
+    unknown = sorted(set(data) - set(_SOIL_FIELDS) - set(declared))
+    if unknown:
+        allowed = sorted(set(_SOIL_FIELDS[:7]) | set(declared))
+        raise _fail(source, f"soil.{unknown[0]}", f"unknown key for model {name!r}; allowed "
+                    f"keys: {', '.join(allowed)}")
+    for key, p in declared.items():
+        if key in data:
+            err = p.check(data[key])
+            if err:
+                raise _fail(source, f"soil.{key}", f"{err}; allowed: {p.allowed()}")
+        elif p.default is None and key not in _SOIL_FIELDS:
+            raise _fail(source, f"soil.{key}", f"missing required key of model {name!r}; "
+                        f"allowed: {p.allowed()}")
+    extra = tuple(sorted((k, v) for k, v in data.items() if k not in _SOIL_FIELDS))
+    spec = _build(source, "soil", SoilSpec, {k: v for k, v in data.items() if k in _SOIL_FIELDS})
+    return dataclasses.replace(spec, parameters=extra)
+
+
 def _check_scene(s: Scene) -> None:
     src = s.source
     gx, gy = s.grid.size
@@ -365,20 +406,10 @@ def _check_scene(s: Scene) -> None:
         raise _fail(src, "soil.name", f"soil names must be unique, got {names}")
     for i, so in enumerate(s.soils):
         key = f"soil[{i}]"
-        if so.model == "von_mises_softening":
-            if not math.isfinite(so.cohesion_peak) or not math.isfinite(so.cohesion_residual):
-                raise _fail(src, f"{key}.cohesion_peak", "von_mises_softening needs finite "
-                            "cohesion_peak and cohesion_residual (kPa)")
-            if so.cohesion_residual > so.cohesion_peak:
-                raise _fail(src, f"{key}.cohesion_residual", f"{so.cohesion_residual:g} kPa "
-                            f"exceeds cohesion_peak {so.cohesion_peak:g} kPa; allowed: "
-                            "0 < cohesion_residual <= cohesion_peak")
-            h = (so.cohesion_peak - so.cohesion_residual) / so.softening_strain
-            if so.softening == "linear" and h >= so.shear_modulus:
-                raise _fail(src, f"{key}.softening_strain", f"softening modulus "
-                            f"{h:g} kPa >= shear modulus {so.shear_modulus:g} kPa makes the "
-                            "local return mapping snap back; allowed: softening_strain > "
-                            f"{(so.cohesion_peak - so.cohesion_residual) / so.shear_modulus:g}")
+        check = getattr(materials.model(so.model), "check", None)
+        bad = check(soil_values(so)) if check else None
+        if bad:
+            raise _fail(src, f"{key}.{bad[0]}", bad[1])
         if s.grid.file is None:
             x0, y0 = s.grid.origin
             for (px, py) in so.polygon:
@@ -411,7 +442,7 @@ def scene_from_dict(data: dict, source: str = "<dict>") -> Scene:
     if "soil" not in data:
         raise _fail(source, "soil", "missing required section [[soil]]")
     soils_raw = data["soil"] if isinstance(data["soil"], list) else [data["soil"]]
-    soils = tuple(_build(source, "soil", SoilSpec, d) for d in soils_raw)
+    soils = tuple(_build_soil(source, d) for d in soils_raw)
     rock_raw = data.get("bedrock", [])
     rock_raw = rock_raw if isinstance(rock_raw, list) else [rock_raw]
     presc_raw = data.get("prescribed", [])
@@ -460,7 +491,8 @@ def scene_to_dict(scene: Scene) -> dict:
     out: dict[str, Any] = {}
     for name in ("scene", "grid", "boundary", "solver", "montecarlo", "output"):
         out[name] = dataclasses.asdict(getattr(scene, name))
-    out["soil"] = [dataclasses.asdict(s) for s in scene.soils]
+    out["soil"] = [{**{k: v for k, v in dataclasses.asdict(s).items() if k != "parameters"},
+                    **dict(s.parameters)} for s in scene.soils]
     if scene.bedrock:
         out["bedrock"] = [dataclasses.asdict(b) for b in scene.bedrock]
     if scene.prescribed:

@@ -50,7 +50,7 @@ from fem_rmpm import kernels as K  # noqa: E402
 from fem_rmpm.explicit import (Workspace, explicit_step, map_to_nodes, run_explicit,  # noqa: E402
                                solve_on_mesh, stable_time_step)
 from fem_rmpm.grid import make_grid  # noqa: E402
-from fem_rmpm.material import hughes_winget_increment, stress_update  # noqa: E402
+from fem_rmpm.materials import hughes_winget_increment, stress_update  # noqa: E402
 from fem_rmpm.particles import seed_particles  # noqa: E402
 from fem_rmpm.scene import load_scene, with_values  # noqa: E402
 from fem_rmpm.shape import shape_at_points  # noqa: E402
@@ -137,10 +137,10 @@ def stages_numba(scene, grid, pts, geostatic, steps):
                 np.log(w.ta, out=w.ta)
                 np.arctanh(w.tb, out=w.tb)
         t.append(clk())
-        K._finish_pass(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.log_strain,
-                       pts.plastic_shear_strain, pts.stress, pts.active, s.shear_modulus,
-                       s.bulk_modulus, s.cohesion_peak, s.cohesion_residual, s.softening_strain,
-                       s.exponential, geostatic, w.W, w.ta, w.tb, grid.origin, grid.upper, w.out)
+        K.material_kernels()[0](pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0,
+                                pts.log_strain, pts.state, pts.stress, pts.active, s.model,
+                                s.params, geostatic, w.W, w.ta, w.tb, grid.origin, grid.upper,
+                                w.out)
         t.append(clk())
         for k, a, b in zip(names, t[:-1], t[1:]):
             T[k].append((b - a) / pts.n * 1e9)
@@ -149,7 +149,7 @@ def stages_numba(scene, grid, pts, geostatic, steps):
 
 def stages_numpy(scene, grid, pts, geostatic, steps):
     """Median ns per particle of the numpy reference step's stages."""
-    from fem_rmpm.material import small_strain_update
+    from fem_rmpm.materials import small_strain_update
     g = np.array(scene.gravity_vector)
     sv = scene.solver
     names = ("1 shape (locate + Q4)", "1 map_to_nodes", "2 solve_on_mesh",

@@ -1,0 +1,29 @@
+"""Soil models at a material point: one protocol, one module per model, a registry.
+
+To add a model: write a module following :mod:`.protocol` (parameters with units and
+ranges, state variables, a numpy ``update`` and a numba ``point_update``) and register
+it — one line below, or ``register(module)`` from anywhere (e.g. a test).  The scene
+validation of ``[[soil]]``, the explicit kernels (through :mod:`.dispatch`) and the
+implicit scheme's complex-step tangent then use it; no kernel, scheme or scene code
+changes.
+"""
+from __future__ import annotations
+
+from . import linear_elastic, von_mises
+from .hencky import (exp_sym2, hencky_stress, hughes_winget_increment, kirchhoff_stress,
+                     log_sym2, return_map, small_strain_update, spatial_tangent, sqrt_j2,
+                     stress_update)
+from .points import cohesion, invalid_points, material_points, new_state, soil_values
+from .protocol import ELASTIC_COLUMNS, MaterialPoints, Parameter
+from .registry import model, model_id, models, names, register, version
+
+__all__ = ["MaterialPoints", "Parameter", "ELASTIC_COLUMNS", "register", "model", "model_id",
+           "models", "names", "version", "material_points", "new_state", "soil_values", "cohesion",
+           "invalid_points",
+           "exp_sym2", "log_sym2", "hughes_winget_increment", "hencky_stress",
+           "kirchhoff_stress", "sqrt_j2", "return_map", "stress_update", "small_strain_update",
+           "spatial_tangent"]
+
+# the registry: one line per model (the order gives the model ids)
+register(linear_elastic)
+register(von_mises)

@@ -1,0 +1,44 @@
+"""One dispatch on the model id for the explicit kernels, generated from the registry.
+
+``point_dispatch(version, model, e0, e1, e2, e3, state, params, i)`` calls the
+``point_update`` of model number ``model`` (see :mod:`.protocol`).  It is a numba
+``overload`` whose body (an if-chain over the registered models) is written when a
+kernel calling it is compiled, so a model registered anywhere — a new module, or a test
+— runs in the kernels without any kernel code changing.
+
+Why the ``version`` argument (:func:`.registry.version`): numba compiles the chain into
+the calling kernel and caches that kernel on disk (``cache=True``: no recompilation in
+the next process).  A kernel that uses the dispatch is made by a factory closing over
+the version number (:func:`fem_rmpm.kernels.material_kernels`): numba's cache key
+includes a closure's values, and the overload sees ``version`` as a literal, so a new
+model or an edited model file gives a new key and one fresh compile (~1 s), never a
+stale chain.  An unknown id returns NaN (caught by the run's non-finite guard).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba.extending import overload
+
+from . import registry
+
+__all__ = ["point_dispatch"]
+
+
+def point_dispatch(version, model, e0, e1, e2, e3, state, params, i):
+    """Placeholder called from numba code only (see the module docstring)."""
+    raise NotImplementedError("point_dispatch runs inside numba kernels only")
+
+
+@overload(point_dispatch)
+def _point_dispatch(version, model, e0, e1, e2, e3, state, params, i):
+    fns = {f"_f{k}": m.point_update for k, m in enumerate(registry.models())}
+    lines = ["def impl(version, model, e0, e1, e2, e3, state, params, i):"]
+    for k, name in enumerate(fns):
+        lines.append(f"    {'if' if k == 0 else 'elif'} model == {k}:")
+        lines.append(f"        r = {name}(e0, e1, e2, e3, state, params, i)")
+    lines.append("    else:")
+    lines.append("        r = (np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan)")
+    lines.append("    return r")
+    scope = dict(fns, np=np)
+    exec("\n".join(lines), scope)    # generated from the registry above, no user input
+    return scope["impl"]

@@ -1,0 +1,67 @@
+"""Per-point material arrays from the scene's soils, and the per-point model hooks."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import registry
+from .protocol import MaterialPoints
+
+__all__ = ["material_points", "soil_values", "cohesion", "invalid_points", "new_state"]
+
+
+def soil_values(spec) -> dict:
+    """``{name: value}`` of a ``[[soil]]`` table's model parameters, plus ``shear_modulus``
+    and ``bulk_modulus`` (kPa) (``spec`` a :class:`fem_rmpm.scene.SoilSpec`)."""
+    m = registry.model(spec.model)
+    out = {"shear_modulus": spec.shear_modulus, "bulk_modulus": spec.bulk_modulus}
+    for p in m.PARAMETERS:
+        out[p.name] = spec.value(p.name, p.default)
+    return out
+
+
+def material_points(soils, soil_id: np.ndarray) -> MaterialPoints:
+    """:class:`MaterialPoints` of points whose soil (index into ``soils``) is ``soil_id``."""
+    ids = [registry.model_id(s.model) for s in soils]
+    rows = np.full((len(soils), registry.n_parameters(ids)), math.nan)
+    for k, s in enumerate(soils):
+        m = registry.model(ids[k])
+        vals = soil_values(s)
+        rows[k, 0], rows[k, 1] = vals["shear_modulus"], vals["bulk_modulus"]
+        for j, p in enumerate(m.PARAMETERS):
+            rows[k, 2 + j] = p.encode(vals[p.name])
+    return MaterialPoints(np.array(ids, dtype=np.int64)[soil_id], rows[soil_id])
+
+
+def new_state(soil: MaterialPoints) -> np.ndarray:
+    """Zero state (n, S) for the models of ``soil`` (S >= 1: plastic shear strain first)."""
+    return np.zeros((len(soil), registry.n_state(np.unique(soil.model))))
+
+
+def cohesion(state: np.ndarray, soil: MaterialPoints) -> np.ndarray:
+    """Current strength per point (kPa) from the models' ``cohesion`` hook; inf where a
+    model has none (linear elastic)."""
+    state = state[:, None] if state.ndim == 1 else state
+    out = np.full(len(soil), math.inf)
+    for k in np.unique(soil.model):
+        m = registry.model(int(k))
+        if hasattr(m, "cohesion"):
+            idx = soil.model == k
+            out[idx] = m.cohesion(state[idx, 0], soil.params[idx])[0]
+    return out
+
+
+def invalid_points(soil: MaterialPoints) -> tuple[np.ndarray, str]:
+    """Points whose parameter values their model rejects (its ``invalid_points`` hook):
+    a mask (n,) and the first such model's reason ("" if none)."""
+    bad = np.zeros(len(soil), dtype=bool)
+    reason = ""
+    for k in np.unique(soil.model):
+        m = registry.model(int(k))
+        if hasattr(m, "invalid_points"):
+            idx = np.nonzero(soil.model == k)[0]
+            b, why = m.invalid_points(soil.params[idx])
+            bad[idx] = b
+            reason = reason or (why if b.any() else "")
+    return bad, reason

@@ -1,0 +1,148 @@
+"""The material protocol: what a soil model module declares, and the per-point arrays.
+
+A model is one module with these attributes (see :mod:`.von_mises` for a full one):
+
+``NAME`` (str)
+    the ``[[soil]] model`` value of the scene file, e.g. ``"von_mises_softening"``.
+``PARAMETERS`` (tuple of :class:`Parameter`)
+    the model's own constants, read from the ``[[soil]]`` table by name and checked
+    against the declared unit, range or choices by the scene validation.  Every model
+    also has the Hencky elasticity of the soil (``youngs_modulus``, ``poisson_ratio`` in the
+    scene, stored as shear and bulk modulus), so a point's parameter row is
+    ``[shear_modulus, bulk_modulus, *PARAMETERS]`` (kPa, then the declared units; a
+    choice is stored as its index).
+``STATE`` (tuple of str)
+    the names of the internal variables per point; a plastic model's first one is the
+    ``plastic_shear_strain`` invariant (outputs and measures read column 0).
+``update(eps_tr, state, params) -> (eps, state, tau)``
+    vectorised numpy reference: trial elastic log strain (n, 4) ``[xx, yy, zz, xy]``,
+    state (n, S) and parameter rows (n, P) to the elastic log strain, the new state and
+    the Kirchhoff stress (n, 4) in kPa.  It must work on complex input: the implicit
+    scheme's consistent tangent is its complex-step derivative.
+``point_update(e0, e1, e2, e3, state, params, i) -> (e0, e1, e2, e3, t0, t1, t2, t3)``
+    the same update for point ``i`` as a numba function (``njit(inline="always")``),
+    writing ``state[i, :]``; the explicit kernels call it through one dispatch on the
+    point's model id (:mod:`.dispatch`).  It must allocate nothing.
+
+Optional: ``check(values) -> (key, message) | None`` (scene check of one ``[[soil]]``
+across parameters; ``values`` maps the parameter names, ``shear_modulus`` and
+``bulk_modulus`` to numbers), ``invalid_points(params) -> (mask, reason)`` (the same for
+per-point values, e.g. drawn by a random field) and ``cohesion(state, params)`` (the
+current strength per point in kPa for outputs; default: infinite).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from . import registry
+
+__all__ = ["Parameter", "MaterialPoints", "ELASTIC_COLUMNS"]
+
+ELASTIC_COLUMNS = ("shear_modulus", "bulk_modulus")   # columns 0 and 1 of every row
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One constant of a model: ``[[soil]]`` key, unit, allowed range or choices."""
+    name: str
+    unit: str
+    low: float = -math.inf
+    high: float = math.inf
+    low_inclusive: bool = False
+    high_inclusive: bool = False
+    default: Any = None                  # None: required when the model is chosen
+    choices: tuple[str, ...] = ()        # a string parameter; stored as its index
+    allow_inf: bool = False              # inf is a value (e.g. no strength)
+    absent: float = math.nan             # its value at points of models without it
+    description: str = ""
+
+    def allowed(self) -> str:
+        """What a scene file may give, for an error message."""
+        if self.choices:
+            return " | ".join(repr(c) for c in self.choices)
+        lo = "[" if self.low_inclusive else "("
+        hi = "]" if self.high_inclusive else ")"
+        return f"a number in {lo}{self.low:g}, {self.high:g}{hi} ({self.unit})"
+
+    def check(self, value: Any) -> str | None:
+        """None if ``value`` is allowed, else what is wrong (for the scene error)."""
+        if self.choices:
+            return None if value in self.choices else f"value {value!r} not allowed"
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return f"expected a number, got {value!r}"
+        v = float(value)
+        if math.isnan(v) or (math.isinf(v) and not self.allow_inf):
+            return f"expected a finite number, got {value!r}"
+        bad = (v < self.low or (v == self.low and not self.low_inclusive) or v > self.high
+               or (v == self.high and not self.high_inclusive))
+        return f"value {value!r} out of range" if bad else None
+
+    def encode(self, value: Any) -> float:
+        """The number stored in a parameter row."""
+        return float(self.choices.index(value)) if self.choices else float(value)
+
+
+@dataclass(init=False, eq=False)
+class MaterialPoints:
+    """Material of n points: model id (n,) int64, parameter rows (n, P) float64.
+
+    Named read access, ``soil.cohesion_peak``: the column of that parameter for the
+    points whose model declares it, the parameter's ``absent`` value elsewhere.  Named
+    keywords to the constructor set those columns (on a copy of ``params``), so
+    ``dataclasses.replace(soil, cohesion_peak=...)`` or ``soil.replace(...)`` give a
+    copy with new values.
+    """
+    model: np.ndarray
+    params: np.ndarray
+
+    def __init__(self, model: np.ndarray, params: np.ndarray, **named: np.ndarray):
+        self.model = np.asarray(model, dtype=np.int64)
+        self.params = np.array(params, dtype=float, ndmin=2)
+        for name, values in named.items():
+            self._set(name, values)
+
+    # -- named access
+    def _columns(self, name: str):
+        """[(mask of the points, column)] of the models that declare ``name``."""
+        if name in ELASTIC_COLUMNS:
+            return [(slice(None), ELASTIC_COLUMNS.index(name))]
+        out = []
+        for k in np.unique(self.model):
+            col = registry.column(int(k), name)
+            if col is not None:
+                out.append((self.model == k, col))
+        return out
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        p = registry.parameter(name)
+        if p is None and name not in ELASTIC_COLUMNS:
+            raise AttributeError(f"no material parameter {name!r}")
+        out = np.full(len(self.model), math.nan if p is None else p.absent)
+        for mask, col in self._columns(name):
+            out[mask] = self.params[mask, col]
+        return out
+
+    def _set(self, name: str, values) -> None:
+        values = np.broadcast_to(np.asarray(values, dtype=float), self.model.shape)
+        for mask, col in self._columns(name):
+            self.params[mask, col] = values[mask]
+
+    def replace(self, **named) -> "MaterialPoints":
+        """A copy with the named parameters set to the given per-point values."""
+        return MaterialPoints(self.model.copy(), self.params.copy(), **named)
+
+    def take(self, idx) -> "MaterialPoints":
+        return MaterialPoints(self.model[idx], self.params[idx])
+
+    def __len__(self) -> int:
+        return len(self.model)
+
+    def __repr__(self) -> str:
+        names = [registry.model(int(k)).NAME for k in np.unique(self.model)]
+        return f"MaterialPoints(n={len(self.model)}, models={names})"

@@ -1,0 +1,190 @@
+"""Von Mises soil with cohesion softening (``model = "von_mises_softening"``).
+
+* **Yield** ``sqrt(J2(tau)) <= c`` (undrained shear strength ``c``).  The return is
+  radial in the deviatoric plane of log-strain space (exact for isotropic Hencky
+  elasticity; eigenvectors never needed).
+* **Softening.**  ``c`` falls from ``cohesion_peak`` to ``cohesion_residual`` with
+  the plastic shear strain invariant ``gamma_p``, linearly (default) reaching the
+  residual at ``gamma_p = softening_strain``, or exponentially
+  ``c = c_r + (c_p - c_r) exp(-gamma_p / softening_strain)``.
+* **Plastic shear strain invariant** ``gamma_p = sum over steps of
+  sqrt(2 d_eps_p : d_eps_p)`` (d_eps_p the plastic log-strain increment).  It is the
+  work conjugate of ``sqrt(J2)`` (``tau : d_eps_p = c d_gamma_p``) and equals the
+  engineering plastic shear strain in simple shear.
+
+Parameter row ``[G, K, cohesion_peak, cohesion_residual, softening_strain, softening]``
+(kPa, kPa, kPa, kPa, -, 0 linear / 1 exponential); state ``[plastic_shear_strain]``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .hencky import hencky_stress, sqrt_j2
+from .protocol import Parameter
+
+NAME = "von_mises_softening"
+PARAMETERS = (
+    Parameter("cohesion_peak", "kPa", 0.0, math.inf, False, True, None, allow_inf=True,
+              absent=math.inf, description="undrained shear strength sqrt(J2) at yield, peak"),
+    Parameter("cohesion_residual", "kPa", 0.0, math.inf, False, True, None, allow_inf=True,
+              absent=math.inf, description="strength after softening"),
+    Parameter("softening_strain", "-", 0.0, math.inf, False, False, 0.5,
+              description="plastic shear strain at which c reaches the residual (linear) "
+                          "or the e-folding strain (exponential)"),
+    Parameter("softening", "-", default="linear", choices=("linear", "exponential"),
+              description="softening law"),
+)
+STATE = ("plastic_shear_strain",)
+_CP, _CR, _GS, _EXP = 2, 3, 4, 5      # columns of the parameter row
+
+
+def check(values: dict):
+    """Scene check across parameters: finite strengths, residual <= peak, and a linear
+    softening modulus below G (else the local return mapping snaps back)."""
+    cp, cr, gs = values["cohesion_peak"], values["cohesion_residual"], values["softening_strain"]
+    G = values["shear_modulus"]
+    if not math.isfinite(cp) or not math.isfinite(cr):
+        return "cohesion_peak", ("von_mises_softening needs finite cohesion_peak and "
+                                 "cohesion_residual (kPa)")
+    if cr > cp:
+        return "cohesion_residual", (f"{cr:g} kPa exceeds cohesion_peak {cp:g} kPa; allowed: "
+                                     "0 < cohesion_residual <= cohesion_peak")
+    h = (cp - cr) / gs
+    if values["softening"] == "linear" and h >= G:
+        return "softening_strain", (f"softening modulus {h:g} kPa >= shear modulus {G:g} kPa "
+                                    "makes the local return mapping snap back; allowed: "
+                                    f"softening_strain > {(cp - cr) / G:g}")
+    return None
+
+
+def invalid_points(params: np.ndarray):
+    """Per-point version of :func:`check` for values drawn per point (a random field
+    scales peak and residual together): mask of the points and the reason."""
+    cp, cr, gs, G = params[:, _CP], params[:, _CR], params[:, _GS], params[:, 0]
+    bad = (params[:, _EXP] == 0) & ((cp - cr) / gs >= G)
+    bad |= ~(cp > 0)
+    return bad, ("its linear softening modulus is not below the shear modulus "
+                 "(or it is not positive)")
+
+
+def cohesion(gamma_p, params: np.ndarray):
+    """Cohesion c(gamma_p) (kPa) and its slope dc/dgamma_p (kPa) per point."""
+    cp, cr, gs = params[:, _CP], params[:, _CR], params[:, _GS]
+    drop = np.subtract(cp, cr, out=np.zeros(np.shape(cp)), where=np.isfinite(cp))
+    decay = np.exp(-gamma_p / gs)
+    c_exp, dc_exp = cr + drop * decay, -drop / gs * decay
+    on_slope = gamma_p.real < gs
+    c_lin = np.where(on_slope, cp - drop * gamma_p / gs, cr)
+    dc_lin = np.where(on_slope, -drop / gs, 0.0)
+    expo = params[:, _EXP] == 1
+    return np.where(expo, c_exp, c_lin), np.where(expo, dc_exp, dc_lin)
+
+
+def _plastic_multiplier(q_tr, gamma_p, params):
+    """Solve sqrt(J2_tr) - G dgamma = c(gamma_p + dgamma) for dgamma >= 0 (plastic points)."""
+    G = params[:, 0]
+    cp, cr, gs = params[:, _CP], params[:, _CR], params[:, _GS]
+    expo = params[:, _EXP] == 1
+    # linear law: closed form on the softening branch, then on the residual branch
+    h = (cp - cr) / gs
+    c0, _ = cohesion(gamma_p, params)
+    d1 = (q_tr - c0) / (G - h)
+    on_slope = (gamma_p.real < gs) & ((gamma_p + d1).real <= gs)
+    d_lin = np.where(on_slope, d1, (q_tr - cr) / G)
+    # exponential law: Newton from the elastic-perfectly-plastic guess (monotone from the right)
+    d_exp = (q_tr - c0) / G
+    if np.any(expo):
+        for _ in range(40):
+            c, dc = cohesion(gamma_p + d_exp, params)
+            r = q_tr - G * d_exp - c
+            d_exp = d_exp + r / (G + dc)
+    return np.where(expo, d_exp, d_lin)
+
+
+def update(eps_tr: np.ndarray, state: np.ndarray, params: np.ndarray):
+    """Radial return of trial log strains (n, 4); returns (eps_e, state, tau)."""
+    G, K = params[:, 0], params[:, 1]
+    gamma_p = state[:, 0]
+    tau_tr = hencky_stress(eps_tr, G, K)
+    q_tr = sqrt_j2(tau_tr)
+    c0, _ = cohesion(gamma_p, params)
+    plastic = q_tr.real > c0.real * (1 + 1e-12)
+    if not np.any(plastic):
+        return eps_tr, state, tau_tr
+    idx = np.nonzero(plastic)[0]
+    sp = params[idx]
+    dgam = _plastic_multiplier(q_tr[idx], gamma_p[idx], sp)
+    scale = 1 - sp[:, 0] * dgam / q_tr[idx]                 # s = s_tr * scale
+    e = eps_tr[idx]
+    vol3 = (e[:, 0] + e[:, 1] + e[:, 2]) / 3
+    dev = e.copy()
+    dev[:, :3] -= vol3[:, None]
+    e_new = dev * scale[:, None]
+    e_new[:, :3] += vol3[:, None]
+    eps = eps_tr.copy()
+    eps[idx] = e_new
+    st = state.copy()
+    st[idx, 0] = gamma_p[idx] + dgam
+    tau = tau_tr.copy()
+    tau[idx] = hencky_stress(e_new, sp[:, 0], sp[:, 1])
+    return eps, st, tau
+
+
+# --------------------------------------------------------------- numba point function
+@njit(inline="always", fastmath=False, error_model="numpy")
+def _cohesion(gam, cp, cr, gs, expo):
+    """c(gamma_p) and dc/dgamma_p (as :func:`cohesion`) of one point."""
+    drop = cp - cr
+    if expo:
+        decay = math.exp(-gam / gs)
+        return cr + drop * decay, -drop / gs * decay
+    if gam < gs:
+        return cp - drop * gam / gs, -drop / gs
+    return cr, 0.0
+
+
+@njit(inline="always", fastmath=False, error_model="numpy")
+def point_update(e0, e1, e2, e3, state, params, i):
+    """:func:`update` for point ``i`` (writes ``state[i, 0]``)."""
+    G, K = params[i, 0], params[i, 1]
+    cp, cr, gs, expo = params[i, _CP], params[i, _CR], params[i, _GS], params[i, _EXP] == 1.0
+    gam = state[i, 0]
+    lam = K - 2 / 3 * G
+    vol = e0 + e1 + e2
+    t0 = 2 * G * e0 + lam * vol
+    t1 = 2 * G * e1 + lam * vol
+    t2 = 2 * G * e2 + lam * vol
+    t3 = 2 * G * e3
+    pm = (t0 + t1 + t2) / 3
+    s0 = t0 - pm
+    s1 = t1 - pm
+    s2 = t2 - pm
+    q = math.sqrt(0.5 * (s0 * s0 + s1 * s1 + s2 * s2) + t3 * t3)
+    c0, _ = _cohesion(gam, cp, cr, gs, expo)
+    if not q > c0 * (1 + 1e-12):
+        return e0, e1, e2, e3, t0, t1, t2, t3
+    if expo:                                        # Newton from the perfectly plastic guess
+        dg = (q - c0) / G
+        for _ in range(40):
+            c, dc = _cohesion(gam + dg, cp, cr, gs, expo)
+            step = (q - G * dg - c) / (G + dc)
+            if step == 0.0:                         # fixed point: further passes change nothing
+                break
+            dg = dg + step
+    else:                                           # closed form, softening or residual branch
+        hs = (cp - cr) / gs
+        d1 = (q - c0) / (G - hs)
+        dg = d1 if (gam < gs and gam + d1 <= gs) else (q - cr) / G
+    scale = 1 - G * dg / q
+    vol3 = (e0 + e1 + e2) / 3
+    e0 = (e0 - vol3) * scale + vol3
+    e1 = (e1 - vol3) * scale + vol3
+    e2 = (e2 - vol3) * scale + vol3
+    e3 = e3 * scale
+    vol = e0 + e1 + e2
+    state[i, 0] = gam + dg
+    return (e0, e1, e2, e3, 2 * G * e0 + lam * vol, 2 * G * e1 + lam * vol,
+            2 * G * e2 + lam * vol, 2 * G * e3)
