@@ -35,10 +35,11 @@ from .output import PvdSeries, write_grid, write_json
 from .particles import Particles, seed_particles, soil_cells
 from .plots import plot_profile, plot_snapshots
 from .random_field import sample_point_property
+from .rundir import RunDirError, check_run_dir, run_files, start_run_dir
 from .scene import Scene, SceneError, load_scene, scene_to_dict, with_value
 
 __all__ = ["load_scene", "with_value", "prepare", "run", "fem", "RunResult", "SceneError",
-           "SimulationError"]
+           "SimulationError", "RunDirError"]
 
 
 @dataclass
@@ -95,17 +96,21 @@ def _run_scheme(scene, grid, pts, on_output, progress):
 
 
 def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
-        progress: bool = False, vtk: bool | None = None, figures: bool | None = None) -> RunResult:
+        progress: bool = False, vtk: bool | None = None, figures: bool | None = None,
+        force: bool = False) -> RunResult:
     """Run one realization; write VTK, PNG and ``summary.json`` to ``out`` if given.
 
-    Raises :class:`SimulationError` when the run cannot go on (after writing what
-    it has, with the error, to ``out``).
+    ``out`` must be a new or empty directory, or ``force=True`` replaces the run in it
+    (:mod:`fem_rmpm.rundir`: ``summary.json`` says ``"running"`` until the run's
+    output is complete).  Raises :class:`RunDirError` or :class:`BudgetError` (bad
+    input, nothing written) and :class:`SimulationError` when the run cannot go on
+    (after writing what it has, with the error, to ``out``).
     """
+    out = check_run_dir(out, force) if out is not None else None
     estimate = check_budget(scene)
     if progress:
         print(f"{scene.scene.name}: {estimate.describe()}", file=sys.stderr, flush=True)
     grid, pts = prepare(scene, seed)
-    out = Path(out) if out is not None else None
     vtk = scene.output.vtk if vtk is None else vtk
     figures = scene.output.png if figures is None else figures
     series = PvdSeries(out) if (out is not None and vtk) else None
@@ -117,7 +122,8 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
             series.add(t, p)
 
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
+        start_run_dir(out, {"scene": scene_to_dict(scene), "scene_file": scene.source,
+                            "seed": seed, "estimate": estimate.to_dict()})
         if vtk:
             write_grid(out / "grid.vtu", grid, np.nonzero(soil_cells(scene, grid) >= 0)[0])
     bar = _Bar(scene) if progress else None
@@ -137,12 +143,11 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
                                 scene.montecarlo.failure_displacement, grid.cell,
                                 rec.time if rec.stop_reason == "at rest" else None,
                                 snapshots=snapshots, grid=grid)
-    summary = _summary(scene, seed, pts, rec, measures)
-    summary["estimate"] = estimate.to_dict()
+    summary = {**_summary(scene, seed, pts, rec, measures), "estimate": estimate.to_dict()}
     if out is not None:
-        write_json(out / "summary.json", summary)
         if figures and snapshots and error is None:
             _figures(out, scene, grid, snapshots, measures)
+        write_json(out / "summary.json", {**summary, "files": run_files(out)})   # last
     if error is not None:
         raise error
     return RunResult(scene, seed, grid, pts, rec, measures, summary, out, snapshots)

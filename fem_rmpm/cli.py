@@ -74,7 +74,7 @@ def scene_from_args(a):
 
 def _cmd_run(a) -> int:
     scene = scene_from_args(a)
-    res = api.run(scene, out=a.out, seed=a.seed, progress=not a.quiet)
+    res = api.run(scene, out=a.out, seed=a.seed, progress=not a.quiet, force=a.force)
     s, m = res.summary, res.measures
     if s["stop_reason"] == "load applied":
         steps = f"{s['steps']} load steps (load factor 1)"
@@ -335,11 +335,14 @@ def _add_run(sub) -> None:
     r = _subcommand(sub, "run", "one realization (explicit or implicit MPM)",
                     "Run one realization of a scene: VTK time series, summary.json, figures.")
     _scene_arg(r, optional=True)
-    r.add_argument("--out", required=True, help="output directory (created)")
+    r.add_argument("--out", required=True, help="output directory: new or empty (created), "
+                   "or one holding a run with --force")
     r.add_argument("--seed", type=int, default=None,
                    help="random-field seed, an integer >= 0 (default: the scene's "
                    "[montecarlo] seed); no effect without a [random_field]")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--force", action="store_true",
+                   help="replace the run already in --out (default: refuse a non-empty directory)")
     r.add_argument("--set", action="append", metavar="KEY=VALUE", help=_SET_HELP)
     r.set_defaults(func=_cmd_run)
 

@@ -1,29 +1,57 @@
-"""Measures of a realization (DESIGN section 5), in the true (not grid) frame.
+"""Measures of a realization, taken on the *deposit* in the true (not grid) frame.
+
+**Which points count.**  Numerical debris must not move a risk number, so every
+measure below is taken over the *counted* points only (:func:`deposit_points`):
+
+1. a point frozen at the grid edge (``active = 0``) never counts (reason ``frozen``);
+2. the active points are binned by their current position into the cells of the
+   background grid; a cell holding at least one active point is *occupied*;
+3. occupied cells that touch (8-neighbour: sides or corners) form connected
+   bodies of material; a *body* holds at least ``min_body_fraction`` (default 1 %)
+   of the active points' current volume;
+4. a point counts when its cell belongs to a body; every other active point is
+   ``stray``: a point or a small group separated from every body by at least one
+   empty cell (debris thrown off or climbed away from the deposit).
+
+A continuous film, even one point thick (such as the run-up on the valley side),
+is part of the body it touches; a stray point is at least one empty cell away, so
+adding stray points beyond the deposit does not move the run-out.
+The largest connected group is always a body.  How many
+points were excluded and their initial volume (m2 per m), per reason, is reported as
+``excluded`` = ``{"frozen": {"points", "volume"}, "stray": {...}}`` and in the flat
+keys ``excluded_frozen_points``, ``excluded_frozen_volume``, ``excluded_stray_points``,
+``excluded_stray_volume``.
 
 Definitions (``d_p`` = distance point p moved since the end of the geostatic
 phase, ``X`` = true horizontal coordinate, pointing down-slope; threshold
-``failure_displacement`` from ``[montecarlo]``, default 0.5 m):
+``failure_displacement`` from ``[montecarlo]``, default 0.5 m; *sliding* = counted
+and ``d_p > threshold``):
 
-* ``sliding_area`` (m2 per m): total initial volume of the points with ``d_p > threshold``.
-* ``failed``: ``sliding_area > 0`` — at least one material point moved more than the threshold.
-* ``runout_distance`` (m): ``max X`` of the points now minus ``max X`` at the start
-  (how far the toe front travelled beyond the original toe), >= 0.
+* ``sliding_area`` (m2 per m): total initial volume of the sliding points.
+* ``failed``: ``sliding_area > 0`` — at least one counted point moved more than the threshold.
+* ``runout_distance`` (m): ``max X`` of the counted points now minus ``max X`` of all
+  points at the start (how far the deposit's front travelled beyond the original
+  toe), >= 0.
 * ``retrogression_distance`` (m): ``X_crest - min X0`` over the sliding points,
   where ``X_crest`` is the initial true-horizontal position of the slope crest
   (the most down-slope point of the top soil layer in the grid frame), >= 0: how
   far behind the original crest the failure reached.
+* ``max_displacement`` (m): the largest ``d_p`` of a counted point.
 * ``time_to_rest`` (s): simulated time at which the run stopped at rest (None otherwise).
 * ``slip_surface_height`` (m): how high above the base (grid y, normal to the
   bedrock) the failure surface lies, averaged over the failed part of the slope:
-  per column of one cell (initial x), the highest initial y of a point that stayed
-  (``d_p <= threshold``) below the lowest sliding point; 0 where the whole column slid.
-  (The literature's xi = 48 case fails about a third of the depth above the base.)
+  per column of one cell (initial x), the highest initial y of a counted point that
+  stayed (``d_p <= threshold``) below the lowest sliding point; 0 where the whole
+  column slid.  (The literature's xi = 48 case fails about a third of the depth above
+  the base.)
 * ``intact_blocks``: at ``mechanism_time`` (default 3 s), the number of intact
   blocks the sliding mass has broken into: connected groups (4-neighbour cells of
   the grid) of at least 4 cells holding sliding points with ``gamma_p < 0.1``
   (the literature's "sub-blocks"; most for mid-range anisotropy).
-* ``sliding_area_early`` (m2): the sliding area at ``mechanism_time``: how fast it fails.
-* ``final_profile``: the surface (max Y per X bin of one cell width) now and at the start.
+* ``sliding_area_early`` (m2): the initial volume of the points moved more than the
+  threshold at ``mechanism_time`` (points frozen by the end excluded): how fast it fails.
+* ``final_profile``: the surface (max Y per X bin of one cell width) of the counted
+  points now; ``initial_profile`` that of all points at the start.
 """
 from __future__ import annotations
 
@@ -32,7 +60,9 @@ import numpy as np
 from .output import to_true_frame
 from .particles import Particles
 
-__all__ = ["compute_measures", "surface_profile"]
+__all__ = ["compute_measures", "surface_profile", "deposit_points", "MIN_BODY_FRACTION"]
+
+MIN_BODY_FRACTION = 0.01   #: a body holds at least this fraction of the active volume
 
 
 def surface_profile(X: np.ndarray, bin_width: float) -> list[tuple[float, float]]:
@@ -84,39 +114,86 @@ def intact_blocks(x: np.ndarray, x0: np.ndarray, gamma_p: np.ndarray, threshold:
     return int((sizes >= min_cells).sum())
 
 
+def deposit_points(x: np.ndarray, volume: np.ndarray, active: np.ndarray, origin,
+                   cell, min_body_fraction: float = MIN_BODY_FRACTION
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Which points count (see the module docstring): returns ``(counted, stray)``, two
+    (n,) bool masks; frozen points (``~active``) are in neither.  ``x`` (n, 2) current
+    grid-frame positions (m), ``volume`` (n,) current volumes (m2 per m), ``origin``
+    and ``cell`` (2,) the grid's corner and cell size (m)."""
+    from scipy import ndimage
+    n = len(x)
+    counted, stray = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    act = np.nonzero(active)[0]
+    if len(act) == 0:
+        return counted, stray
+    ij = np.floor((x[act] - np.asarray(origin, float)) / np.asarray(cell, float)).astype(np.int64)
+    ij -= ij.min(axis=0)
+    vol = np.zeros(tuple(ij.max(axis=0) + 1))
+    np.add.at(vol, (ij[:, 0], ij[:, 1]), volume[act])
+    occupied = np.zeros(vol.shape, dtype=bool)
+    occupied[ij[:, 0], ij[:, 1]] = True
+    labels, nlab = ndimage.label(occupied, structure=np.ones((3, 3), dtype=bool))
+    body_vol = np.bincount(labels.ravel(), vol.ravel(), minlength=nlab + 1)
+    is_body = body_vol >= min_body_fraction * volume[act].sum()
+    is_body[1 + int(np.argmax(body_vol[1:]))] = True          # the largest always counts
+    is_body[0] = False
+    inside = is_body[labels[ij[:, 0], ij[:, 1]]]
+    counted[act[inside]] = True
+    stray[act[~inside]] = True
+    return counted, stray
+
+
+def _excluded(pts: Particles, stray: np.ndarray) -> dict:
+    frozen = ~pts.active
+    out = {}
+    for why, mask in (("frozen", frozen), ("stray", stray)):
+        out[why] = {"points": int(mask.sum()), "volume": float(pts.volume0[mask].sum())}
+    return out
+
+
 def compute_measures(pts: Particles, frame_angle_deg: float, threshold: float,
                      cell: np.ndarray, time_to_rest: float | None, snapshots=None,
                      grid=None, mechanism_time: float = 3.0) -> dict:
-    """All measures of DESIGN section 5 as a plain dict (see module docstring).
+    """All measures of a realization as a plain dict (see the module docstring).
 
     ``snapshots`` [(t, x, gamma_p)] and ``grid`` give the mechanism measures at
     ``mechanism_time`` (s; the snapshot nearest to it); without them they are None.
+    The deposit is binned on ``grid`` (or on cells of size ``cell`` from the origin).
     """
+    origin = grid.origin if grid is not None else np.zeros(2)
+    counted, stray = deposit_points(pts.x, pts.volume, pts.active, origin, cell)
     X0 = to_true_frame(pts.x0, frame_angle_deg)
-    X = to_true_frame(pts.x, frame_angle_deg)
+    X = to_true_frame(pts.x[counted], frame_angle_deg)
     d = np.linalg.norm(pts.x - pts.x0, axis=1)
-    sliding = d > threshold
+    moved = d > threshold
+    sliding = counted & moved
     crest = to_true_frame(crest_position(pts, float(cell[1]))[None], frame_angle_deg)[0]
     retro = float(max(0.0, crest[0] - X0[sliding, 0].min())) if sliding.any() else 0.0
     early_area = blocks = None
     if snapshots and grid is not None:
         t_snap = np.array([t for t, *_ in snapshots])
         _, xs, gs = snapshots[int(np.argmin(np.abs(t_snap - mechanism_time)))]
-        moved = np.linalg.norm(xs - pts.x0, axis=1) > threshold
-        early_area = float(pts.volume0[moved].sum())
+        early = (np.linalg.norm(xs - pts.x0, axis=1) > threshold) & pts.active
+        early_area = float(pts.volume0[early].sum())
         blocks = intact_blocks(xs, pts.x0, gs, threshold, grid.origin, grid.cell, grid.shape)
+    excluded = _excluded(pts, stray)
+    front = float(X[:, 0].max()) if len(X) else float(X0[:, 0].max())
     return {
         "failed": bool(sliding.any()),
-        "slip_surface_height": slip_surface_height(pts.x0, sliding, float(cell[0])),
+        "slip_surface_height": slip_surface_height(pts.x0[counted], sliding[counted],
+                                                   float(cell[0])),
         "intact_blocks": blocks,
         "sliding_area_early": early_area,
         "mechanism_time": mechanism_time,
         "sliding_area": float(pts.volume0[sliding].sum()),
-        "runout_distance": float(max(0.0, X[:, 0].max() - X0[:, 0].max())),
+        "runout_distance": float(max(0.0, front - X0[:, 0].max())),
         "retrogression_distance": retro,
-        "max_displacement": float(d.max(initial=0.0)),
+        "max_displacement": float(d[counted].max(initial=0.0)),
         "time_to_rest": time_to_rest,
         "failure_displacement": threshold,
+        "excluded": excluded,
+        **{f"excluded_{why}_{k}": v for why, e in excluded.items() for k, v in e.items()},
         "final_profile": surface_profile(X, float(np.min(cell))),
         "initial_profile": surface_profile(X0, float(np.min(cell))),
     }

@@ -152,3 +152,74 @@ def test_run_ends_cleanly_when_every_point_has_left_the_grid(meshes, tmp_path):
     assert s["stop_reason"] == "all points left the grid" and s["status"] == "ok"
     assert s["frozen_points"]["count"] == res.particles.n
     assert s["simulated_time"] < 3.0
+
+
+def _with_copies(pts, idx):
+    """``pts`` with copies of the points ``idx`` appended (all per-point arrays)."""
+    import dataclasses
+    n = pts.n
+    kw = {}
+    for f in dataclasses.fields(pts):
+        v = getattr(pts, f.name)
+        if f.name == "soil":
+            kw[f.name] = v.take(np.r_[np.arange(n), idx])
+        elif isinstance(v, np.ndarray) and len(v) == n:
+            kw[f.name] = np.concatenate([v, v[idx]])
+        else:
+            kw[f.name] = v
+    return type(pts)(**kw)
+
+
+def test_runout_ignores_frozen_and_stray_points(meshes):
+    """Issue 12 acceptance 1: a slid deposit, then one point frozen at the top edge of the
+    grid far beyond it and four stray points 3 m beyond its front (one or two cells apart,
+    as debris climbing the valley side).  The run-out moves by no more than one cell
+    (achieves 0 m) and the five points are counted as excluded, with their volume."""
+    scene, grid, pts = _slope(meshes)
+    a = math.radians(20.0)
+    pts.x[:, 0] += 4.0 * (pts.x0[:, 0] > 20.0)             # a slide of the lower 40 m by 4 m
+    clean = compute_measures(pts, 20.0, 0.5, grid.cell, None, grid=grid)
+    assert clean["excluded_stray_points"] == 0 and clean["excluded_frozen_points"] == 0
+    front = int(np.argmax(pts.x[:, 0] * math.cos(a) + pts.x[:, 1] * math.sin(a)))
+    debris = _with_copies(pts, np.full(5, front))
+    n = pts.n
+    debris.x[n] = [grid.upper[0] - 1e-9, grid.upper[1]]     # frozen at the top edge
+    debris.active[n] = False
+    for k in range(4):                                      # 3 m beyond, 0.3-0.6 m apart
+        debris.x[n + 1 + k] = pts.x[front] + [3.0 + 0.3 * k + 0.3 * (k > 1), 0.2 * k]
+    m = compute_measures(debris, 20.0, 0.5, grid.cell, None, grid=grid)
+    assert abs(m["runout_distance"] - clean["runout_distance"]) <= float(grid.cell[0])
+    assert m["excluded"]["frozen"] == {"points": 1, "volume": float(pts.volume0[front])}
+    assert m["excluded_stray_points"] == 4
+    assert m["excluded_stray_volume"] == pytest.approx(4 * pts.volume0[front], rel=1e-12)
+    assert m["sliding_area"] == clean["sliding_area"]
+    # the old definition (max X over every point) would have moved by > 2.8 m
+    X_all = debris.x[:, 0] * math.cos(a) + debris.x[:, 1] * math.sin(a)
+    X0 = pts.x0[:, 0] * math.cos(a) + pts.x0[:, 1] * math.sin(a)
+    assert X_all.max() - X0.max() > clean["runout_distance"] + 2.8
+
+
+def test_a_film_touching_the_deposit_counts(meshes):
+    """A continuous film one point thick (run-up) touching the deposit is part of it."""
+    scene, grid, pts = _slope(meshes)
+    clean = compute_measures(pts, 20.0, 0.5, grid.cell, None, grid=grid)
+    a = math.radians(20.0)
+    front = int(np.argmax(pts.x[:, 0] * math.cos(a) + pts.x[:, 1] * math.sin(a)))
+    film = _with_copies(pts, np.full(8, front))
+    for k in range(8):                                      # 0.2 m apart: cells touch
+        film.x[pts.n + k] = pts.x[front] + [0.2 * (k + 1), 0.0]
+    m = compute_measures(film, 20.0, 0.5, grid.cell, None, grid=grid)
+    assert m["excluded_stray_points"] == 0
+    assert m["runout_distance"] == pytest.approx(clean["runout_distance"] + 1.6 * math.cos(a),
+                                                  abs=1e-9)
+
+
+def test_summary_reports_excluded_points(meshes, tmp_path):
+    """summary.json carries the excluded points per reason; frozen ones equal the run's
+    frozen points."""
+    api.run(_falling_block(meshes, "freeze"), out=tmp_path / "o")
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    ex = s["measures"]["excluded"]
+    assert ex["frozen"]["points"] == s["frozen_points"]["count"] > 0
+    assert s["measures"]["excluded_frozen_points"] == ex["frozen"]["points"]
+    assert ex["frozen"]["volume"] > 0 and ex["stray"]["points"] >= 0

@@ -76,7 +76,7 @@ def run_realization(task: dict) -> dict:
     try:
         vtk_dir = task.get("vtk_dir")
         res = api.run(task["scene"], out=vtk_dir, seed=rec["seed"], progress=False,
-                      vtk=vtk_dir is not None, figures=vtk_dir is not None)
+                      vtk=vtk_dir is not None, figures=vtk_dir is not None, force=True)
     except Exception as exc:       # noqa: BLE001 - every failure is data, recorded
         msg = str(exc) if isinstance(exc, SimulationError) else f"{type(exc).__name__}: {exc}"
         rec.update(status="failed", error=" ".join(msg.split()) or type(exc).__name__,
