@@ -36,7 +36,7 @@ from .particles import Particles, seed_particles, soil_cells
 from .plots import plot_profile, plot_snapshots
 from .random_field import sample_point_property
 from .rundir import RunDirError, check_run_dir, run_files, start_run_dir
-from .scene import Scene, SceneError, load_scene, scene_to_dict, with_value
+from .scene import Scene, SceneError, check_seed, load_scene, scene_to_dict, with_value
 
 __all__ = ["load_scene", "with_value", "prepare", "run", "fem", "RunResult", "SceneError",
            "SimulationError", "RunDirError"]
@@ -57,6 +57,7 @@ class RunResult:
 
 def prepare(scene: Scene, seed: int | None = None) -> tuple[Grid, Particles]:
     """Grid and seeded material points; with a random field, the realization ``seed``."""
+    check_seed(seed)
     check_budget(scene)                        # refuse before allocating (BudgetError)
     grid = make_grid(scene)
     pts = seed_particles(scene, grid)
@@ -107,6 +108,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     (after writing what it has, with the error, to ``out``).
     """
     out = check_run_dir(out, force) if out is not None else None
+    check_seed(seed)
     estimate = check_budget(scene)
     if progress:
         print(f"{scene.scene.name}: {estimate.describe()}", file=sys.stderr, flush=True)
@@ -183,6 +185,8 @@ def _figures(out, scene, grid, snapshots, measures):
 def fem(scene: Scene, out: str | Path | None = None) -> FemResult:
     """Static small-strain FEM reference (scikit-fem); writes ``fem.vtu`` and a summary."""
     t0 = time.perf_counter()
+    if out is not None:
+        check_run_dir(out, force=True)          # only refuses a file
     check_budget(scene)
     res = solve_static(scene)
     if out is not None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +28,7 @@ __all__ = [
     "SceneError", "Scene", "SceneInfo", "GridSpec", "BoundarySpec", "SoilSpec",
     "BedrockSpec", "PrescribedSpec", "RandomFieldSpec", "SolverSpec", "MonteCarloSpec", "OutputSpec",
     "load_scene", "scene_from_dict", "with_value", "with_values", "scene_to_dict",
+    "check_seed", "polygon_problem",
 ]
 
 
@@ -227,7 +229,7 @@ _RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "scene.frame_angle_deg": (-90, 90, False, False),
     "soil.unit_weight": (0, 1e3, False, True),
     "soil.youngs_modulus": (0, 1e12, False, True),
-    "soil.poisson_ratio": (-1, 0.5, False, False),
+    "soil.poisson_ratio": (0, 0.5, True, False),   # auxetic (nu < 0) soils are refused
     "soil.points_per_cell_dir": (1, 8, True, True),
     "random_field.cov": (0, 10, True, True),
     "random_field.theta_v": (0, math.inf, False, False),
@@ -385,8 +387,68 @@ def _build_soil(source: str, data: Any) -> SoilSpec:
     return dataclasses.replace(spec, parameters=extra)
 
 
+def check_seed(seed, option: str = "--seed") -> int | None:
+    """A random-field seed: None (the scene's) or an integer in [0, 2**63 - 1]."""
+    if seed is None:
+        return None
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
+        raise SceneError(f"{option} {seed}: [seed] not allowed; allowed: an integer in "
+                         "[0, 2^63 - 1] (numpy SeedSequence entropy)")
+    return seed
+
+
+def polygon_problem(poly) -> str | None:
+    """What is wrong with a polygon [(x, y), ...] (m), or None: a repeated point, zero
+    area (collinear points), or two edges that cross or touch (a bow-tie).  A last
+    point equal to the first (an explicitly closed ring) is allowed."""
+    import numpy as np
+    p = np.asarray(poly, dtype=float)
+    if len(p) > 3 and np.array_equal(p[0], p[-1]):
+        p = p[:-1]
+    scale = max(float(np.ptp(p, axis=0).max()), 1e-300)
+    q = np.roll(p, -1, axis=0)
+    short = np.linalg.norm(q - p, axis=1) <= 1e-12 * scale
+    if short.any():
+        i = int(np.argmax(short))
+        return f"point {(i + 1) % len(p) + 1} ({p[(i + 1) % len(p)][0]:g}, {p[(i + 1) % len(p)][1]:g}) " \
+               "repeats the point before it"
+    a, b = p[:, None, :], q[:, None, :]            # edge i: a -> b;  edge j: c -> d
+    c, d = p[None, :, :], q[None, :, :]
+
+    def orient(u, v, w):
+        return np.sign((v[..., 0] - u[..., 0]) * (w[..., 1] - u[..., 1])
+                       - (v[..., 1] - u[..., 1]) * (w[..., 0] - u[..., 0]))
+    cross = (orient(a, b, c) * orient(a, b, d) <= 0) & (orient(c, d, a) * orient(c, d, b) <= 0)
+    for k in (0, 1):                               # bounding boxes overlap
+        cross &= (np.minimum(a[..., k], b[..., k]) <= np.maximum(c[..., k], d[..., k])) & \
+                 (np.minimum(c[..., k], d[..., k]) <= np.maximum(a[..., k], b[..., k]))
+    n = len(p)
+    i, j = np.triu_indices(n, k=2)
+    keep = ~((i == 0) & (j == n - 1))              # adjacent through the closing edge
+    hit = cross[i[keep], j[keep]]
+    if hit.any():
+        e1, e2 = int(i[keep][hit][0]), int(j[keep][hit][0])
+        return (f"is self-intersecting: edge {e1 + 1} (from point {e1 + 1}) crosses or touches "
+                f"edge {e2 + 1} (from point {e2 + 1}); a bow-tie cannot be filled")
+    area = 0.5 * float(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]))
+    if abs(area) <= 1e-12 * scale * scale:
+        return "has zero area (its points are collinear)"
+    return None
+
+
+def _check_polygons(s: Scene) -> None:
+    for base, items in (("soil", s.soils), ("bedrock", s.bedrock), ("prescribed", s.prescribed)):
+        for k, item in enumerate(items):
+            what = polygon_problem(item.polygon)
+            if what:
+                raise _fail(s.source, f"{base}[{k}].polygon", f"the polygon {what}; allowed: "
+                            "a simple polygon (edges meet only at their shared points), "
+                            "at least 3 distinct points, non-zero area (m)")
+
+
 def _check_scene(s: Scene) -> None:
     src = s.source
+    _check_polygons(s)
     gx, gy = s.grid.size
     if s.grid.file is None:
         if gx <= 0 or gy <= 0:
@@ -479,7 +541,7 @@ def load_scene(path: str | Path) -> Scene:
     if path.is_dir():
         raise SceneError(f"{source}: [] is a directory; allowed: a path to a TOML scene file")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))   # a UTF-8 BOM is accepted
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise SceneError(f"{source}: [] not valid TOML ({exc}); allowed: a TOML scene file "
                          "(see meshes/*.toml)") from None
@@ -511,6 +573,25 @@ def scene_to_dict(scene: Scene) -> dict:
     return clean(out)
 
 
+def _list_index(source: str, key: str, section: str, data: dict) -> tuple[str, int | None]:
+    """``soil`` -> ("soil", None); ``soil[1]`` -> ("soil", 1), checked against the scene."""
+    m = re.fullmatch(r"([a-z_]+)(?:\[([^\]]*)\])?", section)
+    base = m.group(1) if m else section.split("[")[0]
+    n = len(data.get(base, []))
+    allowed = (f"{base}.KEY (every table) or {base}[i].KEY with i = 0" +
+               (f"..{n - 1}" if n > 1 else "") if n else f"none: the scene has no [[{base}]]")
+    if base not in data:
+        raise _fail(source, key, f"the scene has no [[{base}]] table; allowed: {allowed}")
+    if m is None or m.group(2) is None:
+        if m is None or "[" in section:
+            raise _fail(source, key, f"malformed table index; allowed: {allowed}")
+        return base, None
+    if not m.group(2).isdigit() or int(m.group(2)) >= n:
+        raise _fail(source, key, f"no [[{base}]] table number {m.group(2)!r} (the scene has "
+                    f"{n}); allowed: {allowed}")
+    return base, int(m.group(2))
+
+
 def with_value(scene: Scene, key: str, value: Any) -> Scene:
     """Return a validated copy of ``scene`` with one value changed.
 
@@ -536,12 +617,7 @@ def with_values(scene: Scene, changes: dict[str, Any]) -> Scene:
         if not name:
             raise SceneError(f"{scene.source}: [{key}] expected a dotted key like 'solver.cfl'")
         if section.split("[")[0] in _LISTS:
-            base = section.split("[")[0]
-            if base not in data:
-                raise _fail(scene.source, key, "the scene has no such table")
-            idx = None
-            if "[" in section:
-                idx = int(section[section.index("[") + 1:section.index("]")])
+            base, idx = _list_index(scene.source, key, section, data)
             targets = data[base] if idx is None else [data[base][idx]]
             for t in targets:
                 t[name] = value
