@@ -29,7 +29,9 @@ from .random_field import (embedding_for, field_layout, field_values, fit_scales
 from .random_field.conditioning import resolve_data_path
 from .report import ReportError, write_report
 from .run import SimulationError
-from .scene import RandomFieldSpec, Scene, SceneError, load_scene, with_value, with_values
+from .rundir import output_dir_for
+from .scene import (RandomFieldSpec, Scene, SceneError, check_seed, load_scene, with_value,
+                    with_values)
 
 __all__ = ["main", "default_scene_path", "build_parser", "parse_settings", "summary_text",
            "campaign_cases", "InputError"]
@@ -268,37 +270,36 @@ def _cmd_field(a) -> int:
     t0 = time.perf_counter()
     scene, note = _field_scene(a)
     rf = scene.random_field
-    seed = scene.montecarlo.seed if getattr(a, "seed", None) is None else int(a.seed)
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    fit_text = _field_fit(a.fit, rf, out) if getattr(a, "fit", None) else ""
-    grid = make_grid(scene)
-    pts = seed_particles(scene, grid)
-    layout = field_layout(scene, grid)
-    emb = embedding_for(scene, layout)
-    path = resolve_data_path(scene, getattr(a, "data", None))
-    meas = read_measurements(path) if path is not None else None
-    values, mask = field_values(scene, grid, pts, seed, meas)
-    shown = _field_on_points(pts, values, mask)
-    write_field_vtu(out / "field.vtu", pts, shown)
-    title = (f"{scene.scene.name}: peak cohesion (kPa), {rf.distribution}, COV {rf.cov:g}, "
-             f"theta_v {rf.theta_v:g} m, xi = {rf.anisotropy:g}, seed {seed}"
-             + (f", conditioned on {len(meas.x)} data" if meas is not None else ""))
-    plot_realization(out / "field.png", scene, pts, shown, mask, title)
-    v = values[mask]
-    write_json(out / "field.json", {
-        "scene_file": scene.source, "seed": seed,
-        "random_field": {k: getattr(rf, k) for k in rf.__dataclass_fields__},
-        "field_cells": list(layout.shape), "field_cell_size": layout.cell.tolist(),
-        "embedding": list(emb.padded), "lambda_min": emb.lambda_min,
-        "lambda_min_over_max": emb.lambda_min / emb.lambda_max, "clipped": emb.clipped,
-        "cell_variance": emb.variance, "points": int(mask.sum()),
-        "min": float(v.min()), "mean": float(v.mean()), "max": float(v.max()),
-        "std": float(v.std()), "conditioned_on": None if meas is None else meas.source,
-        "wall_time": time.perf_counter() - t0})
-    print(_field_text(scene, seed, layout, emb, meas, v) + f"{note}{fit_text} Output: "
-          f"{out / 'field.vtu'}, {out / 'field.png'}, {out / 'field.json'} "
-          f"({time.perf_counter() - t0:.2f} s).")
+    seed = scene.montecarlo.seed if getattr(a, "seed", None) is None else check_seed(a.seed)
+    with output_dir_for(a.out) as out:          # bad input leaves no directory behind
+        fit_text = _field_fit(a.fit, rf, out) if getattr(a, "fit", None) else ""
+        grid = make_grid(scene)
+        pts = seed_particles(scene, grid)
+        layout = field_layout(scene, grid)
+        emb = embedding_for(scene, layout)
+        path = resolve_data_path(scene, getattr(a, "data", None))
+        meas = read_measurements(path) if path is not None else None
+        values, mask = field_values(scene, grid, pts, seed, meas)
+        shown = _field_on_points(pts, values, mask)
+        write_field_vtu(out / "field.vtu", pts, shown)
+        title = (f"{scene.scene.name}: peak cohesion (kPa), {rf.distribution}, COV {rf.cov:g}, "
+                 f"theta_v {rf.theta_v:g} m, xi = {rf.anisotropy:g}, seed {seed}"
+                 + (f", conditioned on {len(meas.x)} data" if meas is not None else ""))
+        plot_realization(out / "field.png", scene, pts, shown, mask, title)
+        v = values[mask]
+        write_json(out / "field.json", {
+            "scene_file": scene.source, "seed": seed,
+            "random_field": {k: getattr(rf, k) for k in rf.__dataclass_fields__},
+            "field_cells": list(layout.shape), "field_cell_size": layout.cell.tolist(),
+            "embedding": list(emb.padded), "lambda_min": emb.lambda_min,
+            "lambda_min_over_max": emb.lambda_min / emb.lambda_max, "clipped": emb.clipped,
+            "cell_variance": emb.variance, "points": int(mask.sum()),
+            "min": float(v.min()), "mean": float(v.mean()), "max": float(v.max()),
+            "std": float(v.std()), "conditioned_on": None if meas is None else meas.source,
+            "wall_time": time.perf_counter() - t0})
+        print(_field_text(scene, seed, layout, emb, meas, v) + f"{note}{fit_text} Output: "
+              f"{out / 'field.vtu'}, {out / 'field.png'}, {out / 'field.json'} "
+              f"({time.perf_counter() - t0:.2f} s).")
     return 0
 
 

@@ -19,20 +19,24 @@ another run or beside partial output.
 """
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import os
+import shutil
 from pathlib import Path
 
+from .errors import InputError
 from .scene import SceneError
 
-__all__ = ["RunDirError", "RUN_FILES", "check_run_dir", "start_run_dir", "run_files"]
+__all__ = ["RunDirError", "RUN_FILES", "check_run_dir", "start_run_dir", "run_files",
+           "output_dir_for"]
 
 #: File name patterns a run writes (and ``--force`` removes); ``.*.tmp*``: temporaries.
 RUN_FILES = ("summary.json", "particles.pvd", "particles_*.vtu", "grid.vtu", "fem.vtu",
              "plastic_shear_strain.png", "profile.png", ".*.tmp*", ".*.tmp")
 
 
-class RunDirError(SceneError):
+class RunDirError(InputError):
     """The output directory cannot take this run (a file, or it holds another run)."""
 
 
@@ -74,3 +78,19 @@ def run_files(out: str | Path) -> list[str]:
     """The run's files now in ``out`` (sorted names, temporaries and summary excluded)."""
     return sorted(n for n in os.listdir(out)
                   if _is_run_file(n) and not n.startswith(".") and n != "summary.json")
+
+
+@contextlib.contextmanager
+def output_dir_for(out: str | Path, option: str = "--out"):
+    """Create ``out`` (not a file) for a command that writes into it; if bad input
+    (:class:`InputError`, :class:`SceneError`) stops the command, a directory this
+    created is removed again, so bad input leaves nothing behind."""
+    out = check_run_dir(out, force=True, option=option)
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        yield out
+    except (InputError, SceneError):
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise

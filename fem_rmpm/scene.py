@@ -392,7 +392,8 @@ def check_seed(seed, option: str = "--seed") -> int | None:
     if seed is None:
         return None
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
-        raise SceneError(f"{option} {seed}: [seed] not allowed; allowed: an integer in "
+        from .errors import InputError
+        raise InputError(f"{option} {seed}: [seed] not allowed; allowed: an integer in "
                          "[0, 2^63 - 1] (numpy SeedSequence entropy)")
     return seed
 

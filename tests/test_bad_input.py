@@ -149,3 +149,33 @@ def test_utf8_bom_is_accepted(tmp_path, column_text):
 def test_polygon_problem(poly, problem):
     got = polygon_problem(poly)
     assert (got is None) if problem is None else (problem in got)
+
+
+@pytest.mark.parametrize("csv, words", [
+    (None, ("not found",)),                                    # missing file
+    ("a,b,c\n1,2,3\n", ("x",)),                                # missing columns
+    ("x,y,value\n1.0,2.0,abc\n", ("abc",)),                    # not a number
+    ("x,y,value\n", ("no data rows",)),                        # no rows
+])
+def test_field_data_errors_leave_no_directory(tmp_path, capsys, out, csv, words):
+    data = tmp_path / "cpt.csv"
+    if csv is not None:
+        data.write_text(csv)
+    err = _bad(capsys, ["field", "--seed", "1", "--out", str(out), "--data", str(data)], out,
+               str(data), *words)
+    assert not out.exists(), err
+
+
+def test_field_fit_error_leaves_no_directory(tmp_path, capsys, out):
+    data = tmp_path / "fit.csv"
+    data.write_text("x,y\n1,2\n")
+    _bad(capsys, ["field", "--out", str(out), "--fit", str(data)], out, str(data))
+
+
+def test_field_negative_seed(capsys, out):
+    _bad(capsys, ["field", "--seed", "-3", "--out", str(out)], out, "--seed -3", "allowed")
+
+
+def test_field_out_is_a_file(capsys, out):
+    out.write_text("x")
+    _bad(capsys, ["field", "--out", str(out)], out, "is a file")
