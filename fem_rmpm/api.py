@@ -30,7 +30,7 @@ from .run import RunRecord, SimulationError
 from .fem import FemResult, solve_static
 from .grid import Grid, make_grid
 from .implicit import run_implicit
-from .measures import compute_measures
+from .measures import compute_measures, excluded_summary
 from .output import PvdSeries, write_grid, write_json
 from .particles import Particles, seed_particles, soil_cells
 from .plots import plot_profile, plot_snapshots
@@ -165,7 +165,8 @@ def _summary(scene, seed, pts, rec, measures) -> dict:
         "dt_min": rec.dt_min, "dt_max": rec.dt_max,
         "frozen_points": {"count": len(rec.frozen_points), "indices": rec.frozen_points,
                           "policy": scene.solver.edge_policy},
-        "measures": measures, "solver": rec.solver,
+        "measures": measures, "excluded_points": excluded_summary(measures),
+        "solver": rec.solver,
         "kinetic_energy": rec.energy[:: max(1, len(rec.energy) // 400)],
         "machine": {"python": platform.python_version(), "node": platform.machine()},
     }

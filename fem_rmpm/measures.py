@@ -17,10 +17,10 @@ A continuous film, even one point thick (such as the run-up on the valley side),
 is part of the body it touches; a stray point is at least one empty cell away, so
 adding stray points beyond the deposit does not move the run-out.
 The largest connected group is always a body.  How many
-points were excluded and their initial volume (m2 per m), per reason, is reported as
-``excluded`` = ``{"frozen": {"points", "volume"}, "stray": {...}}`` and in the flat
-keys ``excluded_frozen_points``, ``excluded_frozen_volume``, ``excluded_stray_points``,
-``excluded_stray_volume``.
+points were excluded and their initial volume (m2 per m), per reason, is reported in
+the keys ``excluded_frozen_points``, ``excluded_frozen_volume``, ``excluded_stray_points``,
+``excluded_stray_volume`` (and by :func:`excluded_summary` as
+``{"frozen": {"points", "volume"}, "stray": {...}, "rule": ...}`` in ``summary.json``).
 
 Definitions (``d_p`` = distance point p moved since the end of the geostatic
 phase, ``X`` = true horizontal coordinate, pointing down-slope; threshold
@@ -60,7 +60,8 @@ import numpy as np
 from .output import to_true_frame
 from .particles import Particles
 
-__all__ = ["compute_measures", "surface_profile", "deposit_points", "MIN_BODY_FRACTION"]
+__all__ = ["compute_measures", "surface_profile", "deposit_points", "excluded_summary",
+           "MIN_BODY_FRACTION"]
 
 MIN_BODY_FRACTION = 0.01   #: a body holds at least this fraction of the active volume
 
@@ -144,6 +145,16 @@ def deposit_points(x: np.ndarray, volume: np.ndarray, active: np.ndarray, origin
     return counted, stray
 
 
+def excluded_summary(measures: dict) -> dict:
+    """The excluded points of a realization per reason, with the rule, for summary.json."""
+    out = {why: {k: measures[f"excluded_{why}_{k}"] for k in ("points", "volume")}
+           for why in ("frozen", "stray")}
+    out["rule"] = ("frozen: frozen at the grid edge; stray: active but in no connected body "
+                   "(8-neighbour occupied grid cells) holding >= "
+                   f"{MIN_BODY_FRACTION:.0%} of the active volume; volume = initial, m2 per m")
+    return out
+
+
 def _excluded(pts: Particles, stray: np.ndarray) -> dict:
     frozen = ~pts.active
     out = {}
@@ -192,7 +203,6 @@ def compute_measures(pts: Particles, frame_angle_deg: float, threshold: float,
         "max_displacement": float(d[counted].max(initial=0.0)),
         "time_to_rest": time_to_rest,
         "failure_displacement": threshold,
-        "excluded": excluded,
         **{f"excluded_{why}_{k}": v for why, e in excluded.items() for k, v in e.items()},
         "final_profile": surface_profile(X, float(np.min(cell))),
         "initial_profile": surface_profile(X0, float(np.min(cell))),

@@ -189,7 +189,8 @@ def test_runout_ignores_frozen_and_stray_points(meshes):
         debris.x[n + 1 + k] = pts.x[front] + [3.0 + 0.3 * k + 0.3 * (k > 1), 0.2 * k]
     m = compute_measures(debris, 20.0, 0.5, grid.cell, None, grid=grid)
     assert abs(m["runout_distance"] - clean["runout_distance"]) <= float(grid.cell[0])
-    assert m["excluded"]["frozen"] == {"points": 1, "volume": float(pts.volume0[front])}
+    assert m["excluded_frozen_points"] == 1
+    assert m["excluded_frozen_volume"] == float(pts.volume0[front])
     assert m["excluded_stray_points"] == 4
     assert m["excluded_stray_volume"] == pytest.approx(4 * pts.volume0[front], rel=1e-12)
     assert m["sliding_area"] == clean["sliding_area"]
@@ -219,7 +220,7 @@ def test_summary_reports_excluded_points(meshes, tmp_path):
     frozen points."""
     api.run(_falling_block(meshes, "freeze"), out=tmp_path / "o")
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
-    ex = s["measures"]["excluded"]
+    ex = s["excluded_points"]
     assert ex["frozen"]["points"] == s["frozen_points"]["count"] > 0
     assert s["measures"]["excluded_frozen_points"] == ex["frozen"]["points"]
     assert ex["frozen"]["volume"] > 0 and ex["stray"]["points"] >= 0
