@@ -35,7 +35,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels as K
 from .grid import Grid
+from .kernels import Workspace
 from .locking import bbar_gradient, fbar_increment, host_cells
 from .materials import hughes_winget_increment, small_strain_update, stress_update
 from .particles import Particles
@@ -62,52 +64,14 @@ class StepStats:
     n_outside: int = 0                # active points outside the grid rectangle
 
 
-@dataclass
-class Workspace:
-    """Nodal arrays of the numba step, allocated once per (grid, points) and reused."""
-    m: np.ndarray           # (nn,) nodal mass
-    p: np.ndarray           # (nn, 2) momentum
-    f: np.ndarray           # (nn, 2) force
-    v_new: np.ndarray       # (nn, 2) velocity at the end of the step
-    acc: np.ndarray         # (nn, 2) acceleration
-    p2: np.ndarray          # (nn, 2) MUSL re-mapped momentum, then velocity
-    flag: np.ndarray        # (nn,) uint8: node touched this step
-    touched: np.ndarray     # (nn,) the touched (active) nodes, first n_touched[0]
-    n_touched: np.ndarray   # (1,) int64
-    x_old: np.ndarray       # (n, 2) point positions before the move
-    W: np.ndarray           # (n, 4) trial state (b_tr, or the geostatic trial strain)
-    ta: np.ndarray          # (n,) arguments / values of the vectorised exp, log
-    tb: np.ndarray          # (n,) arguments / values of the vectorised expm1, arctanh
-    tc: np.ndarray          # (n,) argument of expm1 (kept)
-    out: np.ndarray         # (4,) stats of the stress kernel
-    # F-bar (fbar = True): host cells, increments, per-cell sums of V and V dJ
-    host: np.ndarray = None  # (n,) int64
-    D: np.ndarray = None     # (n, 4)
-    cv: np.ndarray = None    # (n_cells,)
-    cvj: np.ndarray = None   # (n_cells,)
-
-    @classmethod
-    def for_grid(cls, grid: Grid, n_points: int) -> "Workspace":
-        nn = grid.n_nodes
-        return cls(m=np.zeros(nn), p=np.zeros((nn, 2)), f=np.zeros((nn, 2)),
-                   v_new=np.zeros((nn, 2)), acc=np.zeros((nn, 2)), p2=np.zeros((nn, 2)),
-                   flag=np.zeros(nn, np.uint8), touched=np.zeros(nn, np.int64),
-                   n_touched=np.zeros(1, np.int64), x_old=np.zeros((n_points, 2)),
-                   W=np.zeros((n_points, 4)),
-                   ta=np.zeros(n_points), tb=np.zeros(n_points), tc=np.zeros(n_points),
-                   out=np.zeros(4), host=np.zeros(n_points, np.int64),
-                   D=np.zeros((n_points, 4)), cv=np.zeros(grid.n_cells),
-                   cvj=np.zeros(grid.n_cells))
-
-
 def stable_time_step(pts: Particles, cell: np.ndarray, cfl: float) -> float:
     """CFL step dt = cfl * h / (c_p + |v|max), c_p = sqrt(M / rho) the P-wave speed (s)."""
     act = pts.active
     rho = pts.mass[act] / pts.volume[act]
     M = pts.soil.bulk_modulus[act] + 4.0 / 3.0 * pts.soil.shear_modulus[act]
-    cp = float(np.max(np.sqrt(M / rho)))
+    wave_speed = float(np.max(np.sqrt(M / rho)))
     vmax = float(np.max(np.linalg.norm(pts.velocity[act], axis=1))) if act.any() else 0.0
-    return cfl * float(np.min(cell)) / (cp + vmax)
+    return cfl * float(np.min(cell)) / (wave_speed + vmax)
 
 
 def _scatter(nodes: np.ndarray, weights: np.ndarray, n_nodes: int) -> np.ndarray:
@@ -158,29 +122,18 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                                    fbar)
     if kernel != "numba":
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
-    from . import kernels as K
     w = work if work is not None else Workspace.for_grid(grid, pts.n)
-    s, org, h, (nx, ny), gimp = pts.soil, grid.origin, grid.cell, grid.shape, shape == "gimp"
-    lp = pts.half_width if gimp else w.x_old
-    # 1. map point state to the nodes (locate + shape + scatter, one pass)
-    K.p2g(pts.x, pts.velocity, pts.mass, pts.volume, pts.stress, pts.active,
-          float(gravity[0]), float(gravity[1]), gimp, lp, org, h, nx, ny,
-          w.m, w.p, w.f, w.flag, w.touched, w.n_touched)
-    # 2. solve momentum balance on the active nodes
-    ke = K.nodal_solve(w.m, w.p, w.f, grid.fixed, dt, damping, w.touched, w.n_touched,
-                       w.v_new, w.acc)
-    # 3. map back and move the points, (MUSL) re-map momentum, update stress
-    vmax = K.g2p(pts.x, pts.velocity, pts.mass, pts.active, dt, flip, geostatic,
-                 pts.u_geostatic, gimp, lp, org, h, nx, ny, w.v_new, w.acc,
-                 w.touched, w.n_touched, w.p2, w.x_old)
-    K.nodal_velocity(w.m, w.p2, grid.fixed, w.touched, w.n_touched)
-    K.update_stress(pts.x, w.x_old, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.F,
-                    pts.log_strain, pts.state, pts.stress, pts.active,
-                    s.model, s.params, dt, geostatic, gimp, lp, org, h, nx, ny,
-                    w.p2, org, grid.upper, w.out, w.W, w.ta, w.tb, w.tc, fbar, w.host, w.D,
-                    w.cv, w.cvj)
-    o = w.out
-    return StepStats(ke, vmax, float(o[0]), float(o[1]), int(o[2]), int(o[3]))
+    (P, M), N, S, call = w.bind(grid, pts), w.nodes, w.scratch, w.call
+    o = K.StepOptions(float(dt), float(gravity[0]), float(gravity[1]), float(damping),
+                      float(flip), bool(geostatic), shape == "gimp", bool(fbar))
+    # 1. map to nodes: mass, momentum and force (locate + shape + scatter, one pass)
+    call(K.map_to_nodes, P, M, N, o)
+    # 2. solve on the mesh: momentum balance on the active nodes
+    ke = call(K.solve_on_mesh, M, N, o)
+    # 3. update the points: move, (MUSL) re-map momentum, update stress
+    vmax = K.update_points(P, M, N, S, o, call)
+    out = S.out
+    return StepStats(ke, vmax, float(out[0]), float(out[1]), int(out[2]), int(out[3]))
 
 
 def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,

@@ -47,6 +47,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fem_rmpm import kernels as K  # noqa: E402
+from fem_rmpm.kernels import strain as KS  # noqa: E402
 from fem_rmpm.explicit import (Workspace, explicit_step, map_to_nodes, run_explicit,  # noqa: E402
                                solve_on_mesh, stable_time_step)
 from fem_rmpm.grid import make_grid  # noqa: E402
@@ -100,47 +101,42 @@ def stages_numba(scene, grid, pts, geostatic, steps):
     """Median ns per particle of each kernel, called in the order of explicit_step."""
     w = Workspace.for_grid(grid, pts.n)
     g = np.array(scene.gravity_vector)
-    sv, s = scene.solver, pts.soil
-    org, h, (nx, ny), lp = grid.origin, grid.cell, grid.shape, w.x_old
-    names = ("1 p2g", "2 nodal_solve", "3a g2p", "3b nodal_velocity",
+    sv = scene.solver
+    names = ("1 map_to_nodes", "2 solve_on_mesh", "3a g2p", "3b nodal_velocity",
              "3c stress: exp args + exp/expm1 ufuncs", "3c stress: L, dF, F, V, trial b",
-             "3c stress: log/atanh ufuncs", "3c stress: return map + stress")
+             "3c stress: log/atanh ufuncs", "3c stress: material model + stress")
     T = {k: [] for k in names}
     clk = time.perf_counter
     explicit_step(grid, pts, 1e-4, g, sv.damping, sv.flip, sv.shape, geostatic, "numba", w)
+    (P, M), N, S, call = w.bind(grid, pts), w.nodes, w.scratch, w.call
+    finish = K.material_kernels()[0]
     for _ in range(steps):
         dt = stable_time_step(pts, grid.cell, sv.cfl)
+        o = K.StepOptions(dt, float(g[0]), float(g[1]), sv.damping, sv.flip, geostatic, False,
+                          False)
         t = [clk()]
-        K.p2g(pts.x, pts.velocity, pts.mass, pts.volume, pts.stress, pts.active, g[0], g[1],
-              False, lp, org, h, nx, ny, w.m, w.p, w.f, w.flag, w.touched, w.n_touched)
+        call(K.map_to_nodes, P, M, N, o)
         t.append(clk())
-        K.nodal_solve(w.m, w.p, w.f, grid.fixed, dt, sv.damping, w.touched, w.n_touched,
-                      w.v_new, w.acc)
+        call(K.solve_on_mesh, M, N, o)
         t.append(clk())
-        K.g2p(pts.x, pts.velocity, pts.mass, pts.active, dt, sv.flip, geostatic,
-              pts.u_geostatic, False, lp, org, h, nx, ny, w.v_new, w.acc, w.touched,
-              w.n_touched, w.p2, w.x_old)
+        call(K.g2p, P, M, N, S, o)
         t.append(clk())
-        K.nodal_velocity(w.m, w.p2, grid.fixed, w.touched, w.n_touched)
+        call(K.nodal_velocity, M, N)
         t.append(clk())
         if not geostatic:
             with np.errstate(all="ignore"):
-                K._exp_args_pass(pts.log_strain, pts.active, w.ta, w.tb, w.tc)
-                np.exp(w.ta, out=w.ta)
-                np.expm1(w.tb, out=w.tb)
+                call(KS.exp_args_pass, P, S)
+                np.exp(S.ta, out=S.ta)
+                np.expm1(S.tb, out=S.tb)
         t.append(clk())
-        K._kinematics_pass(w.x_old, pts.active, pts.log_strain, pts.F, pts.volume, dt, geostatic,
-                           False, lp, org, h, nx, ny, w.p2, w.W, w.ta, w.tb, w.tc)
+        call(KS.kinematics_pass, P, M, N, S, o)
         t.append(clk())
         if not geostatic:
             with np.errstate(all="ignore"):
-                np.log(w.ta, out=w.ta)
-                np.arctanh(w.tb, out=w.tb)
+                np.log(S.ta, out=S.ta)
+                np.arctanh(S.tb, out=S.tb)
         t.append(clk())
-        K.material_kernels()[0](pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0,
-                                pts.log_strain, pts.state, pts.stress, pts.active, s.model,
-                                s.params, geostatic, w.W, w.ta, w.tb, grid.origin, grid.upper,
-                                w.out)
+        call(finish, P, M, S, o)
         t.append(clk())
         for k, a, b in zip(names, t[:-1], t[1:]):
             T[k].append((b - a) / pts.n * 1e9)
@@ -280,10 +276,10 @@ def main(argv=None):
                 r["stages_numpy_ns"] = stages_numpy(scene, grid, pts.copy(),
                                                     phase == "geostatic", 10)
             w = Workspace.for_grid(grid, pts.n)
-            K.p2g(pts.x, pts.velocity, pts.mass, pts.volume, pts.stress, pts.active, 0.0, 0.0,
-                  False, w.x_old, grid.origin, grid.cell, *grid.shape, w.m, w.p, w.f, w.flag,
-                  w.touched, w.n_touched)
-            r["active_nodes_of_grid"] = [int(w.n_touched[0]), grid.n_nodes]
+            P, M = w.bind(grid, pts)
+            K.map_to_nodes(P, M, w.nodes, K.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False,
+                                                         False))
+            r["active_nodes_of_grid"] = [int(w.nodes.n_touched[0]), grid.n_nodes]
             entry[phase] = r
             nb = r["numba"]
             line = (f"{name:>4} {phase:9} {pts.n:>8d} pts {nb['steps']:>4d} steps  numba "

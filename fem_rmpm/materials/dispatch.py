@@ -17,6 +17,8 @@ stale chain.  An unknown id returns NaN (caught by the run's non-finite guard).
 from __future__ import annotations
 
 import numpy as np
+from numba import types
+from numba.core.errors import TypingError
 from numba.extending import overload
 
 from . import registry
@@ -31,6 +33,9 @@ def point_dispatch(version, model, e0, e1, e2, e3, state, params, i):
 
 @overload(point_dispatch)
 def _point_dispatch(version, model, e0, e1, e2, e3, state, params, i):
+    if not isinstance(version, types.IntegerLiteral):    # else the chain could be stale
+        raise TypingError("point_dispatch needs the registry version as a literal (a "
+                          "closure value of the calling kernel)")
     fns = {f"_f{k}": m.point_update for k, m in enumerate(registry.models())}
     lines = ["def impl(version, model, e0, e1, e2, e3, state, params, i):"]
     for k, name in enumerate(fns):

@@ -1,0 +1,125 @@
+"""Q4 and uGIMP basis functions at one point, on the structured grid (:class:`.Mesh`)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .arrays import Mesh
+from .common import inline, jit
+
+__all__ = ["q4", "gimp", "q4_shape", "gimp_shape"]
+
+
+@inline
+def q4(x0, x1, M):
+    """Bilinear Q4 basis at one point as tuples (nodes, N, dN/dx, dN/dy), 4 each.
+
+    Same arithmetic as :func:`fem_rmpm.grid.locate` + :func:`fem_rmpm.shape.q4_values`
+    (local coordinates in [0, 1], cell clipped into the grid, nodes counter-clockwise
+    from the lower left), except that ``ih = 1 / h`` is multiplied, not divided by
+    (a point within one rounding of a cell edge may so be placed in the neighbour
+    cell: Q4 is continuous there, only its gradient jumps)."""
+    nx, ny, ih0, ih1 = M.nx, M.ny, M.ih0, M.ih1
+    s0 = (x0 - M.o0) * ih0
+    s1 = (x1 - M.o1) * ih1
+    i = min(max(int(math.floor(s0)), 0), nx - 1)
+    j = min(max(int(math.floor(s1)), 0), ny - 1)
+    s = s0 - i
+    t = s1 - j
+    ll = j * (nx + 1) + i
+    fs = 1.0 - s
+    ft = 1.0 - t
+    return ((ll, ll + 1, ll + nx + 2, ll + nx + 1),
+            (fs * ft, s * ft, s * t, fs * t),
+            (-ft * ih0, ft * ih0, t * ih0, -t * ih0),
+            (-fs * ih1, -s * ih1, s * ih1, fs * ih1))
+
+
+@inline
+def _gimp_1d(d, h, lp):
+    """uGIMP weight and derivative (Bardenhagen & Kober 2004), as shape._gimp_1d."""
+    a = abs(d)
+    sg = 1.0 if d > 0 else (-1.0 if d < 0 else 0.0)
+    if a < lp:
+        return 1.0 - (d * d + lp * lp) / (2 * h * lp), -d / (h * lp)
+    if a <= h - lp:
+        return 1.0 - a / h, -sg / h
+    if a < h + lp:
+        r = h + lp - a
+        return r * r / (4 * h * lp), -sg * r / (2 * h * lp)
+    return 0.0, 0.0
+
+
+@inline
+def gimp(x0, x1, lp0, lp1, M):
+    """uGIMP basis at one point: the 3 x 3 nodes around it as tuples of 9, as
+    :func:`fem_rmpm.shape.gimp_at_points` (y-major, nodes beyond the edge clipped onto it)."""
+    o0, o1, h0, h1, nx, ny = M.o0, M.o1, M.h0, M.h1, M.nx, M.ny
+    s0 = (x0 - o0) * M.ih0
+    s1 = (x1 - o1) * M.ih1
+    i = min(max(int(math.floor(s0)), 0), nx - 1)
+    j = min(max(int(math.floor(s1)), 0), ny - 1)
+    fi = i - 1 if s0 - i < 0.5 else i
+    fj = j - 1 if s1 - j < 0.5 else j
+    X0 = _gimp_1d(x0 - (o0 + fi * h0), h0, lp0)
+    X1 = _gimp_1d(x0 - (o0 + (fi + 1) * h0), h0, lp0)
+    X2 = _gimp_1d(x0 - (o0 + (fi + 2) * h0), h0, lp0)
+    Y0 = _gimp_1d(x1 - (o1 + fj * h1), h1, lp1)
+    Y1 = _gimp_1d(x1 - (o1 + (fj + 1) * h1), h1, lp1)
+    Y2 = _gimp_1d(x1 - (o1 + (fj + 2) * h1), h1, lp1)
+    c0 = min(max(fi, 0), nx)
+    c1 = min(max(fi + 1, 0), nx)
+    c2 = min(max(fi + 2, 0), nx)
+    r0 = min(max(fj, 0), ny) * (nx + 1)
+    r1 = min(max(fj + 1, 0), ny) * (nx + 1)
+    r2 = min(max(fj + 2, 0), ny) * (nx + 1)
+    nodes = (r0 + c0, r0 + c1, r0 + c2, r1 + c0, r1 + c1, r1 + c2, r2 + c0, r2 + c1, r2 + c2)
+    N = (X0[0] * Y0[0], X1[0] * Y0[0], X2[0] * Y0[0], X0[0] * Y1[0], X1[0] * Y1[0],
+         X2[0] * Y1[0], X0[0] * Y2[0], X1[0] * Y2[0], X2[0] * Y2[0])
+    dx = (X0[1] * Y0[0], X1[1] * Y0[0], X2[1] * Y0[0], X0[1] * Y1[0], X1[1] * Y1[0],
+          X2[1] * Y1[0], X0[1] * Y2[0], X1[1] * Y2[0], X2[1] * Y2[0])
+    dy = (X0[0] * Y0[1], X1[0] * Y0[1], X2[0] * Y0[1], X0[0] * Y1[1], X1[0] * Y1[1],
+          X2[0] * Y1[1], X0[0] * Y2[1], X1[0] * Y2[1], X2[0] * Y2[1])
+    return nodes, N, dx, dy
+
+
+def _mesh(org, h, nx, ny) -> Mesh:
+    return Mesh(float(org[0]), float(org[1]), float(h[0]), float(h[1]), 1.0 / h[0], 1.0 / h[1],
+                int(nx), int(ny), np.zeros(2), np.zeros(2), np.zeros((1, 2), np.bool_))
+
+
+@jit
+def _q4_all(x, M):
+    n = x.shape[0]
+    nodes = np.empty((n, 4), np.int64)
+    N = np.empty((n, 4))
+    dN = np.empty((n, 4, 2))
+    for i in range(n):
+        a, b, c, d = q4(x[i, 0], x[i, 1], M)
+        for k in range(4):
+            nodes[i, k], N[i, k], dN[i, k, 0], dN[i, k, 1] = a[k], b[k], c[k], d[k]
+    return nodes, N, dN
+
+
+@jit
+def _gimp_all(x, lp, M):
+    n = x.shape[0]
+    nodes = np.empty((n, 9), np.int64)
+    N = np.empty((n, 9))
+    dN = np.empty((n, 9, 2))
+    for i in range(n):
+        a, b, c, d = gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M)
+        for k in range(9):
+            nodes[i, k], N[i, k], dN[i, k, 0], dN[i, k, 1] = a[k], b[k], c[k], d[k]
+    return nodes, N, dN
+
+
+def q4_shape(x, org, h, nx, ny):
+    """Q4 basis at points ``x`` (n, 2): nodes (n, 4), values (n, 4), gradients (n, 4, 2)."""
+    return _q4_all(x, _mesh(org, h, nx, ny))
+
+
+def gimp_shape(x, lp, org, h, nx, ny):
+    """uGIMP basis at points ``x`` (n, 2): nodes (n, 9), values (n, 9), gradients (n, 9, 2)."""
+    return _gimp_all(x, lp, _mesh(org, h, nx, ny))

@@ -1,0 +1,178 @@
+"""Grid transfers of the explicit step: stage 1 (map to nodes), stage 2 (solve on the
+mesh) and the first part of stage 3 (map back, move, MUSL re-map).
+
+Every formula is the one of :func:`fem_rmpm.explicit.explicit_step_numpy`, in the same
+order where it matters: the scatter sums points in the same order as ``np.bincount``.
+"""
+from __future__ import annotations
+
+import math
+
+from .basis import gimp, q4
+from .common import MASS_TOL, inline, kernel
+
+__all__ = ["map_to_nodes", "solve_on_mesh", "g2p", "nodal_velocity"]
+
+
+# --------------------------------------------------------------------- 1. map to nodes
+@inline
+def _clear(N):
+    for k in range(N.n_touched[0]):
+        a = N.touched[k]
+        N.m[a] = 0.0
+        N.p[a, 0] = 0.0
+        N.p[a, 1] = 0.0
+        N.f[a, 0] = 0.0
+        N.f[a, 1] = 0.0
+        N.flag[a] = 0
+
+
+@inline
+def _scatter(sh, i, P, N, gx, gy, nt):
+    nodes, w, dx, dy = sh
+    m, p, f, flag, touched = N.m, N.p, N.f, N.flag, N.touched
+    mp = P.mass[i]
+    mv0 = mp * P.v[i, 0]
+    mv1 = mp * P.v[i, 1]
+    vol = P.vol[i]
+    sx = P.stress[i, 0] * vol
+    sy = P.stress[i, 1] * vol
+    sxy = P.stress[i, 3] * vol
+    mg0 = mp * gx
+    mg1 = mp * gy
+    for k in range(len(nodes)):
+        a = nodes[k]
+        if flag[a] == 0:
+            flag[a] = 1
+            touched[nt] = a
+            nt += 1
+        wk = w[k]
+        m[a] += wk * mp
+        p[a, 0] += wk * mv0
+        p[a, 1] += wk * mv1
+        f[a, 0] += -(sx * dx[k] + sxy * dy[k]) + wk * mg0
+        f[a, 1] += -(sxy * dx[k] + sy * dy[k]) + wk * mg1
+    return nt
+
+
+@kernel
+def map_to_nodes(P, M, N, o):
+    """Stage 1: nodal mass, momentum and force (gravity + stress divergence) from the
+    active points; the touched nodes are listed in ``N.touched[:N.n_touched[0]]`` (flag 1).
+    The nodes of the previous step are cleared first."""
+    _clear(N)
+    nt = 0
+    x, lp = P.x, P.half_width
+    for i in range(x.shape[0]):
+        if not P.active[i]:
+            continue
+        if o.gimp:
+            sg = gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M)
+            nt = _scatter(sg, i, P, N, o.gx, o.gy, nt)
+        else:
+            sq = q4(x[i, 0], x[i, 1], M)
+            nt = _scatter(sq, i, P, N, o.gx, o.gy, nt)
+    N.n_touched[0] = nt
+
+
+# --------------------------------------------------------------------- 2. solve on the mesh
+@kernel
+def solve_on_mesh(M, N, o):
+    """Stage 2 on the active nodes: ``N.v_new`` and ``N.acc`` (lumped mass, Cundall damping
+    ``f - damping |f| sign(v)``, fixed components zero).  Returns the grid kinetic energy."""
+    m, p, f, v_new, acc, fixed = N.m, N.p, N.f, N.v_new, N.acc, M.fixed
+    dt, damping = o.dt, o.damping
+    ke = 0.0
+    for k in range(N.n_touched[0]):
+        a = N.touched[k]
+        has = m[a] > MASS_TOL
+        inv_m = 1.0 / m[a] if has else 0.0
+        for c in range(2):
+            vo = p[a, c] * inv_m
+            fc = f[a, c]
+            if damping > 0:
+                sg = 1.0 if vo > 0 else (-1.0 if vo < 0 else 0.0)
+                fc = fc - damping * abs(fc) * sg
+            if fixed[a, c]:
+                fc = 0.0
+                vo = 0.0
+            ac = fc * inv_m
+            acc[a, c] = ac
+            v_new[a, c] = vo + ac * dt
+        ke += m[a] * (v_new[a, 0] * v_new[a, 0] + v_new[a, 1] * v_new[a, 1])
+    return 0.5 * ke
+
+
+# --------------------------------------------------------------------- 3. update the points
+@inline
+def _g2p_point(sh, i, P, N, S, o):
+    nodes, w, _, _ = sh
+    v_new, acc, p2, v, x, dt, flip = N.v_new, N.acc, N.v_remap, P.v, P.x, o.dt, o.flip
+    vp0 = 0.0
+    vp1 = 0.0
+    ap0 = 0.0
+    ap1 = 0.0
+    for k in range(len(nodes)):
+        a = nodes[k]
+        vp0 += w[k] * v_new[a, 0]
+        vp1 += w[k] * v_new[a, 1]
+        ap0 += w[k] * acc[a, 0]
+        ap1 += w[k] * acc[a, 1]
+    v0 = flip * (v[i, 0] + dt * ap0) + (1.0 - flip) * vp0
+    v1 = flip * (v[i, 1] + dt * ap1) + (1.0 - flip) * vp1
+    v[i, 0] = v0
+    v[i, 1] = v1
+    x0 = x[i, 0]
+    x1 = x[i, 1]
+    S.x_old[i, 0] = x0
+    S.x_old[i, 1] = x1
+    if o.geostatic:
+        P.u_geo[i, 0] += dt * vp0
+        P.u_geo[i, 1] += dt * vp1
+    else:
+        x[i, 0] = x0 + dt * vp0
+        x[i, 1] = x1 + dt * vp1
+    mp = P.mass[i]
+    mv0 = mp * v0
+    mv1 = mp * v1
+    for k in range(len(nodes)):
+        a = nodes[k]
+        p2[a, 0] += w[k] * mv0
+        p2[a, 1] += w[k] * mv1
+    return vp0 * vp0 + vp1 * vp1
+
+
+@kernel
+def g2p(P, M, N, S, o):
+    """Stage 3a: FLIP/PIC point velocities, positions (geostatic: ``P.u_geo`` instead),
+    and the MUSL re-map of the new point momenta into ``N.v_remap`` (active nodes).  The
+    positions before the move are kept in ``S.x_old`` for the stress update.
+    Returns the largest |v_pic| (the motion as the grid sees it)."""
+    for k in range(N.n_touched[0]):
+        a = N.touched[k]
+        N.v_remap[a, 0] = 0.0
+        N.v_remap[a, 1] = 0.0
+    vmax2 = 0.0
+    x, lp = P.x, P.half_width
+    for i in range(x.shape[0]):
+        if not P.active[i]:
+            continue
+        if o.gimp:
+            sg = gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M)
+            s2 = _g2p_point(sg, i, P, N, S, o)
+        else:
+            sq = q4(x[i, 0], x[i, 1], M)
+            s2 = _g2p_point(sq, i, P, N, S, o)
+        vmax2 = max(vmax2, s2)
+    return math.sqrt(vmax2)
+
+
+@kernel
+def nodal_velocity(M, N):
+    """Stage 3b on the active nodes: re-mapped velocities ``v_remap / m`` in place (fixed: 0)."""
+    m, p2, fixed = N.m, N.v_remap, M.fixed
+    for k in range(N.n_touched[0]):
+        a = N.touched[k]
+        ma = m[a] if m[a] > MASS_TOL else 1.0
+        for c in range(2):
+            p2[a, c] = 0.0 if fixed[a, c] else p2[a, c] / ma
