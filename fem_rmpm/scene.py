@@ -177,6 +177,11 @@ class SolverSpec:
     max_cuts: int = 4                    # step cuts before giving up
     linear_solver: str = "superlu"       # "superlu" | "pyamg"
     fbar: bool = False                   # F-bar locking remedy (cell-averaged volume change)
+    adaptive: bool = True                # implicit: step size follows Newton and kinematic limits
+    dt_max: float = 0.2                  # implicit dynamic: largest adaptive time step (s)
+    max_displacement_fraction: float = 0.25  # implicit dynamic: point displacement per step (cells)
+    hht_alpha: float = 0.0               # implicit dynamic: HHT-alpha numerical damping, 0 .. 1/3
+    min_mass_fraction: float = 1e-2      # implicit dynamic: nodal mass floor (fraction of rho A_cell)
 
 
 @dataclass(frozen=True)
@@ -251,6 +256,10 @@ _RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "solver.max_iterations": (1, 1000, True, True),
     "solver.tolerance": (0, 1, False, False),
     "solver.max_cuts": (0, 30, True, True),
+    "solver.dt_max": (0, math.inf, False, False),
+    "solver.max_displacement_fraction": (0, 1, False, True),
+    "solver.hht_alpha": (0, 1 / 3, True, True),
+    "solver.min_mass_fraction": (0, 1, True, False),
     "montecarlo.realizations": (1, 1e9, True, True),
     "montecarlo.seed": (0, 2**63 - 1, True, True),
     "montecarlo.failure_displacement": (0, math.inf, False, False),

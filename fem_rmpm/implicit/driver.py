@@ -16,14 +16,19 @@ from ..run import RunRecord, SimulationError, at_rest, check_points
 from ..scene import Scene
 from .linear import LinearSolver
 from .newton import NewtonFailure
+from .control import DET_BOUNDS, StepController, Verdict
 from .steps import Geostatic, ImplicitSystem, NewmarkDynamic, QuasiStatic, StepKind
 
 __all__ = ["run_implicit"]
 
+MAX_REJECTIONS = 6          # a step rejected this often by the kinematic limits is taken
+
 
 def _advice(kind: StepKind, sv) -> str:
     if kind.dynamic:
-        return (f"reduce [solver] dt (now {sv.dt:g} s), increase max_iterations (now "
+        return (f"reduce [solver] dt (now {sv.dt:g} s) or max_displacement_fraction (now "
+                f"{sv.max_displacement_fraction:g}), add hht_alpha damping (now "
+                f"{sv.hht_alpha:g}), increase max_iterations (now "
                 f"{sv.max_iterations}) or max_cuts (now {sv.max_cuts}), or loosen tolerance "
                 f"(now {sv.tolerance:g}); a residual that stalls at a level points to a kink "
                 "in the material response (softening reaching the residual cohesion): "
@@ -36,13 +41,21 @@ def _advice(kind: StepKind, sv) -> str:
 
 def _solver_stats(sv) -> dict:
     return {"formulation": "updated Lagrangian, Hencky/Kirchhoff, full Newton-Raphson",
-            "time_integration": "Newmark trapezoidal (beta 1/4, gamma 1/2), lumped mass"
+            "time_integration": (f"Newmark HHT-alpha (alpha {sv.hht_alpha:g}), lumped mass"
+                                 if sv.hht_alpha > 0 else
+                                 "Newmark trapezoidal (beta 1/4, gamma 1/2), lumped mass")
             if sv.dynamic else "quasi-static load stepping",
             "linear_solver": sv.linear_solver, "tolerance": sv.tolerance,
             "displacement_tolerance": math.sqrt(sv.tolerance),
             "max_iterations": sv.max_iterations, "max_cuts": sv.max_cuts,
             "iterations_total": 0, "cuts_total": 0, "setup_time": 0.0, "material_time": 0.0,
-            "assembly_time": 0.0, "solve_time": 0.0, "steps": []}
+            "assembly_time": 0.0, "solve_time": 0.0, "rejected_total": 0, "limited_by": {},
+            "adaptive": bool(sv.adaptive), "limits": {
+                "max_displacement_fraction": sv.max_displacement_fraction,
+                "det_dF_bounds": list(DET_BOUNDS), "dt": sv.dt, "dt_max": sv.dt_max,
+                "dt_min": sv.dt * 0.5 ** sv.max_cuts},
+            "hht_alpha": sv.hht_alpha, "min_mass_fraction": sv.min_mass_fraction,
+            "steps": []}
 
 
 class _Run:
@@ -84,65 +97,105 @@ class _Run:
         raise exc
 
     def record_step(self, kind: StepKind, res, pos: float, h: float, cuts: int,
-                    info: dict) -> None:
+                    info: dict, verdict: Verdict, limits: dict) -> None:
         stats = self.stats
         self.step += 1
         stats["iterations_total"] += res.iterations
         for k in ("assembly", "material", "setup", "solve"):
             stats[f"{k}_time"] += getattr(res, f"t_{k}")
-        stats["steps"].append({"step": self.step, "phase": kind.name,
-                               ("time" if kind.dynamic else "load_factor"): pos,
-                               "size": h, "iterations": res.iterations, "cuts": cuts,
-                               "residuals": res.residuals})
+        entry = {"step": self.step, "phase": kind.name,
+                 ("time" if kind.dynamic else "load_factor"): pos,
+                 "size": h, "iterations": res.iterations, "cuts": cuts,
+                 "residuals": res.residuals}
+        if limits:
+            entry.update(displacement=limits["displacement"], det_min=limits["det_min"],
+                         det_max=limits["det_max"])
+        if verdict.limited_by:
+            entry["limited_by"] = verdict.limited_by
+            lb = stats["limited_by"]
+            lb[verdict.limited_by] = lb.get(verdict.limited_by, 0) + 1
+        if info.get("floor_mass_nodes"):
+            entry["floor_mass_nodes"] = info["floor_mass_nodes"]
         if "reactions" in info:
-            stats["steps"][-1]["reactions"] = info.pop("reactions")
+            entry["reactions"] = info.pop("reactions")
+        stats["steps"].append(entry)
 
-    def advance(self, kind: StepKind, a0: float, a1: float, label: str, time_of, gravity_of):
-        """Cover [a0, a1] (load factor or time) with converged steps, halving a step that
-        fails; yields the ``info`` of each converged step."""
-        pos, size, cuts = a0, a1 - a0, 0
-        while pos < a1 - 1e-12 * max(1.0, abs(a1)):
-            h = min(size, a1 - pos)
+    def attempt(self, kind: StepKind, pos: float, h: float, label: str, gravity_of,
+                ctl: StepController, clipped: bool):
+        """One step from ``pos``: halved while Newton fails (``max_cuts`` times, then the
+        run stops), redone smaller while the controller rejects it.  Returns the outcome,
+        the size taken, the cuts, the verdict and the kinematic figures."""
+        cuts = rejections = 0
+        while True:
             try:
-                out = kind.solve(gravity_of(pos), gravity_of(pos + h), h if kind.dynamic else 0.0)
+                out = kind.solve(gravity_of(pos), gravity_of(pos + h),
+                                 h if kind.dynamic else 0.0)
             except NewtonFailure as f:
                 if cuts >= self.sv.max_cuts:
-                    self.fail(kind, label, f, cuts, h)
+                    self.fail(kind, label(pos, h), f, cuts, h)
                 cuts += 1
                 self.stats["cuts_total"] += 1
-                size = 0.5 * h
+                h, clipped = 0.5 * h, False
                 continue
+            limits = out.limits() if kind.dynamic else {}
+            verdict = ctl.judge(h, out.result.iterations, limits, clipped)
+            if verdict.accept or rejections >= MAX_REJECTIONS:
+                return out, h, cuts, verdict, limits
+            rejections += 1
+            self.stats["rejected_total"] += 1
+            h, clipped = min(verdict.size, h), False
+
+    def advance(self, kind: StepKind, a0: float, a1: float, label, time_of, gravity_of,
+                ctl: StepController):
+        """Cover [a0, a1] (load factor or time) with converged steps of the controller's
+        size; yields the ``info`` of each converged step.  ``label(pos, h)`` names a step
+        in an error message."""
+        pos, size = a0, ctl.size
+        while pos < a1 - 1e-12 * max(1.0, abs(a1)):
+            h = min(size, a1 - pos)
+            if a1 - pos < 1.05 * size:         # no sliver of a step before a1
+                h = a1 - pos
+            out, h, cuts, verdict, limits = self.attempt(kind, pos, h, label, gravity_of,
+                                                         ctl, h < 0.999 * size)
             info = out.commit() or {}
             pos += h
+            size = verdict.size if ctl.adaptive else (h if cuts else size)
             self.t = time_of(pos)
-            self.record_step(kind, out.result, pos, h, cuts, info)
+            self.record_step(kind, out.result, pos, h, cuts, info, verdict, limits)
             check_points(self.grid, self.pts, self.step, self.t, self.sv.edge_policy, self.rec)
             yield info
 
     # -- phases
     def load_phase(self) -> None:
-        """Gravity in ``load_steps`` geostatic or quasi-static steps."""
+        """Gravity in ``load_steps`` geostatic or quasi-static steps; quasi-static output
+        after the load steps that reach the next ``output_interval`` (in units of
+        ``t_end`` x load factor) and after the last."""
         sv, n_ls = self.sv, self.sv.load_steps
         quasi = not sv.dynamic
         geo = sv.gravity_phase == "geostatic"
         kind = Geostatic(self.system) if geo else QuasiStatic(self.system)
+        ctl = StepController(sv, False, 1.0 / n_ls, 1.0 / n_ls, 0.5 ** sv.max_cuts / n_ls)
+        next_out = sv.output_interval / sv.t_end
         for k in range(n_ls):
             a0, a1 = k / n_ls, (k + 1) / n_ls
-            label = (f"{'geostatic' if geo else 'load'} step {k + 1} of {n_ls} "
-                     f"(load factor {a0:.4g} -> {a1:.4g})")
-            for _ in self.advance(kind, a0, a1, label, (lambda p: p if quasi else 0.0),
-                                  lambda p: p):
-                if quasi:
-                    self.output(self.t)
-                    if self.progress:
-                        self.progress(self.t * sv.t_end, self.step)
+            text = (f"{'geostatic' if geo else 'load'} step {k + 1} of {n_ls} "
+                    f"(load factor {a0:.4g} -> {a1:.4g})")
+            for _ in self.advance(kind, a0, a1, lambda p, h: text,
+                                  (lambda p: p if quasi else 0.0), lambda p: p, ctl):
+                if quasi and self.progress:
+                    self.progress(self.t * sv.t_end, self.step)
+            if quasi and (a1 >= next_out - 1e-12 or k == n_ls - 1):
+                self.output(self.t)
+                while next_out <= a1 + 1e-12:
+                    next_out += sv.output_interval / sv.t_end
         if geo:
             self.stats["geostatic_steps"] = self.step
         self.rec.time = 1.0 if quasi else 0.0
         self.rec.stop_reason = "load applied" if quasi else ""
 
     def dynamic_phase(self) -> None:
-        """Newmark steps of ``dt`` until ``t_end`` or at rest."""
+        """Newmark (HHT-alpha) steps of adaptive size until ``t_end`` or at rest; output
+        every ``output_interval`` (the steps are shortened to meet the output times)."""
         sv, rec = self.sv, self.rec
         if sv.gravity_phase == "geostatic":
             self.t = 0.0
@@ -152,31 +205,35 @@ class _Run:
         def gravity_of(t):
             return 1.0 if ramp <= 0 else min(1.0, t / ramp)
 
+        def label(pos, h):
+            n = self.step - self.stats.get("geostatic_steps", 0)
+            return f"time step {n + 1} (t = {pos:.4g} -> {pos + h:.4g} s)"
+
         kind = NewmarkDynamic(self.system)
-        t, next_out, ke_peak, n_dyn = 0.0, sv.output_interval, 0.0, 0
+        ctl = StepController(sv, True, sv.dt, max(sv.dt_max, sv.dt) if sv.adaptive else sv.dt,
+                             sv.dt * 0.5 ** sv.max_cuts)
+        t, next_out, ke_peak, rest = 0.0, sv.output_interval, 0.0, False
         rec.stop_reason = "t_end reached"
-        while t < sv.t_end - 1e-12:
-            t1 = min(t + sv.dt, sv.t_end)
-            label = f"time step {n_dyn + 1} (t = {t:.4g} -> {t1:.4g} s)"
-            rest = False
-            for info in self.advance(kind, t, t1, label, lambda p: p, gravity_of):
+        while t < sv.t_end - 1e-12 and not rest:
+            for info in self.advance(kind, t, min(next_out, sv.t_end), label, lambda p: p,
+                                     gravity_of, ctl):
                 h = self.stats["steps"][-1]["size"]
                 rec.dt_min, rec.dt_max = min(rec.dt_min, h), max(rec.dt_max, h)
                 ke = info.get("kinetic_energy", 0.0)
                 ke_peak = max(ke_peak, ke)
                 rec.energy.append((self.t, ke))
+                if self.progress:
+                    self.progress(self.t, self.step)
                 rest = at_rest(self.t, ramp, info.get("max_speed", 0.0), ke, ke_peak,
                                sv.rest_velocity, sv.rest_energy_ratio)
-            t = t1
-            n_dyn += 1
-            if self.progress:
-                self.progress(t, self.step)
-            if self.on_output and t >= next_out - 1e-12:
+                if rest:
+                    break
+            t = self.t
+            if t >= next_out - 1e-12:
                 self.output(t)
                 next_out += sv.output_interval
-            if rest:
-                rec.stop_reason = "at rest"
-                break
+        if rest:
+            rec.stop_reason = "at rest"
         rec.time = t
         if self.written_t != t:
             self.output(t)
@@ -186,8 +243,11 @@ class _Run:
         its = stats["iterations_total"]
         stats["ms_per_iteration"] = {k: 1e3 * stats[f"{k}_time"] / max(its, 1)
                                      for k in ("setup", "material", "assembly", "solve")}
-        stats["max_iterations_in_a_step"] = max((s["iterations"] for s in stats["steps"]),
-                                                default=0)
+        steps = stats["steps"]
+        stats["max_iterations_in_a_step"] = max((s["iterations"] for s in steps), default=0)
+        stats["n_steps"] = len(steps)
+        stats["iterations_per_step"] = its / max(len(steps), 1)
+        stats["dt_history"] = [[s["time"], s["size"]] for s in steps if "time" in s]
         self.rec.steps = self.step
         self.rec.wall_time = time.perf_counter() - self.wall0
         return self.rec

@@ -14,9 +14,12 @@ __all__ = ["NewtonFailure", "NewtonResult", "newton"]
 
 
 class NewtonFailure(RuntimeError):
-    def __init__(self, reason: str, residuals: list[float]):
+    """A Newton iteration that cannot go on; ``inverted``: a trial state inverted a point
+    (``det dF <= 0``), which the line search answers by a shorter correction."""
+
+    def __init__(self, reason: str, residuals: list[float], inverted: bool = False):
         super().__init__(reason)
-        self.reason, self.residuals = reason, residuals
+        self.reason, self.residuals, self.inverted = reason, residuals, inverted
 
 
 @dataclass
@@ -42,8 +45,9 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
     the next iteration would make, estimated as ``|delta_k| r_{k+1} / r_k``, is
     ``<= sqrt(tol) |du|`` (see the module docstring).
 
-    Line search: a full correction that does not lower the residual is halved up
-    to ``line_search`` times (the last, smallest one is kept if none helps).  Near
+    Line search: a full correction that does not lower the residual, or that inverts a
+    point, is halved up to ``line_search`` times (the last, smallest one is kept if none
+    lowers the residual; a state with an inverted point is never kept).  Near
     the solution full steps always lower the residual, so quadratic convergence is
     untouched; far from it, or where the softening law has a kink (the linear law
     reaching the residual cohesion), it stops the 2-cycles Newton otherwise falls into.
@@ -52,7 +56,7 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         try:
             return evaluate(u)
         except NewtonFailure as exc:
-            raise NewtonFailure(exc.reason, res) from None
+            raise NewtonFailure(exc.reason, res, exc.inverted) from None
 
     du = du0.copy()
     res: list[float] = []
@@ -84,8 +88,15 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         t_sol += time.perf_counter() - t1
         alpha = 1.0
         for _ in range(line_search + 1):
-            R, ref, state = _evaluate(du + alpha * delta)
-            if float(np.linalg.norm(R)) < rn or alpha < 0.5 ** (line_search - 0.5):
+            last = alpha < 0.5 ** (line_search - 0.5)
+            try:
+                R, ref, state = _evaluate(du + alpha * delta)
+            except NewtonFailure as exc:      # an inverted point: try a shorter correction
+                if not exc.inverted or last:
+                    raise
+                alpha *= 0.5
+                continue
+            if float(np.linalg.norm(R)) < rn or last:
                 break
             alpha *= 0.5
         du = du + alpha * delta

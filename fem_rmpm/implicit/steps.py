@@ -53,6 +53,7 @@ class StepData:
     soil: SoilPoints
     f_ext: np.ndarray               # body force on the free DOFs at the step end (kN per m)
     lf_new: float                   # gravity factor at the step end
+    lf_old: float                   # gravity factor at the step start
     presc: np.ndarray | None        # prescribed nodal increment (n_nodes, 2), or None
     dt: float = 0.0                 # time step (s), dynamic steps
     cache: dict = field(default_factory=dict)     # the last evaluation, for the tangent
@@ -63,6 +64,7 @@ class StepData:
 class StepOutcome:
     result: NewtonResult
     commit: object                  # callable applying the converged step to the points
+    limits: object = None           # callable: the step's kinematic figures (see StepKind)
 
 
 class ImplicitSystem:
@@ -84,10 +86,11 @@ class ImplicitSystem:
         self.presc_mask, self.presc_target = mask, target
         self.fixed = grid.fixed | mask
 
-    def begin(self, lf_new: float, lf_old: float | None, dt: float = 0.0) -> StepData:
-        """The grid-reset system of a step ending at gravity factor ``lf_new``; prescribed
-        displacements grow by ``(lf_new - lf_old)`` x their value (``lf_old = None``: a
-        dynamic step, which cannot carry them)."""
+    def begin(self, lf_new: float, lf_old: float, dt: float = 0.0,
+              dynamic: bool = False) -> StepData:
+        """The grid-reset system of a step from gravity factor ``lf_old`` to ``lf_new``;
+        prescribed displacements grow by ``(lf_new - lf_old)`` x their value (quasi-static
+        and geostatic steps only: a dynamic step cannot carry them)."""
         pts = self.pts
         act = np.nonzero(pts.active)[0]
         if len(act) == 0:
@@ -99,12 +102,12 @@ class ImplicitSystem:
         mass = pts.mass[act]
         presc = None
         if self.presc_mask.any():
-            if lf_old is None:
+            if dynamic:
                 raise SimulationError("prescribed displacements need quasi-static load steps")
             presc = np.where(self.presc_mask, (lf_new - lf_old) * self.presc_target, 0.0)
         return StepData(S, act, pts.volume0[act], pts.volume[act], mass, pts.log_strain[act],
                         pts.plastic_shear_strain[act], pts.soil.take(act),
-                        S.body_force(mass, lf_new * self.g_full), lf_new, presc, dt)
+                        S.body_force(mass, lf_new * self.g_full), lf_new, lf_old, presc, dt)
 
     def reactions(self, st: StepData, du: np.ndarray, tau: np.ndarray,
                   g: np.ndarray) -> dict:
@@ -165,13 +168,22 @@ class StepKind:
         raise NotImplementedError
 
     def diagonal(self, st: StepData):
+        """A free-DOF vector added to the tangent's diagonal (the inertia term), or None."""
         return None
+
+    def stiffness_factor(self, st: StepData) -> float:
+        """Weight of the stiffness in the residual (HHT-alpha: ``1 - alpha``)."""
+        return 1.0
 
     def tangent(self, st: StepData):
         t0 = time.perf_counter()
         A, Q, w = self.point_tangent(st)
         t1 = time.perf_counter()
         S, g = st.S, st.cache["g"]
+        f = self.stiffness_factor(st)
+        if f != 1.0:
+            A = f * A
+            Q = None if Q is None else f * Q
         K = S.tangent(st.V0, g, A, diagonal=self.diagonal(st))
         if self.sys.fbar:
             K = K + S.fbar_tangent(st.V0, g, Q, w)
@@ -188,7 +200,7 @@ class StepKind:
         ``dt`` seconds if dynamic); nothing changes until ``outcome.commit()``."""
         sys_, sv = self.sys, self.sys.sv
         t_setup = time.perf_counter()
-        st = sys_.begin(lf_new, None if self.dynamic else lf_old, dt)
+        st = sys_.begin(lf_new, lf_old, dt, self.dynamic)
         t_setup = time.perf_counter() - t_setup
         du0 = self.predictor(st)
         sys_.solver.new_step()
@@ -197,7 +209,13 @@ class StepKind:
                      modes=st.S.rigid_body_modes)
         res.t_material, res.t_assembly, res.t_setup = (st.clock["material"],
                                                        st.clock["assembly"], t_setup)
-        return StepOutcome(res, lambda: self.commit(st, res))
+        return StepOutcome(res, lambda: self.commit(st, res), lambda: self.limits(st, res))
+
+    def limits(self, st: StepData, res: NewtonResult) -> dict:
+        """Kinematic figures of a converged step: the largest point displacement increment
+        as a fraction of the (smallest) cell size, and the range of the points' ``det dF``
+        (``None`` for steps that do not move the points)."""
+        return {}
 
 
 class Geostatic(StepKind):
@@ -243,7 +261,8 @@ class QuasiStatic(StepKind):
         Finv, det = inv2(dF)
         if not np.all(det > 0):
             i = st.act[np.argmin(det)]
-            raise NewtonFailure(f"material point {i} inverted (det dF = {det.min():.3g})", [])
+            raise NewtonFailure(f"material point {i} inverted (det dF = {det.min():.3g})", [],
+                                inverted=True)
         if sys_.fbar:
             dFm, J, _ = fbar_increment(dF, st.Vn, st.S.host, sys_.grid.n_cells)
             st.cache["w"] = fbar_weights(st.Vn, J, st.S.host, sys_.grid.n_cells)
@@ -281,14 +300,45 @@ class QuasiStatic(StepKind):
         pts.stress[act] = tau / J[:, None]
         return info
 
+    def limits(self, st, res):
+        dFm = res.state[3]
+        u = st.S.interpolate(st.S.to_nodes(res.du, st.presc))
+        J = dFm[:, 0, 0] * dFm[:, 1, 1] - dFm[:, 0, 1] * dFm[:, 1, 0]
+        disp = np.sqrt(np.max(np.sum(u * u, axis=1), initial=0.0))
+        i = int(np.argmax(np.abs(np.log(J)))) if len(J) else 0
+        return {"displacement": float(disp / np.min(self.sys.grid.cell)),
+                "det_min": float(J.min(initial=1.0)), "det_max": float(J.max(initial=1.0)),
+                "worst_point": int(st.act[i]) if len(J) else -1}
+
 
 class NewmarkDynamic(QuasiStatic):
-    """Newmark trapezoidal rule (``beta = 1/4, gamma = 1/2``) with the lumped nodal mass:
-    ``a_{n+1} = 4/dt^2 (du - dt v_n) - a_n``, residual ``f_ext - f_int - m a_{n+1}``,
-    tangent ``K + 4 m / dt^2``; the point velocities are updated FLIP-like, blended with
-    PIC by ``[solver] flip``."""
+    """Newmark dynamics with the lumped nodal mass, optionally with HHT-alpha numerical
+    damping (Hilber, Hughes & Taylor 1977, in the force-averaged form of Kuhl & Crisfield
+    1999 for nonlinear problems), ``alpha = [solver] hht_alpha`` in [0, 1/3]::
+
+        (1 - alpha) (f_ext,n+1 - f_int(du)) + alpha (f_ext,n - f_int,n) - m a_n+1 = 0
+        a_n+1 = (du - dt v_n - dt^2 (1/2 - beta) a_n) / (beta dt^2)
+        v_n+1 = v_n + dt ((1 - gamma) a_n + gamma a_n+1)
+
+    with ``gamma = 1/2 + alpha``, ``beta = (1 + alpha)^2 / 4``; ``alpha = 0`` is the
+    trapezoidal rule (``beta = 1/4, gamma = 1/2``: no numerical dissipation), ``alpha > 0``
+    damps the high frequencies (grid noise) and, with large steps, the slow modes too,
+    so a run comes to rest.  Tangent ``(1 - alpha) K + m / (beta dt^2)``.  ``f_int,n`` is
+    the step-start stress on the step-start grid.  The point velocities are updated
+    FLIP-like, blended with PIC by ``[solver] flip``.
+
+    Nearly empty nodes: a node whose lumped mass is below ``[solver] min_mass_fraction``
+    of a full cell's (``rho A_cell``, ``rho`` the mean density of the points) carries that
+    floor mass instead, in the residual and the tangent alike (a small stabilising mass):
+    a lone point entering an empty cell row no longer leaves its new nodes held by almost
+    nothing, which made Newton throw them (and the point) far away.
+    """
     name = "dynamic"
     dynamic = True
+
+    def _coefficients(self):
+        alpha = float(self.sys.sv.hht_alpha)
+        return alpha, 0.5 + alpha, 0.25 * (1.0 + alpha) ** 2
 
     def predictor(self, st):
         S, pts, act, mass, dt = st.S, self.sys.pts, st.act, st.mass, st.dt
@@ -297,16 +347,34 @@ class NewmarkDynamic(QuasiStatic):
         inv_m = np.where(has, 1.0 / np.where(has, m_nodes, 1.0), 0.0)[:, None]
         v_n = (S.momentum(mass, pts.velocity[act]) * inv_m).ravel()[S.free_dofs]
         a_n = (S.momentum(mass, self.sys.acc[act]) * inv_m).ravel()[S.free_dofs]
-        st.cache.update(v_n=v_n, a_n=a_n, m_free=np.repeat(m_nodes, 2)[S.free_dofs],
-                        c=4.0 / (dt * dt))
+        frac = float(self.sys.sv.min_mass_fraction)
+        m_min = frac * float(mass.sum() / st.Vn.sum()) * float(np.prod(self.sys.grid.cell))
+        m_free = np.maximum(np.repeat(m_nodes, 2)[S.free_dofs], m_min)
+        alpha, gamma, beta = self._coefficients()
+        st.cache.update(v_n=v_n, a_n=a_n, m_free=m_free, c=1.0 / (beta * dt * dt),
+                        n_floor=int(np.count_nonzero(m_nodes[S.used] < m_min)))
+        if alpha > 0:
+            tau_n = pts.stress[act] * (st.Vn / st.V0)[:, None]
+            st.cache["f_n"] = (S.body_force(mass, st.lf_old * self.sys.g_full)
+                               - S.internal_force(st.V0, tau_n, S.dN))
         return dt * v_n + 0.5 * dt * dt * a_n
 
     def _acceleration(self, st, du):
         c = st.cache
-        return c["c"] * (du - st.dt * c["v_n"]) - c["a_n"]
+        if "f_n" not in c:           # trapezoidal rule: a = 4/dt^2 (du - dt v_n) - a_n
+            return c["c"] * (du - st.dt * c["v_n"]) - c["a_n"]
+        beta = self._coefficients()[2]
+        return c["c"] * (du - st.dt * c["v_n"] - st.dt * st.dt * (0.5 - beta) * c["a_n"])
 
     def inertia(self, st, du, R):
-        return R - st.cache["m_free"] * self._acceleration(st, du)
+        c = st.cache
+        if "f_n" in c:
+            alpha = self._coefficients()[0]
+            R = (1.0 - alpha) * R + alpha * c["f_n"]
+        return R - c["m_free"] * self._acceleration(st, du)
+
+    def stiffness_factor(self, st):
+        return 1.0 - self._coefficients()[0]
 
     def diagonal(self, st):
         return st.cache["c"] * st.cache["m_free"]
@@ -316,14 +384,15 @@ class NewmarkDynamic(QuasiStatic):
         S, pts, act, c = st.S, self.sys.pts, st.act, st.cache
         v_n, a_n = c["v_n"], c["a_n"]
         a_new = self._acceleration(st, res.du)
-        v_new = v_n + 0.5 * st.dt * (a_n + a_new)
+        gamma = self._coefficients()[1]
+        v_new = v_n + st.dt * ((1.0 - gamma) * a_n + gamma * a_new)
         v_pic = S.interpolate(S.to_nodes(v_new))
         flip = self.sys.sv.flip
         pts.velocity[act] = flip * (pts.velocity[act] + S.interpolate(S.to_nodes(v_new - v_n))) \
             + (1 - flip) * v_pic
         self.sys.acc[act] = S.interpolate(S.to_nodes(a_new))
         ke = 0.5 * float(np.sum(c["m_free"] * v_new * v_new))
-        return {"kinetic_energy": ke,
+        return {"kinetic_energy": ke, "floor_mass_nodes": c["n_floor"],
                 "max_speed": float(np.sqrt(np.max(np.sum(v_pic * v_pic, 1), initial=0.0)))}
 
 
