@@ -178,8 +178,8 @@ class SolverSpec:
     linear_solver: str = "superlu"       # "superlu" | "pyamg"
     fbar: bool = False                   # F-bar locking remedy (cell-averaged volume change)
     adaptive: bool = True                # implicit: step size follows Newton and kinematic limits
-    dt_max: float = 0.2                  # implicit dynamic: largest adaptive time step (s)
-    max_displacement_fraction: float = 0.25  # implicit dynamic: point displacement per step (cells)
+    dt_max: float = 0.1                  # implicit dynamic: largest adaptive time step (s)
+    max_displacement_fraction: float = 0.5   # implicit dynamic: point displacement per step (cells)
     hht_alpha: float = 0.0               # implicit dynamic: HHT-alpha numerical damping, 0 .. 1/3
     min_mass_fraction: float = 1e-2      # implicit dynamic: nodal mass floor (fraction of rho A_cell)
 
