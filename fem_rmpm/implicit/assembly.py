@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from ..grid import Grid
 from ..locking import fbar_tangent_correction, host_cells
 from ..shape import shape_at_points
-from .tangent import tensor
+from . import point_kernels as pk
 
 __all__ = ["StepSystem", "rigid_body_modes"]
 
@@ -20,9 +20,11 @@ class StepSystem:
 
     ``free`` numbers the DOFs that are touched by a point's basis and not
     prescribed by a boundary (``grid.fixed``); only they enter the solve.  The
-    sparsity pattern is built once per step: per-point blocks are summed over
-    the points sharing a node set (a host cell for Q4) by a sparse 0/1 matrix,
-    and the sums go straight into the CSR data array at precomputed positions.
+    sparsity pattern is built once per step (the CSR structure of the free DOFs and, per
+    node set -- a host cell for Q4 -- the position of each block entry in its data
+    array); every Newton iteration then adds the per-point blocks straight into the
+    data array (:func:`fem_rmpm.implicit.point_kernels.assemble_tangent`, one compiled
+    loop over the points), with no sparse products, sorting or index building.
     """
 
     def __init__(self, grid: Grid, x: np.ndarray, shape: str = "standard", half_width=None,
@@ -54,7 +56,6 @@ class StepSystem:
         inv = inv.ravel()
         ng = int(inv.max()) + 1 if n else 0
         self.n_groups = ng
-        self.group_sum = sp.csr_matrix((np.ones(n), (inv, np.arange(n))), shape=(ng, n))
         first = np.zeros(ng, dtype=np.int64)
         first[inv] = np.arange(n)                                  # a representative point
         gd = fnum[self.point_dofs[first]].reshape(ng, k, 2)        # free index or -1
@@ -63,18 +64,24 @@ class StepSystem:
         cols = np.broadcast_to(np.swapaxes(gd, 1, 2)[:, None, None, :, :],
                                (ng, k, 2, 2, k)).ravel()
         keep = (rows >= 0) & (cols >= 0)
-        self._keep = keep
         key = rows[keep] * nf + cols[keep]
         ukey, self._pos = np.unique(key, return_inverse=True)     # CSR order: row, then column
         self._pos = self._pos.ravel()
         self._indices = (ukey % nf).astype(np.int32) if nf else ukey.astype(np.int32)
         self._indptr = np.searchsorted(ukey, np.arange(nf + 1) * nf).astype(np.int32)
         self.nnz = len(ukey)
+        self._diag = np.searchsorted(ukey, np.arange(nf) * (nf + 1))   # position of (r, r)
+        # the same positions per node set, -1 for entries of prescribed DOFs (compiled path)
+        positions = np.full(ng * 4 * k * k, -1, dtype=np.int64)
+        positions[keep] = self._pos
+        self._positions = positions.reshape(ng, 4 * k * k)
+        self._group = inv.astype(np.int64)
 
     # --- kinematics
     def gradient(self, du: np.ndarray) -> np.ndarray:
         """grad_n(du) at the points (n, 2, 2), ``H_ij = d du_i / d x_j``; du (n_nodes, 2)."""
-        return np.matmul(np.swapaxes(du[self.nodes], 1, 2), self.dN)
+        return pk.displacement_gradient(np.ascontiguousarray(du, dtype=float), self.nodes,
+                                       self.dN, np.empty((self.n, 2, 2)))
 
     def interpolate(self, nodal: np.ndarray) -> np.ndarray:
         """Nodal vector (n_nodes, 2) at the points (n, 2)."""
@@ -99,12 +106,9 @@ class StepSystem:
                        full: bool = False) -> np.ndarray:
         """``f_ai = sum_p V0_p tau_ij g_aj`` on the free DOFs (kN per m); ``full``: on all
         DOFs, as (n_nodes, 2) (for the reactions at prescribed DOFs)."""
-        T = tensor(tau4) * V0[:, None, None]
-        per_point = np.matmul(g, T)                     # (g T)_ai = g_aj T_ji, T symmetric
-        if full:
-            return np.bincount(self.point_dofs.ravel(), per_point.ravel(),
-                               minlength=2 * self.grid.n_nodes).reshape(-1, 2)
-        return self._scatter(per_point)
+        f = pk.internal_force(np.ascontiguousarray(tau4), V0, g, self.nodes,
+                             np.zeros((self.grid.n_nodes, 2)))
+        return f if full else f.ravel()[self.free_dofs]
 
     def fbar_tangent(self, V0: np.ndarray, g: np.ndarray, Q: np.ndarray,
                      w: np.ndarray) -> sp.csr_matrix:
@@ -137,18 +141,12 @@ class StepSystem:
         ``g`` (n, k, 2) spatial gradients, ``A`` (n, 2, 2, 2, 2); ``diagonal``
         is a free-DOF vector (e.g. the Newmark mass term 4 m / dt^2).
         """
-        n, k = self.n, self.k
-        # Ke[p, a, i, l, b] = V0_p g_aj A_ijlm g_bm, two batched matmuls:
-        # (g A)[p, a, (i, l, m)] = g[p, a, j] A[p, j, (i, l, m)], then contract m with g_bm
-        Aj = np.ascontiguousarray(A.transpose(0, 2, 1, 3, 4)).reshape(n, 2, 8)
-        gA = np.matmul(g * V0[:, None, None], Aj).reshape(n, 4 * k, 2)
-        Ke = np.matmul(gA, np.swapaxes(g, 1, 2)).reshape(n, 4 * k * k)
-        Kg = self.group_sum @ Ke                                          # per node set
-        data = np.bincount(self._pos, Kg.ravel()[self._keep], minlength=self.nnz)
-        K = sp.csr_matrix((data, self._indices, self._indptr), shape=(self.n_free, self.n_free))
+        data = np.zeros(self.nnz)
+        pk.assemble_tangent(g, A, V0, self._group, self._positions, data)
         if diagonal is not None:
-            K = K + sp.diags(diagonal, format="csr")
-        return K
+            data[self._diag] += diagonal
+        return sp.csr_matrix((data, self._indices, self._indptr),
+                             shape=(self.n_free, self.n_free))
 
     def rigid_body_modes(self) -> np.ndarray:
         return rigid_body_modes(self.grid.nodes, self.free_dofs)
