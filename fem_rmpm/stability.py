@@ -30,7 +30,7 @@ import numpy as np
 from .explicit import explicit_step_numpy, run_explicit, stable_time_step
 from .run import SimulationError
 from .grid import make_grid
-from .material import kirchhoff_stress
+from .materials import kirchhoff_stress
 from .particles import seed_particles
 from .scene import Scene, with_values
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..grid import Grid, points_in_polygon
 from ..locking import bbar_gradient, fbar_increment, fbar_q, fbar_weights
-from ..material import SoilPoints, small_strain_update, stress_update
+from ..materials import MaterialPoints, small_strain_update, stress_update
 from ..particles import Particles
 from ..run import SimulationError
 from ..scene import Scene, SceneError
@@ -49,8 +49,8 @@ class StepData:
     Vn: np.ndarray                  # volumes at step start (F-bar weights)
     mass: np.ndarray                # t per m
     ls0: np.ndarray                 # elastic log strain at step start (n, 4)
-    gp0: np.ndarray                 # plastic shear strain at step start (n,)
-    soil: SoilPoints
+    state0: np.ndarray                 # state variables of the points' models at step start (n, S)
+    soil: MaterialPoints
     f_ext: np.ndarray               # body force on the free DOFs at the step end (kN per m)
     lf_new: float                   # gravity factor at the step end
     lf_old: float                   # gravity factor at the step start
@@ -106,7 +106,7 @@ class ImplicitSystem:
                 raise SimulationError("prescribed displacements need quasi-static load steps")
             presc = np.where(self.presc_mask, (lf_new - lf_old) * self.presc_target, 0.0)
         return StepData(S, act, pts.volume0[act], pts.volume[act], mass, pts.log_strain[act],
-                        pts.plastic_shear_strain[act], pts.soil.take(act),
+                        pts.state[act], pts.soil.take(act),
                         S.body_force(mass, lf_new * self.g_full), lf_new, lf_old, presc, dt)
 
     def reactions(self, st: StepData, du: np.ndarray, tau: np.ndarray,
@@ -147,12 +147,12 @@ class StepKind:
     # -- the Newton pieces
     def residual(self, st: StepData, du: np.ndarray):
         """``(R, ref, state)``: ``R = f_ext - f_int`` (minus inertia) on the free DOFs,
-        ``ref`` the norm it is measured against, ``state = (ls, gp, tau, dF)``."""
+        ``ref`` the norm it is measured against, ``state = (ls, q, tau, dF)``."""
         S = st.S
         t0 = time.perf_counter()
         H = S.gradient(S.to_nodes(du, st.presc))
         t_mat = st.clock["material"]
-        ls, gp, tau, g, dFm = self.material(st, H)
+        ls, q, tau, g, dFm = self.material(st, H)
         f_int = S.internal_force(st.V0, tau, g)
         R = st.f_ext - f_int
         ref = float(np.linalg.norm(st.f_ext))
@@ -160,7 +160,7 @@ class StepKind:
             ref = max(ref, float(np.linalg.norm(S.internal_force(st.V0, tau, g, full=True))))
         R = self.inertia(st, du, R)
         st.clock["assembly"] += time.perf_counter() - t0 - (st.clock["material"] - t_mat)
-        return R, ref, (ls, gp, tau, dFm)
+        return R, ref, (ls, q, tau, dFm)
 
     def point_tangent(self, st: StepData):
         """``(A, Q, w)``: the point tangent (n, 2, 2, 2, 2), and with F-bar the
@@ -227,13 +227,13 @@ class Geostatic(StepKind):
         sys_ = self.sys
         Hm = bbar_gradient(H, st.Vn, st.S.host, sys_.grid.n_cells) if sys_.fbar else H
         t1 = time.perf_counter()
-        ls, gp, tau = small_strain_update(Hm, st.ls0, st.gp0, st.soil)
+        ls, q, tau = small_strain_update(Hm, st.ls0, st.state0, st.soil)
         st.clock["material"] += time.perf_counter() - t1
         st.cache.update(H=Hm, g=st.S.dN, tau=tau)
-        return ls, gp, tau, st.S.dN, None
+        return ls, q, tau, st.S.dN, None
 
     def point_tangent(self, st):
-        _, A = small_strain_tangent(st.cache["H"], st.ls0, st.gp0, st.soil)
+        _, A = small_strain_tangent(st.cache["H"], st.ls0, st.state0, st.soil)
         if not self.sys.fbar:
             return A, None, None
         S, Vn = st.S, st.Vn
@@ -241,10 +241,10 @@ class Geostatic(StepKind):
         return A, fbar_q(A, None), w
 
     def commit(self, st, res):
-        ls, gp, tau, _ = res.state
+        ls, q, tau, _ = res.state
         info = self.sys.reactions(st, res.du, tau, st.S.dN)
         pts, act = self.sys.pts, st.act
-        pts.log_strain[act], pts.plastic_shear_strain[act] = ls, gp
+        pts.log_strain[act], pts.state[act] = ls, q
         pts.u_geostatic[act] += st.S.interpolate(st.S.to_nodes(res.du, st.presc))
         pts.stress[act] = tau
         return info
@@ -269,29 +269,29 @@ class QuasiStatic(StepKind):
         else:
             dFm = dF
         t1 = time.perf_counter()
-        ls, gp, tau = stress_update(dFm, st.ls0, st.gp0, st.soil)
+        ls, q, tau = stress_update(dFm, st.ls0, st.state0, st.soil)
         st.clock["material"] += time.perf_counter() - t1
         g = np.matmul(st.S.dN, Finv)
         st.cache.update(H=H, dF=dFm, g=g, tau=tau)
-        return ls, gp, tau, g, dFm
+        return ls, q, tau, g, dFm
 
     def point_tangent(self, st):
         c = st.cache
         if "b_e" not in c:
             c["b_e"] = elastic_left_cauchy_green(st.ls0)
-        _, A = finite_strain_tangent(c["dF"], st.ls0, st.gp0, st.soil, b_e=c["b_e"],
+        _, A = finite_strain_tangent(c["dF"], st.ls0, st.state0, st.soil, b_e=c["b_e"],
                                      tau=c["tau"])
         return (A, fbar_q(A, c["tau"]), c["w"]) if self.sys.fbar else (A, None, None)
 
     def commit(self, st, res):
-        ls, gp, tau, dFm = res.state
+        ls, q, tau, dFm = res.state
         S, pts, act = st.S, self.sys.pts, st.act
         du_nodes = S.to_nodes(res.du, st.presc)
         info = {}
         if st.presc is not None:
             info = self.sys.reactions(st, res.du, tau,
                                       np.matmul(S.dN, inv2(_EYE + S.gradient(du_nodes))[0]))
-        pts.log_strain[act], pts.plastic_shear_strain[act] = ls, gp
+        pts.log_strain[act], pts.state[act] = ls, q
         pts.x[act] = pts.x[act] + S.interpolate(du_nodes)
         pts.F[act] = dFm @ pts.F[act]
         F = pts.F[act]

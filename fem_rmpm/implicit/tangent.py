@@ -7,26 +7,28 @@ with respect to the displacement-increment gradient:
 * :func:`finite_strain_tangent` for the large-deformation steps, the spatial tangent
   ``A_ijlm = d tau_ij / d(grad_x du)_lm - delta_jl tau_im`` (material and geometric part).
 
-Both differentiate the very same update of :mod:`fem_rmpm.material` by complex step, so
-the derivative is exact to round-off, return mapping and softening branch included.
+Both differentiate by complex step the very same update the residual uses: each point's
+model update of :mod:`fem_rmpm.materials` (its numpy ``update``, which works on complex
+input), so the derivative is exact to round-off, return mapping and softening branch
+included, for any registered model; the scheme holds no material constants.  ``state``
+is the points' state array (n, S) of their models (or the plastic shear strain (n,)).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..material import (SoilPoints, exp_sym2, kirchhoff_stress, log_sym2, return_map,
-                        small_strain_update)
+from ..materials import MaterialPoints, exp_sym2, log_sym2, return_map, small_strain_update
 
 __all__ = ["small_strain_tangent", "finite_strain_tangent", "elastic_left_cauchy_green",
            "tensor", "inv2"]
 
 
-def small_strain_tangent(grad_du: np.ndarray, log_strain: np.ndarray, gamma_p: np.ndarray,
-                         soil: SoilPoints, step: float = 1e-30):
+def small_strain_tangent(grad_du: np.ndarray, log_strain: np.ndarray, state: np.ndarray,
+                         soil: MaterialPoints, step: float = 1e-30):
     """Consistent tangent of the small-strain (geostatic) update, by complex step.
 
     Returns ``(tau, D)``: ``tau`` (n, 4) [xx, yy, zz, xy] from
-    :func:`~fem_rmpm.material.small_strain_update` and ``D`` (n, 2, 2, 2, 2) with
+    :func:`~fem_rmpm.materials.small_strain_update` and ``D`` (n, 2, 2, 2, 2) with
     ``D_ijlm = d tau_ij / d grad(du)_lm`` (kPa), exact to round-off including the
     return mapping.  ``K_ai,bl = sum_p V_p dN_aj D_ijlm dN_bm``: the same
     contraction as the finite-strain tangent with ``g = dN``.  The update depends
@@ -34,7 +36,7 @@ def small_strain_tangent(grad_du: np.ndarray, log_strain: np.ndarray, gamma_p: n
     evaluations suffice (done as one call on 3n points).
     """
     n = grad_du.shape[0]
-    _, _, tau = small_strain_update(grad_du, log_strain, gamma_p, soil)
+    _, _, tau = small_strain_update(grad_du, log_strain, state, soil)
     # trial strain of small_strain_update, eps + sym(grad du), perturbed in 3 directions
     e3 = np.tile(log_strain.astype(complex), (3, 1))
     e3[:, 0] += np.tile(grad_du[:, 0, 0], 3)
@@ -43,7 +45,7 @@ def small_strain_tangent(grad_du: np.ndarray, log_strain: np.ndarray, gamma_p: n
     e3[:n, 0] += 1j * step
     e3[n:2 * n, 1] += 1j * step
     e3[2 * n:, 3] += 0.5j * step
-    d = _stress_derivative(e3, gamma_p, soil, step).reshape(3, n, 4)
+    d = _derivatives(e3, state, soil, step).reshape(3, n, 4)
     D = np.empty((n, 2, 2, 2, 2))
     for k, (l, m) in enumerate(((0, 0), (1, 1), (0, 1))):
         D[:, 0, 0, l, m], D[:, 1, 1, l, m] = d[k, :, 0], d[k, :, 1]
@@ -52,40 +54,15 @@ def small_strain_tangent(grad_du: np.ndarray, log_strain: np.ndarray, gamma_p: n
     return tau, D
 
 
-def _stress_of(eps: np.ndarray, gamma_p: np.ndarray, soil: SoilPoints) -> np.ndarray:
-    """Kirchhoff stress after the return mapping of :mod:`fem_rmpm.material`; points
-    without a strength (linear elastic: peak and residual cohesion inf) skip the (never active)
-    yield check, which is most of the cost of a complex evaluation."""
-    elastic = ~np.isfinite(soil.cohesion_peak) & ~np.isfinite(soil.cohesion_residual)
-    if elastic.all():
-        return kirchhoff_stress(eps, soil)
-    if not elastic.any():
-        return return_map(eps, gamma_p, soil)[2]
-    tau = kirchhoff_stress(eps, soil)
-    idx = np.nonzero(~elastic)[0]
-    tau[idx] = return_map(eps[idx], gamma_p[idx], soil.take(idx))[2]
-    return tau
-
-
-def _stress_derivative(eps_c: np.ndarray, gamma_p: np.ndarray, soil: SoilPoints,
-                       step: float) -> np.ndarray:
-    """``Im tau(eps_c) / step`` for 3 stacked complex-step perturbations (3n, 4) of n
-    points: the directional derivatives of the Kirchhoff stress.  Linear elastic points
-    (no strength) are linear in the strain, so their derivative is
-    ``kirchhoff_stress(Im eps_c) / step`` in real arithmetic; the others go through the
-    complex return mapping of :mod:`fem_rmpm.material`."""
-    n = len(gamma_p)
-    elastic = ~np.isfinite(soil.cohesion_peak) & ~np.isfinite(soil.cohesion_residual)
-    d = np.empty((3 * n, 4))
-    for k in range(3):
-        d[k * n:(k + 1) * n] = kirchhoff_stress(eps_c[k * n:(k + 1) * n].imag, soil) / step
-    if not elastic.all():
-        idx = np.nonzero(~elastic)[0]
-        sp_ = soil.take(idx)
-        for k in range(3):
-            e = eps_c[k * n + idx]
-            d[k * n + idx] = return_map(e, gamma_p[idx] + 0 * e[:, 0], sp_)[2].imag / step
-    return d
+def _derivatives(eps_c: np.ndarray, state: np.ndarray, soil: MaterialPoints,
+                 step: float) -> np.ndarray:
+    """``Im tau(eps_c) / step`` for 3 stacked complex-step perturbations (3n, 4) of the
+    trial log strain of n points: the directional derivatives of the Kirchhoff stress,
+    through each point's own model update (:func:`fem_rmpm.materials.return_map`, one
+    call on the 3n trial states)."""
+    n = len(eps_c) // 3
+    idx = np.tile(np.arange(n), 3)
+    return return_map(eps_c, state[idx] + 0j, soil.take(idx))[2].imag / step
 
 
 def elastic_left_cauchy_green(log_strain: np.ndarray) -> np.ndarray:
@@ -96,15 +73,15 @@ def elastic_left_cauchy_green(log_strain: np.ndarray) -> np.ndarray:
     return B
 
 
-def finite_strain_tangent(dF: np.ndarray, log_strain: np.ndarray, gamma_p: np.ndarray,
-                          soil: SoilPoints, step: float = 1e-30, b_e: np.ndarray | None = None,
+def finite_strain_tangent(dF: np.ndarray, log_strain: np.ndarray, state: np.ndarray,
+                          soil: MaterialPoints, step: float = 1e-30, b_e: np.ndarray | None = None,
                           tau: np.ndarray | None = None):
-    """Same ``(tau, A)`` as :func:`fem_rmpm.material.spatial_tangent`, about 3x faster.
+    """Same ``(tau, A)`` as :func:`fem_rmpm.materials.spatial_tangent`, about 3x faster.
 
     ``A_ijlm = d tau_ij / d(grad_x du)_lm - delta_jl tau_im`` where a perturbation
     ``dF -> (I + E) dF`` is split into its symmetric part (three complex-step
     evaluations of the very same trial state and return mapping of
-    :mod:`fem_rmpm.material`, done as one call on 3n points, with the trial
+    :mod:`fem_rmpm.materials`, done as one call on 3n points, with the trial
     ``b = (I + i h S) b_tr (I + i h S)`` formed directly) and its spin ``W``,
     whose effect is exact and analytic for this isotropic law:
     ``tau((I + W) dF) = (I + W) tau (I + W)^T``, i.e. ``d tau = W tau - tau W``.
@@ -119,7 +96,7 @@ def finite_strain_tangent(dF: np.ndarray, log_strain: np.ndarray, gamma_p: np.nd
     if tau is None:
         exx, eyy, exy = log_sym2(btr[:, 0, 0], btr[:, 1, 1], btr[:, 0, 1])
         eps_tr = np.stack([exx, eyy, log_strain[:, 2], exy], axis=1)
-        tau = _stress_of(eps_tr, gamma_p, soil)
+        tau = return_map(eps_tr, state, soil)[2]
     b00, b11, b01 = btr[:, 0, 0], btr[:, 1, 1], btr[:, 0, 1]
     # symmetric directions S_00, S_11, (E_01 + E_10)/2: b = b_tr + i h (S b_tr + b_tr S)
     h = 1j * step
@@ -132,7 +109,7 @@ def finite_strain_tangent(dF: np.ndarray, log_strain: np.ndarray, gamma_p: np.nd
     eps_c = np.empty((3 * n, 4), dtype=complex)
     eps_c[:, 0], eps_c[:, 1], eps_c[:, 3] = exx, eyy, exy
     eps_c[:, 2] = np.tile(log_strain[:, 2], 3)
-    d = tensor(_stress_derivative(eps_c, gamma_p, soil, step)).reshape(3, n, 2, 2)
+    d = tensor(_derivatives(eps_c, state, soil, step)).reshape(3, n, 2, 2)
     T = tensor(tau)
     # spin W = (E_01 - E_10)/2: d tau = W tau - tau W = [[t01, (t11-t00)/2], [.., -t01]]
     dW = np.empty((n, 2, 2))
