@@ -9,7 +9,7 @@ changes.
 """
 from __future__ import annotations
 
-from . import linear_elastic, von_mises
+from . import linear_elastic, mohr_coulomb, von_mises
 from .hencky import (exp_sym2, hencky_stress, hughes_winget_increment, kirchhoff_stress,
                      log_sym2, return_map, small_strain_update, spatial_tangent, sqrt_j2,
                      stress_update)
@@ -27,3 +27,4 @@ __all__ = ["MaterialPoints", "Parameter", "ELASTIC_COLUMNS", "register", "model"
 # the registry: one line per model (the order gives the model ids)
 register(linear_elastic)
 register(von_mises)
+register(mohr_coulomb)

@@ -1,0 +1,322 @@
+"""Mohr–Coulomb soil with strength softening (``model = "mohr_coulomb_softening"``).
+
+* **Yield** on the principal Kirchhoff stresses ``tau_1 >= tau_2 >= tau_3`` (tension
+  positive, the out-of-plane ``tau_zz`` included: plane strain)::
+
+      f = (tau_1 - tau_3) + (tau_1 + tau_3) sin(phi) - 2 c cos(phi) <= 0
+
+  with cohesion ``c`` (kPa) and friction angle ``phi``.  ``phi = 0`` is Tresca
+  (``(tau_1 - tau_3) / 2 <= c``), which equals von Mises ``sqrt(J2) <= c`` in plane-strain
+  pure shear.
+* **Flow**: non-associated, plastic potential ``g = (tau_1 - tau_3) + (tau_1 + tau_3)
+  sin(psi)`` with the dilation angle ``psi <= phi``: a plastic step on the main plane has
+  volumetric / shear plastic strain ``d_eps_v / (d_eps_1 - d_eps_3) = sin(psi)``.
+* **Softening**: ``c``, ``phi`` and ``psi`` each fall from peak to residual with the
+  plastic shear strain invariant ``gamma_p``, linearly (reaching the residual at
+  ``gamma_p = softening_strain``) or exponentially (e-folding strain
+  ``softening_strain``), as the von Mises model.  ``gamma_p`` sums ``sqrt(2 de_p : de_p)``
+  over the steps, ``de_p`` the *deviatoric* plastic log-strain increment (the engineering
+  plastic shear strain in simple shear; dilation does not count).
+* **Return mapping** in principal log-strain space (isotropic Hencky elasticity: the
+  principal directions of the trial state are kept), exact for each branch (de Souza
+  Neto, Peric & Owen 2008, *Computational Methods for Plasticity*, sec. 8.2, Boxes
+  8.4-8.5): the main plane; the edge ``tau_1 = tau_2`` (planes 1-3 and 2-3) or ``tau_2 = tau_3``
+  (planes 1-3 and 1-2)
+  when the main-plane return breaks the order of the principal stresses; the apex
+  ``tau_1 = tau_2 = tau_3 = c cot(phi)`` when the edge return is not admissible either
+  (``phi > 0``; all trial deviatoric strain becomes plastic).  With softening, each
+  branch is a Newton iteration on its plastic multipliers with ``c, phi`` at the new
+  ``gamma_p``; the flow direction uses ``psi`` at the start of the step.
+* **Tangent**: the implicit scheme differentiates :func:`update` by the complex step;
+  the update is one numba function for real and complex numbers (branch tests on real
+  parts), so the numpy reference and the explicit kernels run the same arithmetic.
+  No tension cut-off yet: the apex return is the tensile limit.
+
+Parameter row ``[G, K, cohesion_peak, cohesion_residual, friction_angle_peak,
+friction_angle_residual, dilation_angle_peak, dilation_angle_residual, softening_strain,
+softening]`` (kPa, kPa, kPa, kPa, deg, deg, deg, deg, -, 0 linear / 1 exponential);
+state ``[plastic_shear_strain]``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .protocol import Parameter
+
+NAME = "mohr_coulomb_softening"
+PARAMETERS = (
+    Parameter("cohesion_peak", "kPa", 0.0, math.inf, True, False, None, absent=math.inf,
+              description="cohesion c at peak"),
+    Parameter("cohesion_residual", "kPa", 0.0, math.inf, True, False, None, absent=math.inf,
+              description="cohesion after softening"),
+    Parameter("friction_angle_peak", "deg", 0.0, 60.0, True, False, None, absent=math.nan,
+              description="friction angle phi at peak"),
+    Parameter("friction_angle_residual", "deg", 0.0, 60.0, True, False, None,
+              absent=math.nan, description="friction angle after softening"),
+    Parameter("dilation_angle_peak", "deg", 0.0, 60.0, True, False, 0.0, absent=math.nan,
+              description="dilation angle psi at peak (<= friction_angle_peak)"),
+    Parameter("dilation_angle_residual", "deg", 0.0, 60.0, True, False, 0.0,
+              absent=math.nan, description="dilation angle after softening"),
+    Parameter("softening_strain", "-", 0.0, math.inf, False, False, 0.5,
+              description="plastic shear strain at which the strengths reach the residual "
+                          "(linear) or the e-folding strain (exponential)"),
+    Parameter("softening", "-", default="linear", choices=("linear", "exponential"),
+              description="softening law"),
+)
+STATE = ("plastic_shear_strain",)
+_CP, _CR, _PHP, _PHR, _PSP, _PSR, _GS, _EXP = 2, 3, 4, 5, 6, 7, 8, 9
+_DEG = math.pi / 180.0
+_REL = 1e-12          # relative tolerance of the yield test and of the branch checks
+
+
+def check(values: dict):
+    """Scene check across parameters: residual <= peak for c, phi and psi; psi <= phi;
+    some strength; a cohesion softening modulus below G (else the return snaps back)."""
+    for what in ("cohesion", "friction_angle", "dilation_angle"):
+        pk, rs = values[f"{what}_peak"], values[f"{what}_residual"]
+        if rs > pk:
+            return f"{what}_residual", (f"{rs:g} exceeds {what}_peak {pk:g}; allowed: "
+                                        f"0 <= {what}_residual <= {what}_peak")
+    for stage in ("peak", "residual"):
+        psi, phi = values[f"dilation_angle_{stage}"], values[f"friction_angle_{stage}"]
+        if psi > phi:
+            return f"dilation_angle_{stage}", (f"{psi:g} deg exceeds friction_angle_{stage} "
+                                               f"{phi:g} deg; allowed: 0 <= psi <= phi")
+    if values["cohesion_peak"] <= 0 and values["friction_angle_peak"] <= 0:
+        return "cohesion_peak", ("mohr_coulomb_softening needs cohesion_peak > 0 or "
+                                 "friction_angle_peak > 0 (no strength at all)")
+    h = (values["cohesion_peak"] - values["cohesion_residual"]) / values["softening_strain"]
+    if values["softening"] == "linear" and h >= values["shear_modulus"]:
+        return "softening_strain", (f"cohesion softening modulus {h:g} kPa >= shear modulus "
+                                    f"{values['shear_modulus']:g} kPa makes the local return "
+                                    "mapping snap back; allowed: softening_strain > "
+                                    f"{(values['cohesion_peak'] - values['cohesion_residual']) / values['shear_modulus']:g}")
+    return None
+
+
+def invalid_points(params: np.ndarray):
+    """Per-point :func:`check` for values drawn by a random field: mask and reason."""
+    cp, cr, gs, G = params[:, _CP], params[:, _CR], params[:, _GS], params[:, 0]
+    bad = (params[:, _EXP] == 0) & ((cp - cr) / gs >= G)
+    bad |= ~(cp >= 0) | ~(cr <= cp) | ~(params[:, _PHR] <= params[:, _PHP])
+    bad |= (cp <= 0) & (params[:, _PHP] <= 0)
+    return bad, ("its strengths are not 0 <= residual <= peak, it has no strength, or its "
+                 "cohesion softening modulus is not below the shear modulus")
+
+
+def cohesion(gamma_p, params: np.ndarray):
+    """Current cohesion c(gamma_p) (kPa) and dc/dgamma_p per point (for outputs)."""
+    w, dw = _weight_np(gamma_p, params)
+    drop = params[:, _CP] - params[:, _CR]
+    return params[:, _CR] + drop * w, drop * dw
+
+
+def friction_angle(gamma_p, params: np.ndarray):
+    """Current friction angle phi(gamma_p) (deg) per point."""
+    w, _ = _weight_np(gamma_p, params)
+    return params[:, _PHR] + (params[:, _PHP] - params[:, _PHR]) * w
+
+
+def _weight_np(gamma_p, params):
+    gs, expo = params[:, _GS], params[:, _EXP] == 1
+    decay = np.exp(-gamma_p / gs)
+    on = np.real(gamma_p) < gs
+    w = np.where(expo, decay, np.where(on, 1 - gamma_p / gs, 0.0))
+    dw = np.where(expo, -decay / gs, np.where(on, -1 / gs, 0.0))
+    return w, dw
+
+
+# --------------------------------------------------------------- strengths (one point)
+@njit(inline="always")
+def _strengths(gam, cp, cr, php, phr, gs, expo):
+    """c, sin(phi), c cos(phi) at gamma_p and their derivatives d/dgamma_p."""
+    if expo:
+        w = np.exp(-gam / gs)
+        dw = -w / gs
+    elif gam.real < gs:
+        w = 1.0 - gam / gs
+        dw = -1.0 / gs + 0.0 * gam
+    else:
+        w = 0.0 * gam
+        dw = 0.0 * gam
+    c = cr + (cp - cr) * w
+    phi = (phr + (php - phr) * w) * _DEG
+    dphi = (php - phr) * _DEG * dw
+    sphi, cphi = np.sin(phi), np.cos(phi)
+    dc = (cp - cr) * dw
+    return c, sphi, c * cphi, dc, cphi * dphi, dc * cphi - c * sphi * dphi
+
+
+@njit(inline="always")
+def _dev_norm(a, b, c):
+    """sqrt(2 dev(x) : dev(x)) of a diagonal (principal) increment x = (a, b, c)."""
+    m = (a + b + c) / 3.0
+    return (2.0 * ((a - m) ** 2 + (b - m) ** 2 + (c - m) ** 2)) ** 0.5
+
+
+# --------------------------------------------------------------- the three returns
+@njit(cache=True)
+def _main_plane(t1, t3, gn, sps, lam, G, cp, cr, php, phr, gs, expo):
+    """Multiplier of the main-plane return (plane 1-3), Newton on f(dg) = 0."""
+    dn1 = lam * 2 * sps + 2 * G * (1 + sps)
+    dn3 = lam * 2 * sps - 2 * G * (1 - sps)
+    k = 2.0 * (1.0 + sps * sps / 3.0) ** 0.5          # d gamma_p / d dg on this plane
+    c, sph, ccp, _, _, _ = _strengths(gn, cp, cr, php, phr, gs, expo)
+    dg = (t1 - t3 + (t1 + t3) * sph - 2 * ccp) / (4 * G + 4 * sps * sph * (lam + G))
+    for it in range(60):
+        c, sph, ccp, dc, dsph, dccp = _strengths(gn + k * dg, cp, cr, php, phr, gs, expo)
+        s1, s3 = t1 - dg * dn1, t3 - dg * dn3
+        f = s1 - s3 + (s1 + s3) * sph - 2 * ccp
+        df = -(dn1 - dn3) - (dn1 + dn3) * sph + ((s1 + s3) * dsph - 2 * dccp) * k
+        step = f / df
+        dg = dg - step
+        if it > 0 and abs(step.real) <= 1e-15 * abs(dg.real):
+            break
+    return dg, gn + k * dg
+
+
+@njit(cache=True)
+def _edge(t1, t2, t3, upper, gn, sps, lam, G, cp, cr, php, phr, gs, expo):
+    """Multipliers of an edge return: planes 1-3 and 2-3 on the edge tau_1 = tau_2
+    (``upper``), planes 1-3 and 1-2 on the edge tau_2 = tau_3."""
+    z = 0.0 * sps                                   # a zero of the type of sps
+    na = (1 + sps, z, -(1 - sps))
+    nb = (z, 1 + sps, -(1 - sps)) if upper else (1 + sps, -(1 - sps), z)
+    tr = 2 * sps
+    da = (lam * tr + 2 * G * na[0], lam * tr + 2 * G * na[1], lam * tr + 2 * G * na[2])
+    db = (lam * tr + 2 * G * nb[0], lam * tr + 2 * G * nb[1], lam * tr + 2 * G * nb[2])
+    # plane b: f_b = s_i - s_j + (s_i + s_j) sin(phi) - 2 c cos(phi) with (i, j)
+    i, j = (1, 2) if upper else (0, 1)
+    ga, gb = 0.0 * t1, 0.0 * t1
+    c, sph, ccp, _, _, _ = _strengths(gn, cp, cr, php, phr, gs, expo)
+    for it in range(60):
+        s = (t1 - ga * da[0] - gb * db[0], t2 - ga * da[1] - gb * db[1],
+             t3 - ga * da[2] - gb * db[2])
+        x = (ga * na[0] + gb * nb[0], ga * na[1] + gb * nb[1], ga * na[2] + gb * nb[2])
+        inv = _dev_norm(x[0], x[1], x[2])
+        c, sph, ccp, dc, dsph, dccp = _strengths(gn + inv, cp, cr, php, phr, gs, expo)
+        fa = s[0] - s[2] + (s[0] + s[2]) * sph - 2 * ccp
+        fb = s[i] - s[j] + (s[i] + s[j]) * sph - 2 * ccp
+        # d gamma_p / d ga, d gb (zero at the first, perfectly plastic, iteration)
+        m = (x[0] + x[1] + x[2]) / 3
+        if inv.real > 0:
+            ma, mb = (na[0] + na[1] + na[2]) / 3, (nb[0] + nb[1] + nb[2]) / 3
+            ka = 2 * ((x[0] - m) * (na[0] - ma) + (x[1] - m) * (na[1] - ma)
+                      + (x[2] - m) * (na[2] - ma)) / inv
+            kb = 2 * ((x[0] - m) * (nb[0] - mb) + (x[1] - m) * (nb[1] - mb)
+                      + (x[2] - m) * (nb[2] - mb)) / inv
+        else:
+            ka, kb = 0.0 * inv, 0.0 * inv
+        ha = (s[0] + s[2]) * dsph - 2 * dccp
+        hb = (s[i] + s[j]) * dsph - 2 * dccp
+        a11 = -(da[0] - da[2]) - (da[0] + da[2]) * sph + ha * ka
+        a12 = -(db[0] - db[2]) - (db[0] + db[2]) * sph + ha * kb
+        a21 = -(da[i] - da[j]) - (da[i] + da[j]) * sph + hb * ka
+        a22 = -(db[i] - db[j]) - (db[i] + db[j]) * sph + hb * kb
+        det = a11 * a22 - a12 * a21
+        sa = (fa * a22 - fb * a12) / det
+        sb = (a11 * fb - a21 * fa) / det
+        ga, gb = ga - sa, gb - sb
+        if it > 0 and abs(sa.real) + abs(sb.real) <= 1e-15 * (abs(ga.real) + abs(gb.real)):
+            break
+    x = (ga * na[0] + gb * nb[0], ga * na[1] + gb * nb[1], ga * na[2] + gb * nb[2])
+    return ga, gb, x, gn + _dev_norm(x[0], x[1], x[2])
+
+
+@njit(cache=True)
+def _principal_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo):
+    """Return of ordered principal trial log strains e1 >= e2 >= e3: new principal
+    elastic log strains and gamma_p.  Elastic: the inputs unchanged."""
+    lam = K - 2.0 / 3.0 * G
+    vol = e1 + e2 + e3
+    t1, t2, t3 = lam * vol + 2 * G * e1, lam * vol + 2 * G * e2, lam * vol + 2 * G * e3
+    c, sph, ccp, _, _, _ = _strengths(gn, cp, cr, php, phr, gs, expo)
+    f_tr = t1 - t3 + (t1 + t3) * sph - 2 * ccp
+    scale = abs(t1.real) + abs(t3.real) + abs(ccp.real) + 1e-300
+    if not f_tr.real > _REL * scale:
+        return e1, e2, e3, gn
+    _, sps, _, _, _, _ = _strengths(gn, 0.0, 0.0, psp, psr, gs, expo)  # sin(psi) at the start
+    dg, gam = _main_plane(t1, t3, gn, sps, lam, G, cp, cr, php, phr, gs, expo)
+    p1, p2, p3 = dg * (1 + sps), 0.0 * dg, -dg * (1 - sps)
+    s1 = t1 - lam * 2 * sps * dg - 2 * G * p1
+    s2 = t2 - lam * 2 * sps * dg
+    s3 = t3 - lam * 2 * sps * dg - 2 * G * p3
+    tol = _REL * scale
+    if s1.real + tol >= s2.real and s2.real + tol >= s3.real:
+        return e1 - p1, e2 - p2, e3 - p3, gam
+    upper = s2.real > s1.real                       # the edge tau_1 = tau_2, else tau_2 = tau_3
+    ga, gb, x, gam = _edge(t1, t2, t3, upper, gn, sps, lam, G, cp, cr, php, phr, gs, expo)
+    n1, n2, n3 = e1 - x[0], e2 - x[1], e3 - x[2]
+    v = n1 + n2 + n3
+    u1, u2, u3 = lam * v + 2 * G * n1, lam * v + 2 * G * n2, lam * v + 2 * G * n3
+    admissible = (ga.real >= -tol / G and gb.real >= -tol / G and u1.real + tol >= u2.real
+                  and u2.real + tol >= u3.real)
+    if admissible or not php > 0:
+        return n1, n2, n3, gam
+    # apex: the trial deviator becomes plastic, the pressure goes to c cot(phi)
+    gam = gn + _dev_norm(e1, e2, e3)
+    c, sph, ccp, _, _, _ = _strengths(gam, cp, cr, php, phr, gs, expo)
+    ev = 3.0 * (c * (1 - sph * sph) ** 0.5 / sph) / (3.0 * K)     # e_vol = p / K
+    return ev / 3.0, ev / 3.0, ev / 3.0, gam
+
+
+@njit(cache=True)
+def _update_point(e0, e1, e2, e3, gn, prm):
+    """One point: trial log strain [xx, yy, zz, xy] -> (new strain, gamma_p)."""
+    G, K = prm[0], prm[1]
+    m, d = 0.5 * (e0 + e1), 0.5 * (e0 - e1)
+    r = (d * d + e3 * e3) ** 0.5
+    ea, eb = m + r, m - r                        # in-plane principal, ea >= eb; zz is e2
+    expo = prm[_EXP] == 1.0
+    args = (G, K, prm[_CP], prm[_CR], prm[_PHP], prm[_PHR], prm[_PSP], prm[_PSR], prm[_GS], expo)
+    if e2.real >= ea.real:
+        nz, na, nb, gam = _principal_return(e2, ea, eb, gn, *args)
+    elif e2.real >= eb.real:
+        na, nz, nb, gam = _principal_return(ea, e2, eb, gn, *args)
+    else:
+        na, nb, nz, gam = _principal_return(ea, eb, e2, gn, *args)
+    mn, rn = 0.5 * (na + nb), 0.5 * (na - nb)
+    if r.real > 0:
+        q = rn / r
+        return mn + q * d, mn - q * d, nz, q * e3, gam
+    return na, nb, nz, 0.0 * e3, gam           # isotropic in-plane trial: any axes are principal
+
+
+@njit(cache=True)
+def _update_all(eps_tr, state, params, eps, st, tau):
+    for i in range(eps_tr.shape[0]):
+        e0, e1, e2, e3, gam = _update_point(eps_tr[i, 0], eps_tr[i, 1], eps_tr[i, 2],
+                                            eps_tr[i, 3], state[i, 0], params[i])
+        G, K = params[i, 0], params[i, 1]
+        lam = K - 2.0 / 3.0 * G
+        vol = e0 + e1 + e2
+        eps[i, 0], eps[i, 1], eps[i, 2], eps[i, 3] = e0, e1, e2, e3
+        tau[i, 0], tau[i, 1] = lam * vol + 2 * G * e0, lam * vol + 2 * G * e1
+        tau[i, 2], tau[i, 3] = lam * vol + 2 * G * e2, 2 * G * e3
+        st[i, 0] = gam
+
+
+def update(eps_tr: np.ndarray, state: np.ndarray, params: np.ndarray):
+    """Mohr–Coulomb return of trial log strains (n, 4) ``[xx, yy, zz, xy]``; returns
+    ``(eps_e, state, tau)``.  Real or complex (complex step) input."""
+    dtype = np.result_type(eps_tr, state, float)
+    eps_tr = np.ascontiguousarray(eps_tr, dtype=dtype)
+    state_in = np.ascontiguousarray(state, dtype=dtype)
+    eps, tau, st = np.empty_like(eps_tr), np.empty_like(eps_tr), state_in.copy()
+    _update_all(eps_tr, state_in, np.ascontiguousarray(params, dtype=float), eps, st, tau)
+    return eps, st, tau
+
+
+@njit(inline="always")
+def point_update(e0, e1, e2, e3, state, params, i):
+    """:func:`update` for point ``i`` of the explicit kernels (writes ``state[i, 0]``)."""
+    e0, e1, e2, e3, gam = _update_point(e0, e1, e2, e3, state[i, 0], params[i])
+    G, K = params[i, 0], params[i, 1]
+    lam = K - 2.0 / 3.0 * G
+    vol = e0 + e1 + e2
+    state[i, 0] = gam
+    return (e0, e1, e2, e3, lam * vol + 2 * G * e0, lam * vol + 2 * G * e1,
+            lam * vol + 2 * G * e2, 2 * G * e3)
