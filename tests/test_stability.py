@@ -103,16 +103,22 @@ def test_cell_crossing_gimp_converges_standard_stalls(scheme, cells):
 
 
 @pytest.mark.slow
-def test_validation_scripts_write_their_figures():
+def test_validation_scripts_write_their_figures(tmp_path):
     """validation/stability_map.py (--quick) and validation/footing.py (--quick) run to the end
-    and write one PNG per study (issue 8: CFL, cell crossing, locking, points per cell,
-    footing)."""
+    and write one fresh PNG per study into a temporary directory (issue 8: CFL, cell
+    crossing, locking, points per cell, footing), with the JSON of numbers beside them.  The
+    README's figures from them: tests/test_readme_figures.py."""
+    import json
     import subprocess
     import sys
     root = MESHES.parent
     for script in ("stability_map.py", "footing.py"):
-        subprocess.run([sys.executable, str(root / "validation" / script), "--quick"],
-                       check=True, cwd=root, capture_output=True)
+        subprocess.run([sys.executable, str(root / "validation" / script), "--quick", "--out",
+                        str(tmp_path)], check=True, cwd=root, capture_output=True)
     for name in ("stability_cfl", "stability_cell_crossing", "stability_locking",
                  "stability_ppc", "footing"):
-        assert (root / "validation" / "out" / f"{name}.png").stat().st_size > 10_000
+        data = (tmp_path / f"{name}.png").read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
+    res = json.loads((tmp_path / "stability_map.json").read_text())
+    assert set(res) == {"cfl", "crossing", "locking", "ppc"}
+    assert json.loads((tmp_path / "footing.json").read_text())["runs"]

@@ -74,10 +74,13 @@ def run(h: float, fbar: bool = True, kind: str = "geostatic", components: str = 
 
 
 def main(argv=None):
+    global OUT
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="skip B/64")
+    ap.add_argument("--out", default=str(OUT), help="output directory (default validation/out)")
     args = ap.parse_args(argv)
-    OUT.mkdir(exist_ok=True)
+    OUT = Path(args.out)
+    OUT.mkdir(parents=True, exist_ok=True)
     rows = []
 
     def show(r, label):

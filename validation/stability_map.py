@@ -331,11 +331,14 @@ def study_ppc(quick: bool):
 
 
 def main(argv=None):
+    global OUT
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="skip the finest meshes")
     ap.add_argument("--only", choices=("cfl", "crossing", "locking", "ppc"), nargs="*")
+    ap.add_argument("--out", default=str(OUT), help="output directory (default validation/out)")
     args = ap.parse_args(argv)
-    OUT.mkdir(exist_ok=True)
+    OUT = Path(args.out)
+    OUT.mkdir(parents=True, exist_ok=True)
     studies = {"cfl": study_cfl, "crossing": study_crossing, "locking": study_locking,
                "ppc": study_ppc}
     path = OUT / "stability_map.json"

@@ -1,0 +1,124 @@
+"""The README's figures, recomputed (issue 21): each slow test runs the validation script or
+run that produced a README number, into a temporary directory (never validation/out, whose
+files may be stale), reads the number from README.md itself and asserts the fresh result
+rounds to it.  So the README cannot drift from the code: change one and the test fails
+until the other follows.  All are @pytest.mark.slow (minutes each; `python -m pytest -m
+slow tests/test_readme_figures.py`).
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+
+
+def readme_numbers(pattern: str) -> list[str]:
+    """The groups of the one README line matching ``pattern`` (a regex), as written."""
+    m = re.search(pattern, README, re.MULTILINE)
+    assert m, f"README no longer has a line matching {pattern!r}"
+    return list(m.groups())
+
+
+def rounds_to(value: float, written: str) -> bool:
+    """``value`` rounds to the README's ``written`` (its decimals; +-half a unit)."""
+    decimals = len(written.split(".")[1]) if "." in written else 0
+    return abs(value - float(written)) <= 0.5 * 10.0 ** -decimals + 1e-12
+
+
+def _script(name: str, *args: str, timeout: float) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run([sys.executable, str(ROOT / "validation" / name), *args], cwd=ROOT,
+                       env=env, capture_output=True, text=True, timeout=timeout)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return r
+
+
+@pytest.mark.slow
+def test_footing_table_and_richardson_match_readme(tmp_path):
+    """README "Choosing a method", F-bar: q/c at 3 % of B for h = B/8 .. B/64 with and
+    without F-bar, and "Richardson extrapolation of the F-bar values gives 5.137"
+    (validation/footing.py, full: about 10 minutes on a shared core)."""
+    _script("footing.py", "--out", str(tmp_path), timeout=4 * 3600)
+    res = json.loads((tmp_path / "footing.json").read_text())
+    assert (tmp_path / "footing.png").stat().st_size > 10_000
+    (rich,) = readme_numbers(r"Richardson extrapolation of the F-bar values gives ([\d.]+)")
+    assert rounds_to(res["richardson"]["q_over_c"], rich), (res["richardson"], rich)
+    num = r"([\d.]+)[^|]*"
+    with_fbar = readme_numbers(rf"^\s*\| with F-bar \| {num}\| {num}\| {num}\| {num}\|")
+    without = readme_numbers(rf"^\s*\| without \(locking\) \| {num}\| {num}\| {num}\| {num}\|")
+    for fbar, written in ((True, with_fbar), (False, without)):
+        runs = sorted((r for r in res["runs"] if r["fbar"] == fbar and r["kind"] == "geostatic"
+                       and r["components"] == "xy" and r["domain"] == [3.0, 2.0]),
+                      key=lambda r: -r["h_over_B"])
+        assert len(runs) == 4
+        for r, w in zip(runs, written):
+            assert rounds_to(r["q_end"], w), (fbar, r["h_over_B"], r["q_end"], w)
+
+
+@pytest.mark.slow
+def test_cfl_limits_match_readme(tmp_path):
+    """README "Choosing a method", explicit stability: the bisected cfl limits of the column
+    (large deformation undamped 1.08, damped 1.38; linear MUSL 1.65) and the spectral radius
+    of the linearised step predicting the linear limit within 1 %
+    (validation/stability_map.py --only cfl)."""
+    _script("stability_map.py", "--only", "cfl", "--out", str(tmp_path), timeout=3 * 3600)
+    res = json.loads((tmp_path / "stability_map.json").read_text())["cfl"]
+    assert (tmp_path / "stability_cfl.png").stat().st_size > 10_000
+    limit = {c["case"]: c["limit"] for c in res["cases"]}
+    (undamped,) = readme_numbers(r"column, large deformation, undamped \| ([\d.]+)")
+    (damped,) = readme_numbers(r"column, large deformation, damped \| ([\d.]+)")
+    (linear,) = readme_numbers(r"column, linear MUSL \| ([\d.]+)")
+    tol = 0.005 + 0.005                     # the bisection's tolerance + the README rounding
+    assert abs(limit["column, large deformation, undamped"] - float(undamped)) <= tol
+    assert abs(limit["column, large deformation, damping 0.7"] - float(damped)) <= tol
+    lin = limit["column, linear (geostatic), undamped"]
+    assert abs(lin - float(linear)) <= tol
+    assert abs(res["spectral"]["FLIP"] / lin - 1) < 0.01
+
+
+@pytest.mark.slow
+def test_four_literature_cases_match_readme(tmp_path):
+    """README "What the four cases show" (validation/montecarlo_cases.py with its documented
+    N, into a temporary directory): P(failure) = 1 in every case and the intact blocks at 3 s
+    per case (mean, and SE where the README gives one) as the README's table writes them."""
+    out = tmp_path / "cases"
+    _script("montecarlo_cases.py", "--out", str(out), "--quiet", timeout=6 * 3600)
+    summary = json.loads((out / "summary.json").read_text())
+    cases = {c["name"]: c for c in summary["cases"]}
+    assert list(cases) == ["homogeneous", "xi1", "xi12", "xi48"]
+    for c in cases.values():
+        assert c["finished"] == c["realizations"] and c["p_failure"] == 1.0
+    (homog,) = readme_numbers(r"^\| homogeneous \| ([\d.]+) \|")
+    assert rounds_to(cases["homogeneous"]["intact_blocks"]["mean"], homog)
+    for name, label in (("xi1", "1"), ("xi12", "12"), ("xi48", "48")):
+        mean, se = readme_numbers(rf"^\| xi = {label} \| ([\d.]+) ± ([\d.]+) \|")
+        s = cases[name]["intact_blocks"]
+        assert rounds_to(s["mean"], mean) and rounds_to(s["se"], se), (name, s, mean, se)
+
+
+@pytest.mark.slow
+def test_reference_slope_schemes_match_readme(tmp_path):
+    """README "The reference slope": the explicit column of the explicit-vs-implicit table
+    from a fresh run, and the implicit run (Newmark, dt = 0.02 s, about 20 minutes) agreeing
+    with it within the README's figures (run-out, retrogression, sliding area)."""
+    from fem_rmpm import api
+    from fem_rmpm.scene import load_scene, with_values
+    scene = load_scene(ROOT / "meshes" / "slope_reference.toml")
+    rows = {"runout_distance": r"^\| run-out \(m\) \| ([\d.]+) \| ([\d.]+) \|",
+            "retrogression_distance": r"^\| retrogression \(m\) \| ([\d.]+) \| ([\d.]+) \|",
+            "sliding_area": r"^\| sliding area \(m2\) \| ([\d.]+) \| ([\d.]+) \|"}
+    exp = api.run(scene, out=tmp_path / "exp").measures
+    imp = api.run(with_values(scene, {"solver.scheme": "implicit", "solver.dynamic": True,
+                                      "solver.dt": 0.02}), out=tmp_path / "imp").measures
+    for key, pattern in rows.items():
+        e, i = readme_numbers(pattern)
+        assert rounds_to(exp[key], e), (key, exp[key], e)
+        assert rounds_to(imp[key], i), (key, imp[key], i)
