@@ -1,0 +1,212 @@
+"""The package's structure, read from its source with ``ast`` (issue 11, acceptance 3 and 5).
+
+* The import graph of ``fem_rmpm`` (every ``import`` / ``from ... import`` in every
+  module, at top level or inside a function) has no cycle, and no module of the package
+  imports the command line ``fem_rmpm.cli`` (the CLI is the top layer).
+* No module has more than 600 lines; no function more than 80 lines unless a comment
+  ``# long function: <why>`` on its ``def`` line, the line above it or the first line of
+  its body says why.
+* The module map of the README's "Architecture" section names exactly the package's
+  modules: a row per top-level module (``name.py``) and subpackage (``name/``), the row
+  of a subpackage naming each of its modules.
+"""
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PKG = ROOT / "fem_rmpm"
+MAX_MODULE_LINES = 600
+MAX_FUNCTION_LINES = 80
+MARK = "long function:"
+#: Functions over the limit in modules of other engineers of this wave, left to them
+#: (issue 11 closing note lists them); new ones fail the test.
+KNOWN_LONG: set[str] = set()
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _modules() -> dict[str, Path]:
+    return {_module_name(p): p for p in sorted(PKG.rglob("*.py"))}
+
+
+def _resolve(mod: str, is_pkg: bool, node: ast.ImportFrom) -> str:
+    """Absolute module of a ``from X import ...`` in module ``mod``."""
+    if node.level == 0:
+        return node.module or ""
+    base = mod.split(".") if is_pkg else mod.split(".")[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def import_graph() -> dict[str, set[str]]:
+    """``{module: modules of fem_rmpm it imports}``; ``from pkg import sub`` counts as an
+    import of the submodule ``pkg.sub`` when that is a module, else of ``pkg``."""
+    mods = _modules()
+    graph: dict[str, set[str]] = {}
+    for mod, path in mods.items():
+        is_pkg = path.name == "__init__.py"
+        deps: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                deps.update(a.name for a in node.names if a.name.split(".")[0] == "fem_rmpm")
+            elif isinstance(node, ast.ImportFrom):
+                target = _resolve(mod, is_pkg, node)
+                if target.split(".")[0] != "fem_rmpm":
+                    continue
+                subs = [f"{target}.{a.name}" for a in node.names if f"{target}.{a.name}" in mods]
+                deps.update(subs)
+                if len(subs) < len(node.names):
+                    deps.add(target)
+        graph[mod] = {d for d in deps if d in mods and d != mod}
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle (as a list of modules, first = last) or None (iterative DFS)."""
+    state: dict[str, int] = {}          # 1 on the stack, 2 done
+    for start in sorted(graph):
+        if state.get(start):
+            continue
+        stack = [(start, iter(sorted(graph[start])))]
+        path = [start]
+        state[start] = 1
+        while stack:
+            node, it = stack[-1]
+            nxt = next(it, None)
+            if nxt is None:
+                stack.pop()
+                path.pop()
+                state[node] = 2
+            elif state.get(nxt) == 1:
+                return path[path.index(nxt):] + [nxt]
+            elif not state.get(nxt):
+                state[nxt] = 1
+                path.append(nxt)
+                stack.append((nxt, iter(sorted(graph[nxt]))))
+    return None
+
+
+def _long_in(source: str, mod: str) -> dict[str, int]:
+    """``{"mod:qualname": lines}`` of the functions of ``source`` over the limit without a
+    why-comment (on the ``def`` line, the line above it or up to the first body line)."""
+    lines = source.splitlines()
+    out = {}
+
+    def visit(node, prefix):
+        for child in ast.iter_child_nodes(node):
+            name = prefix
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                name = f"{prefix}{child.name}."
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = child.end_lineno - child.lineno + 1
+                first = min([child.lineno] + [d.lineno for d in child.decorator_list])
+                near = lines[max(first - 2, 0):child.body[0].lineno]
+                if n > MAX_FUNCTION_LINES and not any(MARK in ln for ln in near):
+                    out[f"{mod}:{name[:-1]}"] = n
+            visit(child, name)
+
+    visit(ast.parse(source), "")
+    return out
+
+
+def long_functions() -> dict[str, int]:
+    """Functions over the limit without a why-comment, in the whole package."""
+    out = {}
+    for mod, path in _modules().items():
+        out.update(_long_in(path.read_text(), mod))
+    return out
+
+
+def test_import_graph_has_no_cycle():
+    graph = import_graph()
+    assert len(graph) > 20 and "fem_rmpm.api" in graph["fem_rmpm.campaign.task"]
+    cycle = find_cycle(graph)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    """The check can fail: a hand-made graph with a cycle b -> c -> d -> b."""
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"d"}, "d": {"b"}, "e": set()}
+    assert find_cycle(graph) == ["b", "c", "d", "b"]
+    assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_the_length_check_finds_a_long_function():
+    """The check can fail: an 85-line method is found, the same with the comment is not."""
+    body = "".join(f"        x{i} = {i}\n" for i in range(83))
+    src = f"class A:\n    def f(self):\n        \"\"\"doc\"\"\"\n{body}"
+    assert _long_in(src, "m") == {"m:A.f": 85}
+    marked = src.replace("def f(self):", "def f(self):  # long function: one table")
+    assert _long_in(marked, "m") == {}
+    short = "".join(f"        x{i} = {i}\n" for i in range(70))
+    assert _long_in(src.replace(body, short), "m") == {}
+
+
+def test_nothing_in_the_package_imports_the_cli():
+    graph = import_graph()
+    users = sorted(m for m, deps in graph.items()
+                   if any(d == "fem_rmpm.cli" or d.startswith("fem_rmpm.cli.") for d in deps)
+                   and not (m == "fem_rmpm.cli" or m.startswith("fem_rmpm.cli.")))
+    assert not users, f"modules importing the CLI: {users}"
+
+
+def test_no_module_over_600_lines():
+    big = {m: n for m, p in _modules().items()
+           if (n := len(p.read_text().splitlines())) > MAX_MODULE_LINES}
+    assert not big, f"modules over {MAX_MODULE_LINES} lines: {big}"
+
+
+def test_no_function_over_80_lines_without_a_reason():
+    long = {k: n for k, n in long_functions().items() if k not in KNOWN_LONG}
+    assert not long, (f"functions over {MAX_FUNCTION_LINES} lines without a "
+                      f"'# {MARK} <why>' comment: {long}")
+
+
+def _readme_map() -> dict[str, str]:
+    """``{first cell name: rest of the row}`` of the tables of the README's Architecture."""
+    text = (ROOT / "README.md").read_text()
+    m = re.search(r"^## Architecture\n(.*?)(?=^## )", text, re.S | re.M)
+    assert m, "README.md has no '## Architecture' section"
+    rows = {}
+    for line in m.group(1).splitlines():
+        cells = line.split("|")
+        if line.startswith("|") and len(cells) > 2:
+            for name in re.findall(r"`([A-Za-z_][\w/]*(?:\.py|/))`", cells[1]):
+                rows[name] = "|".join(cells[2:])
+    return rows
+
+
+def _package_map() -> dict[str, set[str]]:
+    """``{"mod.py": set(), "pkg/": {its submodules}}`` of the top level of ``fem_rmpm``."""
+    out: dict[str, set[str]] = {}
+    for p in sorted(PKG.iterdir()):
+        if p.suffix == ".py" and p.name not in ("__init__.py", "__main__.py"):
+            out[p.name] = set()
+        elif p.is_dir() and (p / "__init__.py").exists():
+            out[p.name + "/"] = {q.stem for q in p.glob("*.py")
+                                 if q.name not in ("__init__.py", "__main__.py")}
+    return out
+
+
+def test_readme_architecture_lists_every_module():
+    """Every top-level module and subpackage has a row; a subpackage's row names exactly
+    its modules (as `name` in backticks)."""
+    readme, package = _readme_map(), _package_map()
+    assert not set(package) - set(readme), \
+        f"modules missing in the README's Architecture: {sorted(set(package) - set(readme))}"
+    assert not set(readme) - set(package), \
+        f"README's Architecture names no such module: {sorted(set(readme) - set(package))}"
+    for name, subs in package.items():
+        if name.endswith("/"):
+            named = set(re.findall(r"`([a-z_][a-z0-9_]*)`", readme[name]))
+            assert named == subs, (f"README row {name}: names {sorted(named)}, "
+                                   f"the package has {sorted(subs)}")
