@@ -106,7 +106,8 @@ def solve_on_mesh(m, p, f, fixed, dt, damping):
 def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                   damping: float, flip: float = 1.0, shape: str = "standard",
                   geostatic: bool = False, kernel: str | None = None,
-                  work: Workspace | None = None, fbar: bool = False) -> StepStats:
+                  work: Workspace | None = None, fbar: bool = False,
+                  threads: int = 1) -> StepStats:
     """Advance the active points by one explicit MUSL step of ``dt`` seconds (in place).
 
     ``geostatic``: points stay where they are and strains are small (the in-situ
@@ -115,6 +116,8 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     ``work``: nodal arrays reused between steps (numba; made here if not given).
     ``fbar``: the F-bar locking remedy (:mod:`fem_rmpm.locking`): each point's volume
     change is replaced by the volume-weighted mean of its host cell (geostatic: B-bar).
+    ``threads`` (numba): the per-point passes of the stress update run on that many
+    threads (numba's thread pool); the result is bitwise the single-thread one.
     """
     kernel = kernel or DEFAULT_KERNEL
     if kernel == "numpy":
@@ -125,7 +128,7 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     w = work if work is not None else Workspace.for_grid(grid, pts.n)
     (P, M), N, S, call = w.bind(grid, pts), w.nodes, w.scratch, w.call
     o = K.StepOptions(float(dt), float(gravity[0]), float(gravity[1]), float(damping),
-                      float(flip), bool(geostatic), shape == "gimp", bool(fbar))
+                      float(flip), bool(geostatic), shape == "gimp", bool(fbar), int(threads))
     # 1. map to nodes: mass, momentum and force (locate + shape + scatter, one pass)
     call(K.map_to_nodes, P, M, N, o)
     # 2. solve on the mesh: momentum balance on the active nodes
@@ -205,6 +208,10 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     if kernel not in KERNELS:
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
     work = Workspace.for_grid(grid, pts.n) if kernel == "numba" else None
+    # threads = 0 (auto): one thread for now; two threads give bitwise the same run but
+    # were not yet measured faster on an idle machine (on the shared, loaded one they
+    # were slower); set [solver] threads = 2 to use them.  Campaign workers: 1.
+    threads = int(getattr(sv, "threads", 0)) or 1
     stats = None
     h_min = float(np.min(grid.cell))
     g_full = np.array(scene.gravity_vector)
@@ -223,7 +230,7 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
         ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
         damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
         stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape, geostatic,
-                              kernel, work, bool(sv.fbar))
+                              kernel, work, bool(sv.fbar), threads)
         t += dt
         step += 1
         rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)

@@ -167,6 +167,8 @@ class SolverSpec:
     output_interval: float = 0.5         # s between particle snapshots
     flip: float = 1.0                    # FLIP fraction of the particle velocity update (1 = FLIP, 0 = PIC)
     kernel: str = "numba"                # explicit step: "numba" (compiled) | "numpy" (reference)
+    threads: int = 0                     # explicit numba step: threads for the per-point stress
+    #                                      passes (0: auto, now 1; bitwise the same result)
     edge_policy: str = "freeze"          # what happens to points reaching the grid edge
     # implicit
     load_steps: int = 1                  # quasi-static: number of load steps
@@ -251,6 +253,7 @@ _RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "solver.rest_energy_ratio": (0, 1, True, True),
     "solver.output_interval": (0, math.inf, False, True),
     "solver.flip": (0, 1, True, True),
+    "solver.threads": (0, 64, True, True),
     "solver.load_steps": (1, 1e6, True, True),
     "solver.dt": (0, math.inf, False, False),
     "solver.max_iterations": (1, 1000, True, True),

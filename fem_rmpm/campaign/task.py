@@ -9,6 +9,7 @@ import time
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
+import numba
 import numpy as np
 
 from .. import api
@@ -65,6 +66,7 @@ def run_realization(task: dict) -> dict:
     ``task``: ``case``, ``index``, ``seed``, ``scene`` (a :class:`Scene`), ``vtk_dir``
     (str or None: write VTK, ``summary.json`` and the plastic strain PNG there)."""
     _raise_malloc_thresholds()
+    numba.set_num_threads(1)   # one thread per realization: the campaign runs them in parallel
     rec: dict[str, Any] = {
         "format": FORMAT, "case": task["case"], "index": int(task["index"]),
         "seed": int(task["seed"]), "scheme": task["scene"].solver.scheme, "status": "ok",

@@ -41,15 +41,18 @@ NodeArrays.__doc__ = """Nodes: mass (nn,), momentum, force, end-of-step velocity
 acceleration and the MUSL re-mapped momentum then velocity ``v_remap`` (nn, 2); ``flag``
 (nn,) uint8 touched this step, ``touched[:n_touched[0]]`` the active nodes."""
 
-Scratch = namedtuple("Scratch", "x_old W ta tb tc host D cell_v cell_vdj out")
+Scratch = namedtuple("Scratch", "x_old W ta tb tc host D cell_v cell_vdj out parts")
 Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the trial state W (n, 4)
 and the arguments / values of the vectorised exp, expm1, log, arctanh ta, tb, tc (n,);
 F-bar host cells (n,), increments D (n, 4) and per-cell sums of V and V dJ (n_cells,);
-``out`` (4,) = largest P-wave speed, largest point speed, non-finite and outside points."""
+``out`` (4,) = largest P-wave speed, largest point speed, non-finite and outside points,
+and ``parts`` (64, 4) the same per chunk of points (threads)."""
 
-StepOptions = namedtuple("StepOptions", "dt gx gy damping flip geostatic gimp fbar")
+StepOptions = namedtuple("StepOptions", "dt gx gy damping flip geostatic gimp fbar threads",
+                         defaults=(1,))
 StepOptions.__doc__ = """One step: dt (s), gravity (m/s2), local damping (-), FLIP fraction
-(-), geostatic (small strain, points fixed), gimp (uGIMP basis), fbar (F-bar remedy)."""
+(-), geostatic (small strain, points fixed), gimp (uGIMP basis), fbar (F-bar remedy),
+threads (the per-point passes of the stress update on that many threads)."""
 
 
 def mesh_of(grid) -> Mesh:
@@ -113,5 +116,6 @@ class Workspace:
                            np.zeros(nn, np.int64), np.zeros(1, np.int64))
         scratch = Scratch(np.zeros((n, 2)), np.zeros((n, 4)), np.zeros(n), np.zeros(n),
                           np.zeros(n), np.zeros(n, np.int64), np.zeros((n, 4)),
-                          np.zeros(grid.n_cells), np.zeros(grid.n_cells), np.zeros(4))
+                          np.zeros(grid.n_cells), np.zeros(grid.n_cells), np.zeros(4),
+                          np.zeros((64, 4)))
         return cls(nodes, scratch)

@@ -11,3 +11,13 @@ jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 # ns per point, measured).  A kernel that allocated would fail to compile, not misbehave.
 kernel = njit(cache=True, fastmath=False, nogil=True, error_model="numpy", _nrt=False)
 inline = njit(inline="always", fastmath=False, error_model="numpy")
+# The same loops compiled for several threads: per-point loops written with ``prange``
+# (plain ``range`` in the serial compile), so the parallel version computes every point
+# with the same arithmetic and gives bitwise the serial result.
+kernel_parallel = njit(cache=True, fastmath=False, nogil=True, error_model="numpy", _nrt=False,
+                       parallel=True)
+
+
+def serial_and_parallel(py_func):
+    """``(serial, parallel)`` compiled versions of one per-point loop."""
+    return kernel(py_func), kernel_parallel(py_func)

@@ -18,10 +18,13 @@ from __future__ import annotations
 import math
 
 from .basis import gimp, q4
-from .common import inline, kernel
+from numba import prange
+
+from .common import inline, kernel, serial_and_parallel
 
 __all__ = ["exp_args_pass", "trial_pass", "kinematics_pass", "fbar_gradient_pass",
-           "fbar_apply_pass", "log_sym2_from"]
+           "fbar_apply_pass", "log_sym2_from", "exp_args_pass_parallel",
+           "kinematics_pass_parallel", "fbar_apply_pass_parallel"]
 
 
 @inline
@@ -155,11 +158,10 @@ def _point_velocity_gradient(i, x, lp, M, vn, gimp_basis):
     return _velocity_gradient(q4(x[i, 0], x[i, 1], M), vn)
 
 
-@kernel
-def exp_args_pass(P, S):
+def _exp_args_loop(P, S):
     """Pass 0: ``ta``, ``tb`` = 2 m, y of the current log strains (for exp, expm1); tc = y."""
     ls, ta, tb = P.log_strain, S.ta, S.tb
-    for i in range(ls.shape[0]):
+    for i in prange(ls.shape[0]):
         if P.active[i]:
             ta[i], tb[i] = _exp_args(ls[i, 0], ls[i, 1], ls[i, 3])
         else:
@@ -182,14 +184,13 @@ def trial_pass(dF, log_strain, active, ta, tb, tc, W):
             log_strain[i, 3], ta[i], tb[i], tc[i])
 
 
-@kernel
-def kinematics_pass(P, M, N, S, o):
+def _kinematics_loop(P, M, N, S, o):
     """Pass 1: velocity gradient at the positions before the move.  Geostatic: ``W[i]`` =
     the small-strain trial strain.  Finite strain: Hughes-Winget increment dF, F <- dF F,
     V <- det(dF) V, and b_tr from ``ta``, ``tb`` = exp(2 m), expm1(y) of the current
     log strain (``W``, ``ta``, ``tb`` then hold the log / arctanh arguments)."""
     dt, ls, vn = o.dt, P.log_strain, N.v_remap
-    for i in range(ls.shape[0]):
+    for i in prange(ls.shape[0]):
         if not P.active[i]:
             S.ta[i] = 1.0
             S.tb[i] = 0.0
@@ -239,13 +240,12 @@ def fbar_gradient_pass(P, M, N, S, o):
         cvj[c] += vol[i] * j
 
 
-@kernel
-def fbar_apply_pass(P, S, o):
+def _fbar_apply_loop(P, S, o):
     """F-bar pass 2: the cell mean replaces each point's volume change.  Finite strain:
     dF_bar = (dJ_bar / dJ)^(1/2) dF, then F, V and b_tr as :func:`kinematics_pass`;
     geostatic (B-bar): grad(du) + 1/2 (mean tr - tr) I, the trial strain into ``W``."""
     ls, D = P.log_strain, S.D
-    for i in range(D.shape[0]):
+    for i in prange(D.shape[0]):
         if not P.active[i]:
             S.ta[i] = 1.0
             S.tb[i] = 0.0
@@ -261,3 +261,9 @@ def fbar_apply_pass(P, S, o):
         sc = math.sqrt(mean / (g00 * g11 - g01 * g10))
         f00, f01, f10, f11 = sc * g00, sc * g01, sc * g10, sc * g11
         _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, P, S)
+
+
+# serial and multi-threaded compiles of the per-point passes (bitwise the same result)
+exp_args_pass, exp_args_pass_parallel = serial_and_parallel(_exp_args_loop)
+kinematics_pass, kinematics_pass_parallel = serial_and_parallel(_kinematics_loop)
+fbar_apply_pass, fbar_apply_pass_parallel = serial_and_parallel(_fbar_apply_loop)

@@ -14,12 +14,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import prange
 
 from ..materials import registry
 from ..materials.dispatch import point_dispatch
-from .common import inline, jit, kernel
-from .strain import (exp_args_pass, fbar_apply_pass, fbar_gradient_pass, kinematics_pass,
-                     log_sym2_from, trial_pass)
+from .common import inline, jit, kernel, kernel_parallel
+from .strain import (exp_args_pass, exp_args_pass_parallel, fbar_apply_pass,
+                     fbar_apply_pass_parallel, fbar_gradient_pass, kinematics_pass,
+                     kinematics_pass_parallel, log_sym2_from, trial_pass)
 
 __all__ = ["update_stress", "material_kernels", "stress_update_points",
            "small_strain_update_points"]
@@ -38,55 +40,92 @@ def _trial_strain(geostatic, w0, w1, w2, w3, ta, tb, e2):
 # The model dispatch is called in the factories' bodies, where ``version`` is a closure
 # value and so a compile-time literal (see fem_rmpm.materials.dispatch).
 def _make_finish_pass(version):
-    """The finish pass compiled for one registry version (see :mod:`fem_rmpm.materials.dispatch`)."""
+    """``(serial, parallel)`` finish pass compiled for one registry version (see
+    :mod:`fem_rmpm.materials.dispatch`): trial strain, the model update, Cauchy stress
+    ``tau V0 / V``; ``S.out`` (4,) = max P-wave speed sqrt(M / rho), max |v|, number of
+    non-finite points, number outside the grid (for the next CFL step and the guards)."""
     @kernel
     def finish_pass(P, M, S, o):
-        """Trial strain, the model update, Cauchy stress ``tau V0 / V``; ``S.out`` (4,) =
-        max P-wave speed sqrt(M / rho), max |v|, number of non-finite points, number
-        outside the grid (for the next CFL step and the guards)."""
-        x, v, ls, stress, params, W, lo, hi = P.x, P.v, P.log_strain, P.stress, P.params, \
-            S.W, M.lo, M.hi
-        c2max = 0.0
-        vmax2 = 0.0
-        n_bad = 0
-        n_out = 0
-        for i in range(x.shape[0]):
-            if not P.active[i]:
-                continue
-            e0, e1, e2, e3 = _trial_strain(o.geostatic, W[i, 0], W[i, 1], W[i, 2], W[i, 3],
-                                           S.ta[i], S.tb[i], ls[i, 2])
-            r = point_dispatch(version, P.model[i], e0, e1, e2, e3, P.state, params, i)
-            ls[i, 0] = r[0]
-            ls[i, 1] = r[1]
-            ls[i, 2] = r[2]
-            ls[i, 3] = r[3]
-            V = P.vol[i]
-            ratio = P.vol0[i] / V
-            s0 = r[4] * ratio
-            s1 = r[5] * ratio
-            s2 = r[6] * ratio
-            s3 = r[7] * ratio
-            stress[i, 0] = s0
-            stress[i, 1] = s1
-            stress[i, 2] = s2
-            stress[i, 3] = s3
-            # for the next CFL step (max of sqrt = sqrt of max) and the guards
-            c2max = max(c2max, (params[i, 1] + 4.0 / 3.0 * params[i, 0]) * V / P.mass[i])
-            v0 = v[i, 0]
-            v1 = v[i, 1]
-            s2v = v0 * v0 + v1 * v1
-            vmax2 = max(vmax2, s2v)
-            y0 = x[i, 0]
-            y1 = x[i, 1]
-            if not math.isfinite(y0 + y1 + s2v + s0 + s1 + s2 + s3):
-                n_bad += 1
-            elif y0 < lo[0] or y1 < lo[1] or y0 > hi[0] or y1 > hi[1]:
-                n_out += 1
-        S.out[0] = math.sqrt(c2max)
-        S.out[1] = math.sqrt(vmax2)
-        S.out[2] = n_bad
-        S.out[3] = n_out
-    return finish_pass
+        # one chunk starting at the constant 0: LLVM then drops the negative-index checks
+        # (a chunk start known only at run time costs ~2.5 ns per point, measured)
+        _finish_chunk(version, P, M, S, o, 0, P.x.shape[0], S.parts[0])
+        _combine(S, 1)
+
+    @kernel_parallel
+    def finish_pass_parallel(P, M, S, o):
+        # the points in ``o.threads`` chunks; maxima and counts combined exactly, so the
+        # result is the serial one for any number of chunks
+        n = P.x.shape[0]
+        parts = S.parts
+        nch = max(1, min(o.threads, parts.shape[0]))
+        for c in prange(nch):
+            _finish_chunk(version, P, M, S, o, c * n // nch, (c + 1) * n // nch, parts[c])
+        _combine(S, nch)
+    return finish_pass, finish_pass_parallel
+
+
+@inline
+def _combine(S, nch):
+    """``S.out`` from the squared maxima and counts of the chunks in ``S.parts``."""
+    S.out[0] = 0.0
+    S.out[1] = 0.0
+    S.out[2] = 0.0
+    S.out[3] = 0.0
+    for c in range(nch):
+        S.out[0] = max(S.out[0], S.parts[c, 0])
+        S.out[1] = max(S.out[1], S.parts[c, 1])
+        S.out[2] += S.parts[c, 2]
+        S.out[3] += S.parts[c, 3]
+    S.out[0] = math.sqrt(S.out[0])
+    S.out[1] = math.sqrt(S.out[1])
+
+
+@inline
+def _finish_chunk(version, P, M, S, o, start, stop, part):
+    """The finish pass over points ``start:stop``; squared maxima and counts into
+    ``part`` (4,) (a row of ``S.parts``)."""
+    x, v, ls, stress, params, W, lo, hi = P.x, P.v, P.log_strain, P.stress, P.params, \
+        S.W, M.lo, M.hi
+    c2max = 0.0
+    vmax2 = 0.0
+    n_bad = 0
+    n_out = 0
+    for i in range(start, stop):
+        if not P.active[i]:
+            continue
+        e0, e1, e2, e3 = _trial_strain(o.geostatic, W[i, 0], W[i, 1], W[i, 2], W[i, 3],
+                                       S.ta[i], S.tb[i], ls[i, 2])
+        r = point_dispatch(version, P.model[i], e0, e1, e2, e3, P.state, params, i)
+        ls[i, 0] = r[0]
+        ls[i, 1] = r[1]
+        ls[i, 2] = r[2]
+        ls[i, 3] = r[3]
+        V = P.vol[i]
+        ratio = P.vol0[i] / V
+        s0 = r[4] * ratio
+        s1 = r[5] * ratio
+        s2 = r[6] * ratio
+        s3 = r[7] * ratio
+        stress[i, 0] = s0
+        stress[i, 1] = s1
+        stress[i, 2] = s2
+        stress[i, 3] = s3
+        # for the next CFL step (max of sqrt = sqrt of max) and the guards
+        c2max = max(c2max, (params[i, 1] + 4.0 / 3.0 * params[i, 0]) * V / P.mass[i])
+        v0 = v[i, 0]
+        v1 = v[i, 1]
+        s2v = v0 * v0 + v1 * v1
+        vmax2 = max(vmax2, s2v)
+        y0 = x[i, 0]
+        y1 = x[i, 1]
+        if not math.isfinite(y0 + y1 + s2v + s0 + s1 + s2 + s3):
+            n_bad += 1
+        elif y0 < lo[0] or y1 < lo[1] or y0 > hi[0] or y1 > hi[1]:
+            n_out += 1
+    part[0] = c2max
+    part[1] = vmax2
+    part[2] = n_bad
+    part[3] = n_out
 
 
 def _make_material_pass(version):
@@ -111,10 +150,12 @@ _BY_VERSION: dict = {}
 
 
 def material_kernels():
-    """``(finish_pass, material_pass)`` compiled for the current model registry."""
+    """``(finish_pass, material_pass, finish_pass_parallel)`` compiled for the current
+    model registry."""
     v = registry.version()
     if v not in _BY_VERSION:
-        _BY_VERSION[v] = (_make_finish_pass(v), _make_material_pass(v))
+        serial, parallel = _make_finish_pass(v)
+        _BY_VERSION[v] = (serial, _make_material_pass(v), parallel)
     return _BY_VERSION[v]
 
 
@@ -128,20 +169,22 @@ def update_stress(P, M, N, S, o, call=_direct) -> None:
     F, volume, the material update, Cauchy stress; ``S.out`` as the finish pass.
     ``o.fbar``: the F-bar remedy (:mod:`fem_rmpm.locking`).  ``call(kernel, *args)``
     runs a kernel (e.g. :meth:`.Workspace.call`)."""
+    par = o.threads > 1
     with np.errstate(all="ignore"):     # a non-finite point is reported by the guards
         if not o.geostatic:
-            call(exp_args_pass, P, S)
+            call(exp_args_pass_parallel if par else exp_args_pass, P, S)
             np.exp(S.ta, out=S.ta)
             np.expm1(S.tb, out=S.tb)
         if o.fbar:
             call(fbar_gradient_pass, P, M, N, S, o)
-            call(fbar_apply_pass, P, S, o)
+            call(fbar_apply_pass_parallel if par else fbar_apply_pass, P, S, o)
         else:
-            call(kinematics_pass, P, M, N, S, o)
+            call(kinematics_pass_parallel if par else kinematics_pass, P, M, N, S, o)
         if not o.geostatic:
             np.log(S.ta, out=S.ta)
             np.arctanh(S.tb, out=S.tb)
-    call(material_kernels()[0], P, M, S, o)
+    finish = material_kernels()
+    call(finish[2] if par else finish[0], P, M, S, o)
 
 
 # --------------------------------------------------------------------- vectorised material (tests)
