@@ -51,6 +51,10 @@ __all__ = ["StepStats", "Workspace", "explicit_step", "explicit_step_numpy",
 _MASS_TOL = 1e-14
 KERNELS = ("numba", "numpy")
 DEFAULT_KERNEL = "numba"
+# [solver] threads = 0 (auto): one thread for now; two threads give bitwise the same run but
+# were not yet measured faster on an idle machine (on the shared, loaded one they were
+# slower); set [solver] threads = 2 to use them.  Campaign workers pin numba to 1.
+AUTO_THREADS = 1
 
 
 @dataclass
@@ -208,10 +212,7 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     if kernel not in KERNELS:
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
     work = Workspace.for_grid(grid, pts.n) if kernel == "numba" else None
-    # threads = 0 (auto): one thread for now; two threads give bitwise the same run but
-    # were not yet measured faster on an idle machine (on the shared, loaded one they
-    # were slower); set [solver] threads = 2 to use them.  Campaign workers: 1.
-    threads = int(getattr(sv, "threads", 0)) or 1
+    threads = int(getattr(sv, "threads", 0)) or AUTO_THREADS
     stats = None
     h_min = float(np.min(grid.cell))
     g_full = np.array(scene.gravity_vector)
