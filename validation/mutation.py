@@ -53,7 +53,8 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
                   "-k", "not grid_file and not line_search"]),
     "random_field": (["fem_rmpm/random_field/embedding.py", "fem_rmpm/random_field/model.py",
                       "fem_rmpm/random_field/points.py"],
-                     ["tests/test_random_field.py", "-k", "not cli and not subprocess"]),
+                     ["tests/test_random_field.py", "tests/test_random_field_model.py", "-k",
+                      "not cli and not subprocess"]),
 }
 
 
