@@ -188,6 +188,7 @@ def test_quasi_static_output_follows_output_interval():
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(3600)
 def test_reference_slope_implicit_default_runs_past_12_s(tmp_path):
     """Issue 20 acceptance 1: the README's implicit command (case (i), default settings,
     only scheme = implicit and dynamic = true) to t = 12 s, past the 10.7 s where the
