@@ -7,7 +7,10 @@
 >>> result.measures["max_displacement"], result.particles.stress[:, 1].min()
 
 A realization is a pure function of ``(scene, seed)``: the seed only drives the
-random field (if the scene has one); nothing else is random.
+random field (if the scene has one); nothing else is random.  ``prepare`` and ``run``
+also take ``noise=``, the random field's standard-normal noise array
+(``fem_rmpm.random_field.noise_shape``; the seed's own is ``field_noise``), which
+replaces the seed: a realization is a pure function of ``(scene, noise)``.
 """
 from __future__ import annotations
 
@@ -55,22 +58,23 @@ class RunResult:
     snapshots: list = dataclasses.field(default_factory=list)  # [(t, x (n, 2), gamma_p (n,))]
 
 
-def prepare(scene: Scene, seed: int | None = None) -> tuple[Grid, Particles]:
-    """Grid and seeded material points; with a random field, the realization ``seed``."""
+def prepare(scene: Scene, seed: int | None = None, noise=None) -> tuple[Grid, Particles]:
+    """Grid and seeded material points; with a random field, the realization ``seed`` or the
+    field of the standard-normal ``noise`` array (which replaces the seed)."""
     check_seed(seed)
     check_budget(scene)                        # refuse before allocating (BudgetError)
     grid = make_grid(scene)
     pts = seed_particles(scene, grid)
     if scene.random_field is not None:
         seed = scene.montecarlo.seed if seed is None else seed
-        peak = sample_point_property(scene, grid, pts, seed)
+        peak = sample_point_property(scene, grid, pts, seed, noise=noise)
         old_peak = pts.soil.cohesion_peak
         finite = np.isfinite(old_peak)                 # elastic points keep c = inf
         ratio = np.divide(pts.soil.cohesion_residual, old_peak, out=np.ones_like(old_peak),
                           where=finite)
         pts.soil = dataclasses.replace(pts.soil, cohesion_peak=np.where(finite, peak, old_peak),
                                        cohesion_residual=np.where(finite, peak * ratio, old_peak))
-        _check_point_strength(scene, pts, seed)
+        _check_point_strength(scene, pts, seed if noise is None else "(given noise)")
     return grid, pts
 
 
@@ -98,8 +102,9 @@ def _run_scheme(scene, grid, pts, on_output, progress):
 
 def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
         progress: bool = False, vtk: bool | None = None, figures: bool | None = None,
-        force: bool = False) -> RunResult:
+        force: bool = False, noise=None) -> RunResult:
     """Run one realization; write VTK, PNG and ``summary.json`` to ``out`` if given.
+    ``noise``: the random field's standard-normal noise array instead of ``seed``.
 
     ``out`` must be a new or empty directory, or ``force=True`` replaces the run in it
     (:mod:`fem_rmpm.rundir`: ``summary.json`` says ``"running"`` until the run's
@@ -112,7 +117,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     estimate = check_budget(scene)
     if progress:
         print(f"{scene.scene.name}: {estimate.describe()}", file=sys.stderr, flush=True)
-    grid, pts = prepare(scene, seed)
+    grid, pts = prepare(scene, seed, noise)
     vtk = scene.output.vtk if vtk is None else vtk
     figures = scene.output.png if figures is None else figures
     series = PvdSeries(out) if (out is not None and vtk) else None

@@ -108,6 +108,10 @@ A realization is a pure function of (scene, seed): the only randomness is
 ``default_rng(seed).standard_normal((m2, m1))``, whose stream is platform
 independent; the FFTs are single-threaded pocketfft.  The same seed gives the same
 field in any process, worker count and call order (bitwise on one machine).
+More generally a realization is a pure function of (scene, noise): ``gaussian_field``,
+``field_values``, ``sample_point_property`` (and ``fem_rmpm.api.prepare`` / ``run``) take
+``noise=`` an array of :func:`noise_shape` standard normals instead of the seed, and
+:func:`field_noise` gives the seed's noise, so the two paths give bitwise the same field.
 
 Conditioning and scale estimation (beyond the literature's code)
 ----------------------------------------------------------------
@@ -129,7 +133,8 @@ from .embedding import Embedding, circulant_embedding, dense_covariance, sample_
 from .layout import FieldLayout, field_layout
 from .model import (KINDS, MarkovModel, gaussian_to_property, local_average_covariance_1d,
                     model_from_spec, property_to_gaussian, variance_function)
-from .points import embedding_for, field_values, gaussian_field, sample_point_property
+from .points import (embedding_for, field_noise, field_values, gaussian_field, noise_shape,
+                     sample_point_property)
 from .quadrature import lattice_covariance
 from .variogram import FitResult, empirical_variogram, fit_scales
 
@@ -139,5 +144,5 @@ __all__ = [
     "dense_covariance", "sample_dense", "FieldLayout", "field_layout", "embedding_for",
     "gaussian_to_property", "property_to_gaussian", "Measurements", "read_measurements",
     "condition", "gaussian_field", "field_values", "sample_point_property",
-    "empirical_variogram", "fit_scales", "FitResult",
+    "noise_shape", "field_noise", "empirical_variogram", "fit_scales", "FitResult",
 ]
