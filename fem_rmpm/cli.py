@@ -193,9 +193,29 @@ def summary_text(res: CampaignResult) -> str:
     return "\n".join(lines)
 
 
+def _cmd_mc_subset(a, scene: Scene) -> int:
+    """``fem-rmpm mc --method subset``: P(response beyond threshold) by subset simulation."""
+    from .campaign.subset_runner import run_subset_campaign, subset_summary_text
+    for opt, val in (("--keep-vtk", a.keep_vtk), ("--case", a.case)):
+        if val is not None:
+            raise InputError(f"{opt}: only for crude campaigns (--method crude)")
+    res = run_subset_campaign(scene, a.out, a.response, a.threshold,
+                              p0=0.1 if a.p0 is None else a.p0,
+                              n=a.realizations, workers=a.workers, scheduler=a.scheduler,
+                              force=a.force, progress=not a.quiet)
+    print(subset_summary_text(res))
+    return 3 if res.lost else 0
+
+
 def _cmd_mc(a) -> int:
     """``fem-rmpm mc``: returns 0, or 3 if realizations were lost (re-run to finish)."""
     scene = scene_from_args(a)
+    if a.method == "subset":
+        return _cmd_mc_subset(a, scene)
+    given = [o for o, v in (("--response", a.response), ("--threshold", a.threshold),
+                            ("--p0", a.p0)) if v is not None]
+    if given:
+        raise InputError(f"{given[0]}: only with --method subset")
     cases = list(a.case) if a.case else campaign_cases(scene, a.scene)
     res = run_campaign(scene, a.out, realizations=a.realizations, cases=cases,
                        workers=a.workers, scheduler=a.scheduler, force=a.force,
@@ -386,6 +406,17 @@ def _add_mc(sub) -> None:
                    help="VTK for the first K realizations of each case (integer) or for "
                    "indices like 0,5,9 (default: the scene's [montecarlo] keep_vtk)")
     m.add_argument("--quiet", action="store_true", help="no progress bar")
+    m.add_argument("--method", choices=("crude", "subset"), default="crude",
+                   help="crude Monte Carlo (default) or subset simulation of a small "
+                   "probability (then -n is the samples per level, default 1000)")
+    m.add_argument("--response", default=None,
+                   help="subset: runout_distance, sliding_area, retrogression_distance, "
+                   "max_displacement (failure: above --threshold) or factor_of_safety "
+                   "(failure: below --threshold, default 1)")
+    m.add_argument("--threshold", type=float, default=None,
+                   help="subset: the failure threshold (m, m2 or FS)")
+    m.add_argument("--p0", type=float, default=None,
+                   help="subset: level probability in (0, 0.5] (default 0.1)")
     m.set_defaults(func=_cmd_mc)
 
 

@@ -3,7 +3,10 @@
 Modules: :mod:`.cases` (cases and seeds), :mod:`.task` (the realization task run by the
 workers), :mod:`.store` (campaign directory, identity, lock, records, ``results.csv``),
 :mod:`.statistics`, :mod:`.keep_vtk`, :mod:`.cluster` (the Dask client) and
-:mod:`.runner` (the campaign loop, :func:`run_campaign`).  The command line
+:mod:`.runner` (the campaign loop, :func:`run_campaign`); :mod:`.subset` (the
+campaign-method protocol, crude Monte Carlo and subset simulation over standard-normal
+noise), :mod:`.subset_runner` (subset campaigns of a scene on Dask,
+``fem-rmpm mc --method subset``) and :mod:`.subset_plots`.  The command line
 (``fem-rmpm mc``, its summary text) is in :mod:`fem_rmpm.cli`.
 
 ``fem-rmpm mc SCENE -n N --out DIR [--workers K | --scheduler ADDRESS]`` (or
@@ -140,9 +143,12 @@ from .runner import CampaignResult, run_campaign
 from .statistics import case_statistics, wilson_interval
 from .store import RESULT_COLUMNS, read_results, result_columns, write_results
 from .task import run_realization
+from .subset import CampaignMethod, CrudeMonteCarlo, SubsetSimulation, subset_simulation
+from .subset_runner import run_subset_campaign
 
 __all__ = ["CampaignError", "Case", "LITERATURE_CASES", "parse_case", "literature_cases",
            "realization_seed", "without_random_field", "run_realization", "run_campaign",
            "CampaignResult", "case_statistics", "wilson_interval", "read_results",
            "write_results", "result_columns", "parse_keep_vtk", "worker_environment",
-           "start_local_cluster", "RESULT_COLUMNS"]
+           "start_local_cluster", "RESULT_COLUMNS", "CampaignMethod", "CrudeMonteCarlo",
+           "SubsetSimulation", "subset_simulation", "run_subset_campaign"]

@@ -142,8 +142,9 @@ def campaign_doc(cases: list[Case], campaign_seed: int) -> dict:
                       for c in cases]}
 
 
-def check_directory(out: Path, doc: dict) -> bool:
-    """Raise CampaignError unless ``out`` is free or holds this campaign; True if it exists."""
+def check_directory(out: Path, doc: dict, fmt: str = FORMAT) -> bool:
+    """Raise CampaignError unless ``out`` is free or holds this campaign (of format ``fmt``);
+    True if it exists."""
     meta = out / "campaign.json"
     if out.exists() and not out.is_dir():
         raise CampaignError(f"{out}: --out is a file, not a directory")
@@ -157,8 +158,8 @@ def check_directory(out: Path, doc: dict) -> bool:
     except (OSError, json.JSONDecodeError) as exc:
         raise CampaignError(f"{meta}: unreadable campaign file ({exc}); choose another "
                             "--out") from None
-    if old.get("format") != FORMAT:
-        raise CampaignError(f"{meta}: not a {FORMAT!r} campaign; choose another --out")
+    if old.get("format") != fmt:
+        raise CampaignError(f"{meta}: not a {fmt!r} campaign; choose another --out")
     if old.get("campaign_seed") != doc["campaign_seed"]:
         raise CampaignError(f"{out}: holds a campaign with seed {old.get('campaign_seed')}, "
                             f"this scene has [montecarlo] seed = {doc['campaign_seed']}; "

@@ -64,8 +64,9 @@ to level).  Two deliberate departures from that algorithm:
   from, and the chains drift: on ``Y = sum z_i^2`` in 1 000 dimensions
   (P = 1e-3, N = 1000) the level-1 conditional probability came out 20 % low
   (20 runs) and P 48 % low (60 runs, standard error of the mean 2.3 %); with one
-  step size, +0.6 % and -2.7 % (40 runs, standard error 2.8 %).  The noise of a random field is standard
-  normal in every component, so ``sigma_hat_i = 1`` loses nothing there.
+  step size, +0.6 % and -2.7 % (40 runs, standard error 2.8 %).  The noise of a
+  random field is standard normal in every component, so ``sigma_hat_i = 1`` loses
+  nothing there.
 * *Lock-step chains.*  Papaioannou et al. adapt after every ``p_a N_c`` chains
   (``p_a = 0.1``) run one after another; here all chains of a level advance
   together, one step per batch (so a batch is ``N_c`` independent runs for the
@@ -123,13 +124,15 @@ class Sample:
     realization index at level 0), ``step`` (0 at level 0; ``1 ..`` along a chain);
     ``seed``: the noise is ``noise_from_seed(seed)`` (level 0) or else ``noise``
     (the candidate, a float64 vector); ``start``: key of the chain state the candidate
-    was proposed from."""
+    was proposed from; ``level_threshold``: the candidate is accepted if its response
+    is at least this (chains only)."""
     level: int
     chain: int
     step: int
     seed: int | None = None
     noise: np.ndarray | None = None
     start: str | None = None
+    level_threshold: float | None = None
 
     @property
     def key(self) -> str:
@@ -344,13 +347,15 @@ class SubsetSimulation(_Coroutine):
     ``default_rng(seed).standard_normal(dim)``); ``on_failure``: a non-finite
     response raises (``"raise"``) or counts as a run that exceeds no threshold
     (``"reject"``: a rejected candidate); ``max_levels``: give up below
-    ``p0 ** max_levels``."""
+    ``p0 ** max_levels``; ``label``: the failure event in messages."""
     name = "subset"
 
     def __init__(self, threshold: float, n: int = 1000, p0: float = 0.1, seed: int = 0,
                  noise_from_seed: Callable[[int], np.ndarray] | None = None,
-                 dim: int | None = None, on_failure: str = "raise", max_levels: int = 20):
+                 dim: int | None = None, on_failure: str = "raise", max_levels: int = 20,
+                 label: str | None = None):
         _check_common(threshold, n, on_failure)
+        self.label = label or f"Y > {threshold!r}"
         if isinstance(p0, bool) or not isinstance(p0, (int, float)) or not 0.0 < p0 <= 0.5:
             raise SubsetError(f"--p0 {p0!r}: the level probability must be in (0, 0.5]")
         n_seeds = int(math.floor(n * p0 + 1e-9))
@@ -422,10 +427,10 @@ class SubsetSimulation(_Coroutine):
                 f"cannot be reached: use a threshold of at most {b!r}")
 
     def _not_rare_note(self, k: int) -> str:
-        text = (f"the threshold {self.threshold!r} is exceeded by {k} of the {self.n} "
-                f"first-level samples (at least N p0 = {self.n_seeds}): P = {k / self.n:.4g} "
-                "is not small and subset simulation stopped at level 0; the estimate is "
-                "crude Monte Carlo")
+        text = (f"the failure {self.label} occurs in {k} of the {self.n} first-level "
+                f"samples (at least N p0 = {self.n_seeds}): P = {k / self.n:.4g} is not "
+                "small and subset simulation stopped at level 0; the estimate is crude "
+                "Monte Carlo")
         if k > self.n // 2:
             warnings.warn("most first-level samples exceed the threshold: " + text,
                           SubsetWarning, stacklevel=3)
@@ -459,8 +464,8 @@ class SubsetSimulation(_Coroutine):
             sigma = min(lam, 1.0)
             rho = math.sqrt(1.0 - sigma * sigma)
             cand = rho * u[active] + sigma * self._xi(level, t, n_chains, dim)[active]
-            y = yield [Sample(level, int(c), t, noise=cand[i], start=k_cur[c])
-                       for i, c in enumerate(active)]
+            y = yield [Sample(level, int(c), t, noise=cand[i], start=k_cur[c],
+                              level_threshold=b) for i, c in enumerate(active)]
             runs += len(active)
             acc = y >= b
             for i in np.nonzero(acc)[0]:

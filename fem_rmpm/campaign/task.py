@@ -64,12 +64,14 @@ def run_realization(task: dict) -> dict:
     error is in the record (``status = "failed"``).
 
     ``task``: ``case``, ``index``, ``seed``, ``scene`` (a :class:`Scene`), ``vtk_dir``
-    (str or None: write VTK, ``summary.json`` and the plastic strain PNG there)."""
+    (str or None: write VTK, ``summary.json`` and the plastic strain PNG there); optional
+    ``noise``: the random field's standard-normal noise array, in place of the seed
+    (``seed`` None; subset simulation)."""
     _raise_malloc_thresholds()
     numba.set_num_threads(1)   # one thread per realization: the campaign runs them in parallel
     rec: dict[str, Any] = {
         "format": FORMAT, "case": task["case"], "index": int(task["index"]),
-        "seed": int(task["seed"]), "scheme": task["scene"].solver.scheme, "status": "ok",
+        "seed": None if task["seed"] is None else int(task["seed"]), "scheme": task["scene"].solver.scheme, "status": "ok",
         "error": None, "vtk": task.get("vtk_rel"),
         "worker": {"host": socket.gethostname(), "pid": os.getpid()},
         "fem_rmpm": _version(),
@@ -78,7 +80,8 @@ def run_realization(task: dict) -> dict:
     try:
         vtk_dir = task.get("vtk_dir")
         res = api.run(task["scene"], out=vtk_dir, seed=rec["seed"], progress=False,
-                      vtk=vtk_dir is not None, figures=vtk_dir is not None, force=True)
+                      vtk=vtk_dir is not None, figures=vtk_dir is not None, force=True,
+                      noise=task.get("noise"))
     except Exception as exc:       # noqa: BLE001 - every failure is data, recorded
         msg = str(exc) if isinstance(exc, SimulationError) else f"{type(exc).__name__}: {exc}"
         rec.update(status="failed", error=" ".join(msg.split()) or type(exc).__name__,

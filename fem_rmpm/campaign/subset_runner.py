@@ -1,0 +1,471 @@
+"""Subset-simulation campaigns of a scene on Dask: small probabilities at a fraction of the runs.
+
+``fem-rmpm mc SCENE --method subset --response NAME --threshold X [--p0 0.1] [-n N]``
+(or :func:`run_subset_campaign`) estimates ``P(response > X)`` (``P(FS < X)`` for the
+factor of safety) by subset simulation (:mod:`fem_rmpm.campaign.subset`) in the noise
+space of the scene's random field: a realization is a pure function of (scene, noise),
+:func:`fem_rmpm.random_field.noise_shape` standard normals.
+
+* **Responses** (:data:`RESPONSES`): the realization's measures ``runout_distance``,
+  ``sliding_area``, ``retrogression_distance``, ``max_displacement`` (m, m2, m, m;
+  failure: above the threshold) or ``factor_of_safety`` (strength reduction; failure:
+  FS below the threshold, 1 by default).  Aliases: ``runout``, ``run-out``, ``fs``.
+* **Batches.** Level 0 is one batch of ``N`` realizations, which are the crude Monte
+  Carlo realizations ``0 .. N-1`` (same seeds, same fields); every step of the Markov
+  chains is one batch of ``N p0`` independent realizations.  Batches run on the same
+  Dask clusters as crude Monte Carlo (``--workers``, ``--scheduler``).
+* **Records.** Each finished sample is written atomically (temporary file + rename) as
+  ``records/L01_C00042_S003.json`` (level, chain, step): the crude record of the
+  realization (status, measures, steps, times, worker) plus ``key``, ``level``,
+  ``chain``, ``step``, ``seed`` (level 0: the realization seed; chains: null),
+  ``start`` (key of the chain state the candidate was proposed from),
+  ``noise_digest`` (SHA-256 of the candidate's float64 noise; the noise itself is
+  replayed from the records: :func:`sample_noise`), ``value`` (the response),
+  ``level_threshold`` and ``accepted``.
+* **Resuming and identity.** The method is deterministic given the responses, so a
+  re-run replays the campaign from its records and computes only the samples without
+  one: a campaign killed during a level resumes at the sample where it stopped and ends
+  with the same estimate and records as an uninterrupted one, on 1 or N workers.  A
+  record is reused only if its key, seed and noise digest match the replayed sample.
+  ``campaign.json`` holds the scene, the campaign seed, the response, ``p0`` and ``N``;
+  another scene, response, ``p0`` or ``N`` in the same directory is an error.  The
+  threshold is not part of the identity: the levels do not depend on it until the last
+  one, so a re-run with a rarer threshold reuses every record and adds levels.
+* **Failed realizations** (a :class:`fem_rmpm.run.SimulationError`) are recorded and
+  count as runs that exceed no threshold (a rejected candidate); the summary counts them.
+* **Output.** ``summary.json`` (``"subset"``: P, its COV with the chain correlation
+  (Au & Beck 2001), the thresholds, per-level conditional probability, COV, chain
+  correlation factor, acceptance rate; total runs and the crude Monte Carlo runs the same
+  COV would need), ``samples.csv`` (one row per record), ``subset_levels.png`` (the
+  responses of each level's samples with the thresholds) and ``report.html``.
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import math
+import sys
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from distributed import as_completed
+from tqdm import tqdm
+
+from ..grid import make_grid
+from ..output import _atomic_write_bytes, write_json
+from ..random_field import field_noise
+from ..scene import Scene
+from .cases import CampaignError, parse_case
+from .cluster import start_client
+from .store import Lock, campaign_doc, check_directory, read_record
+from .subset import MethodResult, Sample, SubsetSimulation, SubsetWarning
+from .task import run_realization
+
+__all__ = ["SUBSET_FORMAT", "RESPONSES", "Response", "parse_response", "run_subset_sample",
+           "run_subset_campaign", "SubsetCampaignResult", "subset_summary_text",
+           "sample_noise"]
+
+SUBSET_FORMAT = "fem_rmpm subset campaign 1"
+FS_RESPONSE = "factor_of_safety"
+#: Responses and their units; failure is ``value > threshold`` except for the FS (``<``).
+RESPONSES = {"runout_distance": "m", "sliding_area": "m2", "retrogression_distance": "m",
+             "max_displacement": "m", FS_RESPONSE: ""}
+_ALIASES = {"runout": "runout_distance", "run-out": "runout_distance",
+            "retrogression": "retrogression_distance", "fs": FS_RESPONSE,
+            "factor-of-safety": FS_RESPONSE}
+
+
+@dataclass(frozen=True)
+class Response:
+    """A response of a realization and its failure threshold (``value > threshold``, or
+    ``value < threshold`` for the factor of safety)."""
+    name: str
+    threshold: float
+
+    @property
+    def below(self) -> bool:
+        return self.name == FS_RESPONSE
+
+    def exceedance(self, value: float | None) -> float:
+        """The subset variable Y (failure: Y > y_threshold); NaN for a missing value."""
+        if value is None or not math.isfinite(value):
+            return math.nan
+        return -float(value) if self.below else float(value)
+
+    @property
+    def y_threshold(self) -> float:
+        return -self.threshold if self.below else self.threshold
+
+    def describe(self) -> str:
+        unit = RESPONSES[self.name]
+        return f"{self.name} {'<' if self.below else '>'} {self.threshold:g}" + (
+            f" {unit}" if unit else "")
+
+
+def parse_response(name: str | None, threshold: float | None) -> Response:
+    """The response named on the command line (an alias or a :data:`RESPONSES` key)."""
+    allowed = ", ".join(RESPONSES) + " (aliases: " + ", ".join(_ALIASES) + ")"
+    if not name:
+        raise CampaignError(f"--method subset needs --response NAME; allowed: {allowed}")
+    key = _ALIASES.get(name.strip().lower(), name.strip().lower())
+    if key not in RESPONSES:
+        raise CampaignError(f"--response {name!r}: not a response of a realization; "
+                            f"allowed: {allowed}")
+    if threshold is None:
+        if key != FS_RESPONSE:
+            raise CampaignError(f"--response {key} needs --threshold X (failure: "
+                                f"{key} > X, in {RESPONSES[key]})")
+        threshold = 1.0
+    if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) \
+            or not math.isfinite(threshold):
+        raise CampaignError(f"--threshold {threshold!r}: expected a finite number")
+    return Response(key, float(threshold))
+
+
+def noise_digest(noise: np.ndarray) -> str:
+    """SHA-256 of the noise as C-ordered float64 bytes (the record's noise reference)."""
+    return hashlib.sha256(np.ascontiguousarray(noise, dtype=np.float64).tobytes()).hexdigest()
+
+
+# --------------------------------------------------------------------------- the task
+
+def _factor_of_safety_record(task: dict) -> dict:
+    """The record of a strength-reduction run (the ``fs`` engineer's API)."""
+    try:
+        from .. import strength_reduction as sr   # noqa: F401 - present once issue 15 lands
+    except ImportError:
+        raise CampaignError("--response factor_of_safety: this fem_rmpm has no strength "
+                            "reduction (fem_rmpm.strength_reduction); use a measure") from None
+    raise CampaignError("--response factor_of_safety: not wired to the strength reduction yet")
+
+
+def run_subset_sample(task: dict) -> dict:
+    """The Dask task of one subset sample: the crude realization record
+    (:func:`fem_rmpm.campaign.task.run_realization`, with the ``noise`` array in place of
+    the seed for chain samples) plus the sample's position and its response ``value``."""
+    if task["response"] == FS_RESPONSE:
+        rec = _factor_of_safety_record(task)
+    else:
+        rec = run_realization(task)
+        rec.pop("final_profile", None)
+        m = rec.get("measures") or {}
+        rec["value"] = m.get(task["response"]) if rec["status"] == "ok" else None
+    rec.update({k: task[k] for k in ("key", "level", "chain", "step", "start",
+                                     "noise_digest", "response", "level_threshold")})
+    return rec
+
+
+# --------------------------------------------------------------------------- the client
+
+class _Lost(Exception):
+    """Samples of a batch whose workers died: the level cannot go on this run."""
+
+
+@dataclass
+class SubsetCampaignResult:
+    """What :func:`run_subset_campaign` did: the estimate (``result``, a
+    :class:`fem_rmpm.campaign.subset.MethodResult`; None if samples were lost) and the
+    samples this command computed, reused from records and lost."""
+    out: Path
+    response: Response
+    result: MethodResult | None
+    computed: int
+    reused: int
+    lost: list[str]
+    wall_time: float
+    compute_time: float
+    workers: str
+    figures: list[Path] = field(default_factory=list)
+
+
+def _record_path(out: Path, key: str) -> Path:
+    return out / "records" / f"{key}.json"
+
+
+class _Evaluator:
+    """Evaluates a method's batches: stored records first, the rest on Dask."""
+
+    def __init__(self, out: Path, scene: Scene, response: Response, workers, scheduler,
+                 client, force: bool, progress: bool):
+        self.out, self.scene, self.response = out, scene, response
+        self.workers, self.scheduler, self.force = workers, scheduler, force
+        self.client, self.cluster, self.own = client, None, client is None
+        self.desc = ("no workers needed" if client is None
+                     else f"the given Dask client ({len(client.nthreads())} workers)")
+        self.records: dict[str, dict] = {}
+        self.computed = self.reused = 0
+        self.compute_time = 0.0
+        self.bar = tqdm(desc=f"{scene.scene.name} subset", unit="run", dynamic_ncols=True,
+                        total=0) if progress else None
+
+    def evaluate(self, batch: list[Sample]) -> list[float]:
+        tasks = []
+        for s in batch:
+            digest = noise_digest(s.noise) if s.noise is not None else None
+            rec = None if self.force else read_record(_record_path(self.out, s.key))
+            if (rec is not None and rec.get("key") == s.key and rec.get("seed") == s.seed
+                    and rec.get("noise_digest") == digest
+                    and rec.get("response") == self.response.name):
+                self.records[s.key] = rec
+                self.reused += 1
+            else:
+                tasks.append(self._task(s, digest))
+        if self.bar is not None:
+            self.bar.total += len(batch)
+            self.bar.update(len(batch) - len(tasks))
+        if tasks:
+            self._compute(tasks)
+        return [self.response.exceedance(self.records[s.key].get("value"))
+                if self.records[s.key]["status"] == "ok" else math.nan for s in batch]
+
+    def _task(self, s: Sample, digest: str | None) -> dict:
+        return {"case": "scene", "index": s.chain, "seed": s.seed, "noise": s.noise,
+                "scene": self.scene, "vtk_dir": None, "vtk_rel": None, "key": s.key,
+                "level": s.level, "chain": s.chain, "step": s.step, "start": s.start,
+                "noise_digest": digest, "response": self.response.name,
+                "level_threshold": s.level_threshold}
+
+    def _compute(self, tasks: list[dict]) -> None:
+        if self.client is None:
+            self.client, self.cluster, self.desc = start_client(
+                self.workers, self.scheduler, max(len(tasks), 1000))
+        t0 = time.perf_counter()
+        token = uuid.uuid4().hex[:8]
+        futures = self.client.map(run_subset_sample, tasks, pure=False, retries=0,
+                                  key=[f"subset-{token}-{t['key']}" for t in tasks])
+        by_key = {f.key: t for f, t in zip(futures, tasks)}
+        lost = []
+        for fut in as_completed(futures, loop=self.client.loop):
+            task = by_key[fut.key]
+            try:
+                rec = fut.result()
+            except Exception as exc:  # noqa: BLE001 - infrastructure, not the realization
+                lost.append(f"{task['key']}: {type(exc).__name__}: "
+                            + " ".join(str(exc).split())[:300])
+                continue
+            rec["accepted"] = (None if rec["level_threshold"] is None else
+                               bool(self.response.exceedance(rec["value"])
+                                    >= rec["level_threshold"]))
+            write_json(_record_path(self.out, rec["key"]), rec)
+            self.records[rec["key"]] = rec
+            self.computed += 1
+            if self.bar is not None:
+                self.bar.update(1)
+            fut.release()
+        self.compute_time += time.perf_counter() - t0
+        if lost:
+            raise _Lost(lost)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        if self.own and self.client is not None:
+            self.client.close(timeout=10)
+        if self.cluster is not None:
+            self.cluster.close(timeout=10)
+
+
+def _identity(scene: Scene, response: Response, p0: float, n: int) -> dict:
+    doc = campaign_doc([parse_case("scene", scene)], scene.montecarlo.seed)
+    doc["format"] = SUBSET_FORMAT
+    doc["method"] = {"name": "subset", "response": response.name, "p0": p0,
+                     "samples_per_level": n}
+    return doc
+
+
+def _check_subset_directory(out: Path, doc: dict) -> None:
+    """Raise CampaignError unless ``out`` is free or holds this subset campaign."""
+    import json
+    check_directory(out, doc, fmt=SUBSET_FORMAT)
+    meta = out / "campaign.json"
+    if meta.exists():
+        old = json.loads(meta.read_text()).get("method")
+        if old != doc["method"]:
+            diff = [f"{k} = {old.get(k)!r} there, {v!r} here" for k, v in doc["method"].items()
+                    if (old or {}).get(k) != v] if isinstance(old, dict) else ["no method"]
+            raise CampaignError(f"{out}: holds a subset campaign with {'; '.join(diff)}; "
+                                "nothing was changed; choose another --out")
+
+
+def _clean_temporaries(out: Path) -> None:
+    for p in (out / "records").glob(".L*.tmp"):
+        try:
+            p.unlink()
+        except OSError:
+            pass
+
+
+def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
+                        threshold: float | None = None, p0: float = 0.1, n: int | None = None,
+                        workers: int | None = None, scheduler: str | None = None,
+                        client=None, force: bool = False, progress: bool = True,
+                        figures: bool = True) -> SubsetCampaignResult:
+    """Run (or finish, or extend) a subset-simulation campaign in ``out`` (module docstring).
+
+    ``response``: a :data:`RESPONSES` name or alias (or a :class:`Response`);
+    ``threshold``: failure above it (below it for the FS, default 1); ``p0``: level
+    probability in (0, 0.5]; ``n``: samples per level (default 1000; ``n p0 >= 10``);
+    ``workers`` / ``scheduler`` / ``client``: as for crude Monte Carlo.  Raises
+    :class:`CampaignError` or :class:`SubsetError` (both input errors) before anything
+    is written."""
+    import warnings
+    t_start = time.perf_counter()
+    out = Path(out)
+    resp = response if isinstance(response, Response) else parse_response(response, threshold)
+    n = 1000 if n is None else n
+    if scene.random_field is None:
+        raise CampaignError(f"{scene.source}: subset simulation needs a [random_field]; "
+                            "without one every realization is the same")
+    grid = make_grid(scene)
+    method = SubsetSimulation(resp.y_threshold, n=n, p0=p0, seed=scene.montecarlo.seed,
+                              noise_from_seed=lambda seed: field_noise(scene, grid, seed).ravel(),
+                              on_failure="reject", label=resp.describe())
+    doc = _identity(scene, resp, float(p0), int(n))
+    _check_subset_directory(out, doc)
+    ev = _Evaluator(out, scene, resp, workers, scheduler, client, force, progress)
+    result, lost = None, []
+    try:
+        with Lock(out):
+            _check_subset_directory(out, doc)
+            if not (out / "campaign.json").exists():
+                write_json(out / "campaign.json", doc)
+            _clean_temporaries(out)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SubsetWarning)
+                try:
+                    while (batch := method.next_batch()) is not None:
+                        method.tell(ev.evaluate(batch))
+                    result = method.result()
+                except _Lost as exc:
+                    lost = list(exc.args[0])
+            res = SubsetCampaignResult(out, resp, result, ev.computed, ev.reused, lost,
+                                       0.0, ev.compute_time, ev.desc)
+            if result is not None:
+                _finish(res, scene, method, ev.records, figures)
+    finally:
+        ev.close()
+    res.wall_time = time.perf_counter() - t_start
+    return res
+
+
+# --------------------------------------------------------------------------- outputs
+
+_CSV_FIRST = ("key", "level", "chain", "step", "seed", "start", "status", "value",
+              "level_threshold", "accepted")
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return "1" if v else "0"
+    return repr(v) if isinstance(v, float) else str(v)
+
+
+def write_samples_csv(path: Path, records: list[dict]) -> None:
+    """``samples.csv``: one row per record in (level, chain, step) order, then the measures."""
+    rows = sorted(records, key=lambda r: (r["level"], r["chain"], r["step"]))
+    extra = sorted({k for r in rows for k in (r.get("measures") or {})})
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow([*_CSV_FIRST, *extra, "error"])
+    for r in rows:
+        m = r.get("measures") or {}
+        w.writerow([_fmt(r.get(k)) for k in _CSV_FIRST] + [_fmt(m.get(k)) for k in extra]
+                   + [_fmt(r.get("error"))])
+    _atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def _level_dict(lv, response: Response) -> dict:
+    d = lv.as_dict()
+    d.pop("responses")
+    d["threshold_response"] = -lv.threshold if response.below else lv.threshold
+    return d
+
+
+def _finish(res: SubsetCampaignResult, scene: Scene, method: SubsetSimulation,
+            records: dict[str, dict], figures: bool) -> None:
+    from ..report import write_report
+    r, resp = res.result, res.response
+    recs = list(records.values())
+    write_samples_csv(res.out / "samples.csv", recs)
+    walls = [x["wall_time"] for x in recs if x.get("wall_time") is not None]
+    cpus = [x["cpu_time"] for x in recs if x.get("cpu_time") is not None]
+    failed = sum(1 for x in recs if x["status"] != "ok")
+    summary = {
+        "method": "subset", "scene": scene.scene.name, "scene_file": scene.source,
+        "campaign_seed": scene.montecarlo.seed,
+        "failure_displacement": scene.montecarlo.failure_displacement,
+        "subset": {"response": resp.name, "failure": resp.describe(),
+                   "threshold": resp.threshold, "p0": method.p0,
+                   "samples_per_level": method.n, "probability": r.probability,
+                   "cov": r.cov, "total_runs": r.total_runs,
+                   "crude_equivalent_runs": r.crude_equivalent_runs,
+                   "failed_runs": failed, "notes": r.notes,
+                   "thresholds": [x["threshold_response"] for x in
+                                  (_level_dict(lv, resp) for lv in r.levels)],
+                   "levels": [_level_dict(lv, resp) for lv in r.levels]},
+        "this_run": {"computed": res.computed, "reused_records": res.reused,
+                     "workers": res.workers, "compute_wall_time": res.compute_time},
+        "realization_wall_time": {"mean": float(np.mean(walls)) if walls else None,
+                                  "total": float(np.sum(walls)) if walls else None},
+        "realization_cpu_time": {"mean": float(np.mean(cpus)) if cpus else None,
+                                 "total": float(np.sum(cpus)) if cpus else None},
+    }
+    write_json(res.out / "summary.json", summary)
+    if figures:
+        from .subset_plots import plot_levels
+        res.figures = [plot_levels(res.out / "subset_levels.png", r, resp, scene.scene.name),
+                       write_report(res.out)]
+
+
+def subset_summary_text(res: SubsetCampaignResult) -> str:
+    """The paragraph printed by ``fem-rmpm mc --method subset``."""
+    head = (f"Subset simulation in {res.out}: this run computed {res.computed} sample(s) "
+            f"(reused {res.reused} records) on {res.workers} in {res.wall_time:.1f} s.")
+    if res.result is None:
+        return (head + f"\n  {len(res.lost)} sample(s) LOST (their workers died; no record): "
+                + "; ".join(res.lost[:3]) + " -- re-run the same command to finish")
+    r = res.result
+    th = ", ".join(f"{-b if res.response.below else b:.4g}" for b in r.thresholds[:-1])
+    lines = [head, f"  P({res.response.describe()}) = {r.probability:.3g}, COV {r.cov:.2f} "
+                   f"(Au & Beck, with chain correlation) after {len(r.levels)} level(s), "
+                   f"{r.total_runs} runs" + (f", {r.failed_runs} failed numerically"
+                                             if r.failed_runs else "")
+                   + (f"; intermediate thresholds {th}" if th else "")]
+    if r.crude_equivalent_runs:
+        lines.append(f"  crude Monte Carlo would need {r.crude_equivalent_runs:.0f} runs for "
+                     f"the same COV ({r.crude_equivalent_runs / r.total_runs:.1f}x)")
+    lines.extend(f"  WARNING: {note}" for note in r.notes)
+    lines.append(f"Output: summary.json, samples.csv, records/"
+                 + "".join(f", {p.name}" for p in res.figures) + f" in {res.out}")
+    return "\n".join(lines)
+
+
+def sample_noise(scene: Scene, out: str | Path, key: str) -> np.ndarray:
+    """The noise vector of sample ``key`` of the campaign in ``out``, replayed from its
+    records (``api.run(scene, noise=sample_noise(scene, out, key))`` re-runs it)."""
+    import json
+    doc = json.loads((Path(out) / "campaign.json").read_text())["method"]
+    grid = make_grid(scene)
+    method = SubsetSimulation(1e300, n=doc["samples_per_level"], p0=doc["p0"],
+                              seed=scene.montecarlo.seed, on_failure="reject", max_levels=99,
+                              noise_from_seed=lambda seed: field_noise(scene, grid, seed).ravel())
+    resp = Response(doc["response"], 1.0)
+    while (batch := method.next_batch()) is not None:
+        for s in batch:
+            if s.key == key:
+                return s.noise if s.noise is not None else method.noise_from_seed(s.seed)
+        ys = []
+        for s in batch:
+            rec = read_record(_record_path(Path(out), s.key))
+            if rec is None:
+                raise CampaignError(f"{out}: no record of {s.key}, which comes before {key}")
+            ys.append(resp.exceedance(rec.get("value")) if rec["status"] == "ok" else math.nan)
+        method.tell(ys)
+    raise CampaignError(f"{out}: the campaign has no sample {key}")  # pragma: no cover
