@@ -135,13 +135,37 @@ def noise_digest(noise: np.ndarray) -> str:
 # --------------------------------------------------------------------------- the task
 
 def _factor_of_safety_record(task: dict) -> dict:
-    """The record of a strength-reduction run (the ``fs`` engineer's API)."""
+    """The record of a strength-reduction run of the sample (:mod:`fem_rmpm.strength_reduction`):
+    status, error, ``value`` = FS (the bound for "FS > f_max" / "FS < f_min"), its bound,
+    bracket and number of static solves, worker, wall and CPU time."""
+    import os
+    import socket
+
+    from .. import api
+    from ..run import SimulationError
+    from ..strength_reduction import FSOptions, factor_of_safety
+    from .store import FORMAT
+    rec: dict[str, Any] = {"format": FORMAT, "case": task["case"], "index": int(task["index"]),
+                           "seed": task["seed"], "scheme": "strength_reduction",
+                           "status": "ok", "error": None, "vtk": None, "value": None,
+                           "worker": {"host": socket.gethostname(), "pid": os.getpid()}}
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
-        from .. import strength_reduction as sr   # noqa: F401 - present once issue 15 lands
-    except ImportError:
-        raise CampaignError("--response factor_of_safety: this fem_rmpm has no strength "
-                            "reduction (fem_rmpm.strength_reduction); use a measure") from None
-    raise CampaignError("--response factor_of_safety: not wired to the strength reduction yet")
+        grid, pts = api.prepare(task["scene"], task["seed"], task.get("noise"))
+        res = factor_of_safety(task["scene"], task["seed"], FSOptions(**task["fs_options"]),
+                               grid=grid, pts=pts)
+    except (SimulationError, ValueError) as exc:
+        rec.update(status="failed", error=" ".join(str(exc).split()) or type(exc).__name__,
+                   measures=None)
+    else:
+        rec["value"] = float(res.fs)
+        rec["measures"] = {FS_RESPONSE: float(res.fs), "fs_bound": res.bound,
+                           "fs_bracket_low": float(res.bracket[0]),
+                           "fs_bracket_high": float(res.bracket[1]),
+                           "static_solves": res.static_solves}
+    rec["wall_time"] = time.perf_counter() - t0
+    rec["cpu_time"] = time.process_time() - c0
+    return rec
 
 
 def run_subset_sample(task: dict) -> dict:
@@ -191,8 +215,9 @@ class _Evaluator:
     """Evaluates a method's batches: stored records first, the rest on Dask."""
 
     def __init__(self, out: Path, scene: Scene, response: Response, workers, scheduler,
-                 client, force: bool, progress: bool):
+                 client, force: bool, progress: bool, fs_options: dict):
         self.out, self.scene, self.response = out, scene, response
+        self.fs_options = fs_options
         self.workers, self.scheduler, self.force = workers, scheduler, force
         self.client, self.cluster, self.own = client, None, client is None
         self.desc = ("no workers needed" if client is None
@@ -228,7 +253,7 @@ class _Evaluator:
                 "scene": self.scene, "vtk_dir": None, "vtk_rel": None, "key": s.key,
                 "level": s.level, "chain": s.chain, "step": s.step, "start": s.start,
                 "noise_digest": digest, "response": self.response.name,
-                "level_threshold": s.level_threshold}
+                "level_threshold": s.level_threshold, "fs_options": self.fs_options}
 
     def _compute(self, tasks: list[dict]) -> None:
         if self.client is None:
@@ -270,11 +295,13 @@ class _Evaluator:
             self.cluster.close(timeout=10)
 
 
-def _identity(scene: Scene, response: Response, p0: float, n: int) -> dict:
+def _identity(scene: Scene, response: Response, p0: float, n: int, fs_options: dict) -> dict:
     doc = campaign_doc([parse_case("scene", scene)], scene.montecarlo.seed)
     doc["format"] = SUBSET_FORMAT
     doc["method"] = {"name": "subset", "response": response.name, "p0": p0,
                      "samples_per_level": n}
+    if response.name == FS_RESPONSE:
+        doc["method"]["fs_options"] = fs_options
     return doc
 
 
@@ -300,17 +327,32 @@ def _clean_temporaries(out: Path) -> None:
             pass
 
 
+def _check_fs_options(options: dict) -> None:
+    try:
+        from ..strength_reduction import FSOptions
+    except ImportError:
+        raise CampaignError("--response factor_of_safety: this fem_rmpm has no strength "
+                            "reduction (fem_rmpm.strength_reduction); use a measure") from None
+    try:
+        FSOptions(**options)
+    except TypeError as exc:
+        raise CampaignError(f"fs_options {options!r}: {exc}") from None
+
+
 def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
                         threshold: float | None = None, p0: float = 0.1, n: int | None = None,
                         workers: int | None = None, scheduler: str | None = None,
                         client=None, force: bool = False, progress: bool = True,
-                        figures: bool = True) -> SubsetCampaignResult:
+                        figures: bool = True, fs_options: dict | None = None
+                        ) -> SubsetCampaignResult:
     """Run (or finish, or extend) a subset-simulation campaign in ``out`` (module docstring).
 
     ``response``: a :data:`RESPONSES` name or alias (or a :class:`Response`);
     ``threshold``: failure above it (below it for the FS, default 1); ``p0``: level
     probability in (0, 0.5]; ``n``: samples per level (default 1000; ``n p0 >= 10``);
-    ``workers`` / ``scheduler`` / ``client``: as for crude Monte Carlo.  Raises
+    ``workers`` / ``scheduler`` / ``client``: as for crude Monte Carlo; ``fs_options``:
+    :class:`fem_rmpm.strength_reduction.FSOptions` fields for the factor of safety
+    (part of the campaign identity).  Raises
     :class:`CampaignError` or :class:`SubsetError` (both input errors) before anything
     is written."""
     import warnings
@@ -321,13 +363,16 @@ def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
     if scene.random_field is None:
         raise CampaignError(f"{scene.source}: subset simulation needs a [random_field]; "
                             "without one every realization is the same")
+    if resp.name == FS_RESPONSE:
+        _check_fs_options(fs_options or {})
     grid = make_grid(scene)
     method = SubsetSimulation(resp.y_threshold, n=n, p0=p0, seed=scene.montecarlo.seed,
                               noise_from_seed=lambda seed: field_noise(scene, grid, seed).ravel(),
                               on_failure="reject", label=resp.describe())
-    doc = _identity(scene, resp, float(p0), int(n))
+    doc = _identity(scene, resp, float(p0), int(n), dict(fs_options or {}))
     _check_subset_directory(out, doc)
-    ev = _Evaluator(out, scene, resp, workers, scheduler, client, force, progress)
+    ev = _Evaluator(out, scene, resp, workers, scheduler, client, force, progress,
+                    dict(fs_options or {}))
     result, lost = None, []
     try:
         with Lock(out):
