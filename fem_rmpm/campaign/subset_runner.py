@@ -389,7 +389,8 @@ def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
                 except _Lost as exc:
                     lost = list(exc.args[0])
             res = SubsetCampaignResult(out, resp, result, ev.computed, ev.reused, lost,
-                                       0.0, ev.compute_time, ev.desc)
+                                       time.perf_counter() - t_start, ev.compute_time,
+                                       ev.desc)
             if result is not None:
                 _finish(res, scene, method, ev.records, figures)
     finally:
@@ -456,7 +457,8 @@ def _finish(res: SubsetCampaignResult, scene: Scene, method: SubsetSimulation,
                                   (_level_dict(lv, resp) for lv in r.levels)],
                    "levels": [_level_dict(lv, resp) for lv in r.levels]},
         "this_run": {"computed": res.computed, "reused_records": res.reused,
-                     "workers": res.workers, "compute_wall_time": res.compute_time},
+                     "workers": res.workers, "compute_wall_time": res.compute_time,
+                     "wall_time": res.wall_time},
         "realization_wall_time": {"mean": float(np.mean(walls)) if walls else None,
                                   "total": float(np.sum(walls)) if walls else None},
         "realization_cpu_time": {"mean": float(np.mean(cpus)) if cpus else None,
