@@ -22,7 +22,7 @@ def _level_curve(lv, p_start: float, below: bool) -> tuple[np.ndarray, np.ndarra
     return (-y if below else y), p
 
 
-def plot_levels(path: Path, result: MethodResult, response, title: str) -> Path:
+def plot_levels(path: Path, result: MethodResult, response, title: str, unit: str = "") -> Path:
     """``subset_levels.png``: P(response > x) (P(FS < x)) from the samples of every level,
     the intermediate thresholds (dashed) and the failure threshold with the estimate."""
     fig, ax = plt.subplots(figsize=(8.0, 5.0), dpi=110)
@@ -41,8 +41,6 @@ def plot_levels(path: Path, result: MethodResult, response, title: str) -> Path:
     ax.plot([response.threshold], [result.probability], "o", color="crimson", ms=7,
             label=f"P = {result.probability:.3g} (COV {result.cov:.2f}), {result.total_runs} runs")
     ax.set_yscale("log")
-    from .subset_runner import RESPONSES
-    unit = RESPONSES.get(response.name, "")
     ax.set_xlabel(response.name.replace("_", " ") + (f" ({unit})" if unit else ""))
     ax.set_ylabel(f"P({'FS < x' if response.below else 'response > x'})")
     ax.set_title(f"{title}: subset simulation of P({response.describe()})\n"

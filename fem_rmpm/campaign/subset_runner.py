@@ -467,7 +467,8 @@ def _finish(res: SubsetCampaignResult, scene: Scene, method: SubsetSimulation,
     write_json(res.out / "summary.json", summary)
     if figures:
         from .subset_plots import plot_levels
-        res.figures = [plot_levels(res.out / "subset_levels.png", r, resp, scene.scene.name),
+        res.figures = [plot_levels(res.out / "subset_levels.png", r, resp, scene.scene.name,
+                                   RESPONSES[resp.name]),
                        write_report(res.out)]
 
 
