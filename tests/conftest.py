@@ -23,3 +23,35 @@ def meshes_dir_fx():
     from fem_rmpm.grid import make_grid
     from fem_rmpm.scene import load_scene
     return make_grid(load_scene(MESHES / "slope_elastic.toml"))
+
+
+def _slurm_missing() -> str | None:
+    """Why SLURM cannot be used here (None: `sinfo` lists a node that takes jobs)."""
+    import shutil
+    import subprocess
+    if shutil.which("sbatch") is None or shutil.which("sinfo") is None:
+        return "SLURM is not installed (no sbatch/sinfo on PATH; .ci/slurm-start.sh installs it)"
+    try:
+        res = subprocess.run(["sinfo", "-h", "-N", "-o", "%t"], capture_output=True, text=True,
+                             timeout=30)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f"sinfo failed: {exc}"
+    states = res.stdout.split()
+    if res.returncode != 0 or not any(s.rstrip("*~#") in ("idle", "mix", "mixed", "alloc",
+                                                           "allocated") for s in states):
+        return ("no SLURM node takes jobs (sinfo: "
+                + (" ".join((res.stderr or res.stdout).split())[:200] or "no node") + ")")
+    return None
+
+
+def pytest_runtest_setup(item):
+    """Tests marked `slurm` need a running SLURM: skip without one, fail under CI=true."""
+    if item.get_closest_marker("slurm") is None:
+        return
+    why = _slurm_missing()
+    if why is None:
+        return
+    import os
+    if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
+        pytest.fail(f"CI=true but {why}", pytrace=False)
+    pytest.skip(why)

@@ -1,0 +1,555 @@
+"""Where a campaign's realizations run: one backend protocol for a local Dask cluster, a
+running Dask scheduler, and worker jobs on a batch system (SLURM, PBS, SGE, LSF).
+
+A :class:`Backend` is opened from a :class:`ClusterSpec` by :func:`open_backend` (which
+checks the options and starts nothing), then
+
+* ``start(n_tasks)`` returns a ``distributed.Client`` with workers coming (it raises
+  :class:`ClusterError`, exit 2, for a refused job submission: the batch system's own
+  reason in one line, e.g. ``sbatch: error: invalid partition specified: nosuch``);
+* ``check_directory(client, out)`` makes sure the workers see the campaign directory
+  ``out`` and can write to it (the workers write the kept VTK there); a worker that
+  does not see the client's probe file is a :class:`ClusterError`;
+* ``plan(n_tasks)`` describes what ``start`` would start, for ``--dry-run`` (it starts
+  nothing and writes nothing in the campaign directory; on SLURM the job script is
+  checked by ``sbatch --test-only``);
+* ``close()`` closes the client and the cluster (worker jobs are cancelled).
+
+Kinds
+-----
+``local`` (default): a ``distributed.LocalCluster`` of K single-thread worker processes
+(``--workers K``, default the usable CPUs, at most the realizations to run).
+``local`` with ``--scheduler ADDRESS``: the workers of a running Dask cluster.
+``slurm`` | ``pbs`` | ``sge`` | ``lsf``: dask-jobqueue's ``SLURMCluster``,
+``PBSCluster``, ``SGECluster`` or ``LSFCluster``.  The scheduler runs in the client
+(the ``fem-rmpm mc`` process, on the login node or in a job of its own); each batch
+job runs ``processes`` single-thread Dask workers on ``cores`` cores with ``memory``.
+
+Configuration of the batch jobs, highest precedence first:
+
+1. command-line options: ``--queue``, ``--account`` (``project`` on SGE and LSF),
+   ``--cores`` and ``--memory`` per job, ``--walltime``, ``--job-directive`` (repeatable,
+   e.g. ``--job-directive=--constraint=skylake``), ``--interface`` (network interface
+   of the scheduler and the workers, e.g. ``ib0``; ``lo`` on a single machine);
+2. the Dask configuration: ``jobqueue.<kind>.*`` in ``~/.config/dask/jobqueue.yaml``,
+   ``$DASK_CONFIG`` or ``DASK_JOBQUEUE__SLURM__QUEUE=...`` variables, read by
+   dask-jobqueue itself (the file users of dask-jobqueue already have);
+3. fem_rmpm's defaults where the Dask configuration has none: ``cores = 1``,
+   ``processes = cores`` (one single-thread worker per core: a realization is
+   single-threaded), ``memory`` = ``processes`` x the larger of 1 GiB and twice the
+   estimated peak memory of one realization (:mod:`fem_rmpm.budget`), the
+   dashboard on a free port.
+
+Every job starts with ``OMP_NUM_THREADS``, ``MKL_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``,
+``NUMBA_NUM_THREADS`` = 1 and glibc's malloc thresholds raised (unless the job's
+environment sets them), then the configured ``job-script-prologue`` lines.
+
+Workers: ``--workers K`` keeps K workers (``ceil(K / processes)`` jobs; default one
+job); ``--adapt MIN:MAX`` lets Dask scale between MIN and MAX workers with the work
+left.  A job that ends under a campaign (``scancel``, walltime, node failure) loses
+nothing: Dask moves its running realization to another worker, and the backend
+submits a job in its place.  If the client itself ends, re-running the same command
+computes only the realizations without a record.
+
+Shared file system: the campaign directory must be one path that the client and every
+worker see (``/scratch``, ``/work``, the home directory; not ``/tmp`` of the login
+node).  Records, ``results.csv`` and ``summary.json`` are written by the client; the
+kept VTK by the workers.
+"""
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import re
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import uuid
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Protocol
+
+from ..errors import InputError
+
+__all__ = ["CLUSTER_KINDS", "ClusterError", "ClusterSpec", "Backend", "open_backend",
+           "parse_adapt", "probe_directory", "job_environment_lines", "WORKER_THREAD_VARS"]
+
+#: ``--cluster`` values: a local (or already running) Dask cluster, or dask-jobqueue kinds.
+CLUSTER_KINDS = ("local", "slurm", "pbs", "sge", "lsf")
+_JOBQUEUE_CLASS = {"slurm": "SLURMCluster", "pbs": "PBSCluster", "sge": "SGECluster",
+                   "lsf": "LSFCluster"}
+_BATCH_NAME = {"slurm": "SLURM", "pbs": "PBS", "sge": "SGE", "lsf": "LSF"}
+#: The job keyword that charges an account: ``account`` on SLURM/PBS, ``project`` on SGE/LSF.
+_ACCOUNT_KEYWORD = {"slurm": "account", "pbs": "account", "sge": "project", "lsf": "project"}
+#: Commands that check a job script without submitting it (only SLURM has one).
+_TEST_SUBMIT = {"slurm": ["sbatch", "--test-only"]}
+#: Thread variables set to 1 in every worker (parallelism comes from the processes).
+WORKER_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                      "NUMBA_NUM_THREADS")
+_MALLOC_VARS = {"MALLOC_TRIM_THRESHOLD_": 2**30, "MALLOC_MMAP_THRESHOLD_": 2**25}
+_PROBE_PREFIX = ".fem-rmpm-probe-"
+_MEMORY = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*([KMGT]i?B?|B)?\s*$", re.IGNORECASE)
+
+
+class ClusterError(InputError):
+    """Bad cluster input or a refused job submission (command line: exit 2, one line)."""
+
+
+@dataclass(frozen=True)
+class ClusterSpec:
+    """Where to run (see the module docstring).  ``None`` = not given: the Dask
+    configuration, then fem_rmpm's default, decides."""
+    kind: str = "local"
+    scheduler: str | None = None          # address of a running Dask scheduler (local only)
+    workers: int | None = None            # local processes, or workers kept on the batch system
+    adapt: tuple[int, int] | None = None  # (minimum, maximum) workers, batch systems only
+    queue: str | None = None
+    account: str | None = None
+    cores: int | None = None              # per job
+    memory: str | None = None             # per job, e.g. "8GB"
+    walltime: str | None = None           # e.g. "04:00:00"
+    interface: str | None = None
+    job_directives: tuple[str, ...] = ()
+    worker_memory_estimate: float | None = field(default=None, compare=False)  # B
+
+    @property
+    def batch(self) -> bool:
+        return self.kind in _JOBQUEUE_CLASS
+
+
+def parse_adapt(text: str | None) -> tuple[int, int] | None:
+    """``"MIN:MAX"`` workers (``"0:20"``) -> (0, 20); None -> None."""
+    if text is None:
+        return None
+    m = re.fullmatch(r"\s*(\d+)\s*:\s*(\d+)\s*", str(text))
+    if not m or int(m.group(2)) < max(1, int(m.group(1))):
+        raise ClusterError(f"--adapt {text!r}: expected MIN:MAX workers with 0 <= MIN <= MAX "
+                           "and MAX >= 1, e.g. --adapt 0:20")
+    return int(m.group(1)), int(m.group(2))
+
+
+def _positive(name: str, value) -> None:
+    if value is not None and (isinstance(value, bool) or not isinstance(value, int)
+                              or value <= 0):
+        raise ClusterError(f"{name} {value}: expected a positive integer")
+
+
+def _memory_bytes(text: str, option: str = "--memory") -> float:
+    """'8GB', '954M', '2 GiB' -> bytes (dask's units: kB = 1000, KiB = 1024)."""
+    m = _MEMORY.match(str(text))
+    if not m:
+        raise ClusterError(f"{option} {text!r}: expected a memory size like 4GB, 1500MB or "
+                           "2GiB")
+    from dask.utils import parse_bytes
+    unit = (m.group(2) or "B").upper().replace("IB", "iB")
+    unit = unit if unit.endswith("B") else unit + "B"
+    return float(parse_bytes(f"{m.group(1)} {unit}"))
+
+
+def validate(spec: ClusterSpec) -> ClusterSpec:
+    """Check a spec (raises :class:`ClusterError` naming the option); returns it."""
+    if spec.kind not in CLUSTER_KINDS:
+        raise ClusterError(f"--cluster {spec.kind!r}: unknown cluster kind; allowed: "
+                           + ", ".join(CLUSTER_KINDS))
+    _positive("--workers", spec.workers)
+    _positive("--cores", spec.cores)
+    if spec.memory is not None:
+        _memory_bytes(spec.memory)
+    if spec.workers is not None and spec.adapt is not None:
+        raise ClusterError("--workers keeps a fixed number of workers, --adapt lets Dask "
+                           "choose between MIN and MAX: give one of the two")
+    if spec.scheduler and spec.kind != "local":
+        raise ClusterError(f"--scheduler joins a running Dask cluster; --cluster {spec.kind} "
+                           "starts one on the batch system: give one of the two")
+    if spec.scheduler and spec.workers is not None:
+        raise ClusterError("--workers starts a local cluster; with --scheduler the "
+                           "cluster's own workers are used: give one of the two")
+    if not spec.batch:
+        given = [f"--{k.replace('_', '-')}" for k in ("queue", "account", "cores", "memory",
+                                                      "walltime", "interface", "adapt")
+                 if getattr(spec, k) is not None] + (["--job-directive"]
+                                                     if spec.job_directives else [])
+        if given:
+            raise ClusterError(f"{', '.join(given)}: options of batch-system workers; "
+                               "give --cluster slurm|pbs|sge|lsf as well")
+    return spec
+
+
+# --------------------------------------------------------------------------- protocol
+
+class Backend(Protocol):
+    """Where the realizations run (module docstring)."""
+    description: str
+
+    def start(self, n_tasks: int): ...                    # -> distributed.Client
+    def check_directory(self, client, out: Path) -> None: ...
+    def plan(self, n_tasks: int) -> dict: ...
+    def close(self) -> None: ...
+
+
+def open_backend(spec: ClusterSpec) -> Backend:
+    """The backend of a (validated) spec; starts nothing."""
+    spec = validate(spec)
+    if spec.batch:
+        return JobqueueBackend(spec)
+    if spec.scheduler:
+        return SchedulerBackend(spec.scheduler)
+    return LocalBackend(spec.workers)
+
+
+def usable_cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover
+        return os.cpu_count() or 1
+
+
+class _ClientBackend:
+    """Shared closing of a client and, if started here, its cluster."""
+    description = ""
+
+    def __init__(self):
+        self.client = None
+        self.cluster = None
+
+    def close(self) -> None:
+        if self.client is not None:
+            self.client.close(timeout=10)
+            self.client = None
+        if self.cluster is not None:
+            self.cluster.close(timeout=30)
+            self.cluster = None
+
+
+class LocalBackend(_ClientBackend):
+    """A LocalCluster of single-thread worker processes on this machine."""
+
+    def __init__(self, workers: int | None):
+        super().__init__()
+        self.workers = workers
+
+    def _count(self, n_tasks: int) -> int:
+        return self.workers or max(1, min(usable_cpus(), n_tasks))
+
+    def start(self, n_tasks: int):
+        from ..montecarlo import start_local_cluster
+        k = self._count(n_tasks)
+        self.client, self.cluster = start_local_cluster(k)
+        self.description = f"{k} local worker process{'es' if k > 1 else ''}"
+        return self.client
+
+    def check_directory(self, client, out: Path) -> None:
+        """Local workers share this machine's file system: nothing to check."""
+
+    def plan(self, n_tasks: int) -> dict:
+        k = self._count(n_tasks)
+        return {"kind": "local", "workers": k, "cores_per_worker": 1,
+                "description": f"{k} local worker process{'es' if k > 1 else ''} "
+                               f"({usable_cpus()} usable CPUs)"}
+
+
+class SchedulerBackend(_ClientBackend):
+    """The workers of a running Dask cluster (``--scheduler ADDRESS``)."""
+
+    def __init__(self, address: str):
+        super().__init__()
+        self.address = address
+
+    def start(self, n_tasks: int):
+        import dask
+        from distributed import Client
+        timeout = dask.config.get("distributed.comm.timeouts.connect")
+        try:
+            self.client = Client(self.address, timeout=timeout, set_as_default=False)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            msg = " ".join(str(exc).split()) or type(exc).__name__
+            raise ClusterError(f"cannot reach the Dask scheduler at {self.address!r} within "
+                               f"{timeout}: {msg[:200]}") from None
+        n = len(self.client.scheduler_info(n_workers=-1).get("workers", {}))
+        self.description = f"the Dask cluster at {self.address} ({n} workers now)"
+        return self.client
+
+    def check_directory(self, client, out: Path) -> None:
+        check_shared_directory(client, out, "--scheduler")
+
+    def plan(self, n_tasks: int) -> dict:
+        return {"kind": "scheduler", "workers": None,
+                "description": f"the workers of the Dask cluster at {self.address} "
+                               "(not contacted by --dry-run)"}
+
+
+# --------------------------------------------------------------------------- batch systems
+
+def job_environment_lines() -> list[str]:
+    """Job-script lines that give every worker one thread and raised malloc thresholds,
+    unless the job's environment already sets them."""
+    env = {k: "1" for k in WORKER_THREAD_VARS}
+    env.update({k: str(v) for k, v in _MALLOC_VARS.items()})
+    return [f'export {k}="${{{k}:-{v}}}"' for k, v in env.items()]
+
+
+def _config(kind: str, key: str, default=None):
+    import dask
+    return dask.config.get(f"jobqueue.{kind}.{key}", default=default)
+
+
+def _one_line_refusal(exc: BaseException) -> str:
+    """The batch system's reason from dask-jobqueue's 'Command exited with non-zero exit
+    code ... stderr: ...' error, as one line."""
+    text = str(exc)
+    stderr = text.split("stderr:", 1)[1] if "stderr:" in text else text
+    lines = [" ".join(s.split()) for s in stderr.splitlines() if s.strip()]
+    if not lines:
+        return " ".join(text.split())[:300] or type(exc).__name__
+    head, rest = lines[0], [re.sub(r"^\S+: error: ", "", s) for s in lines[1:]]
+    return "; ".join([head, *rest])[:400]
+
+
+class JobqueueBackend(_ClientBackend):
+    """Dask workers in batch jobs through dask-jobqueue (module docstring)."""
+
+    def __init__(self, spec: ClusterSpec):
+        super().__init__()
+        self.spec = spec
+        self.kind = spec.kind
+        self._keeper = None
+        self._seen: dict[str, float | None] = {}   # job -> when its workers left
+
+    # ---- the job options
+    def _job_kwargs(self) -> dict[str, Any]:
+        s, kind = self.spec, self.kind
+        cores = s.cores or _config(kind, "cores") or 1
+        processes = _config(kind, "processes") if s.cores is None else None
+        processes = int(processes or cores)
+        if cores % processes:
+            raise ClusterError(f"--cores {cores}: not a multiple of jobqueue.{kind}.processes "
+                               f"= {processes} (the Dask configuration)")
+        memory = s.memory or _config(kind, "memory")
+        if memory is None:
+            per = max(2**30, 2.0 * (s.worker_memory_estimate or 0.0))
+            memory = f"{math.ceil(processes * per / 2**20)}MiB"
+        kw: dict[str, Any] = {"cores": int(cores), "processes": processes, "memory": memory,
+                              "job_script_prologue": job_environment_lines()
+                              + list(_config(kind, "job-script-prologue", []) or [])}
+        if s.queue is not None:
+            kw["queue"] = s.queue
+        if s.account is not None:
+            kw[_ACCOUNT_KEYWORD[kind]] = s.account
+        if s.walltime is not None:
+            kw["walltime"] = s.walltime
+        if s.interface is not None:
+            kw["interface"] = s.interface
+        if s.job_directives:
+            kw["job_extra_directives"] = (list(_config(kind, "job-extra-directives", []) or [])
+                                          + list(s.job_directives))
+        return kw
+
+    def _worker_count(self, n_tasks: int, processes: int) -> int:
+        if self.spec.adapt is not None:
+            return max(self.spec.adapt[0], 0)
+        return self.spec.workers or max(1, min(processes, n_tasks))
+
+    def _describe(self, kw: dict, workers: int | str) -> str:
+        jobs = (f"{math.ceil(workers / kw['processes'])} job(s)" if isinstance(workers, int)
+                else "jobs")
+        queue = kw.get("queue") or _config(self.kind, "queue") or "the default queue"
+        wall = kw.get("walltime") or _config(self.kind, "walltime")
+        return (f"{_BATCH_NAME[self.kind]} (dask-jobqueue): {workers} worker(s) in {jobs} of "
+                f"{kw['cores']} core(s) and {kw['memory']} on {queue}, walltime {wall}")
+
+    def _jobqueue_class(self):
+        try:
+            import dask_jobqueue
+        except ImportError:
+            raise ClusterError(f"--cluster {self.kind}: needs the dask-jobqueue package "
+                               "(pip install dask-jobqueue)") from None
+        return getattr(dask_jobqueue, _JOBQUEUE_CLASS[self.kind])
+
+    def _check_submit_command(self, cls) -> None:
+        command = cls.job_cls.submit_command
+        if shutil.which(command.split()[0]) is None:
+            raise ClusterError(f"--cluster {self.kind}: the batch system's submit command "
+                               f"{command.split()[0]!r} is not on PATH (run fem-rmpm mc on a "
+                               "login node of the cluster)")
+
+    # ---- dry run
+    def plan(self, n_tasks: int) -> dict:
+        cls = self._jobqueue_class()
+        kw = self._job_kwargs()
+        workers = (f"{self.spec.adapt[0]}..{self.spec.adapt[1]}" if self.spec.adapt
+                   else self._worker_count(n_tasks, kw["processes"]))
+        log_dir = _config(self.kind, "log-directory")
+        if log_dir is not None and not os.path.isdir(log_dir):
+            kw["log_directory"] = None        # Job() would create it: --dry-run writes nothing
+        try:
+            job = cls.job_cls("tcp://<scheduler>:8786", name="dry-run", **kw)
+        except (ValueError, TypeError) as exc:
+            raise ClusterError(f"--cluster {self.kind}: {' '.join(str(exc).split())[:300]}") \
+                from None
+        script = job.job_script()
+        out = {"kind": self.kind, "workers": workers, "processes_per_job": kw["processes"],
+               "cores_per_job": kw["cores"], "memory_per_job": kw["memory"],
+               "memory_per_worker_bytes": _memory_bytes(kw["memory"]) / kw["processes"],
+               "description": self._describe(kw, workers), "job_script": script,
+               "checked": None}
+        test = _TEST_SUBMIT.get(self.kind)
+        if test and shutil.which(test[0]):
+            out["checked"] = _test_submit(test, script)
+        return out
+
+    # ---- start
+    def start(self, n_tasks: int):
+        from distributed import Client
+        cls = self._jobqueue_class()
+        self._check_submit_command(cls)
+        kw = self._job_kwargs()
+        options = dict(_config(self.kind, "scheduler-options", {}) or {})
+        options.setdefault("dashboard_address", ":0")
+        try:
+            self.cluster = cls(scheduler_options=options, **kw)
+        except (ValueError, TypeError, OSError) as exc:
+            raise ClusterError(f"--cluster {self.kind}: {' '.join(str(exc).split())[:300]}") \
+                from None
+        try:
+            self._submit_first_job()
+        except ClusterError:
+            self.close()
+            raise
+        workers = self._worker_count(n_tasks, kw["processes"])
+        if self.spec.adapt is not None:
+            self.cluster.adapt(minimum=self.spec.adapt[0], maximum=self.spec.adapt[1])
+            self.description = self._describe(kw, f"{self.spec.adapt[0]}..{self.spec.adapt[1]}")
+        else:
+            self.cluster.scale(workers)
+            self.description = self._describe(kw, workers)
+        self.client = Client(self.cluster, set_as_default=False)
+        self._start_keeper()
+        return self.client
+
+    def _submit_first_job(self) -> None:
+        """Submit one job now, so that a refusal (no such queue, more memory than a node
+        has, no such account) is an error before anything is written."""
+        cluster = self.cluster
+        spec = cluster.new_worker_spec()
+        cluster.worker_spec.update(spec)
+        try:
+            cluster.sync(cluster._correct_state)
+        except Exception as exc:  # noqa: BLE001 - dask-jobqueue raises RuntimeError
+            for name in spec:      # the failed job never ran: forget it before closing
+                cluster.worker_spec.pop(name, None)
+                cluster.workers.pop(name, None)
+            raise ClusterError(f"--cluster {self.kind}: the batch system refused the worker "
+                               f"job: {_one_line_refusal(exc)}") from None
+
+    # ---- replacing lost jobs
+    def _start_keeper(self) -> None:
+        from tornado.ioloop import PeriodicCallback
+        self._keeper = PeriodicCallback(self._replace_lost_jobs, 5000)
+        self.cluster.loop.add_callback(self._keeper.start)
+
+    def _replace_lost_jobs(self) -> None:
+        """On the cluster's event loop, every 5 s: a job whose workers all connected once
+        and have all been gone (scancel, walltime, node failure) for longer than
+        ``distributed.deploy.lost-worker-timeout`` (after which distributed itself drops a
+        single-worker job) is closed, and every job of the plan that is missing is
+        submitted anew."""
+        import dask
+        from dask.utils import parse_timedelta
+        cluster = self.cluster
+        if cluster is None or cluster.scheduler is None:
+            return
+        grace = parse_timedelta(dask.config.get("distributed.deploy.lost-worker-timeout")) + 5
+        now = time.monotonic()
+        live = {ws.name for ws in cluster.scheduler.workers.values()}
+        for name in list(cluster.workers):
+            group = cluster.worker_spec.get(name, {}).get("group", [""])
+            if {f"{name}{g}" for g in group} & live:
+                self._seen[name] = None
+            elif name in self._seen:
+                since = self._seen[name] = self._seen[name] or now
+                if now - since > grace:
+                    del self._seen[name]
+                    asyncio.ensure_future(cluster.workers.pop(name).close())
+        if set(cluster.worker_spec) - set(cluster.workers):
+            cluster._correct_state()
+
+    def check_directory(self, client, out: Path) -> None:
+        check_shared_directory(client, out, f"--cluster {self.kind}")
+
+    def close(self) -> None:
+        if self._keeper is not None and self.cluster is not None:
+            self.cluster.loop.add_callback(self._keeper.stop)
+            self._keeper = None
+        super().close()
+
+
+def _test_submit(command: list[str], script: str) -> str:
+    """Check a job script with the batch system's test submission; returns its answer,
+    raises ClusterError with its refusal."""
+    with tempfile.NamedTemporaryFile("w", suffix=".sh", prefix="fem-rmpm-dry-run-") as fh:
+        fh.write(script)
+        fh.flush()
+        try:
+            res = subprocess.run([*command, fh.name], capture_output=True, text=True,
+                                 timeout=60)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            return f"not checked ({exc})"
+    text = (res.stderr + res.stdout).strip()
+    if res.returncode != 0:
+        lines = [" ".join(s.split()) for s in text.splitlines() if s.strip()]
+        raise ClusterError(f"the batch system refused the worker job ({' '.join(command)}): "
+                           + "; ".join(lines)[:400])
+    return " ".join(text.split())[:300]
+
+
+# --------------------------------------------------------------------------- shared directory
+
+def probe_directory(out: str, token: str) -> dict:
+    """Worker task: does this worker see the client's probe file in ``out``, and can it
+    write there?  Returns ``{"ok", "host", "reason"}``; never raises."""
+    host = socket.gethostname()
+    probe = Path(out) / f"{_PROBE_PREFIX}{token}"
+    try:
+        seen = probe.read_text().strip() == token
+    except OSError as exc:
+        return {"ok": False, "host": host,
+                "reason": f"it does not see {probe.name} ({exc.strerror or exc})"}
+    if not seen:
+        return {"ok": False, "host": host, "reason": f"{probe.name} has other contents"}
+    answer = probe.with_name(probe.name + ".worker")
+    try:
+        answer.write_text(host)
+    except OSError as exc:
+        return {"ok": False, "host": host,
+                "reason": f"it cannot write there ({exc.strerror or exc})"}
+    return {"ok": True, "host": host, "reason": ""}
+
+
+def check_shared_directory(client, out: Path, option: str) -> None:
+    """Raise ClusterError unless a worker sees the campaign directory ``out`` (a probe
+    file written by the client) and can write there.  Waits for the first worker."""
+    out = Path(out).resolve()
+    token = uuid.uuid4().hex
+    probe = out / f"{_PROBE_PREFIX}{token}"
+    answer = probe.with_name(probe.name + ".worker")
+    try:
+        probe.write_text(token)
+        res = client.submit(probe_directory, str(out), token, pure=False).result()
+        if res["ok"] and not answer.exists():
+            res = {"ok": False, "host": res["host"],
+                   "reason": "its file did not appear on the client's side"}
+    finally:
+        for p in (probe, answer):
+            try:
+                p.unlink()
+            except OSError:
+                pass
+    if not res["ok"]:
+        raise ClusterError(
+            f"--out {out}: the worker on host {res['host']} cannot use the campaign directory: "
+            f"{res['reason']}; with {option} the directory must be on a file system that the "
+            "client and every worker share (e.g. /scratch or the home directory)")
