@@ -19,6 +19,8 @@ import numpy as np
 
 from . import api
 from .campaign import LITERATURE_CASES, CampaignResult, run_campaign
+from .campaign.backends import ClusterSpec, parse_adapt
+from .campaign.estimate import estimate_campaign, estimate_text
 from .errors import InputError
 from .field_output import plot_realization, plot_variogram, write_field_vtu
 from .grid import make_grid
@@ -217,9 +219,19 @@ def _cmd_mc(a) -> int:
     if given:
         raise InputError(f"{given[0]}: only with --method subset")
     cases = list(a.case) if a.case else campaign_cases(scene, a.scene)
+    cluster = ClusterSpec(kind=a.cluster, queue=a.queue, account=a.account, cores=a.cores,
+                          memory=a.memory, walltime=a.walltime, interface=a.interface,
+                          job_directives=tuple(a.job_directive or ()),
+                          adapt=parse_adapt(a.adapt))
+    if a.dry_run:
+        est = estimate_campaign(scene, a.out, realizations=a.realizations, cases=cases,
+                                workers=a.workers, scheduler=a.scheduler, force=a.force,
+                                keep_vtk=a.keep_vtk, cluster=cluster)
+        print(estimate_text(est))
+        return 0
     res = run_campaign(scene, a.out, realizations=a.realizations, cases=cases,
                        workers=a.workers, scheduler=a.scheduler, force=a.force,
-                       keep_vtk=a.keep_vtk, progress=not a.quiet)
+                       keep_vtk=a.keep_vtk, progress=not a.quiet, cluster=cluster)
     print(summary_text(res))
     return 3 if res.lost else 0
 
@@ -335,6 +347,32 @@ def _cmd_report(a) -> int:
 
 # --------------------------------------------------------------------------- parser and main
 
+def _cluster_arguments(m: argparse.ArgumentParser) -> None:
+    """``mc`` options for batch-system workers (:mod:`fem_rmpm.campaign.backends`); unset
+    options come from the Dask configuration (jobqueue.yaml)."""
+    g = m.add_argument_group("cluster", "worker jobs on a batch system through dask-jobqueue; "
+                             "options not given come from the Dask configuration "
+                             "(~/.config/dask/jobqueue.yaml, jobqueue.<kind>.*)")
+    g.add_argument("--cluster", default="local", metavar="KIND",
+                   help="local (default) | slurm | pbs | sge | lsf")
+    g.add_argument("--queue", help="queue or partition of the worker jobs")
+    g.add_argument("--account", help="account (SLURM, PBS) or project (SGE, LSF) to charge")
+    g.add_argument("--cores", type=int, help="cores per job (one single-thread worker per "
+                   "core; default 1)")
+    g.add_argument("--memory", help="memory per job, e.g. 8GB (default: from the estimate)")
+    g.add_argument("--walltime", help="wall-time limit per job, e.g. 04:00:00")
+    g.add_argument("--interface", help="network interface of the scheduler and workers, "
+                   "e.g. ib0 (lo on one machine)")
+    g.add_argument("--job-directive", action="append", metavar="TEXT",
+                   help="extra batch directive, e.g. --job-directive=--constraint=skylake "
+                   "(repeatable)")
+    g.add_argument("--adapt", metavar="MIN:MAX", help="let Dask keep between MIN and MAX "
+                   "workers (instead of --workers)")
+    g.add_argument("--dry-run", action="store_true", help="print the campaign's size and cost "
+                   "(realizations, points, steps, core-hours, memory, wall time) and exit: "
+                   "nothing is written, no worker starts")
+
+
 EXIT_CODES = """exit codes:
   0    success
   2    bad input (scene, data file or option): one line on stderr, nothing written
@@ -395,10 +433,12 @@ def _add_mc(sub) -> None:
                    "or '<section.key>=<value>' changes joined by ';'")
     m.add_argument("--workers", type=int, default=None,
                    help="local worker processes (default: usable CPUs, at most the "
-                   "realizations to run)")
+                   "realizations to run); with --cluster: the workers to keep on the batch "
+                   "system (default: one job)")
     m.add_argument("--scheduler", default=None,
                    help="address of a running Dask scheduler, e.g. tcp://host:8786, "
                    "instead of a local cluster")
+    _cluster_arguments(m)
     m.add_argument("--force", action="store_true",
                    help="recompute finished realizations (each record replaced when its "
                    "new one is complete)")

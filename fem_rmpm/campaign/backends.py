@@ -71,12 +71,16 @@ import time
 import uuid
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, Sequence
 
-from ..errors import InputError
+from ..budget import estimate_run
+
+from .cases import CampaignError
+from .cluster import _usable_cpus, start_client, worker_environment
 
 __all__ = ["CLUSTER_KINDS", "ClusterError", "ClusterSpec", "Backend", "open_backend",
-           "parse_adapt", "probe_directory", "job_environment_lines", "WORKER_THREAD_VARS"]
+           "campaign_backend",
+           "parse_adapt", "probe_directory", "job_environment_lines"]
 
 #: ``--cluster`` values: a local (or already running) Dask cluster, or dask-jobqueue kinds.
 CLUSTER_KINDS = ("local", "slurm", "pbs", "sge", "lsf")
@@ -87,15 +91,11 @@ _BATCH_NAME = {"slurm": "SLURM", "pbs": "PBS", "sge": "SGE", "lsf": "LSF"}
 _ACCOUNT_KEYWORD = {"slurm": "account", "pbs": "account", "sge": "project", "lsf": "project"}
 #: Commands that check a job script without submitting it (only SLURM has one).
 _TEST_SUBMIT = {"slurm": ["sbatch", "--test-only"]}
-#: Thread variables set to 1 in every worker (parallelism comes from the processes).
-WORKER_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
-                      "NUMBA_NUM_THREADS")
-_MALLOC_VARS = {"MALLOC_TRIM_THRESHOLD_": 2**30, "MALLOC_MMAP_THRESHOLD_": 2**25}
 _PROBE_PREFIX = ".fem-rmpm-probe-"
 _MEMORY = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*([KMGT]i?B?|B)?\s*$", re.IGNORECASE)
 
 
-class ClusterError(InputError):
+class ClusterError(CampaignError):
     """Bad cluster input or a refused job submission (command line: exit 2, one line)."""
 
 
@@ -185,10 +185,28 @@ class Backend(Protocol):
     """Where the realizations run (module docstring)."""
     description: str
 
-    def start(self, n_tasks: int): ...                    # -> distributed.Client
+    def preflight(self, n_tasks: int) -> None: ...         # before anything is written
+    def start(self, n_tasks: int, out: Path): ...         # -> distributed.Client
     def check_directory(self, client, out: Path) -> None: ...
     def plan(self, n_tasks: int) -> dict: ...
     def close(self) -> None: ...
+
+
+def campaign_backend(spec: ClusterSpec | None, workers: int | None, scheduler: str | None,
+                     cases: Sequence) -> Backend:
+    """The backend of a campaign: ``spec`` (default: local) with ``run_campaign``'s
+    ``workers`` and ``scheduler`` arguments and the estimated peak memory of one
+    realization of the largest case (:func:`fem_rmpm.budget.estimate_run`)."""
+    spec = spec or ClusterSpec()
+    if workers is not None:
+        if spec.workers not in (None, workers):
+            raise ClusterError(f"--workers {workers} and a cluster of {spec.workers} workers: "
+                               "give one of the two")
+        spec = replace(spec, workers=workers)
+    if scheduler:
+        spec = replace(spec, scheduler=scheduler)
+    memory = max((estimate_run(c.scene).memory_bytes for c in cases), default=None)
+    return open_backend(replace(spec, worker_memory_estimate=memory))
 
 
 def open_backend(spec: ClusterSpec) -> Backend:
@@ -201,13 +219,6 @@ def open_backend(spec: ClusterSpec) -> Backend:
     return LocalBackend(spec.workers)
 
 
-def usable_cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover
-        return os.cpu_count() or 1
-
-
 class _ClientBackend:
     """Shared closing of a client and, if started here, its cluster."""
     description = ""
@@ -215,6 +226,9 @@ class _ClientBackend:
     def __init__(self):
         self.client = None
         self.cluster = None
+
+    def preflight(self, n_tasks: int) -> None:
+        """Nothing to check before the campaign directory is written."""
 
     def close(self) -> None:
         if self.client is not None:
@@ -233,13 +247,10 @@ class LocalBackend(_ClientBackend):
         self.workers = workers
 
     def _count(self, n_tasks: int) -> int:
-        return self.workers or max(1, min(usable_cpus(), n_tasks))
+        return self.workers or max(1, min(_usable_cpus(), n_tasks))
 
-    def start(self, n_tasks: int):
-        from ..montecarlo import start_local_cluster
-        k = self._count(n_tasks)
-        self.client, self.cluster = start_local_cluster(k)
-        self.description = f"{k} local worker process{'es' if k > 1 else ''}"
+    def start(self, n_tasks: int, out: Path):
+        self.client, self.cluster, self.description = start_client(self.workers, None, n_tasks)
         return self.client
 
     def check_directory(self, client, out: Path) -> None:
@@ -249,7 +260,7 @@ class LocalBackend(_ClientBackend):
         k = self._count(n_tasks)
         return {"kind": "local", "workers": k, "cores_per_worker": 1,
                 "description": f"{k} local worker process{'es' if k > 1 else ''} "
-                               f"({usable_cpus()} usable CPUs)"}
+                               f"({_usable_cpus()} usable CPUs)"}
 
 
 class SchedulerBackend(_ClientBackend):
@@ -259,18 +270,13 @@ class SchedulerBackend(_ClientBackend):
         super().__init__()
         self.address = address
 
-    def start(self, n_tasks: int):
-        import dask
-        from distributed import Client
-        timeout = dask.config.get("distributed.comm.timeouts.connect")
-        try:
-            self.client = Client(self.address, timeout=timeout, set_as_default=False)
-        except (OSError, TimeoutError, ValueError, TypeError) as exc:
-            msg = " ".join(str(exc).split()) or type(exc).__name__
-            raise ClusterError(f"cannot reach the Dask scheduler at {self.address!r} within "
-                               f"{timeout}: {msg[:200]}") from None
-        n = len(self.client.scheduler_info(n_workers=-1).get("workers", {}))
-        self.description = f"the Dask cluster at {self.address} ({n} workers now)"
+    def preflight(self, n_tasks: int) -> None:
+        """Connect now: an unreachable scheduler is an error before anything is written."""
+        self.client, _, self.description = start_client(None, self.address, n_tasks)
+
+    def start(self, n_tasks: int, out: Path):
+        if self.client is None:
+            self.preflight(n_tasks)
         return self.client
 
     def check_directory(self, client, out: Path) -> None:
@@ -287,9 +293,7 @@ class SchedulerBackend(_ClientBackend):
 def job_environment_lines() -> list[str]:
     """Job-script lines that give every worker one thread and raised malloc thresholds,
     unless the job's environment already sets them."""
-    env = {k: "1" for k in WORKER_THREAD_VARS}
-    env.update({k: str(v) for k, v in _MALLOC_VARS.items()})
-    return [f'export {k}="${{{k}:-{v}}}"' for k, v in env.items()]
+    return [f'export {k}="${{{k}:-{v}}}"' for k, v in worker_environment().items()]
 
 
 def _config(kind: str, key: str, default=None):
@@ -376,21 +380,48 @@ class JobqueueBackend(_ClientBackend):
                                f"{command.split()[0]!r} is not on PATH (run fem-rmpm mc on a "
                                "login node of the cluster)")
 
-    # ---- dry run
-    def plan(self, n_tasks: int) -> dict:
-        cls = self._jobqueue_class()
-        kw = self._job_kwargs()
-        workers = (f"{self.spec.adapt[0]}..{self.spec.adapt[1]}" if self.spec.adapt
-                   else self._worker_count(n_tasks, kw["processes"]))
-        log_dir = _config(self.kind, "log-directory")
-        if log_dir is not None and not os.path.isdir(log_dir):
-            kw["log_directory"] = None        # Job() would create it: --dry-run writes nothing
+    def _check_node_memory(self, kw: dict) -> None:
+        """SLURM: a job asking for more memory than the largest node of its partition has
+        is an error naming both (other batch systems refuse it at submission)."""
+        if self.kind != "slurm" or shutil.which("sinfo") is None:
+            return
+        queue = kw.get("queue") or _config(self.kind, "queue")
+        cmd = ["sinfo", "-h", "-o", "%m"] + (["-p", str(queue)] if queue else [])
         try:
-            job = cls.job_cls("tcp://<scheduler>:8786", name="dry-run", **kw)
+            res = subprocess.run(cmd, capture_output=True, text=True, timeout=30)
+        except (OSError, subprocess.TimeoutExpired):
+            return
+        sizes = [int(m) for m in re.findall(r"\d+", res.stdout)]
+        if res.returncode != 0 or not sizes:
+            return                          # no such partition: the submission says so
+        asked, largest = _memory_bytes(kw["memory"]), max(sizes) * 2**20
+        if asked > largest:
+            where = f"partition {queue}" if queue else "the cluster"
+            raise ClusterError(f"--memory {kw['memory']} per job is more than any node of "
+                               f"{where} has (largest {max(sizes)} MB, from sinfo); ask for "
+                               f"at most {max(sizes)}MB or use another --queue")
+
+    def _script(self, cls, kw: dict) -> str:
+        """The job script with a placeholder scheduler address (creates nothing)."""
+        kw = dict(kw)
+        log_dir = kw.get("log_directory") or _config(self.kind, "log-directory")
+        if log_dir is not None and not os.path.isdir(log_dir):
+            kw["log_directory"] = None        # Job() would create it: write nothing yet
+        try:
+            return cls.job_cls("tcp://<scheduler>:8786", name="dry-run", **kw).job_script()
         except (ValueError, TypeError) as exc:
             raise ClusterError(f"--cluster {self.kind}: {' '.join(str(exc).split())[:300]}") \
                 from None
-        script = job.job_script()
+
+    def plan(self, n_tasks: int) -> dict:
+        """What :meth:`start` would submit (``--dry-run``): starts nothing, writes nothing;
+        SLURM checks the job script with ``sbatch --test-only``."""
+        cls = self._jobqueue_class()
+        kw = self._job_kwargs()
+        self._check_node_memory(kw)
+        workers = (f"{self.spec.adapt[0]}..{self.spec.adapt[1]}" if self.spec.adapt
+                   else self._worker_count(n_tasks, kw["processes"]))
+        script = self._script(cls, kw)
         out = {"kind": self.kind, "workers": workers, "processes_per_job": kw["processes"],
                "cores_per_job": kw["cores"], "memory_per_job": kw["memory"],
                "memory_per_worker_bytes": _memory_bytes(kw["memory"]) / kw["processes"],
@@ -401,12 +432,25 @@ class JobqueueBackend(_ClientBackend):
             out["checked"] = _test_submit(test, script)
         return out
 
-    # ---- start
-    def start(self, n_tasks: int):
-        from distributed import Client
+    def preflight(self, n_tasks: int) -> None:
+        """Before anything is written: the submit command is on PATH, the memory fits a
+        node (SLURM) and the batch system accepts the job script (SLURM test submission)."""
         cls = self._jobqueue_class()
         self._check_submit_command(cls)
         kw = self._job_kwargs()
+        self._check_node_memory(kw)
+        test = _TEST_SUBMIT.get(self.kind)
+        if test and shutil.which(test[0]):
+            _test_submit(test, self._script(cls, kw))
+
+    def start(self, n_tasks: int, out: Path):
+        """Start the scheduler here and submit the worker jobs (their logs go to
+        ``jobqueue.<kind>.log-directory``, default ``out/worker-logs``)."""
+        from distributed import Client
+        cls = self._jobqueue_class()
+        kw = self._job_kwargs()
+        if _config(self.kind, "log-directory") is None:
+            kw["log_directory"] = str(Path(out).resolve() / "worker-logs")
         options = dict(_config(self.kind, "scheduler-options", {}) or {})
         options.setdefault("dashboard_address", ":0")
         try:
@@ -431,17 +475,21 @@ class JobqueueBackend(_ClientBackend):
         return self.client
 
     def _submit_first_job(self) -> None:
-        """Submit one job now, so that a refusal (no such queue, more memory than a node
-        has, no such account) is an error before anything is written."""
+        """Submit one job now and wait for the batch system's answer, so that a refusal
+        (no such queue or account, more memory than a node has) is an error before any
+        realization runs, with the batch system's reason."""
         cluster = self.cluster
         spec = cluster.new_worker_spec()
         cluster.worker_spec.update(spec)
         try:
             cluster.sync(cluster._correct_state)
         except Exception as exc:  # noqa: BLE001 - dask-jobqueue raises RuntimeError
+            from distributed.core import Status
             for name in spec:      # the failed job never ran: forget it before closing
                 cluster.worker_spec.pop(name, None)
-                cluster.workers.pop(name, None)
+                job = cluster.workers.pop(name, None)
+                if job is not None:
+                    job.status = Status.failed
             raise ClusterError(f"--cluster {self.kind}: the batch system refused the worker "
                                f"job: {_one_line_refusal(exc)}") from None
 

@@ -18,14 +18,14 @@ from ..output import write_json
 from ..report import write_report
 from ..scene import Scene
 from .cases import CampaignError, Case, parse_case, realization_seed
-from .cluster import start_client
+from .backends import ClusterSpec, campaign_backend
 from .keep_vtk import kept, parse_keep_vtk
 from .statistics import case_statistics
 from .store import (Layout, Lock, campaign_doc, check_directory, clean_temporaries,
                     read_record, write_results)
 from .task import run_realization
 
-__all__ = ["run_campaign", "CampaignResult"]
+__all__ = ["run_campaign", "CampaignResult", "pending_work"]
 
 
 class _Progress:
@@ -100,20 +100,68 @@ def _case_realizations(case: Case, n: int) -> int:
 def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
                  cases: Sequence[str | Case] | None = None, workers: int | None = None,
                  scheduler: str | None = None, force: bool = False, keep_vtk=None,
-                 progress: bool = True, figures: bool = True, client=None) -> CampaignResult:
+                 progress: bool = True, figures: bool = True, client=None,
+                 cluster: ClusterSpec | None = None) -> CampaignResult:
     """Run (or finish) a campaign in ``out``; see the module docstring.
 
     ``realizations``: N per case (default ``[montecarlo] realizations``);
     ``cases``: case texts for :func:`parse_case` or :class:`Case` objects
     (default: the scene itself); ``workers``: local worker processes;
     ``scheduler``: address of a running Dask scheduler instead; ``client``: an
-    existing ``distributed.Client`` to use (left open); ``keep_vtk``: see
-    :func:`parse_keep_vtk`.  Raises :class:`CampaignError` (bad input, other
-    campaign in ``out``, unreachable scheduler) before anything is written."""
+    existing ``distributed.Client`` to use (left open); ``cluster``: where to run
+    (:class:`fem_rmpm.campaign.backends.ClusterSpec`, e.g. SLURM workers); ``keep_vtk``:
+    see :func:`parse_keep_vtk`.  Raises :class:`CampaignError` (bad input, other
+    campaign in ``out``, unreachable scheduler, a refused worker job, a campaign
+    directory the workers do not share) before any realization runs."""
     t_start = time.perf_counter()
     out = Path(out)
     n = scene.montecarlo.realizations if realizations is None else realizations
     _check_arguments(n, workers, scheduler, client)
+    if client is not None and cluster is not None:
+        raise CampaignError("give a client or a cluster, not both")
+    case_list, counts, doc, lay, tasks, finished = pending_work(scene, out, n, cases,
+                                                               keep_vtk, force)
+    skipped = len(finished)
+    own = client is None
+    backend = campaign_backend(cluster, workers, scheduler, case_list) if own else None
+    desc, lost = "no workers needed", []
+    if not own:
+        desc = f"the given Dask client ({len(client.nthreads())} workers)"
+    compute_time = 0.0
+    try:
+        if own and tasks:      # before anything is written: refused, unreachable -> error
+            backend.preflight(len(tasks))
+        with Lock(out):
+            check_directory(out, doc)   # again, now that no one else can write here
+            if not (out / "campaign.json").exists():
+                write_json(out / "campaign.json", doc)
+            clean_temporaries(out)
+            if tasks:
+                if client is None:
+                    client, desc = backend.start(len(tasks), out), backend.description
+                if progress:
+                    print(f"fem-rmpm mc: {len(tasks)} realization(s) to run ({skipped} "
+                          f"already finished) on {desc}; records in {out}", file=sys.stderr)
+                if own:
+                    backend.check_directory(client, out)   # the workers share it
+                t0 = time.perf_counter()
+                lost = _compute(client, tasks, lay, finished, progress, scene.scene.name)
+                compute_time = time.perf_counter() - t0
+            result = _finish(out, scene, case_list, counts, lay, finished,
+                             len(tasks) - len(lost), skipped, lost, desc, t_start,
+                             compute_time, figures)
+    finally:
+        if backend is not None:
+            backend.close()
+    return result
+
+
+def pending_work(scene: Scene, out: Path, n: int, cases: Sequence[str | Case] | None,
+                 keep_vtk, force: bool):
+    """What a campaign in ``out`` has left to do (read-only; raises CampaignError for bad
+    cases or another campaign in ``out``): ``(cases, counts, doc, layout, tasks,
+    finished)`` with the :class:`Case` list, realizations per case, the identity
+    document, the :class:`Layout`, the tasks to run and the finished records."""
     keep = parse_keep_vtk(keep_vtk, scene.montecarlo.keep_vtk)
     case_list = [c if isinstance(c, Case) else parse_case(c, scene)
                  for c in (cases or ["scene"])]
@@ -125,39 +173,7 @@ def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
     check_directory(out, doc)
     lay = Layout(out, case_list)
     tasks, finished = _plan(scene, lay, counts, keep, force)
-    skipped = len(finished)
-    own = client is None
-    cluster = None
-    desc, lost = "no workers needed", []
-    if not own:
-        desc = f"the given Dask client ({len(client.nthreads())} workers)"
-    compute_time = 0.0
-    if own and tasks and scheduler:  # before anything is written: unreachable -> error
-        client, cluster, desc = start_client(None, scheduler, len(tasks))
-    try:
-        with Lock(out):
-            check_directory(out, doc)   # again, now that no one else can write here
-            if not (out / "campaign.json").exists():
-                write_json(out / "campaign.json", doc)
-            clean_temporaries(out)
-            if tasks:
-                if client is None:
-                    client, cluster, desc = start_client(workers, None, len(tasks))
-                if progress:
-                    print(f"fem-rmpm mc: {len(tasks)} realization(s) to run ({skipped} "
-                          f"already finished) on {desc}; records in {out}", file=sys.stderr)
-                t0 = time.perf_counter()
-                lost = _compute(client, tasks, lay, finished, progress, scene.scene.name)
-                compute_time = time.perf_counter() - t0
-            result = _finish(out, scene, case_list, counts, lay, finished,
-                             len(tasks) - len(lost), skipped, lost, desc, t_start,
-                             compute_time, figures)
-    finally:
-        if own and client is not None:
-            client.close(timeout=10)
-        if cluster is not None:
-            cluster.close(timeout=10)
-    return result
+    return case_list, counts, doc, lay, tasks, finished
 
 
 def _check_arguments(n, workers, scheduler, client) -> None:

@@ -1,0 +1,257 @@
+"""The size and cost of a campaign before its first core-hour (``fem-rmpm mc ... --dry-run``).
+
+:func:`estimate_campaign` reads the campaign directory (the records already there are
+not counted again), writes nothing and starts no worker.  Per case it takes the points
+and the CFL step count of one run from :func:`fem_rmpm.budget.estimate_run`, and
+
+* **steps** = the budget's count (``t_end`` over the CFL step at rest) x a *steps
+  factor*: moving points shorten the step and a run that comes to rest stops early.
+  From the ok records of this campaign when there are some (their mean ratio of steps
+  taken to the budget's count); else :data:`STEPS_FACTOR`, the ratio measured on the
+  reference slope (six realizations of the four literature cases: 1.21-1.40, mean 1.30);
+* **CPU per realization** = setup + points x steps x the cost per point-step, with the
+  cost per point-step and the setup (random field, seeding, measures) *measured on this
+  machine*: from the records of this campaign (their CPU time over their point-steps)
+  or, without records, by a probe in this process: the first realization to run,
+  three times with a short ``t_end`` (warm-up, setup only, setup + about 2 s of steps),
+  so the load of the machine at the time of the dry run is in the figure;
+* **core-hours** = the sum over the realizations to run, plus one worker start per
+  worker (the CPU this process spent on its imports, plus the probe's warm-up beyond a
+  warm run: loading or compiling the numba kernels);
+* **memory per worker** = the budget's peak memory of one realization (largest case);
+* **wall time** = the start of one worker + the realizations spread over the workers
+  (``ceil(to_run / workers)`` realizations in a row per worker; queue waits of a batch
+  system are not included).
+
+Measured on the reference slope main job (``fem-rmpm mc --out DIR``: 10 realizations):
+see README "Running a campaign on a SLURM cluster" for the estimate against the
+campaign's measured CPU time.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+from ..api import run as run_one
+from ..budget import RunEstimate, estimate_run
+from ..scene import Scene, with_value
+from .backends import ClusterSpec, campaign_backend
+from .cases import Case
+from .runner import pending_work
+
+__all__ = ["STEPS_FACTOR", "CaseEstimate", "CampaignEstimate", "Calibration",
+           "estimate_campaign", "probe_calibration", "records_calibration", "estimate_text"]
+
+#: Steps taken / the budget's CFL count (t_end / dt at rest), reference slope, literature
+#: cases, 6 realizations: 12 077, 11 410, 11 096, 11 032, 10 466 and 11 560 steps against
+#: 8 628 (1.21-1.40; mean 1.30).  Used when the campaign has no record yet.
+STEPS_FACTOR = 1.30
+#: CPU of point-steps the probe aims at (s): long enough to time, short enough for a dry run.
+PROBE_SECONDS = 2.0
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Cost figures of this machine: ``ns_per_point_step`` (CPU), ``setup_seconds`` (CPU of
+    a realization besides its steps), ``worker_start_seconds`` (CPU of a fresh worker's
+    first realization beyond the others), ``steps_factor`` and where they come from."""
+    ns_per_point_step: float
+    setup_seconds: float
+    worker_start_seconds: float
+    steps_factor: float
+    source: str
+
+
+@dataclass(frozen=True)
+class CaseEstimate:
+    name: str
+    label: str
+    to_run: int
+    finished: int
+    points: int
+    budget_steps: int
+    steps: int
+    cpu_seconds: float          # per realization
+
+
+@dataclass
+class CampaignEstimate:
+    """What ``--dry-run`` prints (see the module docstring)."""
+    out: Path
+    cases: list[CaseEstimate]
+    calibration: Calibration
+    workers: int
+    plan: dict
+    memory_per_worker_bytes: float
+    cpu_seconds: float          # realizations to run + worker starts
+    wall_seconds: float
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def to_run(self) -> int:
+        return sum(c.to_run for c in self.cases)
+
+    @property
+    def finished(self) -> int:
+        return sum(c.finished for c in self.cases)
+
+    @property
+    def core_hours(self) -> float:
+        return self.cpu_seconds / 3600.0
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["out"] = str(self.out)
+        d.update(to_run=self.to_run, finished=self.finished, core_hours=self.core_hours)
+        return d
+
+
+# --------------------------------------------------------------------------- calibration
+
+def records_calibration(records: Sequence[dict], budget: dict[str, RunEstimate]
+                        ) -> Calibration | None:
+    """Calibration from the ok records of this campaign (None without any): cost per
+    point-step = their CPU time over their point-steps (setup and worker starts
+    included, so both are reported as 0), steps factor = mean steps / budget steps."""
+    ok = [r for r in records if r.get("status") == "ok" and r.get("cpu_time") is not None
+          and r.get("steps") and r.get("particles") and r.get("case") in budget]
+    if not ok:
+        return None
+    point_steps = sum(r["steps"] * r["particles"] for r in ok)
+    ns = 1e9 * sum(r["cpu_time"] for r in ok) / point_steps
+    factor = sum(r["steps"] / max(budget[r["case"]].steps, 1) for r in ok) / len(ok)
+    return Calibration(ns, 0.0, 0.0, factor, f"the {len(ok)} finished record(s) of this "
+                       "campaign (CPU time over point-steps; setup and worker starts included)")
+
+
+def _timed_run(scene: Scene, seed: int, t_end: float) -> tuple[float, int]:
+    """(CPU seconds, steps) of one run of ``scene`` cut at ``t_end``, nothing written."""
+    short = with_value(scene, "solver.t_end", float(t_end))
+    c0 = time.process_time()
+    res = run_one(short, out=None, seed=seed, progress=False, vtk=False, figures=False)
+    return time.process_time() - c0, int(res.summary["steps"])
+
+
+def probe_calibration(scene: Scene, seed: int) -> Calibration:
+    """Measure the cost per point-step in this process (module docstring): three short
+    runs of ``scene`` with ``seed`` (warm-up; a few steps; about :data:`PROBE_SECONDS`
+    of steps); nothing is written."""
+    est = estimate_run(scene)
+    sv = scene.solver
+    if sv.scheme == "implicit" and not sv.dynamic:   # load steps: t_end does not cut it
+        return Calibration(est.ns_per_point_step, 0.0, 0.0, 1.0,
+                           f"the budget's constant ({est.machine}); quasi-static implicit "
+                           "runs are not probed")
+    imports = time.process_time()     # this process so far: the imports a worker makes too
+    step = sv.dt if sv.scheme == "implicit" else est.dt
+    n_long = int(min(max(PROBE_SECONDS / (est.points * est.ns_per_point_step * 1e-9), 20),
+                     est.steps))
+    warm, _ = _timed_run(scene, seed, 2 * step)
+    few, n_few = _timed_run(scene, seed, 2 * step)
+    many, n_many = _timed_run(scene, seed, n_long * step)
+    points = max(est.points, 1)
+    ns = 1e9 * max(many - few, 0.0) / max((n_many - n_few) * points, 1)
+    if ns <= 0:
+        ns = est.ns_per_point_step
+    setup = max(few - n_few * points * ns * 1e-9, 0.0)
+    return Calibration(ns, setup, imports + max(warm - few, 0.0), STEPS_FACTOR,
+                       f"a probe in this process now: {n_many} steps of {points:,} points "
+                       f"in {many:.2f} s CPU; imports {imports:.1f} s and warm-up "
+                       f"{warm - few:.1f} s per worker")
+
+
+# --------------------------------------------------------------------------- the estimate
+
+def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
+                      cases: Sequence[str | Case] | None = None, workers: int | None = None,
+                      scheduler: str | None = None, force: bool = False, keep_vtk=None,
+                      cluster: ClusterSpec | None = None, probe: bool = True
+                      ) -> CampaignEstimate:
+    """The size and cost of ``run_campaign`` with the same arguments (module docstring);
+    raises :class:`fem_rmpm.campaign.CampaignError` for the input errors it would raise
+    (bad N, cases, options, another campaign in ``out``, a refused job script).
+    ``probe=False`` uses the budget's constant instead of measuring."""
+    out = Path(out)
+    n = scene.montecarlo.realizations if realizations is None else realizations
+    if isinstance(n, bool) or not isinstance(n, int) or n <= 0:
+        from .cases import CampaignError
+        raise CampaignError(f"-n {n}: the number of realizations must be a positive integer")
+    case_list, counts, _, _, tasks, finished = pending_work(scene, out, n, cases, keep_vtk,
+                                                           force)
+    backend = campaign_backend(cluster, workers, scheduler, case_list)
+    plan = backend.plan(max(len(tasks), 1))
+    budget = {c.name: estimate_run(c.scene) for c in case_list}
+    cal = records_calibration(list(finished.values()), budget)
+    if cal is None and tasks and probe:
+        first = next(c for c in case_list if c.name == tasks[0]["case"])
+        cal = probe_calibration(first.scene, tasks[0]["seed"])
+    if cal is None:
+        e = next(iter(budget.values()))
+        cal = Calibration(e.ns_per_point_step, 0.0, 0.0, STEPS_FACTOR,
+                          f"the budget's constant ({e.machine})")
+    per_case = []
+    for c in case_list:
+        e = budget[c.name]
+        steps = int(round(e.steps * cal.steps_factor))
+        cpu = cal.setup_seconds + e.points * steps * cal.ns_per_point_step * 1e-9
+        per_case.append(CaseEstimate(c.name, c.label, sum(t["case"] == c.name for t in tasks),
+                                     sum(1 for (k, i) in finished if k == c.name
+                                         and i < counts[c.name]),
+                                     e.points, e.steps, steps, cpu))
+    k = _worker_count(plan, len(tasks))
+    work = sum(ce.to_run * ce.cpu_seconds for ce in per_case)
+    mean = work / max(len(tasks), 1)
+    cpu = work + k * cal.worker_start_seconds if tasks else 0.0
+    wall = (cal.worker_start_seconds + math.ceil(len(tasks) / k) * mean) if tasks else 0.0
+    memory = max(e.memory_bytes for e in budget.values())
+    notes = []
+    per_worker = plan.get("memory_per_worker_bytes")
+    if per_worker is not None and per_worker < memory:
+        notes.append(f"the worker memory ({per_worker / 2**20:.0f} MiB) is below the estimated "
+                     f"peak of one realization ({memory / 2**20:.0f} MiB): raise --memory")
+    return CampaignEstimate(out, per_case, cal, k, plan, memory, cpu, wall, notes)
+
+
+def _worker_count(plan: dict, n_tasks: int) -> int:
+    w = plan.get("workers")
+    if isinstance(w, int) and w > 0:
+        return w
+    if isinstance(w, str) and ".." in w:           # adaptive: at most MAX, at most the tasks
+        return max(1, min(int(w.split("..")[1]), n_tasks))
+    return max(1, n_tasks)
+
+
+def _hms(s: float) -> str:
+    s = int(round(s))
+    return f"{s // 3600:d}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def estimate_text(est: CampaignEstimate) -> str:
+    """The ``--dry-run`` report (one block of lines)."""
+    cal = est.calibration
+    lines = [f"Dry run of the campaign in {est.out}: nothing written, no worker started.",
+             f"  realizations to run: {est.to_run} ({est.finished} already finished)"]
+    for c in est.cases:
+        lines.append(f"  {c.label}: {c.to_run} to run, {c.points:,} points, about "
+                     f"{c.steps:,} steps each ({c.budget_steps:,} CFL steps at rest x "
+                     f"{cal.steps_factor:.2f}), {c.cpu_seconds:.1f} s CPU each")
+    lines += [f"  cost per point-step: {cal.ns_per_point_step:.0f} ns CPU, setup "
+              f"{cal.setup_seconds:.1f} s, worker start {cal.worker_start_seconds:.1f} s "
+              f"(from {cal.source})",
+              f"  core-hours: {est.core_hours:.3g} ({est.cpu_seconds:.0f} s CPU)",
+              f"  memory per worker: {est.memory_per_worker_bytes / 2**20:.0f} MiB estimated "
+              "peak of one realization",
+              f"  workers: {est.plan.get('description')}",
+              f"  wall time with {est.workers} worker(s): about {_hms(est.wall_seconds)} "
+              "(queue waits not included)"]
+    if est.plan.get("checked"):
+        lines.append(f"  job script accepted by the batch system's test submission: "
+                     f"{est.plan['checked']}")
+    if est.plan.get("job_script"):
+        lines.append("  job script:")
+        lines += ["    " + s for s in est.plan["job_script"].strip().splitlines()]
+    lines += [f"  note: {s}" for s in est.notes]
+    return "\n".join(lines)
