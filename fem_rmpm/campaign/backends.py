@@ -52,9 +52,7 @@ submits a job in its place.  If the client itself ends, re-running the same comm
 computes only the realizations without a record.
 
 Shared file system: the campaign directory must be one path that the client and every
-worker see (``/scratch``, ``/work``, the home directory; not ``/tmp`` of the login
-node).  Records, ``results.csv`` and ``summary.json`` are written by the client; the
-kept VTK by the workers.
+worker see (not ``/tmp`` of the login node): the workers write the kept VTK there.
 """
 from __future__ import annotations
 
@@ -87,10 +85,9 @@ CLUSTER_KINDS = ("local", "slurm", "pbs", "sge", "lsf")
 _JOBQUEUE_CLASS = {"slurm": "SLURMCluster", "pbs": "PBSCluster", "sge": "SGECluster",
                    "lsf": "LSFCluster"}
 _BATCH_NAME = {"slurm": "SLURM", "pbs": "PBS", "sge": "SGE", "lsf": "LSF"}
-#: The job keyword that charges an account: ``account`` on SLURM/PBS, ``project`` on SGE/LSF.
-_ACCOUNT_KEYWORD = {"slurm": "account", "pbs": "account", "sge": "project", "lsf": "project"}
-#: Commands that check a job script without submitting it (only SLURM has one).
-_TEST_SUBMIT = {"slurm": ["sbatch", "--test-only"]}
+_ACCOUNT_KEYWORD = {"slurm": "account", "pbs": "account", "sge": "project",  # --account
+                    "lsf": "project"}
+_TEST_SUBMIT = {"slurm": ["sbatch", "--test-only"]}   # checks a job script, submits nothing
 _PROBE_PREFIX = ".fem-rmpm-probe-"
 _MEMORY = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*([KMGT]i?B?|B)?\s*$", re.IGNORECASE)
 
