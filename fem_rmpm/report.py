@@ -191,6 +191,28 @@ def _results(summary: dict) -> str:
             + _table(["measure"] + [_label(c) for c in cases], mrows, "measures"))
 
 
+def _subset(summary: dict) -> str:
+    """Subset simulation (``summary["subset"]``): the estimate, its cost, and the levels."""
+    sub = summary.get("subset")
+    if not isinstance(sub, dict):
+        return ""
+    rows = [("failure", _esc(sub.get("failure", sub.get("response")))),
+            ("P(failure)", f"{_num(sub.get('probability'), 4)} (coefficient of variation "
+                           f"{_num(sub.get('cov'))}, Au & Beck 2001, chain correlation included)"),
+            ("p0, samples per level", f"{_num(sub.get('p0'))}, {_num(sub.get('samples_per_level'))}"),
+            ("runs", f"{_num(sub.get('total_runs'))} (crude Monte Carlo for the same "
+                     f"coefficient of variation: {_num(sub.get('crude_equivalent_runs'))}); "
+                     f"{_num(sub.get('failed_runs'))} failed numerically")]
+    rows += [("note", _esc(n)) for n in sub.get("notes") or []]
+    levels = [[_num(lv.get("level")), _num(lv.get("threshold_response"), 4),
+               _num(lv.get("conditional_probability")), _num(lv.get("cov")),
+               _num(lv.get("gamma")), _num(lv.get("acceptance")), _num(lv.get("runs"))]
+              for lv in sub.get("levels") or []]
+    return ("<h2>Subset simulation</h2>" + _table(("", ""), rows, "kv")
+            + _table(("level", "threshold", "P(level | previous)", "COV", "gamma",
+                      "acceptance", "runs"), levels))
+
+
 def _failures(records: list[dict]) -> str:
     bad = [r for r in records if r.get("status") != "ok"]
     if not bad:
@@ -294,7 +316,8 @@ def report_html(campaign_dir: str | Path) -> str:
         f"<h1>{_esc(title)}</h1><p><small>Written {made} from {_esc(campaign.resolve())}. "
         'Files: <a href="results.csv">results.csv</a> · <a href="summary.json">summary.json</a>'
         ' · <a href="records/">records/</a></small></p>',
-        _provenance(summary, identity, records), _results(summary), _failures(records),
+        _provenance(summary, identity, records), _subset(summary), _results(summary),
+        _failures(records),
         _figures(campaign), _representatives(campaign, records)))
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
             f"<title>{_esc(title)}</title><style>{_CSS}</style><script>{_SCRIPT}</script>"

@@ -125,3 +125,21 @@ def test_report_in_headless_browser(campaign, tmp_path):
         body.group(0)
     assert 'data-errors="0"' in body.group(0), body.group(0)
     assert "Uncaught" not in r.stderr, r.stderr
+
+
+def test_report_shows_a_subset_campaign(campaign, tmp_path):
+    """A subset-simulation summary gets its own section: estimate, cost and levels."""
+    work = tmp_path / "mc"
+    shutil.copytree(campaign, work)
+    doc = json.loads((work / "summary.json").read_text())
+    doc["subset"] = {"response": "runout_distance", "failure": "run-out > 3 m",
+                     "probability": 1.23e-4, "cov": 0.31, "p0": 0.1,
+                     "samples_per_level": 1000, "total_runs": 3700,
+                     "crude_equivalent_runs": 84000, "failed_runs": 0, "notes": [],
+                     "levels": [{"level": 0, "threshold_response": 1.5,
+                                 "conditional_probability": 0.1, "cov": 0.09, "gamma": 0.0,
+                                 "acceptance": None, "runs": 1000}]}
+    (work / "summary.json").write_text(json.dumps(doc))
+    page = report_html(work)
+    assert "<h2>Subset simulation</h2>" in page and "run-out &gt; 3 m" in page
+    assert "0.000123" in page and "84000" in page
