@@ -60,9 +60,19 @@ import numpy as np
 from .output import to_true_frame
 from .particles import Particles
 
-__all__ = ["compute_measures", "surface_profile", "deposit_points", "excluded_summary",
+__all__ = ["compute_measures", "surface_profile", "deposit_points", "excluded_summary", "UNITS",
            "MIN_BODY_FRACTION"]
 
+#: Units of the scalar measures (and of the other ``results.csv`` columns).
+UNITS = {"failed": "0/1", "sliding_area": "m2 per m", "runout_distance": "m",
+         "retrogression_distance": "m", "max_displacement": "m", "time_to_rest": "s",
+         "slip_surface_height": "m", "intact_blocks": "count", "sliding_area_early": "m2 per m",
+         "mechanism_time": "s", "failure_displacement": "m",
+         "excluded_frozen_points": "count", "excluded_frozen_volume": "m2 per m (initial)",
+         "excluded_stray_points": "count", "excluded_stray_volume": "m2 per m (initial)",
+         "case": "-", "index": "-", "seed": "-", "status": "ok | failed", "stop_reason": "-",
+         "steps": "count", "simulated_time": "s", "particles": "count",
+         "frozen_points": "count", "scheme": "-", "error": "-"}
 MIN_BODY_FRACTION = 0.01   #: a body holds at least this fraction of the active volume
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from .. import scene as S
+from ..measures import UNITS
 from ..output import _atomic_write_bytes
 from ..scene import Scene, scene_to_dict
 from .cases import CampaignError, Case
@@ -254,23 +255,53 @@ def _row(rec: dict, columns: Sequence[str]) -> dict:
 
 
 def write_results(path: Path, records: Iterable[dict], order: Sequence[str]) -> None:
-    """``results.csv`` from records, sorted by case (campaign order) and index (atomic)."""
+    """``results.csv`` from records, sorted by case (campaign order) and index (atomic),
+    without the columns equal in every row; ``results.units.json`` beside it holds the
+    unit of every column and the constant columns with their value."""
     rank = {c: i for i, c in enumerate(order)}
     rows = sorted(records, key=lambda r: (rank.get(r["case"], len(rank)), r["index"]))
-    columns = result_columns(rows)
+    columns, constant = _drop_constant(result_columns(rows), rows)
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
     w.writeheader()
     for r in rows:
         w.writerow(_row(r, columns))
     _atomic_write_bytes(path, buf.getvalue().encode())
+    _atomic_write_bytes(_sidecar(path), json.dumps(
+        {"units": {k: UNITS.get(k, "-") for k in columns}, "constant": constant,
+         "constant_units": {k: UNITS.get(k, "-") for k in constant}}, indent=1).encode())
+
+
+#: Columns kept even when constant over the rows (identity and the main measures).
+_ALWAYS_KEPT = ("case", "index", "seed", "status", *MEASURE_KEYS)
+
+
+def _sidecar(path: Path) -> Path:
+    """``results.units.json`` beside ``results.csv``: the unit of every column and the
+    columns left out because every row had the same value (with that value)."""
+    return Path(path).with_name(Path(path).stem + ".units.json")
+
+
+def _drop_constant(columns: list[str], rows: list[dict]) -> tuple[list[str], dict]:
+    """Columns without those (other than :data:`_ALWAYS_KEPT`) equal in every row (when
+    there are at least 2 rows); returns (columns, {dropped column: its value})."""
+    if len(rows) < 2:
+        return columns, {}
+    cells = {k: {_row(r, [k])[k] for r in rows} for k in columns}
+    constant = {k: _row(rows[0], [k])[k] for k in columns
+                if k not in _ALWAYS_KEPT and len(cells[k]) == 1}
+    return [k for k in columns if k not in constant], constant
 
 
 def read_results(path: str | Path) -> list[dict]:
-    """Rows of a ``results.csv`` with numbers parsed (empty cells -> None)."""
+    """Rows of a ``results.csv`` with numbers parsed (empty cells -> None); the columns
+    left out as constant (``results.units.json``) are restored in every row."""
     rows = []
+    side = _sidecar(Path(path))
+    constant = json.loads(side.read_text()).get("constant", {}) if side.exists() else {}
     with open(path, newline="") as fh:
         for r in csv.DictReader(fh):
+            r = {**r, **constant}               # columns constant over every row
             out: dict[str, Any] = {}
             for k, v in r.items():
                 if v == "":
