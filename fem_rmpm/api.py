@@ -102,13 +102,14 @@ def _run_scheme(scene, grid, pts, on_output, progress):
 
 def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
         progress: bool = False, vtk: bool | None = None, figures: bool | None = None,
-        force: bool = False, noise=None) -> RunResult:
+        force: bool = False, noise=None, label: str | None = None) -> RunResult:
     """Run one realization; write VTK, PNG and ``summary.json`` to ``out`` if given.
     ``noise``: the random field's standard-normal noise array instead of ``seed``.
 
     ``out`` must be a new or empty directory, or ``force=True`` replaces the run in it
     (:mod:`fem_rmpm.rundir`: ``summary.json`` says ``"running"`` until the run's
-    output is complete).  Raises :class:`RunDirError` or :class:`BudgetError` (bad
+    output is complete).  ``label`` names the run in figure titles (e.g. case and
+    realization; default: the scene name and, with a random field, the seed).  Raises :class:`RunDirError` or :class:`BudgetError` (bad
     input, nothing written) and :class:`SimulationError` when the run cannot go on
     (after writing what it has, with the error, to ``out``).
     """
@@ -156,7 +157,9 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     summary = {**_summary(scene, seed, pts, rec, measures), "estimate": estimate.to_dict()}
     if out is not None:
         if figures and snapshots and error is None:
-            _figures(out, scene, grid, snapshots, measures)
+            who = label or (f"{scene.scene.name}, seed {seed}" if seed is not None
+                            and scene.random_field is not None else scene.scene.name)
+            _figures(out, scene, grid, snapshots, measures, who)
         write_json(out / "summary.json", {**summary, "files": run_files(out)})   # last
     if error is not None:
         raise error
@@ -205,15 +208,22 @@ def _summary(scene, seed, pts, rec, measures) -> dict:
     }
 
 
-def _figures(out, scene, grid, snapshots, measures):
+def _figures(out, scene, grid, snapshots, measures, label: str | None = None):
+    from .plots import plot_profile, plot_snapshots
     times = np.array([t for t, *_ in snapshots])
-    targets = times[-1] * np.array([0.0, 0.1, 0.25, 0.5, 1.0])   # early failure in detail
+    mech = measures.get("mechanism_time")
+    targets = list(times[-1] * np.array([0.0, 0.1, 0.25, 0.5, 1.0]))   # early failure in detail
+    if mech is not None and mech <= times[-1]:
+        targets.append(mech)
     pick = sorted({int(np.argmin(np.abs(times - tt))) for tt in targets})
     spacing = float(np.min(grid.cell)) / 2
+    who = label or scene.scene.name
     plot_snapshots(out / "plastic_shear_strain.png", [snapshots[i] for i in pick],
-                   scene.scene.frame_angle_deg, spacing, title=scene.scene.name)
+                   scene.scene.frame_angle_deg, spacing, scene=scene, mechanism_time=mech,
+                   title=f"{who}: plastic shear strain (run-out {measures['runout_distance']:.1f}"
+                   f" m, sliding area {measures['sliding_area']:.0f} m2)")
     plot_profile(out / "profile.png", measures["initial_profile"], measures["final_profile"],
-                 title=f"{scene.scene.name}: surface before and after")
+                 title=f"{who}: surface before and after", scene=scene)
 
 
 def fem(scene: Scene, out: str | Path | None = None) -> FemResult:

@@ -10,7 +10,9 @@
   band, and the running mean run-out with mean +- 1.96 SE (SE = s / sqrt(N));
 * ``cases.png`` — the final plastic shear strain of one kept realization per
   case (the first kept ``ok`` realization with VTK), side by side, true frame,
-  one colour scale (0 to 1, the literature's range).
+  one logarithmic colour scale from 1e-3 to the largest strain, over the bedrock
+  and the initial soil outline; ``cases_mechanism.png`` the same at the
+  mechanism time.
 """
 from __future__ import annotations
 
@@ -30,7 +32,7 @@ _MEASURES = (("runout_distance", "run-out distance (m)"),
              ("sliding_area", "sliding area (m$^2$ per m)"))
 #: Measures of the mechanism (fem_rmpm.measures), shown in the histograms when recorded.
 _MECHANISM = (("slip_surface_height", "slip-surface height above the base (m)"),
-              ("intact_blocks", "intact blocks at the mechanism time"),
+              ("intact_blocks", "intact blocks at the mechanism time (count)"),
               ("sliding_area_early", "sliding area at the mechanism time (m$^2$)"))
 
 
@@ -62,11 +64,11 @@ def plot_exceedance(path: Path, cases, records) -> Path:
             n = len(x)
             p = 1.0 - np.arange(1, n + 1) / n            # P[X > x_(i)]
             ax.step(np.r_[x[0], x], np.r_[1.0, p], where="post", color=col,
-                    label=f"{c.label} (N = {n})")
+                    ls=_STYLES[k % len(_STYLES)][1], label=f"{c.label} (N = {n})")
         ax.set_xlabel(lab)
+        ax.set_ylabel("P[X > x] (-)")
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
-    axes[0].set_ylabel("P[X > x]")
     axes[0].legend(fontsize=8)
     fig.suptitle("Exceedance probability (empirical, over finished realizations)")
     fig.tight_layout()
@@ -107,9 +109,9 @@ def plot_histograms(path: Path, cases, records) -> Path:
                 ax.hist(v, bins=bins, histtype="step", lw=1.6, color=f"C{k}",
                         label=f"{c.label} (N = {len(v)})")
         ax.set_xlabel(lab)
+        ax.set_ylabel("realizations (count)")
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         ax.grid(alpha=0.3)
-    axes[0].set_ylabel("realizations")
     axes[0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -125,35 +127,48 @@ def _wilson(k, n, z=1.959963984540054):
     return np.clip(mid - half, 0, 1), np.clip(mid + half, 0, 1)
 
 
+_STYLES = (("o", "-"), ("s", "--"), ("^", "-."), ("D", ":"), ("v", "-"), ("P", "--"))
+
+
 def plot_convergence(path: Path, cases, stats, runouts: dict) -> Path:
-    """``runouts``: case -> run-out of the ok realizations in index order."""
+    """``runouts``: case -> run-out of the ok realizations in index order.  Each case has
+    its own marker and line style and is shifted by a few hundredths of a realization
+    so that equal curves (e.g. every case at P = 1) stay visible; N axis in integers."""
     plt = _plt()
+    from matplotlib.ticker import MaxNLocator
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 3.8))
+    shown = [c for c in cases if stats[c.name].get("convergence") and not c.deterministic]
     for k, c in enumerate(cases):
-        conv = stats[c.name].get("convergence")
-        if not conv or c.deterministic:
+        if c not in shown:
             continue
+        conv = stats[c.name]["convergence"]
+        j = shown.index(c)
+        dx = 0.06 * (j - (len(shown) - 1) / 2)
         n = np.array(conv["n"], dtype=float)
         p = np.array(conv["p_failure"])
         lo, hi = _wilson(np.round(p * n), n)
-        col = f"C{k}"
-        a1.plot(n, p, "-o", ms=3, color=col, label=c.label)
-        a1.fill_between(n, lo, hi, color=col, alpha=0.15)
+        col, (mk, ls) = f"C{k}", _STYLES[j % len(_STYLES)]
+        a1.plot(n + dx, p, marker=mk, ls=ls, ms=5, mfc="none", color=col, label=c.label)
+        a1.fill_between(n + dx, lo, hi, color=col, alpha=0.10, lw=0)
+        a1.plot(n + dx, lo, ls=ls, lw=0.7, color=col)
         m = np.array(conv["mean_runout"])
-        a2.plot(n, m, "-o", ms=3, color=col, label=c.label)
+        a2.plot(n + dx, m, marker=mk, ls=ls, ms=5, mfc="none", color=col, label=c.label)
         ro = np.array(runouts.get(c.name, []))
         if len(ro) == len(n) and len(ro) > 1:   # running SE of the mean (ddof 1)
             se = np.array([np.std(ro[:i], ddof=1) / math.sqrt(i) if i > 1 else np.nan
                            for i in range(1, len(ro) + 1)])
-            a2.fill_between(n, m - 1.96 * se, m + 1.96 * se, color=col, alpha=0.15)
-    a1.set_xlabel("realizations N")
-    a1.set_ylabel("P(failure)")
-    a1.set_ylim(-0.02, 1.02)
-    a1.set_title("P(failure) with Wilson 95 % band", fontsize=10)
-    a2.set_xlabel("realizations N")
+            a2.fill_between(n + dx, m - 1.96 * se, m + 1.96 * se, color=col, alpha=0.10, lw=0)
+            a2.plot(n + dx, m - 1.96 * se, ls=ls, lw=0.7, color=col)
+            a2.plot(n + dx, m + 1.96 * se, ls=ls, lw=0.7, color=col)
+    a1.set_xlabel("realizations N (count)")
+    a1.set_ylabel("P(failure) (-)")
+    a1.set_ylim(-0.02, 1.05)
+    a1.set_title("P(failure); band and thin line: Wilson 95 % lower bound", fontsize=10)
+    a2.set_xlabel("realizations N (count)")
     a2.set_ylabel("mean run-out (m)")
-    a2.set_title("mean run-out +- 1.96 SE", fontsize=10)
+    a2.set_title("mean run-out; band: +- 1.96 SE", fontsize=10)
     for a in (a1, a2):
+        a.xaxis.set_major_locator(MaxNLocator(integer=True))
         a.grid(alpha=0.3)
         a.legend(fontsize=8)
     fig.tight_layout()
@@ -189,9 +204,10 @@ def final_snapshot(vtk_dir: Path):
 
 
 def plot_cases(path: Path, panels, frame_angle_deg: float, spacing: float,
-               title: str = "Final state of one realization per case") -> Path:
-    """``panels``: list of (title, x (n, 2) grid frame, plastic shear strain (n,))."""
-    from .plots import plot_field
+               title: str = "Final state of one realization per case", scene=None) -> Path:
+    """``panels``: list of (title, x (n, 2) grid frame, plastic shear strain (n,)); one
+    logarithmic colour scale; with ``scene`` the bedrock and initial soil are drawn."""
+    from .plots import STRAIN_FLOOR, draw_ground, plot_field, strain_norm
     plt = _plt()
     Xs = [to_true_frame(x, frame_angle_deg) for _, x, _ in panels]
     allX = np.vstack(Xs)
@@ -200,16 +216,22 @@ def plot_cases(path: Path, panels, frame_angle_deg: float, spacing: float,
     fig, axes = plt.subplots(len(panels), 1, figsize=(11, 0.8 + (h + 0.45) * len(panels)),
                              squeeze=False, sharex=True, layout="constrained")
     sc = None
+    norm = strain_norm(max(float(v.max()) for _, _, v in panels))
     for ax, (label, _, v), X in zip(axes[:, 0], panels, Xs):
-        sc = plot_field(ax, X, v, spacing, 0.0, 1.0, cmap="turbo")
+        if scene is not None:
+            draw_ground(ax, scene)
+        sc = plot_field(ax, X, np.maximum(v, STRAIN_FLOOR), spacing, cmap="turbo")
+        sc.set_norm(norm)
         ax.set_aspect("equal")
         ax.set_xlim(allX[:, 0].min() - 1, allX[:, 0].max() + 1)
         ax.set_ylim(allX[:, 1].min() - 1, allX[:, 1].max() + 1)
         ax.set_ylabel("Y (m)")
         ax.set_title(label, fontsize=9, loc="left")
     axes[-1, 0].set_xlabel("X, true horizontal (m)")
-    fig.colorbar(sc, ax=axes[:, 0].tolist(), label="plastic shear strain (-)", shrink=0.9,
-                 extend="max")
+    if scene is not None and scene.bedrock:
+        axes[0, 0].legend(fontsize=7, loc="upper right")
+    fig.colorbar(sc, ax=axes[:, 0].tolist(), label="plastic shear strain (-), log scale",
+                 shrink=0.9)
     fig.suptitle(title, fontsize=11)
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -254,6 +276,6 @@ def campaign_figures(out: Path, cases, stats, records, layout, scene) -> list[Pa
         if panels:
             spacing = float(min(scene.grid.cell)) / 2
             figs.append(plot_cases(out / name, panels, scene.scene.frame_angle_deg, spacing,
-                                   title))
+                                   title, scene=scene))
     return figs
 

@@ -81,7 +81,8 @@ def run_realization(task: dict) -> dict:
         vtk_dir = task.get("vtk_dir")
         res = api.run(task["scene"], out=vtk_dir, seed=rec["seed"], progress=False,
                       vtk=vtk_dir is not None, figures=vtk_dir is not None, force=True,
-                      noise=task.get("noise"))
+                      noise=task.get("noise"),
+                      label=f"case {task['case']}, realization {task['index']} (seed {rec['seed']})")
     except Exception as exc:       # noqa: BLE001 - every failure is data, recorded
         msg = str(exc) if isinstance(exc, SimulationError) else f"{type(exc).__name__}: {exc}"
         rec.update(status="failed", error=" ".join(msg.split()) or type(exc).__name__,
