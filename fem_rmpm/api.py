@@ -41,8 +41,8 @@ from .random_field import sample_point_property
 from .rundir import RunDirError, check_run_dir, run_files, start_run_dir
 from .scene import Scene, SceneError, check_seed, load_scene, scene_to_dict, with_value
 
-__all__ = ["load_scene", "with_value", "prepare", "run", "fem", "RunResult", "SceneError",
-           "SimulationError", "RunDirError"]
+__all__ = ["load_scene", "with_value", "prepare", "run", "fem", "factor_of_safety", "RunResult",
+           "SceneError", "SimulationError", "RunDirError"]
 
 
 @dataclass
@@ -251,6 +251,22 @@ def fem(scene: Scene, out: str | Path | None = None) -> FemResult:
             "elements": int(len(res.cells)), "dofs": int(2 * len(used)),
             "max_displacement": float(np.abs(res.displacement).max()),
             "min_sigma_yy": float(res.stress[:, 1].min()), "wall_time": time.perf_counter() - t0})
+    return res
+
+
+def factor_of_safety(scene: Scene, seed: int | None = None, out: str | Path | None = None,
+                     **options):
+    """Factor of safety by strength reduction (:mod:`fem_rmpm.strength_reduction`) of the
+    realization ``seed``; ``options`` are :class:`~fem_rmpm.strength_reduction.FSOptions`
+    fields (``tolerance=0.01``, ``softening=False``, ...).  Writes ``fs.json``,
+    ``fs_displacement.png`` and the mechanism (``mechanism.vtu``/``.png``) to ``out`` if
+    given.  Returns an :class:`~fem_rmpm.strength_reduction.FSResult` (``.fs``, ``.text``)."""
+    from .strength_reduction import FSOptions, write_outputs
+    from .strength_reduction import factor_of_safety as _fs
+    grid, pts = prepare(scene, seed)
+    res = _fs(scene, seed=seed, options=FSOptions(**options), grid=grid, pts=pts)
+    if out is not None:
+        write_outputs(res, scene, out)
     return res
 
 

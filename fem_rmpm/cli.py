@@ -1,4 +1,4 @@
-"""Command line: ``fem-rmpm run | fem | mc | field``.
+"""Command line: ``fem-rmpm run | fem | mc | fs | field``.
 
 Exit codes: 0 success, 2 bad input (scene, data file, options), 3 the
 simulation failed (unstable, Newton did not converge, ...), 130 interrupted.
@@ -21,6 +21,7 @@ from . import api
 from .campaign import LITERATURE_CASES, CampaignResult, run_campaign
 from .campaign.backends import ClusterSpec, parse_adapt
 from .campaign.estimate import estimate_campaign, estimate_text
+from .campaign.factor_of_safety import fs_text
 from .errors import InputError
 from .field_output import plot_realization, plot_variogram, write_field_vtu
 from .grid import make_grid
@@ -152,13 +153,17 @@ def summary_text(res: CampaignResult) -> str:
             lines.append(head + "no realization finished"
                          + (f" (first error: {s['errors'][0]['error']})" if s["errors"] else ""))
             continue
+        if not s.get("mpm_runs"):                      # --fs-only
+            lines.append(head + fs_text(s.get("fs")))
+            continue
         if c.deterministic:
             r, t, a = (s[k]["mean"] for k in ("runout_distance", "retrogression_distance",
                                               "sliding_area"))
             mech = "".join(f", {lab} {s[k]['mean']:.2f}{unit}"
                            for k, lab, unit in _MECHANISM_TEXT if k in s)
             lines.append(head + f"failed = {bool(s['slope_failures'])}, run-out {r:.2f} m, "
-                         f"retrogression {t:.2f} m, sliding area {a:.1f} m2{mech}")
+                         f"retrogression {t:.2f} m, sliding area {a:.1f} m2{mech}"
+                         + (f"; {fs_text(s['fs'])}" if s.get("fs") else ""))
             continue
         lo, hi = s["wilson95"]
         txt = (f"P(failure) = {s['p_failure']:.3f} +- {s['se']:.3f} (SE sqrt(p(1-p)/N); "
@@ -180,7 +185,7 @@ def summary_text(res: CampaignResult) -> str:
                     + ": P(failure) " + ", ".join(f"{conv['p_failure'][i]:.2f}" for i in idx)
                     + ", mean run-out " + ", ".join(f"{conv['mean_runout'][i]:.1f}" for i in idx)
                     + " m")
-        lines.append(head + txt)
+        lines.append(head + txt + (f"; {fs_text(s['fs'])}" if s.get("fs") else ""))
         if s["numerical_failures"]:
             e = s["errors"][0]
             lines.append(f"    first failed realization: #{e['index']} (seed {e['seed']}): "
@@ -295,6 +300,13 @@ def _field_text(scene: Scene, seed: int, layout, emb, meas, v: np.ndarray) -> st
             + (f", conditioned on {len(meas.x)} measurements of {meas.source}" if meas else "")
             + f"; {len(v)} material points get {v.min():.3g} to {v.max():.3g} kPa "
             f"(mean {v.mean():.3g}, COV {v.std() / v.mean():.3g}).")
+
+
+def _cmd_fs(a) -> int:
+    from .strength_reduction import fs_cli
+    scene = scene_from_args(a)
+    grid, pts = api.prepare(scene, a.seed)
+    return fs_cli(a, scene, grid, pts)
 
 
 def _cmd_field(a) -> int:
@@ -460,6 +472,26 @@ def _add_mc(sub) -> None:
     m.set_defaults(func=_cmd_mc)
 
 
+def _add_fs(sub) -> None:
+    fs = _subcommand(sub, "fs", "factor of safety by strength reduction (Griffiths & Lane "
+                     "1999)", "Divide the strengths by trial factors F and apply gravity "
+                     "with the implicit static solver (small strain, in-situ geometry) until "
+                     "Newton fails: FS to a stated tolerance, fs.json, max displacement "
+                     "against F (fs_displacement.png) and the mechanism (mechanism.vtu/.png).")
+    _scene_arg(fs, optional=True)
+    fs.add_argument("--seed", type=int, default=None,
+                    help="random-field seed, an integer >= 0 (default: the scene's "
+                    "[montecarlo] seed)")
+    fs.add_argument("--out", required=True, help="output directory (created)")
+    fs.add_argument("--tolerance", type=float, default=0.01,
+                    help="stop when the bracket F_hi / F_lo - 1 is below this (default 0.01)")
+    fs.add_argument("--softening", action="store_true",
+                    help="keep the softening law (default: peak strength, perfectly plastic)")
+    fs.add_argument("--set", action="append", metavar="KEY=VALUE", help=_SET_HELP)
+    fs.add_argument("--quiet", action="store_true", help="no line per static solve")
+    fs.set_defaults(func=_cmd_fs)
+
+
 def _add_field(sub) -> None:
     fl = _subcommand(sub, "field", "one random field on the material points (VTU + PNG)")
     _scene_arg(fl, optional=True)
@@ -492,7 +524,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = p.add_subparsers(dest="command", required=True, title="commands")
-    for add in (_add_run, _add_fem, _add_mc, _add_field, _add_report):
+    for add in (_add_run, _add_fem, _add_mc, _add_fs, _add_field, _add_report):
         add(sub)
     return p
 

@@ -192,6 +192,7 @@ class MonteCarloSpec:
     seed: int = 2017
     failure_displacement: float = 0.5    # m; a point with |u| above this counts as sliding
     keep_vtk: int = 2                    # keep VTK output of the first k realizations
+    factor_of_safety: bool = False       # strength-reduction FS of every realization first
     cases: tuple[str, ...] = ()          # variants run side by side: "homogeneous", "xi=12",
     #                                      "<section.key>=<value>" (fem_rmpm.campaign.parse_case)
 

