@@ -217,8 +217,16 @@ def _cmd_mc_subset(a, scene: Scene) -> int:
 def _cmd_mc(a) -> int:
     """``fem-rmpm mc``: returns 0, or 3 if realizations were lost (re-run to finish)."""
     scene = scene_from_args(a)
+    if a.fs and a.fs_only:
+        raise InputError("--fs and --fs-only: give one (--fs: FS before each MPM run; "
+                         "--fs-only: FS instead of it)")
     if a.method == "subset":
+        if a.fs or a.fs_only:
+            raise InputError("--fs / --fs-only: only for crude campaigns (--method crude); "
+                             "use --response factor_of_safety for subset simulation")
         return _cmd_mc_subset(a, scene)
+    if a.fs:
+        scene = with_value(scene, "montecarlo.factor_of_safety", True)
     given = [o for o, v in (("--response", a.response), ("--threshold", a.threshold),
                             ("--p0", a.p0)) if v is not None]
     if given:
@@ -236,7 +244,8 @@ def _cmd_mc(a) -> int:
         return 0
     res = run_campaign(scene, a.out, realizations=a.realizations, cases=cases,
                        workers=a.workers, scheduler=a.scheduler, force=a.force,
-                       keep_vtk=a.keep_vtk, progress=not a.quiet, cluster=cluster)
+                       keep_vtk=a.keep_vtk, progress=not a.quiet, cluster=cluster,
+                       fs_only=a.fs_only)
     print(summary_text(res))
     return 3 if res.lost else 0
 
@@ -458,6 +467,11 @@ def _add_mc(sub) -> None:
                    help="VTK for the first K realizations of each case (integer) or for "
                    "indices like 0,5,9 (default: the scene's [montecarlo] keep_vtk)")
     m.add_argument("--quiet", action="store_true", help="no progress bar")
+    m.add_argument("--fs", action="store_true", help="also the strength-reduction factor of "
+                   "safety of every realization, before its MPM run (= [montecarlo] "
+                   "factor_of_safety = true)")
+    m.add_argument("--fs-only", action="store_true", help="the factor of safety of every "
+                   "realization instead of its MPM run")
     m.add_argument("--method", choices=("crude", "subset"), default="crude",
                    help="crude Monte Carlo (default) or subset simulation of a small "
                    "probability (then -n is the samples per level, default 1000)")

@@ -94,3 +94,13 @@ def test_mc_bad_set_or_case_is_one_line_exit_2(tmp_path, capsys, argv, words):
     for w in words:
         assert w in err, (w, err)
     assert not out.exists()
+
+
+def test_mc_fs_and_fs_only_together_are_one_clear_error(tmp_path, capsys):
+    """``mc --fs --fs-only`` is exit 2 with one line; nothing is written."""
+    out = tmp_path / "c"
+    rc = cli.main(["mc", str(Path(__file__).parent / "data" / "mc_tiny.toml"), "--fs",
+                   "--fs-only", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and "--fs-only" in err
+    assert not out.exists()

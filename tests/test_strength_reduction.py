@@ -225,7 +225,6 @@ def client():
     cluster.close(timeout=10)
 
 
-@pytest.mark.skip(reason="campaign wiring (runner fs_only) not merged: the runner was restructured")
 def test_campaign_with_factor_of_safety(tmp_path, client):
     """``[montecarlo] factor_of_safety = true`` on the tiny cut: every record has its FS
     before the MPM run; results.csv, statistics and the figure get FS, P(FS < 1) with its

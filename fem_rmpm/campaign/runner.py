@@ -20,6 +20,7 @@ from ..scene import Scene
 from .cases import CampaignError, Case, parse_case, realization_seed
 from .backends import ClusterSpec, campaign_backend
 from .keep_vtk import kept, parse_keep_vtk
+from .factor_of_safety import fs_statistics, plot_factor_of_safety
 from .statistics import case_statistics
 from .store import (Layout, Lock, campaign_doc, check_directory, clean_temporaries,
                     read_record, write_results)
@@ -101,7 +102,7 @@ def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
                  cases: Sequence[str | Case] | None = None, workers: int | None = None,
                  scheduler: str | None = None, force: bool = False, keep_vtk=None,
                  progress: bool = True, figures: bool = True, client=None,
-                 cluster: ClusterSpec | None = None) -> CampaignResult:
+                 cluster: ClusterSpec | None = None, fs_only: bool = False) -> CampaignResult:
     """Run (or finish) a campaign in ``out``; see the module docstring.
 
     ``realizations``: N per case (default ``[montecarlo] realizations``);
@@ -110,7 +111,9 @@ def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
     ``scheduler``: address of a running Dask scheduler instead; ``client``: an
     existing ``distributed.Client`` to use (left open); ``cluster``: where to run
     (:class:`fem_rmpm.campaign.backends.ClusterSpec`, e.g. SLURM workers); ``keep_vtk``:
-    see :func:`parse_keep_vtk`.  Raises :class:`CampaignError` (bad input, other
+    see :func:`parse_keep_vtk`; ``fs_only``: the strength-reduction factor of safety of
+    every realization instead of its MPM run (``[montecarlo] factor_of_safety``: before
+    it).  Raises :class:`CampaignError` (bad input, other
     campaign in ``out``, unreachable scheduler, a refused worker job, a campaign
     directory the workers do not share) before any realization runs."""
     t_start = time.perf_counter()
@@ -120,7 +123,7 @@ def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
     if client is not None and cluster is not None:
         raise CampaignError("give a client or a cluster, not both")
     case_list, counts, doc, lay, tasks, finished = pending_work(scene, out, n, cases,
-                                                               keep_vtk, force)
+                                                               keep_vtk, force, fs_only)
     skipped = len(finished)
     own = client is None
     backend = campaign_backend(cluster, workers, scheduler, case_list) if own else None
@@ -157,7 +160,7 @@ def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
 
 
 def pending_work(scene: Scene, out: Path, n: int, cases: Sequence[str | Case] | None,
-                 keep_vtk, force: bool):
+                 keep_vtk, force: bool, fs_only: bool = False):
     """What a campaign in ``out`` has left to do (read-only; raises CampaignError for bad
     cases or another campaign in ``out``): ``(cases, counts, doc, layout, tasks,
     finished)`` with the :class:`Case` list, realizations per case, the identity
@@ -172,7 +175,8 @@ def pending_work(scene: Scene, out: Path, n: int, cases: Sequence[str | Case] | 
     doc = campaign_doc(case_list, scene.montecarlo.seed)
     check_directory(out, doc)
     lay = Layout(out, case_list)
-    tasks, finished = _plan(scene, lay, counts, keep, force)
+    fs_mode = "only" if fs_only else ("before" if scene.montecarlo.factor_of_safety else "off")
+    tasks, finished = _plan(scene, lay, counts, keep, force, fs_mode)
     return case_list, counts, doc, lay, tasks, finished
 
 
@@ -190,10 +194,11 @@ def _check_arguments(n, workers, scheduler, client) -> None:
                             "cluster's own workers are used: give one of the two")
 
 
-def _plan(scene: Scene, lay: Layout, counts: dict[str, int], keep, force: bool
-          ) -> tuple[list[dict], dict]:
+def _plan(scene: Scene, lay: Layout, counts: dict[str, int], keep, force: bool,
+          fs_mode: str = "off") -> tuple[list[dict], dict]:
     """What is left to do (read-only): the tasks to run, in index-major order, and the
-    finished records ``{(case, index): record}`` (none with ``force``)."""
+    finished records ``{(case, index): record}`` (none with ``force``; a record made with
+    another factor-of-safety mode is recomputed)."""
     out = lay.out
     tasks, finished = [], {}
     for i in range(max(counts.values())):
@@ -202,11 +207,13 @@ def _plan(scene: Scene, lay: Layout, counts: dict[str, int], keep, force: bool
                 continue
             seed = realization_seed(scene.montecarlo.seed, i)
             rec = None if force else read_record(lay.record(c.name, i))
-            if rec is not None and rec.get("seed") == seed and rec.get("case") == c.name:
+            if (rec is not None and rec.get("seed") == seed and rec.get("case") == c.name
+                    and rec.get("fs_mode", "off") == fs_mode):
                 finished[(c.name, i)] = rec
                 continue
             vtk = lay.vtk(c.name, i) if kept(keep, i) else None
             tasks.append({"case": c.name, "index": i, "seed": seed, "scene": c.scene,
+                          "fs": fs_mode,
                           "vtk_dir": str(vtk.resolve()) if vtk is not None else None,
                           "vtk_rel": str(vtk.relative_to(out)) if vtk is not None else None})
     return tasks, finished
@@ -270,6 +277,10 @@ def _finish(out, scene, cases, counts, lay, finished, computed, skipped, lost, d
     write_results(out / "results.csv", records, order)
     stats = {c.name: case_statistics([r for r in records if r["case"] == c.name],
                                      counts[c.name]) for c in cases}
+    for c in cases:
+        fs = fs_statistics([r for r in records if r["case"] == c.name])
+        if fs is not None:
+            stats[c.name]["fs"] = fs
     walls = [r["wall_time"] for r in records if r.get("wall_time") is not None]
     cpus = [r["cpu_time"] for r in records if r.get("cpu_time") is not None]
     res = CampaignResult(out, cases, counts, stats, computed, skipped, lost,
@@ -293,7 +304,11 @@ def _finish(out, scene, cases, counts, lay, finished, computed, skipped, lost, d
         "records_beyond_n": extra,
     }
     write_json(out / "summary.json", summary)
+    mpm = [r for r in records if r.get("fs_mode", "off") != "only"]   # with an MPM run
     if figures and records:
-        res.figures = campaign_figures(out, cases, stats, records, lay, scene)
+        res.figures = campaign_figures(out, cases, stats, mpm, lay, scene) if mpm else []
+        if any("fs" in stats[c.name] for c in cases):
+            res.figures.append(plot_factor_of_safety(out / "factor_of_safety.png", cases,
+                                                     stats, records))
         res.figures.append(write_report(out))
     return res
