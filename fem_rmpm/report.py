@@ -147,7 +147,9 @@ def _provenance(summary: dict, campaign: dict, records: list[dict]) -> str:
 UNITS = {"runout_distance": "m", "retrogression_distance": "m", "sliding_area": "m²/m",
          "max_displacement": "m", "slip_surface_height": "m", "sliding_area_early": "m²/m",
          "intact_blocks": "count", "time_to_rest": "s", "mechanism_time": "s",
-         "factor_of_safety": "–"}
+         "factor_of_safety": "–", "excluded_frozen_points": "count",
+         "excluded_stray_points": "count", "excluded_frozen_volume": "m²/m",
+         "excluded_stray_volume": "m²/m"}
 
 
 def _measure_keys(cases: list[dict]) -> list[str]:
