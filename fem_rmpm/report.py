@@ -31,6 +31,8 @@ import math
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from .output import _atomic_write_bytes
+
 __all__ = ["write_report", "report_html", "ReportError"]
 
 #: Figures written by the campaign, in the order the report shows them, with captions.
@@ -329,9 +331,6 @@ def report_html(campaign_dir: str | Path) -> str:
 def write_report(campaign_dir: str | Path) -> Path:
     """Write ``report.html`` into the campaign directory (atomically) and return its path."""
     campaign = Path(campaign_dir)
-    text = report_html(campaign)
     path = campaign / "report.html"
-    tmp = path.with_name(".report.html.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
+    _atomic_write_bytes(path, report_html(campaign).encode("utf-8"))
     return path
