@@ -210,16 +210,23 @@ def test_explicit_kernel_equals_numpy_update():
     assert 0.1 * n < (g_ref > gam).sum() < 0.9 * n
 
 
-def _scene(**soil):
+def _tiny(solver: dict | None = None, **soil) -> dict:
+    """The tiny cut (tests/data/mc_tiny.toml) as a scene dict without its random field and
+    its von Mises keys; ``soil`` updates the soil, ``solver`` the solver section."""
     data = scene_to_dict(load_scene(TINY))
     data.pop("random_field")
     s = data["soil"][0]
     for k in ("cohesion_peak", "cohesion_residual", "softening", "softening_strain"):
         s.pop(k)
-    s.update(model="mohr_coulomb_softening", cohesion_peak=5.0, cohesion_residual=2.0,
-             friction_angle_peak=30.0, friction_angle_residual=25.0)
     s.update(soil)
-    return scene_from_dict(data, "mc.toml")
+    data["solver"].update(solver or {})
+    return data
+
+
+def _scene(**soil):
+    mc_soil = dict(model="mohr_coulomb_softening", cohesion_peak=5.0, cohesion_residual=2.0,
+                   friction_angle_peak=30.0, friction_angle_residual=25.0)
+    return scene_from_dict(_tiny(**{**mc_soil, **soil}), "mc.toml")
 
 
 @pytest.mark.parametrize("soil, key, what", [
@@ -249,12 +256,6 @@ def test_explicit_scheme_runs_mohr_coulomb_like_elastic_below_yield():
     relative: the round-off of another operation order grown over ~100 dynamic steps;
     asserts 1e-9 and 1e-7), and
     the same soil at its real strength yields (plastic strain > 0)."""
-    base = scene_to_dict(load_scene(TINY))
-    base.pop("random_field")
-    base["solver"]["t_end"] = 0.3
-    soil = base["soil"][0]
-    for k in ("cohesion_peak", "cohesion_residual", "softening", "softening_strain"):
-        soil.pop(k)
     runs = {}
     for name, extra in (("elastic", {"model": "linear_elastic"}),
                         ("strong", {"model": "mohr_coulomb_softening", "cohesion_peak": 1e6,
@@ -263,9 +264,9 @@ def test_explicit_scheme_runs_mohr_coulomb_like_elastic_below_yield():
                         ("weak", {"model": "mohr_coulomb_softening", "cohesion_peak": 2.0,
                                   "cohesion_residual": 1.0, "friction_angle_peak": 10.0,
                                   "friction_angle_residual": 5.0})):
-        data = {**base, "soil": [{**soil, **extra}]}
-        grid, pts = api.prepare(scene_from_dict(data, "mc.toml"))
-        run_explicit(scene_from_dict(data, "mc.toml"), grid, pts, progress=False)
+        scene = scene_from_dict(_tiny({"t_end": 0.3}, **extra), "mc.toml")
+        grid, pts = api.prepare(scene)
+        run_explicit(scene, grid, pts, progress=False)
         runs[name] = pts
     e, s = runs["elastic"], runs["strong"]
     assert np.abs(s.x - e.x).max() <= 1e-9 * np.abs(e.x).max()
@@ -342,15 +343,11 @@ def test_implicit_scheme_runs_mohr_coulomb():
     branches = {_branch(t[None], g) for t, g in zip(tau_a, materials.stress_update(
         dF, eps, state, soil)[1][:, 0])}
     assert {"elastic", "main", "right", "left", "apex"} <= branches
-    base = scene_to_dict(load_scene(TINY))
-    base.pop("random_field")
-    s0 = base["soil"][0]
-    for k in ("cohesion_peak", "cohesion_residual", "softening", "softening_strain"):
-        s0.pop(k)
-    s0.update(model="mohr_coulomb_softening", cohesion_peak=3.0, cohesion_residual=3.0,
-              friction_angle_peak=15.0, friction_angle_residual=15.0)
-    base["solver"].update(scheme="implicit", dynamic=True, dt=0.05, t_end=1.0)
-    scene = scene_from_dict(base, "mc_implicit.toml")
+    scene = scene_from_dict(_tiny({"scheme": "implicit", "dynamic": True, "dt": 0.05,
+                                   "t_end": 1.0}, model="mohr_coulomb_softening",
+                                  cohesion_peak=3.0, cohesion_residual=3.0,
+                                  friction_angle_peak=15.0, friction_angle_residual=15.0),
+                            "mc_implicit.toml")
     grid, pts = api.prepare(scene)
     rec = run_implicit(scene, grid, pts)
     assert rec.stop_reason in ("t_end reached", "at rest") and rec.time == pytest.approx(1.0)
