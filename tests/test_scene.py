@@ -12,7 +12,7 @@ import math
 import pytest
 
 from fem_rmpm.cli import main
-from fem_rmpm.scene import SceneError, load_scene, with_value
+from fem_rmpm.scene import SceneError, load_scene, scene_from_dict, scene_to_dict, with_value
 
 
 def _run_bad(tmp_path, capsys, text: str | None, expect_key: str, expect_words: tuple[str, ...],
@@ -83,6 +83,26 @@ def test_residual_above_peak_rejected(tmp_path, capsys, column_text):
     text = column_text.replace('model = "linear_elastic"', 'model = "von_mises_softening"\n'
                                'cohesion_peak = 20.0\ncohesion_residual = 30.0')
     _run_bad(tmp_path, capsys, text, "cohesion_residual", ("exceeds cohesion_peak",))
+
+
+def test_scene_to_dict_round_trips_through_json_with_infinities(meshes):
+    """scene_from_dict(scene_to_dict(s)) == s for every shipped scene, through JSON (as
+    summary.json stores it): infinite values (no strength, damping for ever, e.g.
+    ``cohesion_peak = inf`` of an elastic soil) are written as "inf" and read back as
+    floats; a string "inf" where a string belongs stays a string."""
+    scenes = sorted(meshes.glob("*.toml"))
+    assert scenes
+    n_inf = 0
+    for path in scenes:
+        s = load_scene(path)
+        d = json.loads(json.dumps(scene_to_dict(s), allow_nan=False))
+        n_inf += json.dumps(d).count('"inf"')
+        assert scene_from_dict(d, s.source) == s, path.name
+    assert n_inf > 0                      # the infinities were exercised
+    s = with_value(load_scene(meshes / "column.toml"), "scene.name", "inf")
+    assert scene_from_dict(scene_to_dict(s), s.source).scene.name == "inf"
+    with pytest.raises(SceneError, match="solver.t_end.*finite"):
+        with_value(s, "solver.t_end", "inf")
 
 
 def test_with_value_returns_validated_copy(meshes):
