@@ -4,25 +4,39 @@
 applied with the implicit solver's small-strain static load steps on the fixed in-situ
 geometry (``gravity_phase = "geostatic"``, quasi-static, exactly what an RFEM analysis
 does).  The factor of safety ``FS`` is the smallest ``F`` at which full gravity can no
-longer be brought to equilibrium.  Which constants are strengths is declared per material
-model in :data:`STRENGTH_PARAMETERS` (the von Mises clay: ``cohesion_peak`` and
-``cohesion_residual``; a frictional model would declare ``tan(phi)`` as well).  Peak
+longer be brought to equilibrium.  How a soil's strengths reduce is declared by its
+material model: the optional hook ``reduce_strength(params, F, softening)`` of the model
+module (Mohr–Coulomb: ``c / F``, ``tan(phi_F) = tan(phi) / F`` and ``psi_F = min(psi,
+phi_F)``, peak and residual alike), else the default: its strength columns
+(``STRENGTHS`` of the module, or :data:`STRENGTH_PARAMETERS`; the von Mises clay:
+``cohesion_peak`` and ``cohesion_residual``) divided by ``F``.  Peak
 strength by default (RFEM practice: ``cohesion_residual`` is set to the reduced peak, a
 perfectly plastic soil); ``softening=True`` keeps the softening law with both values
 divided by ``F``.
 
-**Failure criterion** (documented in ``fs.json`` as ``criterion``): a trial ``F`` *fails*
-when Newton does not converge within ``max_iterations`` iterations in some load step even
-after ``max_cuts`` halvings of that step, i.e. before full gravity is reached; it is
-accompanied by the jump of the maximum point displacement, which grows without bound as
-``F`` approaches ``FS`` from below (the plot ``fs_displacement.png`` shows it, the ratio
-of the last converged maximum displacement to that of the smallest trial ``F`` is
-``displacement_jump`` in ``fs.json``).  ``FS`` lies in the bracket ``[F_lo, F_hi]`` of the
-largest converged and the smallest failed trial; the search (bisection in ``ln F``) stops
-when ``F_hi / F_lo - 1 <= tolerance`` (default 0.01) and reports the geometric midpoint,
-so the search error is below ``tolerance / 2``.  The first trials are ``F = 1`` and then
-``F = f_max`` (10) or ``F = f_min`` (0.1): a slope standing at ``f_max`` is reported as
-"FS > 10", one failing at ``f_min`` as "FS < 0.1".  Bracket of [1, 10]: 2 + 8 solves.
+**Failure criterion** (documented in ``fs.json`` as ``criterion``).  The first trial,
+``F = 1``, applies gravity in ``load_steps`` small-strain load steps; it *fails* when
+Newton does not converge within ``max_iterations`` iterations in some load step even after
+``max_cuts`` halvings of that step, i.e. before full gravity is reached.  Every later
+trial (``continuation = True``, the default) starts from the converged state of the
+largest converged ``F`` at full gravity and reduces the strengths further to the trial
+``F`` in one Newton solve (:func:`_continue`); it fails when that solve does not converge
+within ``max_iterations``.  Either failure is accompanied by the jump of the maximum point
+displacement, which grows without bound as ``F`` approaches ``FS`` from below (the plot
+``fs_displacement.png`` shows it, the ratio of the last converged maximum displacement to
+that of the smallest trial ``F`` is ``displacement_jump`` in ``fs.json``).  ``FS`` lies in
+the bracket ``[F_lo, F_hi]`` of the largest converged and the smallest failed trial.
+
+**Search.**  From ``F = 1`` upwards ``F`` grows by ``march`` (1.25), the step in ``ln F``
+doubling after each converged trial, until a trial fails or ``f_max`` (10) converges
+("FS > 10"); when ``F = 1`` fails, gravity is applied anew at the gravity fraction ``F = 1``
+reached (a lower bound of FS: at ``F = lambda`` every strength is at least that of the
+state that stood at ``lambda`` x gravity), or at ``f_min`` (0.1; failing there: "FS <
+0.1").  Then bisection in ``ln F`` until ``F_hi / F_lo - 1 <= tolerance`` (default 0.01);
+the reported FS is the geometric midpoint, so the search error is below ``tolerance / 2``.
+Griffiths slope (4000 points): 9 static solves, 114 Newton iterations, FS 1.462; with
+``continuation = False`` (gravity anew at every trial: ``F = 1``, ``f_max`` or ``f_min``,
+then bisection) 10 solves, 257 iterations, FS 1.466 (brackets overlap), 5.5 x the CPU time.
 
 **Non-physical Newton failures** are told apart and raised as :class:`NonPhysicalFailure`
 (never taken as an FS): before the search a *probe* applies ``probe_load`` (1e-3) x gravity
@@ -58,8 +72,8 @@ __all__ = ["STRENGTH_PARAMETERS", "FSOptions", "Trial", "FSResult", "NonPhysical
            "strength_parameters", "reduce_strength", "factor_of_safety", "stable_at",
            "write_outputs"]
 
-#: Fallback for material models that do not declare ``STRENGTHS`` (the per-point
-#: parameters that are strengths, divided by F) in their module of :mod:`fem_rmpm.materials`.
+#: The default reduction, for material models with neither a ``reduce_strength`` hook nor
+#: ``STRENGTHS`` (the per-point parameters divided by F) in their module.
 STRENGTH_PARAMETERS: dict[str, tuple[str, ...]] = {
     "linear_elastic": (),
     "von_mises_softening": ("cohesion_peak", "cohesion_residual"),
@@ -94,6 +108,9 @@ class FSOptions:
     fbar: bool = True             # B-bar against volumetric locking
     probe_load: float = 1e-3      # gravity fraction of the elastic probe at F = 1
     linear_solver: str = "superlu"
+    continuation: bool = True     # a trial starts from the largest converged F's state
+    march: float = 1.25           # first upward ratio of F from a converged state (doubles in ln F)
+    continuation_cuts: int = 0    # halvings of a continuation solve (0: the bisection refines)
 
 
 @dataclass
@@ -107,6 +124,8 @@ class Trial:
     cuts: int
     wall_time: float              # s
     reason: str = ""              # why Newton failed ("" when converged)
+    start: float = 0.0            # F of the converged state it continued from (0: gravity from zero)
+    reached: float = 0.0          # continuation: F of its last converged solve (= F if converged)
 
 
 @dataclass
@@ -146,22 +165,27 @@ class FSResult:
                 "static_solves": self.static_solves, "wall_time": self.wall_time,
                 "displacement_jump": self.displacement_jump,
                 "strength": "softening" if o.softening else "peak",
-                "criterion": CRITERION.format(it=o.max_iterations, cuts=o.max_cuts,
-                                              steps=o.load_steps),
+                "criterion": CRITERION.format(
+                    it=o.max_iterations, cuts=o.max_cuts, steps=o.load_steps,
+                    cont=CONTINUED.format(it=o.max_iterations) if o.continuation else ""),
                 "options": dataclasses.asdict(o),
                 "trials": [dataclasses.asdict(t) for t in self.trials]}
 
 
 CRITERION = ("a trial F fails when Newton does not converge within {it} iterations in a "
              "load step after {cuts} halvings of it, before full gravity is reached "
-             "({steps} small-strain load steps on the in-situ geometry); FS is the geometric "
-             "midpoint of the largest converged and the smallest failed F")
+             "({steps} small-strain load steps on the in-situ geometry){cont}; FS is the "
+             "geometric midpoint of the largest converged and the smallest failed F")
+CONTINUED = (", or, for a trial continued from the converged state of a smaller F at full "
+             "gravity, when the Newton solve reducing the strengths to F does not converge "
+             "within {it} iterations")
 
 
 # ----------------------------------------------------------------------------- strengths
 def strength_parameters(model: str) -> tuple[str, ...]:
-    """The per-point parameters of material ``model`` that are strengths: the model
-    module's ``STRENGTHS`` (:mod:`fem_rmpm.materials`), else :data:`STRENGTH_PARAMETERS`."""
+    """The per-point parameters of material ``model`` that are divided by ``F`` when the
+    model has no ``reduce_strength`` hook: the model module's ``STRENGTHS``
+    (:mod:`fem_rmpm.materials`), else :data:`STRENGTH_PARAMETERS`."""
     from .materials import registry
     try:
         declared = getattr(registry.model(model), "STRENGTHS", None)
@@ -170,27 +194,55 @@ def strength_parameters(model: str) -> tuple[str, ...]:
     return tuple(STRENGTH_PARAMETERS.get(model, ()) if declared is None else declared)
 
 
+def _has_strength(spec) -> bool:
+    """Does one ``[[soil]]`` have a strength to reduce?  A model with a ``reduce_strength``
+    hook does (its scene check refuses a soil without strength); otherwise some declared
+    strength parameter must be finite."""
+    from .materials import registry
+    if hasattr(registry.model(spec.model), "reduce_strength"):
+        return True
+    return any(math.isfinite(float(spec.value(n, math.inf)))
+               for n in strength_parameters(spec.model))
+
+
 def _check_has_strength(scene: Scene) -> None:
-    if not any(any(math.isfinite(float(s.value(n, math.inf)))
-                   for n in strength_parameters(s.model)) for s in scene.soils):
+    if not any(_has_strength(s) for s in scene.soils):
         models = ", ".join(sorted({s.model for s in scene.soils}))
         raise SceneError(f"{scene.source}: [soil.model] no soil has a strength to reduce "
                          f"(models: {models}); allowed for a factor of safety: a soil with "
-                         f"model = \"von_mises_softening\" and a finite cohesion_peak")
+                         f"model = \"von_mises_softening\" and a finite cohesion_peak, or "
+                         f"model = \"mohr_coulomb_softening\"")
+
+
+def _divide_declared(model: int, params: np.ndarray, F: float, softening: bool) -> np.ndarray:
+    """The default reduction: every declared strength column divided by ``F`` (infinite
+    values stay infinite); without ``softening`` ``cohesion_residual`` = reduced peak."""
+    from .materials import registry
+    p = params.copy()
+    cols = {n: registry.column(model, n) for n in strength_parameters(registry.model(model).NAME)}
+    for col in cols.values():
+        p[:, col] = np.where(np.isfinite(p[:, col]), p[:, col] / F, p[:, col])
+    if not softening and {"cohesion_peak", "cohesion_residual"} <= set(cols):
+        p[:, cols["cohesion_residual"]] = p[:, cols["cohesion_peak"]]
+    return p
 
 
 def reduce_strength(pts: Particles, scene: Scene, F: float, softening: bool = False) -> None:
-    """Divide the strengths of ``pts`` (in place) by ``F``; without ``softening`` the residual
-    cohesion is set to the reduced peak (perfectly plastic).  Elastic points keep c = inf."""
+    """Divide the strengths of ``pts`` (in place) by ``F``, per material model: the model's
+    ``reduce_strength(params, F, softening)`` hook (Mohr–Coulomb: ``c / F`` and
+    ``tan(phi) / F``), else its declared strength columns divided by ``F``
+    (:func:`strength_parameters`; von Mises: the cohesions).  Without ``softening`` the
+    residual strengths are set to the reduced peak (perfectly plastic).  Elastic points
+    keep c = inf.  ``scene`` is not read (kept for the callers' signature)."""
+    from .materials import MaterialPoints, registry
     s = pts.soil
-    changes = {}
-    names = {n for sp in scene.soils for n in strength_parameters(sp.model)}
-    for name in sorted(names):
-        v = getattr(s, name)
-        changes[name] = np.where(np.isfinite(v), v / F, v)
-    if not softening and "cohesion_residual" in changes:
-        changes["cohesion_residual"] = changes["cohesion_peak"]
-    pts.soil = dataclasses.replace(s, **changes)
+    params = s.params.copy()
+    for k in np.unique(s.model):
+        mask = s.model == k
+        hook = getattr(registry.model(int(k)), "reduce_strength", None)
+        params[mask] = (hook(params[mask], F, softening) if hook is not None
+                        else _divide_declared(int(k), params[mask], F, softening))
+    pts.soil = MaterialPoints(s.model, params)
 
 
 # ----------------------------------------------------------------------------- trials
@@ -231,6 +283,49 @@ def _solve(scene: Scene, grid: Grid, base: Particles, F: float, o: FSOptions,
     umax = float(np.sqrt(np.max(np.sum(pts.u_geostatic ** 2, axis=1), initial=0.0)))
     return Trial(F, not reason, umax, lf, int(stats.get("iterations_total", 0)),
                  int(stats.get("cuts_total", 0)), time.perf_counter() - t0, reason), pts
+
+
+def _continue(scene: Scene, grid: Grid, base: Particles, start: Particles, F0: float,
+              F: float, o: FSOptions) -> tuple[Trial, Particles]:
+    """Strength continuation: from ``start``, the converged state at full gravity and
+    trial factor ``F0``, the strengths of ``base`` are reduced to ``F`` at full gravity in
+    small-strain geostatic Newton solves (one solve for the whole change; a solve that
+    fails is halved in ``ln F`` at most ``continuation_cuts`` times, default 0: the
+    bisection does the refining; a failed trial keeps the state of its last converged
+    solve, ``Trial.reached``).  The
+    collapse factor of a perfectly plastic soil does not depend on the path
+    (associated flow: the limit theorems), so this finds the same FS as applying gravity
+    anew at every trial, at a fraction of the cost: far from collapse one or two Newton
+    iterations, and the bisection's last trials change F by under 1 %."""
+    from .implicit import Geostatic, ImplicitSystem, LinearSolver, NewtonFailure
+    pts = start.copy()
+    system = ImplicitSystem(scene, grid, pts, LinearSolver(o.linear_solver))
+    kind = Geostatic(system)
+    t0 = time.perf_counter()
+    at, h, cuts, its, reason = math.log(F0), math.log(F / F0), 0, 0, ""
+    end = math.log(F)
+    while abs(end - at) > 1e-12 and not reason:
+        h = end - at if abs(end - at) < 1.05 * abs(h) else h
+        pts.soil = base.soil
+        reduce_strength(pts, scene, math.exp(at + h), o.softening)
+        try:
+            out = kind.solve(1.0, 1.0)
+        except NewtonFailure as exc:
+            its += len(exc.residuals) - 1
+            if cuts >= o.continuation_cuts:
+                reason = exc.reason
+            else:
+                cuts, h = cuts + 1, 0.5 * h
+            continue
+        out.commit()
+        its += out.result.iterations
+        at += h
+    reached = F if not reason else math.exp(at)
+    pts.soil = base.soil
+    reduce_strength(pts, scene, reached, o.softening)
+    umax = float(np.sqrt(np.max(np.sum(pts.u_geostatic ** 2, axis=1), initial=0.0)))
+    return Trial(F, not reason, umax, 1.0, its, cuts, time.perf_counter() - t0, reason,
+                 F0, reached), pts
 
 
 def _probe(scene: Scene, grid: Grid, base: Particles, o: FSOptions) -> None:
@@ -289,8 +384,11 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
     trials: list[Trial] = []
     best: dict = {}
 
-    def run(F):
-        t, state = _solve(srm, grid, pts, F, o)
+    def run(F, continue_from=None):
+        if continue_from is None:
+            t, state = _solve(srm, grid, pts, F, o)
+        else:
+            t, state = _continue(srm, grid, pts, best["pts"], continue_from, F, o)
         trials.append(t)
         if progress:
             progress(t)
@@ -301,20 +399,51 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
                 f"reason that is not a mechanism ({t.reason}) at load factor "
                 f"{t.load_factor:.3g}; FS not determined. Try [solver] linear_solver or a "
                 "finer mesh", cause=t.reason, result=res)
-        if t.converged and F >= best.get("F", -1.0):
-            best.update(F=F, pts=state)
+        done = F if t.converged else t.reached       # a failed continuation's last solve
+        if done > 0 and done >= best.get("F", -1.0) and (t.converged or done > t.start):
+            best.update(F=done, pts=state)
         return t.converged
 
+    if not o.continuation:
+        return _bisect_anew(run, o, lambda b, br: _result(trials, b, br, o, wall0, seed,
+                                                            best, grid))
+    lo, hi = 0.0, math.inf
+    if run(1.0):
+        lo = 1.0
+    else:                          # FS < 1: gravity anew at a lower F, then upwards
+        hi = 1.0
+        guess = trials[-1].load_factor       # gravity fraction reached at F = 1 (<= FS)
+        F0 = guess if o.f_min < guess < 0.95 else o.f_min
+        if not run(F0):
+            if F0 <= o.f_min or not run(o.f_min):
+                return _result(trials, "<", (0.0, o.f_min), o, wall0, seed, best, grid)
+            hi = F0
+        lo = best["F"]
+    step = math.log(o.march)
+    while math.isinf(hi) or hi / lo - 1.0 > o.tolerance:
+        F = min(lo * math.exp(step), o.f_max) if math.isinf(hi) else math.sqrt(lo * hi)
+        if run(F, continue_from=lo):
+            lo, step = F, 2 * step
+            if F >= o.f_max:
+                return _result(trials, ">", (o.f_max, math.inf), o, wall0, seed, best, grid)
+        else:
+            lo, hi = best["F"], F
+    return _result(trials, "=", (lo, hi), o, wall0, seed, best, grid)
+
+
+def _bisect_anew(run, o: FSOptions, result) -> FSResult:
+    """The classic search (``continuation = False``): gravity applied anew at every
+    trial; F = 1, then ``f_max`` or ``f_min``, then bisection in ``ln F``."""
     lo, hi = 0.0, math.inf
     if run(1.0):
         lo = 1.0
         if run(o.f_max):
-            return _result(trials, ">", (o.f_max, math.inf), o, wall0, seed, best, grid)
+            return result(">", (o.f_max, math.inf))
         hi = o.f_max
     else:
         hi = 1.0
         if not run(o.f_min):
-            return _result(trials, "<", (0.0, o.f_min), o, wall0, seed, best, grid)
+            return result("<", (0.0, o.f_min))
         lo = o.f_min
     while hi / lo - 1.0 > o.tolerance:
         mid = math.sqrt(lo * hi)
@@ -322,7 +451,7 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
             lo = mid
         else:
             hi = mid
-    return _result(trials, "=", (lo, hi), o, wall0, seed, best, grid)
+    return result("=", (lo, hi))
 
 
 def _result(trials, bound, bracket, o, wall0, seed, best, grid) -> FSResult:

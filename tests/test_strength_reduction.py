@@ -62,6 +62,74 @@ def test_reduce_strength_peak_and_softening(meshes):
     assert np.allclose(p.soil.cohesion_peak, 10.0) and np.allclose(p.soil.cohesion_residual, 2.0)
 
 
+def test_mohr_coulomb_reduces_c_and_tan_phi(meshes):
+    """Mohr–Coulomb declares its reduction (materials hook ``reduce_strength``): c / F,
+    tan(phi_F) = tan(phi) / F, psi_F = min(psi, phi_F), peak and residual alike (Griffiths
+    & Lane 1999; Dawson, Roth & Drescher 1999); without softening residual = reduced peak."""
+    sc = api.load_scene(meshes / "slope_drained.toml")    # c' 5 -> 1, phi' 22 -> 18, psi 0
+    sc = with_values(sc, {"grid.cell": 1.0, "soil.dilation_angle_peak": 12.0,
+                          "soil.dilation_angle_residual": 12.0})
+    _, pts = api.prepare(sc)
+    F = 1.6
+    phi_F = lambda deg: math.degrees(math.atan(math.tan(math.radians(deg)) / F))  # noqa: E731
+    p = pts.copy()
+    reduce_strength(p, sc, F, softening=True)
+    s = p.soil
+    assert np.allclose(s.cohesion_peak, 5 / F) and np.allclose(s.cohesion_residual, 1 / F)
+    assert np.allclose(s.friction_angle_peak, phi_F(22)) and np.allclose(
+        s.friction_angle_residual, phi_F(18))
+    assert np.allclose(s.dilation_angle_peak, 12.0)                   # < phi_F(22) = 14.2
+    assert np.allclose(s.dilation_angle_residual, phi_F(18))          # 12 > phi_F(18) = 11.5
+    p = pts.copy()
+    reduce_strength(p, sc, F)                                         # peak: perfectly plastic
+    s = p.soil
+    assert np.allclose(s.cohesion_residual, 5 / F)
+    assert np.allclose(s.friction_angle_residual, phi_F(22))
+    assert np.allclose(s.dilation_angle_peak, 12.0) and np.allclose(
+        s.dilation_angle_residual, 12.0)
+    assert np.array_equal(pts.soil.params, api.prepare(sc)[1].soil.params)  # input untouched
+
+
+def drained(meshes, fs=1.1, rows=20, length=48.0):
+    """meshes/infinite_slope_drained.toml (beta 30, z 5 m, phi = psi = 20 deg, the last
+    normal thickness t a buttress of 3 c), cohesion set for the limit-equilibrium ``fs``,
+    ``rows`` cells over t, cells t/2 long, the layer ``length`` t."""
+    sc = api.load_scene(meshes / "infinite_slope_drained.toml")
+    b = math.radians(30.0)
+    c = (fs - math.tan(math.radians(20.0)) / math.tan(b)) * 20.0 * 5.0 * math.sin(b) * math.cos(b)
+    t = 5.0 * math.cos(b)
+    L = length * t
+    return with_values(sc, {
+        "soil[0].cohesion_peak": c, "soil[0].cohesion_residual": c,
+        "soil[1].cohesion_peak": 3 * c, "soil[1].cohesion_residual": 3 * c,
+        "grid.size": [L, t], "grid.cell": [t / 2, t / rows],
+        "soil[0].polygon": [[0, 0], [L - t, 0], [L - t, t], [0, t]],
+        "soil[1].polygon": [[L - t, 0], [L, 0], [L, t], [L - t, t]]})
+
+
+@pytest.mark.parametrize("fs, achieved", [(1.1, 0.042), (0.9, 0.011)])
+def test_drained_infinite_slope_coarse(meshes, fs, achieved):
+    """Issue 16 acc 3, coarse (10 rows, layer 24 t, 1920 points, about 1.5 s CPU): the
+    strength-reduction FS of the Mohr–Coulomb layer against c / (gamma z sin b cos b) +
+    tan(phi) / tan(b).  Achieves +4.2 % (1.1) and +1.1 % (0.9): the mesh (+h/2t on the
+    cohesion part, +2.1 % at FS 1.1) and the buttress's base cohesion (+1.9 % at 24 t);
+    asserts 6 %.  The acceptance's 3 %: the slow test below at 20 rows and 48 t."""
+    res = fos(drained(meshes, fs, rows=10, length=24.0))
+    assert res.bound == "=" and res.static_solves <= 15
+    assert abs(res.fs / fs - 1) < 0.06, res.fs
+    assert res.fs > fs * 0.995          # a displacement method overestimates the collapse load
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fs", [1.1, 0.9])
+def test_drained_infinite_slope_closed_form(meshes, fs):
+    """Issue 16 acc 3: the scene as shipped (20 rows, 48 t, 7680 points, 4-12 s CPU):
+    achieves +1.3 % (1.1 design: 1.114; 1.119 with gravity anew per trial) and +0.2 %
+    (0.9 design: 0.902); asserts the acceptance's 3 %."""
+    res = fos(drained(meshes, fs))
+    assert abs(res.fs / fs - 1) < 0.03, res.fs
+
+
 def test_infinite_slope_coarse(meshes):
     """z = 5 m, beta = 20 deg, 20 rows over the thickness (1920 points): achieves 0.2 %
     (the bisection stops at a 1 % bracket); asserts the acceptance's 2 %."""
@@ -86,9 +154,12 @@ def test_infinite_slope_closed_form(meshes, z, beta):
 
 
 def test_limits_reported_as_such(meshes):
+    """FS 23: F = 1, then continued upwards 1.25, 1.95, 4.77, 10 (the step in ln F doubles),
+    all converged: "FS > 10" in 5 solves; FS 0.012: F = 1 and f_min fail: "FS < 0.1"."""
     strong = infinite_slope(meshes, rows=8, hx=1.0, c=1000.0)     # FS 23
     res = fos(strong)
-    assert (res.bound, res.text, res.static_solves) == (">", "FS > 10", 2)
+    assert (res.bound, res.text, res.static_solves) == (">", "FS > 10", 5)
+    assert [round(t.F, 2) for t in res.trials] == [1.0, 1.25, 1.95, 4.77, 10.0]
     weak = infinite_slope(meshes, rows=8, hx=1.0, c=0.5)          # FS 0.012
     res = fos(weak)
     assert (res.bound, res.text, res.static_solves) == ("<", "FS < 0.1", 2)

@@ -120,6 +120,26 @@ def friction_angle(gamma_p, params: np.ndarray):
     return params[:, _PHR] + (params[:, _PHP] - params[:, _PHR]) * w
 
 
+def reduce_strength(params: np.ndarray, F: float, softening: bool) -> np.ndarray:
+    """Parameter rows (n, P) with the strengths divided by the trial factor ``F`` of a
+    strength reduction (Griffiths & Lane 1999; Dawson, Roth & Drescher 1999): ``c / F``,
+    ``tan(phi_F) = tan(phi) / F`` and ``psi_F = min(psi, phi_F)`` (a dilation angle may not
+    exceed the reduced friction angle), peak and residual alike.  Without ``softening``
+    the residual values are set to the reduced peak ones (perfectly plastic, RFEM
+    practice).  Angles in degrees, cohesions in kPa."""
+    p = np.array(params, dtype=float, copy=True)
+
+    def reduced(deg):
+        return np.degrees(np.arctan(np.tan(np.radians(deg)) / F))
+    p[:, _CP], p[:, _CR] = p[:, _CP] / F, p[:, _CR] / F
+    p[:, _PHP], p[:, _PHR] = reduced(p[:, _PHP]), reduced(p[:, _PHR])
+    if not softening:
+        p[:, _CR], p[:, _PHR], p[:, _PSR] = p[:, _CP], p[:, _PHP], p[:, _PSP]
+    p[:, _PSP] = np.minimum(p[:, _PSP], p[:, _PHP])
+    p[:, _PSR] = np.minimum(p[:, _PSR], p[:, _PHR])
+    return p
+
+
 def _weight_np(gamma_p, params):
     gs, expo = params[:, _GS], params[:, _EXP] == 1
     decay = np.exp(-gamma_p / gs)

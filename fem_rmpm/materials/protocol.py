@@ -28,7 +28,12 @@ Optional: ``check(values) -> (key, message) | None`` (scene check of one ``[[soi
 across parameters; ``values`` maps the parameter names, ``shear_modulus`` and
 ``bulk_modulus`` to numbers), ``invalid_points(params) -> (mask, reason)`` (the same for
 per-point values, e.g. drawn by a random field) and ``cohesion(state, params)`` (the
-current strength per point in kPa for outputs; default: infinite).
+current strength per point in kPa for outputs; default: infinite) and
+``reduce_strength(params, F, softening) -> params`` (the parameter rows (n, P) with the
+strengths divided by the trial factor ``F`` of a factor-of-safety search by strength
+reduction, e.g. ``c / F`` and ``tan(phi) / F``; without ``softening`` residual = reduced
+peak; a model without it has its ``STRENGTHS`` names, or the default table of
+:mod:`fem_rmpm.strength_reduction`, divided by ``F``; see there).
 """
 from __future__ import annotations
 
