@@ -12,7 +12,7 @@ from fem_rmpm import api
 from fem_rmpm.cli import main
 from fem_rmpm.fem import solve_static
 from fem_rmpm.grid import make_grid
-from fem_rmpm.material import hughes_winget_increment, kirchhoff_stress, stress_update
+from fem_rmpm.materials import hughes_winget_increment, kirchhoff_stress, stress_update
 from fem_rmpm.particles import seed_particles
 from fem_rmpm.scene import load_scene, with_values
 from fem_rmpm.shape import q4_at_points
@@ -40,12 +40,12 @@ def column_run(tmp_path_factory):
 
 
 def test_column_explicit_settles_onto_fem_and_closed_form(column_run):
-    """DESIGN section 7 column: sigma_yy = -gamma (H - y), K0 = nu/(1-nu), settlement from
-    the scikit-fem solution.  The damped explicit run must reach rest and reproduce the FEM
-    Gauss-point stresses, K0 and the top settlement.  Against the closed form, Q4 elements
-    have piecewise-constant sigma_yy (the cell mean), so a Gauss point is off by
-    gamma h / (2 sqrt 3): the FEM itself is h / (2 H) = 2.5 % off in this norm, and the MPM
-    must be as far from the closed form as the FEM, no further.
+    """Column under self-weight, closed form: sigma_yy = -gamma (H - y), K0 = nu/(1-nu),
+    settlement from the scikit-fem solution. The damped explicit run must reach rest and
+    reproduce the FEM Gauss-point stresses, K0 and the top settlement. Against the closed
+    form, Q4 elements have piecewise-constant sigma_yy (the cell mean), so a Gauss point is
+    off by gamma h / (2 sqrt 3): the FEM itself is h / (2 H) = 2.5 % off in this norm, and
+    the MPM must be as far from the closed form as the FEM, no further.
     Achieved (0.25 m cells, 1599 steps): sigma_yy vs FEM 5.0e-5 (asserts 2e-4); closed-form
     error minus the FEM's 5.1e-8 (asserts 2.5e-7); K0 of the volume averages 1.6e-13 (asserts
     1e-12) and of every point 5.2e-12 (asserts 2e-11); top settlement vs FEM 4.8e-4, the
@@ -87,7 +87,7 @@ def test_column_refined_meets_closed_form_within_one_percent(meshes):
 
 
 def test_column_outputs_are_complete_and_finite(column_run):
-    """DESIGN section 5: pvd series, particle fields with the documented components, grid,
+    """Output files: pvd series, particle fields with the documented components, grid,
     summary; every array finite."""
     scene, res = column_run
     out = res.out
@@ -158,7 +158,7 @@ def test_rigid_rotation_creates_no_stress():
 
 
 def test_too_large_cfl_stops_with_clear_error(tmp_path, capsys, meshes):
-    """Issue 2 acceptance 7: cfl = 5 exceeds the explicit stability limit (DESIGN section 7:
+    """Issue 2 acceptance 7: cfl = 5 exceeds the explicit stability limit (CFL:
     dt <= h / (c_p + |v|)); the run stops with an error naming the step and suggesting a
     smaller cfl, exit code 3, and no NaN/Inf in any file written."""
     text = (meshes / "column.toml").read_text().replace("cfl = 0.5", "cfl = 5.0")

@@ -1,6 +1,6 @@
 """Implicit Newton MPM (issue 3): from the Gauss points to large compaction.
 
-References: DESIGN section 7 (column, compaction, explicit time step), Charlton,
+References: closed forms (column, compaction, explicit time step); Charlton,
 Coombs & Augarde 2017 (AMPLE / iGIMP, Computers & Structures 190: the
 compaction benchmark and the updated-Lagrangian implicit MPM), the closed forms
 quoted in each docstring.
@@ -23,10 +23,11 @@ from fem_rmpm.cli import main
 from fem_rmpm.run import SimulationError
 from fem_rmpm.fem import solve_static
 from fem_rmpm.grid import make_grid
-from fem_rmpm.material import SoilPoints, small_strain_update, spatial_tangent, stress_update
+from fem_rmpm.materials import small_strain_update, spatial_tangent, stress_update
 from fem_rmpm.particles import seed_particles
 from fem_rmpm.scene import load_scene
 from fem_rmpm.shape import q4_at_points
+from soil_points import vm_points
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 
@@ -49,7 +50,7 @@ def _rel_l2(a, b, w):
 
 
 def _hencky_settlement(Y, gamma, M, H):
-    """Closed form (DESIGN section 7, oedometric Hencky/Kirchhoff): Cauchy
+    """Closed form (oedometric Hencky/Kirchhoff): Cauchy
     M ln(lambda)/lambda = -gamma (H - Y) gives lambda = exp(-W0(s)), s = gamma (H - Y)/M,
     and u(Y) = integral_0^Y (lambda - 1) dY."""
     lam = lambda y: float(np.exp(-lambertw(gamma * (H - y) / M).real))  # noqa: E731
@@ -60,7 +61,7 @@ def _random_state(n, seed=1):
     rng = np.random.default_rng(seed)
     idx = np.arange(n)
     plastic = idx % 3 != 2
-    soil = SoilPoints(shear_modulus=np.full(n, 400.0), bulk_modulus=np.full(n, 900.0),
+    soil = vm_points(shear_modulus=np.full(n, 400.0), bulk_modulus=np.full(n, 900.0),
                       cohesion_peak=np.where(plastic, 5.0, np.inf),
                       cohesion_residual=np.where(plastic, 2.0, np.inf),
                       softening_strain=np.full(n, 0.5), exponential=idx % 3 == 1)
@@ -73,7 +74,7 @@ def _random_state(n, seed=1):
 # ------------------------------------------------------------------ 1. Gauss points = FEM
 @pytest.mark.parametrize("name", ["column.toml", "slope_elastic.toml"])
 def test_one_static_step_at_gauss_points_equals_fem(name):
-    """DESIGN section 7 (column) and section 6 (elastic reference slope): with the points at
+    """The column under self-weight and the elastic reference slope: with the points at
     the 2x2 Gauss points (volume area/4), one geostatic (small-strain) implicit step is the
     scikit-fem Q4 solution of fem.solve_static: displacement and stress to relative 1e-10,
     in one Newton iteration (the problem is linear)."""
@@ -128,7 +129,7 @@ def test_small_strain_tangent_is_the_derivative_of_small_strain_update():
 
 
 def test_vectorised_assembly_equals_scikit_fem_asm(meshes_dir_fx):
-    """DESIGN section 2: the tangent and internal force with the material points as
+    """The tangent and internal force with the material points as
     quadrature, assembled by skfem.asm (forms in implicit.py, skfem_point_basis) and by
     the vectorised numpy path used in the run, agree to round-off (a deformed,
     partly plastic state with points off the Gauss points)."""
@@ -182,7 +183,7 @@ def test_tangent_is_the_derivative_of_the_internal_force(meshes_dir_fx, shape):
 
 # ------------------------------------------------------------------ 2. compaction
 def test_column_compaction_top_displacement_hencky():
-    """DESIGN section 7 / Charlton et al. 2017 (AMPLE): l0 = 50 m, E = 10 kPa, nu = 0,
+    """Charlton et al. 2017 (AMPLE): l0 = 50 m, E = 10 kPa, nu = 0,
     rho0 = 0.08 t/m3, g = 10, one cell wide, uGIMP, 32 cells, 50 load steps.  The top
     settles -25.940 m (Hencky/Kirchhoff: lambda = exp(-W0(s))); the top material point
     must be within 1 % of the closed form at its initial height, and the stress error
@@ -258,7 +259,7 @@ def test_soft_column_large_deformation(steps):
 
 # ------------------------------------------------------------------ 5. explicit vs implicit
 def test_explicit_and_implicit_agree_on_elastic_slope():
-    """Issue 3 acceptance 5, elastic reference slope (DESIGN section 6): the explicit run
+    """Issue 3 acceptance 5, elastic reference slope: the explicit run
     of meshes/slope_elastic.toml (geostatic phase, damped to rest) and the implicit
     scheme on the same scene agree in stress (volume-weighted relative L2) for the implicit
     geostatic step (small strain, the same problem: achieves 6.9e-5, asserts 3e-4) and for
@@ -345,7 +346,7 @@ def test_step_cutting_recovers_and_is_recorded():
 
 
 def test_summary_json_holds_residual_history(tmp_path):
-    """DESIGN section 5 / issue 3: summary.json has the solver statistics: every step with
+    """Issue 3: summary.json has the solver statistics: every step with
     its residual history, iterations and the time split per Newton iteration."""
     scene = _solver(load_scene(MESHES / "soft_column.toml"), load_steps=2)
     api.run(scene, out=tmp_path, figures=False)
@@ -375,7 +376,7 @@ def test_newmark_sudden_gravity_on_stiff_column():
     """Newmark trapezoidal (beta 1/4, gamma 1/2) on a stiff elastic column (E = 1e5 kPa,
     small strain) under suddenly applied gravity: the undamped response swings to twice
     the static settlement (1-D wave solution: u_max = 2 u_static) with the period of the
-    first mode T = 4 H / c_p (DESIGN section 7: c_p = sqrt(M / rho)).  Sampled every T/40:
+    first mode T = 4 H / c_p (c_p = sqrt(M / rho)).  Sampled every T/40:
     the amplitude achieves -2.1e-3 (asserts 6e-3); the time of the first minimum is one
     sample (T/40 = 5 % of T/2) from T/2 (asserts 7.5 %: within 1.5 samples)."""
     scene = load_scene(MESHES / "column.toml")
@@ -402,7 +403,7 @@ def test_newmark_sudden_gravity_on_stiff_column():
 
 def test_geostatic_then_newmark_starts_in_equilibrium():
     """gravity_phase = "geostatic" with dynamic = true: the small-strain geostatic step is
-    the FEM state (DESIGN section 7 column), the Newmark phase then starts in equilibrium
+    the FEM state (the column under self-weight), the Newmark phase then starts in equilibrium
     (no Newton iteration needed, no motion) and stops at rest; one snapshot at t = 0."""
     scene = _solver(load_scene(MESHES / "column.toml"), scheme="implicit", dynamic=True,
                     gravity_phase="geostatic", dt=0.05, t_end=1.0)

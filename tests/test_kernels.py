@@ -3,8 +3,8 @@
 * shape functions: scikit-fem's own ``ElementQuad1`` basis at the points
   (:func:`fem_rmpm.shape.skfem_point_basis`) and the numpy uGIMP basis
   (:func:`fem_rmpm.shape.gimp_at_points`);
-* material update: :func:`fem_rmpm.material.stress_update` and
-  :func:`fem_rmpm.material.small_strain_update` (elastic, linear and
+* material update: :func:`fem_rmpm.materials.stress_update` and
+  :func:`fem_rmpm.materials.small_strain_update` (elastic, linear and
   exponential softening, plastic points);
 * whole steps and runs: the numpy reference step
   :func:`fem_rmpm.explicit.explicit_step_numpy` / ``run_explicit(kernel="numpy")``.
@@ -20,11 +20,12 @@ import pytest
 from fem_rmpm import kernels as K
 from fem_rmpm.explicit import Workspace, explicit_step, run_explicit, stable_time_step
 from fem_rmpm.grid import make_grid
-from fem_rmpm.material import SoilPoints, small_strain_update, stress_update
+from fem_rmpm.materials import small_strain_update, stress_update
 from fem_rmpm.particles import seed_particles
 from fem_rmpm.run import SimulationError
 from fem_rmpm.scene import load_scene, with_value, with_values
 from fem_rmpm.shape import gimp_at_points, skfem_point_basis
+from soil_points import vm_points
 
 RTOL = 1e-12
 FIELDS = ("x", "velocity", "stress", "log_strain", "plastic_shear_strain", "volume", "F",
@@ -79,12 +80,12 @@ def _soil_mix(n, rng):
     Kb = G * rng.uniform(1.5, 4.0, n)
     cp = np.where(kind == 0, np.inf, rng.uniform(2.0, 8.0, n))
     cr = np.where(kind == 0, np.inf, cp * rng.uniform(0.2, 0.9, n))
-    return SoilPoints(shear_modulus=G, bulk_modulus=Kb, cohesion_peak=cp, cohesion_residual=cr,
+    return vm_points(shear_modulus=G, bulk_modulus=Kb, cohesion_peak=cp, cohesion_residual=cr,
                       softening_strain=rng.uniform(0.05, 0.5, n), exponential=kind == 2)
 
 
 def test_stress_update_kernel_equals_material_finite_strain():
-    """Reference: fem_rmpm.material.stress_update (Hencky + von Mises return, softening)."""
+    """Reference: fem_rmpm.materials.stress_update (Hencky + von Mises return, softening)."""
     rng = np.random.default_rng(3)
     n = 3000
     soil = _soil_mix(n, rng)
@@ -103,7 +104,7 @@ def test_stress_update_kernel_equals_material_finite_strain():
 
 
 def test_small_strain_update_kernel_equals_material():
-    """Reference: fem_rmpm.material.small_strain_update (geostatic phase)."""
+    """Reference: fem_rmpm.materials.small_strain_update (geostatic phase)."""
     rng = np.random.default_rng(4)
     n = 2000
     soil = _soil_mix(n, rng)
@@ -163,7 +164,7 @@ def test_step_softening_equals_numpy_step(meshes, shape, law, flip):
 
 
 def test_run_explicit_numba_equals_numpy_run(meshes):
-    """Reference: run_explicit(kernel="numpy") on the column of DESIGN section 7 (geostatic
+    """Reference: run_explicit(kernel="numpy") on the column under self-weight (geostatic
     phase to rest, then the large-deformation phase): same steps, same stop, same state."""
     scene = with_value(load_scene(meshes / "column.toml"), "solver.t_end", 4.0)
     grid = make_grid(scene)

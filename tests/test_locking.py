@@ -2,7 +2,7 @@
 
 References: de Souza Neto, Peric, Dutko & Owen 1996 (F-bar, Int. J. Solids Struct. 33);
 Coombs, Charlton, Cortis & Augarde 2018 (F-bar in MPM, CMAME 333); Nagtegaal, Parks &
-Rice 1974 (locking of isochoric flow); DESIGN section 7 (the column under self-weight:
+Rice 1974 (locking of isochoric flow); the closed form of the column under self-weight (
 sigma_yy = -gamma (H - y), sigma_xx = sigma_zz = K0 sigma_yy, K0 = nu / (1 - nu)).
 """
 from __future__ import annotations
@@ -17,9 +17,10 @@ from fem_rmpm import implicit as imp
 from fem_rmpm import locking
 from fem_rmpm.explicit import Workspace, explicit_step, run_explicit, stable_time_step
 from fem_rmpm.grid import make_grid
-from fem_rmpm.material import SoilPoints, small_strain_update, stress_update
+from fem_rmpm.materials import small_strain_update, stress_update
 from fem_rmpm.particles import seed_particles
 from fem_rmpm.scene import load_scene, with_values
+from soil_points import vm_points
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 FIELDS = ("x", "velocity", "stress", "log_strain", "plastic_shear_strain", "volume", "F",
@@ -34,7 +35,7 @@ def _rel(a, b):
 def _soil(n, rng):
     idx = np.arange(n)
     plastic = idx % 3 != 2
-    return SoilPoints(shear_modulus=np.full(n, 400.0), bulk_modulus=np.full(n, 900.0),
+    return vm_points(shear_modulus=np.full(n, 400.0), bulk_modulus=np.full(n, 900.0),
                       cohesion_peak=np.where(plastic, 5.0, np.inf),
                       cohesion_residual=np.where(plastic, 2.0, np.inf),
                       softening_strain=np.full(n, 0.5), exponential=idx % 3 == 1)
@@ -175,7 +176,7 @@ def test_newton_converges_quadratically_with_fbar(shape, monkeypatch):
 
 # ------------------------------------------------------------------ locking, measured
 def _pressure_error(pts, nu, H=5.0, gamma=20.0):
-    """Mean pressure against the column closed form (DESIGN section 7), relative to its
+    """Mean pressure against the column closed form, relative to its
     value at the base: p_a = (1 + 2 K0) / 3 gamma (H - y)."""
     K0 = nu / (1 - nu)
     pa = (1 + 2 * K0) / 3 * gamma * (H - pts.x0[:, 1])
@@ -185,7 +186,7 @@ def _pressure_error(pts, nu, H=5.0, gamma=20.0):
 
 def test_nu0499_rough_box_no_checkerboard_with_fbar():
     """Issue 8 acceptance 3, meshes/column_nu0499.toml (nu = 0.499 under self-weight between
-    rough walls, where the state tends to the DESIGN section 7 column as nu -> 0.5).  With
+    rough walls, where the state tends to the column under self-weight as nu -> 0.5).  With
     F-bar — explicit (the shipped scene, damped to rest) and implicit (one geostatic step)
     — the point pressure deviates from the closed form by < 5 % of its base value anywhere
     and the in-cell oscillation index is ~0.  Without it (standard Q4, 2 x 2 points) the
@@ -215,7 +216,7 @@ def test_nu0499_rough_box_no_checkerboard_with_fbar():
 
 
 def test_laterally_restrained_column_cannot_lock():
-    """Why the locking test needs rough walls: the DESIGN section 7 column between
+    """Why the locking test needs rough walls: the column under self-weight between
     frictionless walls is one-dimensional and Q4 represents its cell-constant strain for
     any nu, so at nu = 0.499 the standard and the F-bar solutions coincide and both meet
     the closed form to the Q4 cell error (gamma h / (2 sqrt 3) over gamma H = 1.4 %)."""

@@ -11,11 +11,12 @@ import pytest
 
 from fem_rmpm.explicit import map_to_nodes
 from fem_rmpm.grid import make_grid
-from fem_rmpm.material import (SoilPoints, cohesion, exp_sym2, kirchhoff_stress, log_sym2,
-                               spatial_tangent, sqrt_j2, stress_update)
+from fem_rmpm.materials import (exp_sym2, kirchhoff_stress, log_sym2, spatial_tangent, sqrt_j2,
+                                stress_update)
 from fem_rmpm.particles import seed_particles
 from fem_rmpm.scene import load_scene, with_values
 from fem_rmpm.shape import q4_at_points
+from soil_points import vm_points
 
 E, NU = 1000.0, 0.33
 G, K = E / (2 * (1 + NU)), E / (3 * (1 - 2 * NU))
@@ -23,7 +24,7 @@ CP, CR, GS = 20.0, 4.0, 0.5
 
 
 def _soil(n=1, exponential=False, gs=GS):
-    return SoilPoints(np.full(n, G), np.full(n, K), np.full(n, CP), np.full(n, CR),
+    return vm_points(np.full(n, G), np.full(n, K), np.full(n, CP), np.full(n, CR),
                       np.full(n, gs), np.full(n, exponential))
 
 

@@ -7,14 +7,14 @@ Three kinds of step share one Newton solver (:class:`StepSystem` + :func:`newton
   reset ("updated Lagrangian"): the basis is evaluated at the step-start
   positions ``x_n`` and the unknown is the nodal displacement increment ``du``.
   At a point ``dF = I + grad_n(du)`` (gradient in the step-start configuration),
-  the material (:func:`fem_rmpm.material.stress_update`, Hencky/Kirchhoff) gives
+  the material (:func:`fem_rmpm.materials.stress_update`, Hencky/Kirchhoff) gives
   the Kirchhoff stress ``tau``, and with the spatial gradients
   ``g = dF^-T grad_n N``::
 
       f_int_ai = sum_p V0_p tau_ij g_aj                      (internal force)
       K_ai,bl  = sum_p V0_p g_aj A_ijlm g_bm                  (consistent tangent)
 
-  ``A`` (:func:`fem_rmpm.material.spatial_tangent`) holds the material tangent
+  ``A`` (:func:`fem_rmpm.materials.spatial_tangent`) holds the material tangent
   *and* the geometric (initial-stress) term, so Newton converges quadratically.
   At convergence the points move by the interpolated increment,
   ``F <- dF F``, ``V = det(F) V0`` and the stored stress is Cauchy
@@ -36,7 +36,7 @@ Three kinds of step share one Newton solver (:class:`StepSystem` + :func:`newton
   ``[solver] damping`` (the explicit scheme's local damping) is not used: a
   dynamic run comes to rest only through plastic dissipation.
 * **Geostatic steps** (``gravity_phase = "geostatic"``): gravity on the fixed
-  in-situ geometry, small strain (:func:`fem_rmpm.material.small_strain_update`),
+  in-situ geometry, small strain (:func:`fem_rmpm.materials.small_strain_update`),
   points do not move (the displacement goes to ``pts.u_geostatic``).  The
   tangent is ``d tau / d grad(du)`` by complex step (:func:`small_strain_tangent`).
   With linear elastic points at the 2x2 Gauss points one step is exactly the
@@ -54,7 +54,7 @@ per node set, then one CSR build of the free DOFs only.  ``tests/test_implicit.p
 checks the two agree to round-off; scikit-fem's ``asm`` is 25-50x slower here
 (``validation/bench_implicit.py`` measures both).  The consistent tangent is
 :func:`finite_strain_tangent`: the same complex-step derivative of the same
-update as :func:`fem_rmpm.material.spatial_tangent` (tested equal), about 3x
+update as :func:`fem_rmpm.materials.spatial_tangent` (tested equal), about 3x
 faster.
 
 **Convergence** (defaults from the scene): a step has converged when the
