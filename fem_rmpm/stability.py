@@ -1,6 +1,6 @@
 """Where the explicit step is stable: the CFL limit measured, and predicted.
 
-DESIGN section 7 gives the textbook bound ``dt <= C h / (c_p + |v|max)`` with C = 1:
+The textbook bound is ``dt <= C h / (c_p + |v|max)`` with C = 1:
 the critical step of central differences with a lumped mass on linear elements,
 ``omega_max = 2 c_p / h`` in 1-D.  The explicit scheme takes
 ``dt = cfl h / (c_p + |v|max)`` (:func:`fem_rmpm.explicit.stable_time_step`).  Two ways to

@@ -16,7 +16,7 @@ def _column_closed_form(y, H=5.0, gamma=20.0, E=1000.0, nu=0.33):
 
 
 def test_column_fem_matches_closed_form(meshes):
-    """DESIGN section 7: u_y(y) = -(gamma/M)(H y - y^2/2), M = E(1-nu)/((1+nu)(1-2nu)) =
+    """Closed form: u_y(y) = -(gamma/M)(H y - y^2/2), M = E(1-nu)/((1+nu)(1-2nu)) =
     1481.6 kPa, top -0.1687 m; Q4 elements reproduce it at the nodes (relative < 1e-8)."""
     res = solve_static(load_scene(meshes / "column.toml"))
     used = np.unique(res.grid.cells[res.cells])
@@ -33,7 +33,7 @@ def test_column_fem_matches_closed_form(meshes):
 
 
 def test_points_as_quadrature_equal_fem_assembly(meshes):
-    """DESIGN section 2: with points at the 2x2 Gauss points and volume area/4 (0.25 detJ
+    """With points at the 2x2 Gauss points and volume area/4 (0.25 detJ
     on [-1, 1]^2), stiffness and gravity load assembled by scikit-fem with the points as
     quadrature equal scikit-fem's FEM ones to relative 1e-10 (column and reference slope)."""
     for name in ("column.toml", "slope_elastic.toml"):
@@ -53,7 +53,8 @@ def test_points_as_quadrature_equal_fem_assembly(meshes):
 
 
 def test_soil_cells_cover_reference_slope(meshes):
-    """DESIGN section 6: about 4600 Q4 elements of 0.25 m, 4 material points each."""
+    """The reference slope (Wang, Vardon & Hicks 2017): about 4600 Q4 elements of 0.25 m,
+    4 material points each."""
     scene = load_scene(meshes / "slope_elastic.toml")
     grid = make_grid(scene)
     n_cells = int((soil_cells(scene, grid) >= 0).sum())

@@ -3,7 +3,7 @@
 References: Prandtl 1920 (limit pressure (2 + pi) c of a strip footing on weightless
 phi = 0 soil; Hill 1950 for the rough footing, same value); Nagtegaal, Parks & Rice 1974
 (locking of isochoric plastic flow); de Souza Neto et al. 1996 (F-bar, the remedy);
-DESIGN section 3 (sqrt(J2) <= c: the plane-strain shear strength is c).
+Von Mises yield (sqrt(J2) <= c: the plane-strain shear strength is c).
 """
 from __future__ import annotations
 

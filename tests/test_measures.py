@@ -108,7 +108,7 @@ def test_points_leaving_the_grid_stop_the_run_if_asked(meshes, tmp_path, capsys)
 def test_reference_slope_case_i_fails_and_comes_to_rest(meshes, tmp_path):
     """Issue 4 acceptance 3 (explicit; ~30 s on one core): the homogeneous reference slope
     (infinite-slope factor of safety c/(gamma H sin b cos b) = 0.62 at peak, 0.12 at
-    residual strength, DESIGN section 6) fails under its own weight, runs out and comes to
+    residual strength; Wang, Vardon & Hicks 2017) fails under its own weight, runs out and comes to
     rest inside the valley; summary.json holds every measure, nothing is NaN and no point
     leaves the grid unreported.  Bounds from the geometry (true frame; meshes/
     slope_reference.toml): at residual strength the whole layer must flow, so the slide

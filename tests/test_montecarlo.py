@@ -6,7 +6,7 @@ the client mid-campaign).  Both have a lognormal random field of the peak cohesi
 so every realization is different and the seed matters.
 
 References: the binomial standard error of a Monte Carlo probability
-``sqrt(p (1 - p) / N)`` (DESIGN section 7; Fenton & Griffiths 2008, Risk Assessment in
+``sqrt(p (1 - p) / N)`` (Fenton & Griffiths 2008, Risk Assessment in
 Geotechnical Engineering, sec. 6.2); the Wilson score interval (Wilson 1927; Brown,
 Cai & DasGupta 2001, Statist. Sci. 16:101); seeds keyed by
 ``numpy.random.SeedSequence`` (NumPy docs, "Parallel random number generation").
@@ -369,7 +369,7 @@ def test_failed_realization_is_recorded_with_its_message(tmp_path, client):
 
 
 def test_unstable_case_fails_loudly_and_other_cases_complete(tmp_path, client):
-    """A case with [solver] cfl = 10 (ten times the CFL limit, DESIGN section 7) blows up
+    """A case with [solver] cfl = 10 (ten times the CFL limit) blows up
     in every realization; its records say so; the stable case's realizations complete."""
     scene = api.load_scene(TINY)
     res = mc.run_campaign(scene, tmp_path / "cfl", 3, cases=["scene", "solver.cfl=10"],

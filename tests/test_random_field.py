@@ -1,7 +1,7 @@
-"""Random fields of peak cohesion (issue 5; DESIGN sections 3, 4, 7).
+"""Random fields of peak cohesion (issue 5).
 
 References cited by the tests:
-  [D7]  DESIGN section 7: lognormal parameters s_ln^2 = ln(1 + v^2), m_ln = ln(mu) - s_ln^2/2;
+  [D7]  closed forms of the model: lognormal s_ln^2 = ln(1 + v^2), m_ln = ln(mu) - s_ln^2/2;
         Markov rho(tau) = exp(-2|tau|/theta); 1-D variance function
         g(T) = (theta/T)^2/2 (2T/theta + exp(-2T/theta) - 1), g(0.25; 0.5) = 0.736.
   [V83] Vanmarcke (1983) Random Fields, ch. 5: covariance of local averages
@@ -84,7 +84,7 @@ def reference_cov(theta_h, theta_v, h1, h2, k, l):
     return nquad_average_cov(theta_h, theta_v, (h1, h2), k, l)
 
 
-def g_design(T, theta):
+def g_closed_form(T, theta):
     """[D7] variance function, written out independently of the library."""
     return (theta / T) ** 2 / 2 * (2 * T / theta + math.exp(-2 * T / theta) - 1)
 
@@ -116,15 +116,15 @@ def empirical_corr(Z, lag, axis, var=None):
 
 
 # ----------------------------------------------------------------------------- covariance
-def test_variance_function_matches_design_value():
+def test_variance_function_matches_closed_form():
     """[D7] g(T) for Markov, theta 0.5 m, T 0.25 m is 0.736; [V83] C(0) = g(T) and the
     covariance of 1-D local averages is the second difference of D(x) = x^2 g(x)."""
     assert rf.variance_function(0.25, 0.5) == pytest.approx(0.736, abs=5e-4)
-    assert rf.variance_function(0.25, 0.5) == pytest.approx(g_design(0.25, 0.5), rel=1e-14)
+    assert rf.variance_function(0.25, 0.5) == pytest.approx(g_closed_form(0.25, 0.5), rel=1e-14)
     T, th = 0.25, 0.5
 
     def D(x):
-        return 0.0 if x == 0 else x * x * g_design(abs(x), th)
+        return 0.0 if x == 0 else x * x * g_closed_form(abs(x), th)
     for k in range(0, 8):
         vanmarcke = (D((k - 1) * T) - 2 * D(k * T) + D((k + 1) * T)) / (2 * T * T)
         assert rf.local_average_covariance_1d(k, T, th) == pytest.approx(vanmarcke, rel=1e-9,
@@ -154,7 +154,8 @@ def test_separable_quadrature_matches_closed_form(angle):
     closed = (rf.local_average_covariance_1d(K, 0.25, th_x)
               * rf.local_average_covariance_1d(L, 0.125, th_y))
     np.testing.assert_allclose(num, closed, rtol=0, atol=1e-11)
-    assert closed[3, 4] == pytest.approx(g_design(0.25, th_x) * g_design(0.125, th_y), rel=1e-12)
+    assert closed[3, 4] == pytest.approx(g_closed_form(0.25, th_x) * g_closed_form(0.125, th_y),
+                                         rel=1e-12)
 
 
 def nquad_separable_rotated(theta_h, theta_v, cell, k, l, angle_deg):
@@ -320,7 +321,7 @@ def test_statistics_5000_realizations_slow(xi):
 
 
 def test_rotated_layering_and_separable_from_scene():
-    """Scene keys correlation and layering_angle_deg (DESIGN section 4): 600 realizations of a
+    """Scene keys correlation and layering_angle_deg: 600 realizations of a
     separable field with layering at 30 deg reproduce the covariance of local averages [V83]
     at lags (1, 0), (0, 1), (1, 1), (1, -1) within 5 SE (the diagonal lags differ)."""
     scene = make_scene((8.0, 4.0), (0.25, 0.25), {"anisotropy": 4.0, "layering_angle_deg": 30.0,
@@ -415,7 +416,7 @@ for s in {seeds!r}:
 
 
 def test_same_seed_same_field_any_process_and_order():
-    """Acceptance 3: a realization is a pure function of (scene, seed) (DESIGN section 3):
+    """Acceptance 3: a realization is a pure function of (scene, seed):
     bitwise the same in another process and in any call order, with a cold or warm cache."""
     scene = make_scene((30.0, 5.0), (0.25, 0.25), {"anisotropy": 12.0})
     grid = make_grid(scene)
@@ -575,7 +576,7 @@ def test_variogram_fit_from_cpt_profiles_via_cli(tmp_path, capsys):
                                                ("anisotropy", 0.0, "(0, inf)"),
                                                ("anisotropy", -12.0, "(0, inf)")])
 def test_bad_field_parameters_are_one_line_errors(key, value, allowed):
-    """Acceptance 7 (DESIGN section 4): cov < 0, theta <= 0, xi <= 0 raise SceneError with a
+    """Acceptance 7: cov < 0, theta <= 0, xi <= 0 raise SceneError with a
     one-line message naming the file, the key and the allowed range."""
     with pytest.raises(SceneError) as e:
         make_scene((5.0, 5.0), (0.25, 0.25), {key: value}, source="meshes/rf_bad.toml")
@@ -611,7 +612,7 @@ def test_bad_data_file_is_one_line_error(tmp_path, content, needle):
 
 def test_data_in_empty_cell_of_slope_rejected(tmp_path):
     """Acceptance 7: a point inside the field's bounding box but above the slope surface
-    (no soil) is outside the domain (DESIGN section 6 geometry)."""
+    (no soil) is outside the domain (the reference slope's geometry)."""
     poly = [[0, 0], [20, 0], [15, 5], [0, 5]]
     scene = make_scene((25.0, 6.0), (0.25, 0.25), {"anisotropy": 2.0}, polygon=poly)
     path = _write_csv(tmp_path / "rf_air.csv", [(19.0, 4.0, 20.0)])
@@ -670,7 +671,7 @@ def test_field_cli_writes_vtu_png_and_summary(tmp_path, capsys):
 
 
 def test_field_applies_only_to_named_soil():
-    """[random_field] soil = name: other soils keep their cohesion (scene contract, DESIGN s. 4)."""
+    """[random_field] soil = name: other soils keep their cohesion (scene contract)."""
     data = {
         "scene": {"name": "two"}, "grid": {"size": [10.0, 4.0], "cell": 0.25},
         "soil": [{"name": "clay", "polygon": [[0, 0], [10, 0], [10, 2], [0, 2]],

@@ -1,9 +1,9 @@
 """Where MPM fails: the explicit stability limit and cell crossing (issue 8).
 
-References: DESIGN section 7 (explicit time step dt <= C h / (c_p + |v|max), C = 1, c_p =
-sqrt(M / rho); the compaction column and its error norm); Bardenhagen & Kober 2004 (GIMP:
-cell-crossing noise and its cure); Charlton, Coombs & Augarde 2017 (AMPLE, the compaction
-benchmark); Sulsky, Zhou & Schreyer 1995 / Nairn 2003 (MUSL).
+References: the central-difference bound (explicit time step dt <= C h / (c_p + |v|max), C =
+1, c_p = sqrt(M / rho)); the compaction column and its error norm; Bardenhagen & Kober 2004
+(GIMP: cell-crossing noise and its cure); Charlton, Coombs & Augarde 2017 (AMPLE, the
+compaction benchmark); Sulsky, Zhou & Schreyer 1995 / Nairn 2003 (MUSL).
 """
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def test_cfl_limit_against_theory_and_default():
     """Issue 8 acceptance 4.  Bisection on cfl (a run is unstable when the run guard raises
     SimulationError or the stress leaves 10 gamma H), 3 s of simulated time each:
 
-    * large deformation, undamped: the limit is within 20 % of the DESIGN section 7
+    * large deformation, undamped: the limit is within 20 % of the textbook
       estimate dt = h / (c_p + |v|max), i.e. cfl = 1;
     * linear elastodynamics (geostatic phase), undamped: MUSL re-maps the velocities before
       the stress update and is stable well beyond cfl = 1; the measured limit agrees within
@@ -65,8 +65,8 @@ def test_cfl_limit_against_theory_and_default():
 
 # ------------------------------------------------------------------ cell crossing
 def _compaction(cells, shape, scheme):
-    """DESIGN section 7 compaction column (meshes/compaction.toml: l0 = 50 m, E = 10 kPa,
-    nu = 0, rho0 g = 0.8 kN/m3) with ``cells`` cells over the height, one cell wide.
+    """The compaction column of Charlton et al. 2017 (meshes/compaction.toml: l0 = 50 m,
+    E = 10 kPa, nu = 0, rho0 g = 0.8 kN/m3) with ``cells`` cells over the height, one cell wide.
     Returns the error norm sum_p |sigma_p - sigma_a| V_p / (rho0 g l0 V0), sigma_a =
     -rho0 g (l0 - Y).  Implicit: 50 quasi-static load steps; explicit: gravity ramped over
     20 s with local damping 0.7 until at rest (or 400 s)."""
@@ -87,7 +87,7 @@ def _compaction(cells, shape, scheme):
 @pytest.mark.parametrize("scheme,cells", [("implicit", (4, 8, 16, 32)),
                                           ("explicit", (8, 16, 32, 64))])
 def test_cell_crossing_gimp_converges_standard_stalls(scheme, cells):
-    """Issue 8 acceptance 1 (DESIGN section 7 compaction; Bardenhagen & Kober 2004): under 4
+    """Issue 8 acceptance 1 (compaction column; Bardenhagen & Kober 2004): under 4
     refinements the uGIMP stress error norm decreases monotonically (and by at least 2x
     overall); standard MPM does not: its error does not fall monotonically and the finest
     mesh is no better than half the coarsest (cell-crossing noise: points jump between

@@ -8,7 +8,7 @@ scheme with the numba kernels and with the numpy reference step, uGIMP (numba
 explicit), and the implicit scheme (:func:`fem_rmpm.implicit.run_implicit`, Q4 and
 uGIMP):
 
-* **Column compaction** (large deformation; DESIGN section 7, Charlton et al.
+* **Column compaction** (large deformation; Charlton et al.
   2017): ``meshes/compaction.toml``, l0 = 50 m, E = 10 kPa, nu = 0, rho0 g = 0.8
   kN/m3, one cell wide, 4 ... 64 cells over the height.  Closed form
   sigma_yy = -rho0 g (l0 - Y) at the initial height Y of each point, for any

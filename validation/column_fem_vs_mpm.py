@@ -1,7 +1,7 @@
 """Column under self-weight: closed form vs scikit-fem FEM vs explicit MPM (issue 2, acc. 8).
 
 Prints the error figures and writes ``validation/out/column_fem_vs_mpm.png`` (sigma_yy
-against depth).  Reference: DESIGN section 7, sigma_yy = -gamma (H - y), K0 = nu/(1-nu),
+against depth).  Reference: the closed form sigma_yy = -gamma (H - y), K0 = nu/(1-nu),
 u_y = -(gamma/M)(H y - y^2/2).  Run: ``python validation/column_fem_vs_mpm.py``.
 """
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Column compaction under self-weight, implicit MPM under refinement (issue 3, acceptance 2).
 
-Reference: DESIGN section 7 and Charlton, Coombs & Augarde 2017 (AMPLE, "iGIMP",
+Reference: Charlton, Coombs & Augarde 2017 (AMPLE, "iGIMP",
 Computers & Structures 190).  l0 = 50 m, E = 10 kPa, nu = 0, rho0 = 0.08 t/m3, g = 10,
 one cell wide, rollers on the sides, fixed base, gravity in ``load_steps`` quasi-static
 steps.  With nu = 0 and Cauchy equilibrium sigma_yy = -rho0 g (l0 - Y) (Y the initial

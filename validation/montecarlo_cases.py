@@ -1,6 +1,6 @@
 """The four literature cases of the reference slope, side by side (issue 6, acceptance 6).
 
-Wang, Vardon & Hicks (2017) ran the reference slope (DESIGN section 6) homogeneous and
+Wang, Vardon & Hicks (2017) ran the reference slope (meshes/slope_reference.toml) homogeneous and
 with a lognormal random field of the undrained strength (COV 0.25, theta_v = 0.5 m) of
 anisotropy xi = theta_h / theta_v = 1, 12 and 48, and found the intermediate anisotropy
 gave the most disturbed failures (widest spread of run-out and retrogression).  This

@@ -1,6 +1,6 @@
 """Where MPM fails, measured and cured (issue 8): a stability map in four studies.
 
-(a) **CFL.**  The explicit step is ``dt = cfl h / (c_p + |v|max)``; DESIGN section 7's
+(a) **CFL.**  The explicit step is ``dt = cfl h / (c_p + |v|max)``; the textbook
     estimate is cfl <= 1.  The stable limit of the column (meshes/column.toml) is found
     by bisection on cfl (unstable: the run guard raises SimulationError, or |sigma| >
     10 gamma H), for linear elastodynamics (geostatic phase, points fixed) and for large
@@ -8,7 +8,7 @@
     walls) in the linear regime; and the theory of the scheme itself, the cfl at which
     the spectral radius of the linearised step exceeds 1 (fem_rmpm/stability.py), for
     FLIP and PIC.
-(b) **Cell crossing.**  The compaction column (DESIGN section 7: l0 = 50 m, E = 10 kPa,
+(b) **Cell crossing.**  The compaction column (Charlton et al. 2017: l0 = 50 m, E = 10 kPa,
     nu = 0; error norm sum_p |sigma_p - sigma_a| V_p / (rho0 g l0 V0)) under refinement,
     standard Q4 vs uGIMP (Bardenhagen & Kober 2004), implicit (50 load steps) and
     explicit (damped to rest).
@@ -89,7 +89,7 @@ def study_cfl(quick: bool):
         lo, hi = spectral_cfl_limit(short, lo=1.0, hi=2.0, tol=0.005, flip=flip)
         spectral["FLIP" if flip == 1.0 else "PIC"] = 0.5 * (lo + hi)
     default = column.solver.cfl
-    print("\n(a) explicit CFL limit (theory, DESIGN section 7: cfl = 1, dt = h / (c_p + |v|))")
+    print("\n(a) explicit CFL limit (theory: cfl = 1, dt = h / (c_p + |v|))")
     print(f"{'case':<44} {'limit':>7} {'/theory':>8} {'default margin':>15}  first unstable")
     for c in cases:
         print(f"{c['case']:<44} {c['limit']:7.3f} {c['limit'] / 1.0:8.2f} "
@@ -106,7 +106,7 @@ def study_cfl(quick: bool):
                    color="tab:red", s=22, zorder=3)
         ax.plot([0.5, c["limit"]], [i, i], color="tab:green", alpha=0.35, lw=6)
         ax.text(c["limit"], i + 0.22, f"{c['limit']:.2f}", ha="center", fontsize=8)
-    ax.axvline(1.0, color="k", lw=1.5, label="DESIGN §7 estimate (cfl = 1)")
+    ax.axvline(1.0, color="k", lw=1.5, label="textbook estimate (cfl = 1)")
     ax.axvline(spectral["FLIP"], color="tab:purple", ls="--",
                label=f"linearised MUSL step, FLIP ({spectral['FLIP']:.2f})")
     ax.axvline(spectral["PIC"], color="tab:purple", ls=":",
@@ -126,7 +126,7 @@ def study_cfl(quick: bool):
 
 # ----------------------------------------------------------------------------- (b) crossing
 def compaction(cells: int, shape: str, scheme: str, ppc: int = 2) -> dict:
-    """One compaction run (meshes/compaction.toml, DESIGN section 7): error norm, top
+    """One compaction run (meshes/compaction.toml): error norm, top
     settlement, wall time, status."""
     h = 50.0 / cells
     scene = with_values(load_scene(MESHES / "compaction.toml"), {
