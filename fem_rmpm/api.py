@@ -26,6 +26,7 @@ import meshio
 import numpy as np
 from tqdm import tqdm
 
+from . import kernels, strength_reduction
 from .budget import check_budget
 from .explicit import run_explicit
 from .materials import invalid_points
@@ -181,7 +182,6 @@ def kernels_cold() -> bool:
     explicit run calls (first run, or kernels.py changed): that run compiles first.
     Reads numba's cache index only (no compilation); False if that cannot be determined."""
     try:
-        from . import kernels
         for name in _ALWAYS_COMPILED:
             cache = getattr(getattr(kernels, name, None), "_cache", None)
             if hasattr(cache, "_cache_file") and not cache._cache_file._load_index():
@@ -209,7 +209,6 @@ def _summary(scene, seed, pts, rec, measures) -> dict:
 
 
 def _figures(out, scene, grid, snapshots, measures, label: str | None = None):
-    from .plots import plot_profile, plot_snapshots
     times = np.array([t for t, *_ in snapshots])
     mech = measures.get("mechanism_time")
     targets = list(times[-1] * np.array([0.0, 0.1, 0.25, 0.5, 1.0]))   # early failure in detail
@@ -261,12 +260,11 @@ def factor_of_safety(scene: Scene, seed: int | None = None, out: str | Path | No
     fields (``tolerance=0.01``, ``softening=False``, ...).  Writes ``fs.json``,
     ``fs_displacement.png`` and the mechanism (``mechanism.vtu``/``.png``) to ``out`` if
     given.  Returns an :class:`~fem_rmpm.strength_reduction.FSResult` (``.fs``, ``.text``)."""
-    from .strength_reduction import FSOptions, write_outputs
-    from .strength_reduction import factor_of_safety as _fs
     grid, pts = prepare(scene, seed)
-    res = _fs(scene, seed=seed, options=FSOptions(**options), grid=grid, pts=pts)
+    res = strength_reduction.factor_of_safety(scene, seed=seed, options=strength_reduction.FSOptions(**options),
+                                             grid=grid, pts=pts)
     if out is not None:
-        write_outputs(res, scene, out)
+        strength_reduction.write_outputs(res, scene, out)
     return res
 
 

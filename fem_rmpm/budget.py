@@ -42,6 +42,7 @@ import math
 import os
 from dataclasses import asdict, dataclass
 
+from .grid import _grid_from_file
 from .scene import Scene, SceneError
 
 __all__ = ["RunEstimate", "BudgetError", "estimate_run", "check_budget",
@@ -129,7 +130,6 @@ def _polygon_area(poly, lo, hi) -> float:
 def _grid_geometry(scene: Scene):
     """(origin, cell, (nx, ny)) without building the mesh."""
     if scene.grid.file is not None:
-        from .grid import _grid_from_file
         origin, cell, shape = _grid_from_file(scene.grid.file, scene.source)
         return tuple(map(float, origin)), tuple(map(float, cell)), tuple(map(int, shape))
     cell = scene.grid.cell

@@ -20,9 +20,11 @@ import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import meshio
 import numpy as np
 
 from .output import to_true_frame
+from .plots import STRAIN_FLOOR, _plt, draw_ground, plot_field, strain_norm
 
 __all__ = ["campaign_figures", "plot_exceedance", "plot_histograms", "plot_convergence",
            "plot_cases", "final_snapshot"]
@@ -34,13 +36,6 @@ _MEASURES = (("runout_distance", "run-out distance (m)"),
 _MECHANISM = (("slip_surface_height", "slip-surface height above the base (m)"),
               ("intact_blocks", "intact blocks at the mechanism time (count)"),
               ("sliding_area_early", "sliding area at the mechanism time (m$^2$)"))
-
-
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
 
 
 def _values(records, case: str, key: str) -> np.ndarray:
@@ -79,7 +74,7 @@ def plot_exceedance(path: Path, cases, records) -> Path:
 
 def plot_histograms(path: Path, cases, records) -> Path:
     plt = _plt()
-    from matplotlib.ticker import MaxNLocator
+    from matplotlib.ticker import MaxNLocator  # lazy, as _plt: matplotlib only for figures
     ok = [r for r in records if r["status"] == "ok"]
     panels = list(_MEASURES) + [(k, lab) for k, lab in _MECHANISM
                                 if ok and all((r["measures"] or {}).get(k) is not None
@@ -135,7 +130,7 @@ def plot_convergence(path: Path, cases, stats, runouts: dict) -> Path:
     its own marker and line style and is shifted by a few hundredths of a realization
     so that equal curves (e.g. every case at P = 1) stay visible; N axis in integers."""
     plt = _plt()
-    from matplotlib.ticker import MaxNLocator
+    from matplotlib.ticker import MaxNLocator  # lazy, as _plt: matplotlib only for figures
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 3.8))
     shown = [c for c in cases if stats[c.name].get("convergence") and not c.deterministic]
     for k, c in enumerate(cases):
@@ -190,7 +185,6 @@ def snapshot_at(vtk_dir: Path, time: float | None = None):
         return None
     if not ds:
         return None
-    import meshio
     times = np.array([float(d.get("timestep")) for d in ds])
     entry = ds[-1] if time is None else ds[int(np.argmin(np.abs(times - time)))]
     mesh = meshio.read(pvd.parent / entry.get("file"))
@@ -207,7 +201,6 @@ def plot_cases(path: Path, panels, frame_angle_deg: float, spacing: float,
                title: str = "Final state of one realization per case", scene=None) -> Path:
     """``panels``: list of (title, x (n, 2) grid frame, plastic shear strain (n,)); one
     logarithmic colour scale; with ``scene`` the bedrock and initial soil are drawn."""
-    from .plots import STRAIN_FLOOR, draw_ground, plot_field, strain_norm
     plt = _plt()
     Xs = [to_true_frame(x, frame_angle_deg) for _, x, _ in panels]
     allX = np.vstack(Xs)

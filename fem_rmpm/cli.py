@@ -22,6 +22,7 @@ from .campaign import LITERATURE_CASES, CampaignResult, run_campaign
 from .campaign.backends import ClusterSpec, parse_adapt
 from .campaign.estimate import estimate_campaign, estimate_text
 from .campaign.factor_of_safety import fs_text
+from .campaign.subset_runner import run_subset_campaign, subset_summary_text
 from .errors import InputError
 from .field_output import plot_realization, plot_variogram, write_field_vtu
 from .grid import make_grid
@@ -35,6 +36,7 @@ from .run import SimulationError
 from .rundir import output_dir_for
 from .scene import (RandomFieldSpec, Scene, SceneError, check_seed, load_scene, with_value,
                     with_values)
+from .strength_reduction import fs_cli
 
 __all__ = ["main", "default_scene_path", "build_parser", "parse_settings", "summary_text",
            "campaign_cases", "InputError"]
@@ -202,7 +204,6 @@ def summary_text(res: CampaignResult) -> str:
 
 def _cmd_mc_subset(a, scene: Scene) -> int:
     """``fem-rmpm mc --method subset``: P(response beyond threshold) by subset simulation."""
-    from .campaign.subset_runner import run_subset_campaign, subset_summary_text
     for opt, val in (("--keep-vtk", a.keep_vtk), ("--case", a.case)):
         if val is not None:
             raise InputError(f"{opt}: only for crude campaigns (--method crude)")
@@ -312,7 +313,6 @@ def _field_text(scene: Scene, seed: int, layout, emb, meas, v: np.ndarray) -> st
 
 
 def _cmd_fs(a) -> int:
-    from .strength_reduction import fs_cli
     scene = scene_from_args(a)
     grid, pts = api.prepare(scene, a.seed)
     return fs_cli(a, scene, grid, pts)

@@ -12,9 +12,12 @@ Point location is arithmetic on the structured grid (``floor``), never a search.
 """
 from __future__ import annotations
 
+import contextlib
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
+import meshio
 import numpy as np
 from skfem import MeshQuad
 
@@ -77,11 +80,6 @@ def _grid_from_file(path: str, source: str) -> tuple[np.ndarray, np.ndarray, tup
     The MPM's fast point location needs an axis-aligned grid of equal cells; a
     file that is not one is rejected with a clear message.
     """
-    import contextlib
-    import io
-
-    import meshio
-
     if not Path(path).exists():
         raise SceneError(f"{source}: [grid.file] mesh file {path} not found")
     said = io.StringIO()       # meshio prints its reasons and may call sys.exit(1)

@@ -56,6 +56,7 @@ and ``d_p > threshold``):
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 from .output import to_true_frame
 from .particles import Particles
@@ -111,7 +112,6 @@ def intact_blocks(x: np.ndarray, x0: np.ndarray, gamma_p: np.ndarray, threshold:
                   origin: np.ndarray, cell: np.ndarray, shape: tuple[int, int],
                   intact_strain: float = 0.1, min_cells: int = 4) -> int:
     """Connected groups (>= ``min_cells`` grid cells, 4-neighbour) of sliding, intact points."""
-    from scipy import ndimage
     sel = (np.linalg.norm(x - x0, axis=1) > threshold) & (gamma_p < intact_strain)
     if not sel.any():
         return 0
@@ -132,7 +132,6 @@ def deposit_points(x: np.ndarray, volume: np.ndarray, active: np.ndarray, origin
     (n,) bool masks; frozen points (``~active``) are in neither.  ``x`` (n, 2) current
     grid-frame positions (m), ``volume`` (n,) current volumes (m2 per m), ``origin``
     and ``cell`` (2,) the grid's corner and cell size (m)."""
-    from scipy import ndimage
     n = len(x)
     counted, stray = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
     act = np.nonzero(active)[0]

@@ -1,6 +1,6 @@
 """Output: VTK for ParaView (meshio), a ``.pvd`` time series, JSON summaries and PNG figures.
 
-Point data of ``particles_NNNN.vtu`` (DESIGN section 5): ``displacement`` and
+Point data of ``particles_NNNN.vtu``: ``displacement`` and
 ``velocity`` (3 components, m and m/s), ``stress`` (6 components, VTK order
 xx yy zz xy yz xz, kPa, tension positive), ``plastic_shear_strain`` (-),
 ``cohesion`` (kPa), ``volume`` (m2 per m), ``mass`` (t per m), ``active`` (0/1).
@@ -15,6 +15,7 @@ import os
 import tempfile
 from pathlib import Path
 
+import meshio
 import numpy as np
 
 from .particles import Particles
@@ -101,8 +102,6 @@ def particle_fields(pts: Particles) -> dict[str, np.ndarray]:
 
 def write_particles(path: str | Path, pts: Particles) -> None:
     """One ``.vtu`` of the material points (vertex cells) with the fields above."""
-    import meshio
-
     path = Path(path)
     fields = particle_fields(pts)
     for k, v in fields.items():
@@ -117,8 +116,6 @@ def write_particles(path: str | Path, pts: Particles) -> None:
 
 def write_grid(path: str | Path, grid, active_cells: np.ndarray | None = None) -> None:
     """The background grid as ``.vtu`` with cell data ``soil_cell`` and point data ``fixed``."""
-    import meshio
-
     path = Path(path)
     cell_data = {}
     if active_cells is not None:

@@ -19,7 +19,7 @@ def strain_norm(vmax: float):
     """Logarithmic colour scale of plastic shear strain from :data:`STRAIN_FLOOR` to
     ``vmax`` (at least 10x the floor): shows the whole range, from first yield to the
     large strains of run-out, instead of saturating at 1."""
-    from matplotlib.colors import LogNorm
+    from matplotlib.colors import LogNorm  # lazy, as _plt: matplotlib only for figures
     return LogNorm(vmin=STRAIN_FLOOR, vmax=max(float(vmax), 10 * STRAIN_FLOOR))
 
 
@@ -37,9 +37,10 @@ def draw_ground(ax, scene) -> None:
 
 
 def _plt():
+    # lazy: matplotlib (~0.5 s to import) only when a figure is drawn; Agg before pyplot
     import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: as matplotlib, after choosing the backend
     return plt
 
 

@@ -26,6 +26,7 @@ import shutil
 from pathlib import Path
 
 from .errors import InputError
+from .output import write_json
 from .scene import SceneError
 
 __all__ = ["RunDirError", "RUN_FILES", "check_run_dir", "start_run_dir", "run_files",
@@ -64,7 +65,6 @@ def check_run_dir(out: str | Path, force: bool = False, option: str = "--out") -
 def start_run_dir(out: str | Path, running_summary: dict) -> Path:
     """Create ``out``, write the ``running`` summary first, then delete the earlier
     run's files and temporaries (only :data:`RUN_FILES` names)."""
-    from .output import write_json
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "summary.json", {**running_summary, "status": "running"})

@@ -71,6 +71,12 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol, Sequence
 
+import dask
+from dask.utils import parse_bytes, parse_timedelta
+from distributed import Client
+from distributed.core import Status
+from tornado.ioloop import PeriodicCallback
+
 from ..budget import estimate_run
 
 from .cases import CampaignError
@@ -141,7 +147,6 @@ def _memory_bytes(text: str, option: str = "--memory") -> float:
     if not m:
         raise ClusterError(f"{option} {text!r}: expected a memory size like 4GB, 1500MB or "
                            "2GiB")
-    from dask.utils import parse_bytes
     unit = (m.group(2) or "B").upper().replace("IB", "iB")
     unit = unit if unit.endswith("B") else unit + "B"
     return float(parse_bytes(f"{m.group(1)} {unit}"))
@@ -294,7 +299,6 @@ def job_environment_lines() -> list[str]:
 
 
 def _config(kind: str, key: str, default=None):
-    import dask
     return dask.config.get(f"jobqueue.{kind}.{key}", default=default)
 
 
@@ -364,7 +368,7 @@ class JobqueueBackend(_ClientBackend):
 
     def _jobqueue_class(self):
         try:
-            import dask_jobqueue
+            import dask_jobqueue  # lazy: optional, only for --cluster slurm|pbs|sge|lsf
         except ImportError:
             raise ClusterError(f"--cluster {self.kind}: needs the dask-jobqueue package "
                                "(pip install dask-jobqueue)") from None
@@ -443,7 +447,6 @@ class JobqueueBackend(_ClientBackend):
     def start(self, n_tasks: int, out: Path):
         """Start the scheduler here and submit the worker jobs (their logs go to
         ``jobqueue.<kind>.log-directory``, default ``out/worker-logs``)."""
-        from distributed import Client
         cls = self._jobqueue_class()
         kw = self._job_kwargs()
         if _config(self.kind, "log-directory") is None:
@@ -481,7 +484,6 @@ class JobqueueBackend(_ClientBackend):
         try:
             cluster.sync(cluster._correct_state)
         except Exception as exc:  # noqa: BLE001 - dask-jobqueue raises RuntimeError
-            from distributed.core import Status
             for name in spec:      # the failed job never ran: forget it before closing
                 cluster.worker_spec.pop(name, None)
                 job = cluster.workers.pop(name, None)
@@ -492,7 +494,6 @@ class JobqueueBackend(_ClientBackend):
 
     # ---- replacing lost jobs
     def _start_keeper(self) -> None:
-        from tornado.ioloop import PeriodicCallback
         self._keeper = PeriodicCallback(self._replace_lost_jobs, 5000)
         self.cluster.loop.add_callback(self._keeper.start)
 
@@ -502,8 +503,6 @@ class JobqueueBackend(_ClientBackend):
         ``distributed.deploy.lost-worker-timeout`` (after which distributed itself drops a
         single-worker job) is closed, and every job of the plan that is missing is
         submitted anew."""
-        import dask
-        from dask.utils import parse_timedelta
         cluster = self.cluster
         if cluster is None or cluster.scheduler is None:
             return

@@ -39,7 +39,7 @@ from ..api import run as run_one
 from ..budget import RunEstimate, estimate_run
 from ..scene import Scene, with_value
 from .backends import ClusterSpec, campaign_backend
-from .cases import Case
+from .cases import Case, CampaignError
 from .runner import pending_work
 
 __all__ = ["STEPS_FACTOR", "CaseEstimate", "CampaignEstimate", "Calibration",
@@ -177,7 +177,6 @@ def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = 
     out = Path(out)
     n = scene.montecarlo.realizations if realizations is None else realizations
     if isinstance(n, bool) or not isinstance(n, int) or n <= 0:
-        from .cases import CampaignError
         raise CampaignError(f"-n {n}: the number of realizations must be a positive integer")
     case_list, counts, _, _, tasks, finished = pending_work(scene, out, n, cases, keep_vtk,
                                                            force)

@@ -3,13 +3,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from .subset import MethodResult  # noqa: E402
+from ..plots import _plt
+from .subset import MethodResult
 
 __all__ = ["plot_levels"]
 
@@ -25,6 +22,7 @@ def _level_curve(lv, p_start: float, below: bool) -> tuple[np.ndarray, np.ndarra
 def plot_levels(path: Path, result: MethodResult, response, title: str, unit: str = "") -> Path:
     """``subset_levels.png``: P(response > x) (P(FS < x)) from the samples of every level,
     the intermediate thresholds (dashed) and the failure threshold with the estimate."""
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(8.0, 5.0), dpi=110)
     colors = plt.cm.viridis(np.linspace(0.0, 0.85, max(len(result.levels), 2)))
     p_start = 1.0

@@ -44,10 +44,14 @@ from __future__ import annotations
 import csv
 import hashlib
 import io
+import json
 import math
+import os
+import socket
 import sys
 import time
 import uuid
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -56,14 +60,19 @@ import numpy as np
 from distributed import as_completed
 from tqdm import tqdm
 
+from .. import api
 from ..grid import make_grid
 from ..output import _atomic_write_bytes, write_json
+from ..report import write_report
+from ..run import SimulationError
 from ..random_field import field_noise
 from ..scene import Scene
+from ..strength_reduction import FSOptions, factor_of_safety
 from .cases import CampaignError, parse_case
 from .cluster import start_client
-from .store import Lock, campaign_doc, check_directory, read_record
+from .store import FORMAT, Lock, campaign_doc, check_directory, read_record
 from .subset import MethodResult, Sample, SubsetSimulation, SubsetWarning
+from .subset_plots import plot_levels
 from .task import run_realization
 
 __all__ = ["SUBSET_FORMAT", "RESPONSES", "Response", "parse_response", "run_subset_sample",
@@ -138,13 +147,6 @@ def _factor_of_safety_record(task: dict) -> dict:
     """The record of a strength-reduction run of the sample (:mod:`fem_rmpm.strength_reduction`):
     status, error, ``value`` = FS (the bound for "FS > f_max" / "FS < f_min"), its bound,
     bracket and number of static solves, worker, wall and CPU time."""
-    import os
-    import socket
-
-    from .. import api
-    from ..run import SimulationError
-    from ..strength_reduction import FSOptions, factor_of_safety
-    from .store import FORMAT
     rec: dict[str, Any] = {"format": FORMAT, "case": task["case"], "index": int(task["index"]),
                            "seed": task["seed"], "scheme": "strength_reduction",
                            "status": "ok", "error": None, "vtk": None, "value": None,
@@ -307,7 +309,6 @@ def _identity(scene: Scene, response: Response, p0: float, n: int, fs_options: d
 
 def _check_subset_directory(out: Path, doc: dict) -> None:
     """Raise CampaignError unless ``out`` is free or holds this subset campaign."""
-    import json
     check_directory(out, doc, fmt=SUBSET_FORMAT)
     meta = out / "campaign.json"
     if meta.exists():
@@ -328,11 +329,6 @@ def _clean_temporaries(out: Path) -> None:
 
 
 def _check_fs_options(options: dict) -> None:
-    try:
-        from ..strength_reduction import FSOptions
-    except ImportError:
-        raise CampaignError("--response factor_of_safety: this fem_rmpm has no strength "
-                            "reduction (fem_rmpm.strength_reduction); use a measure") from None
     try:
         FSOptions(**options)
     except TypeError as exc:
@@ -355,7 +351,6 @@ def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
     (part of the campaign identity).  Raises
     :class:`CampaignError` or :class:`SubsetError` (both input errors) before anything
     is written."""
-    import warnings
     t_start = time.perf_counter()
     out = Path(out)
     resp = response if isinstance(response, Response) else parse_response(response, threshold)
@@ -436,7 +431,6 @@ def _level_dict(lv, response: Response) -> dict:
 
 def _finish(res: SubsetCampaignResult, scene: Scene, method: SubsetSimulation,
             records: dict[str, dict], figures: bool) -> None:
-    from ..report import write_report
     r, resp = res.result, res.response
     recs = list(records.values())
     write_samples_csv(res.out / "samples.csv", recs)
@@ -466,7 +460,6 @@ def _finish(res: SubsetCampaignResult, scene: Scene, method: SubsetSimulation,
     }
     write_json(res.out / "summary.json", summary)
     if figures:
-        from .subset_plots import plot_levels
         res.figures = [plot_levels(res.out / "subset_levels.png", r, resp, scene.scene.name,
                                    RESPONSES[resp.name]),
                        write_report(res.out)]
@@ -498,7 +491,6 @@ def subset_summary_text(res: SubsetCampaignResult) -> str:
 def sample_noise(scene: Scene, out: str | Path, key: str) -> np.ndarray:
     """The noise vector of sample ``key`` of the campaign in ``out``, replayed from its
     records (``api.run(scene, noise=sample_noise(scene, out, key))`` re-runs it)."""
-    import json
     doc = json.loads((Path(out) / "campaign.json").read_text())["method"]
     grid = make_grid(scene)
     method = SubsetSimulation(1e300, n=doc["samples_per_level"], p0=doc["p0"],

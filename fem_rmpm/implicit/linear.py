@@ -78,7 +78,7 @@ class LinearSolver:
         return x
 
     def _pyamg(self, K, b, modes, rtol):
-        import pyamg  # only when chosen: its import costs ~0.3 s a run would not need
+        import pyamg  # lazy: only when chosen; its import costs ~0.3 s a run would not need
         if self._ml is None:
             B = modes() if callable(modes) else modes
             self._ml = pyamg.smoothed_aggregation_solver(K, B=B, max_coarse=500,
