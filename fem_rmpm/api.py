@@ -8,9 +8,14 @@
 
 A realization is a pure function of ``(scene, seed)``: the seed only drives the
 random field (if the scene has one); nothing else is random.  ``prepare`` and ``run``
-also take ``noise=``, the random field's standard-normal noise array
-(``fem_rmpm.random_field.noise_shape``; the seed's own is ``field_noise``), which
-replaces the seed: a realization is a pure function of ``(scene, noise)``.
+also take ``noise=``, the random field's standard-normal noise array, which replaces
+the seed: a realization is a pure function of ``(scene, noise)``.
+``noise_shape(scene, grid)`` is that array's shape and ``field_noise(scene, grid, seed)``
+the seed's own noise (``grid = prepare(scene)[0]``), so that
+
+>>> grid, _ = api.prepare(scene)
+>>> eps = api.field_noise(scene, grid, 3)        # == api.run(scene, seed=3)'s field
+>>> result = api.run(scene, noise=0.5 * eps)    # another point of the noise space
 """
 from __future__ import annotations
 
@@ -38,12 +43,12 @@ from .measures import compute_measures, excluded_summary
 from .output import PvdSeries, write_grid, write_json
 from .particles import Particles, seed_particles, soil_cells
 from .plots import plot_profile, plot_snapshots
-from .random_field import sample_point_property
+from .random_field import field_noise, noise_shape, sample_point_property
 from .rundir import RunDirError, check_run_dir, run_files, start_run_dir
 from .scene import Scene, SceneError, check_seed, load_scene, scene_to_dict, with_value
 
 __all__ = ["load_scene", "with_value", "prepare", "run", "fem", "factor_of_safety", "RunResult",
-           "SceneError", "SimulationError", "RunDirError"]
+           "noise_shape", "field_noise", "SceneError", "SimulationError", "RunDirError"]
 
 
 @dataclass

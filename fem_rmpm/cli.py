@@ -202,15 +202,19 @@ def summary_text(res: CampaignResult) -> str:
     return "\n".join(lines)
 
 
-def _cmd_mc_subset(a, scene: Scene) -> int:
-    """``fem-rmpm mc --method subset``: P(response beyond threshold) by subset simulation."""
+def _cmd_mc_subset(a, scene: Scene, cluster: ClusterSpec) -> int:
+    """``fem-rmpm mc --method subset``: P(response beyond threshold) by subset simulation
+    on the same cluster options as crude Monte Carlo (``--cluster``, ``--scheduler``)."""
     for opt, val in (("--keep-vtk", a.keep_vtk), ("--case", a.case)):
         if val is not None:
             raise InputError(f"{opt}: only for crude campaigns (--method crude)")
+    if a.dry_run:
+        raise InputError("--dry-run: only for crude campaigns (--method crude); the runs of a "
+                         "subset campaign depend on how many levels it needs (n per level)")
     res = run_subset_campaign(scene, a.out, a.response, a.threshold,
                               p0=0.1 if a.p0 is None else a.p0,
                               n=a.realizations, workers=a.workers, scheduler=a.scheduler,
-                              force=a.force, progress=not a.quiet)
+                              force=a.force, progress=not a.quiet, cluster=cluster)
     print(subset_summary_text(res))
     return 3 if res.lost else 0
 
@@ -221,11 +225,15 @@ def _cmd_mc(a) -> int:
     if a.fs and a.fs_only:
         raise InputError("--fs and --fs-only: give one (--fs: FS before each MPM run; "
                          "--fs-only: FS instead of it)")
+    cluster = ClusterSpec(kind=a.cluster, queue=a.queue, account=a.account, cores=a.cores,
+                          memory=a.memory, walltime=a.walltime, interface=a.interface,
+                          job_directives=tuple(a.job_directive or ()),
+                          adapt=parse_adapt(a.adapt))
     if a.method == "subset":
         if a.fs or a.fs_only:
             raise InputError("--fs / --fs-only: only for crude campaigns (--method crude); "
                              "use --response factor_of_safety for subset simulation")
-        return _cmd_mc_subset(a, scene)
+        return _cmd_mc_subset(a, scene, cluster)
     if a.fs:
         scene = with_value(scene, "montecarlo.factor_of_safety", True)
     given = [o for o, v in (("--response", a.response), ("--threshold", a.threshold),
@@ -233,10 +241,6 @@ def _cmd_mc(a) -> int:
     if given:
         raise InputError(f"{given[0]}: only with --method subset")
     cases = list(a.case) if a.case else campaign_cases(scene, a.scene)
-    cluster = ClusterSpec(kind=a.cluster, queue=a.queue, account=a.account, cores=a.cores,
-                          memory=a.memory, walltime=a.walltime, interface=a.interface,
-                          job_directives=tuple(a.job_directive or ()),
-                          adapt=parse_adapt(a.adapt))
     if a.dry_run:
         est = estimate_campaign(scene, a.out, realizations=a.realizations, cases=cases,
                                 workers=a.workers, scheduler=a.scheduler, force=a.force,

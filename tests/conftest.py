@@ -25,6 +25,27 @@ def meshes_dir_fx():
     return make_grid(load_scene(MESHES / "slope_elastic.toml"))
 
 
+@pytest.fixture(scope="session")
+def dask_client():
+    """One local Dask cluster (2 single-thread worker processes) for the whole session.
+
+    Tests that run campaigns in this process use it (``client=`` or ``--scheduler`` its
+    address) instead of starting their own: each start costs seconds, and a second
+    in-process LocalCluster now and then failed in distributed's loop start (once under
+    load, once in CI).  Tests of cluster start-up itself run the CLI in a subprocess."""
+    from fem_rmpm.campaign import start_local_cluster
+    client, cluster = start_local_cluster(2)
+    yield client
+    client.close(timeout=10)
+    cluster.close(timeout=10)
+
+
+@pytest.fixture(scope="session")
+def dask_scheduler(dask_client) -> str:
+    """The address of :func:`dask_client`'s scheduler (for ``mc --scheduler``)."""
+    return dask_client.scheduler.address
+
+
 def _slurm_missing() -> str | None:
     """Why SLURM cannot be used here (None: `sinfo` lists a node that takes jobs)."""
     import shutil

@@ -50,14 +50,14 @@ def test_help_lists_the_exit_codes(argv, capsys):
                    for line in text.splitlines()), (code, text)
 
 
-def test_mc_set_and_case_recorded_in_campaign_identity(tmp_path, capsys):
+def test_mc_set_and_case_recorded_in_campaign_identity(tmp_path, capsys, dask_scheduler):
     """Acceptance 5 of issue 12 on the tiny scene (the reference slope's form of the same
     command, ``fem-rmpm mc --set solver.t_end=5 --case xi=12 -n 2``, is in the notes):
     the campaign runs the one case with the changed end time, campaign.json records it,
     and the same directory with another --set is refused (exit 2, nothing changed)."""
     out = tmp_path / "mc"
     argv = ["mc", str(TINY), "--set", "solver.t_end=0.5", "--case", "xi=12", "-n", "2",
-            "--workers", "1", "--quiet", "--out", str(out)]
+            "--scheduler", dask_scheduler, "--quiet", "--out", str(out)]
     assert cli.main(argv) == 0
     camp = json.loads((out / "campaign.json").read_text())
     assert [c["name"] for c in camp["cases"]] == ["xi12"]

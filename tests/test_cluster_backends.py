@@ -51,10 +51,11 @@ def test_bad_cluster_options_are_one_line_exit_2_and_write_nothing(tmp_path, cap
         assert not out.exists()
 
 
-def test_a_refused_option_leaves_an_existing_campaign_untouched(tmp_path, capsys):
+def test_a_refused_option_leaves_an_existing_campaign_untouched(tmp_path, capsys,
+                                                               dask_scheduler):
     out = tmp_path / "c"
-    assert cli.main(["mc", str(TINY), "-n", "2", "--out", str(out), "--workers", "1",
-                     "--quiet"]) == 0
+    assert cli.main(["mc", str(TINY), "-n", "2", "--out", str(out), "--scheduler",
+                     dask_scheduler, "--quiet"]) == 0
     before = _tree(out)
     capsys.readouterr()
     assert cli.main(["mc", str(TINY), "-n", "4", "--out", str(out), "--cluster", "nope"]) == 2
@@ -111,7 +112,8 @@ def test_probe_directory_reports_what_a_worker_cannot_see(tmp_path):
     assert (tmp_path / f"{B._PROBE_PREFIX}abc.worker").exists()
 
 
-def test_dry_run_writes_nothing_starts_no_worker_and_counts_what_is_left(tmp_path, capsys):
+def test_dry_run_writes_nothing_starts_no_worker_and_counts_what_is_left(tmp_path, capsys,
+                                                                        dask_scheduler):
     """--dry-run on a fresh directory (nothing created), then on a campaign with 2 of 5
     records: 3 to run, and the cost per point-step comes from those records."""
     import distributed
@@ -127,8 +129,8 @@ def test_dry_run_writes_nothing_starts_no_worker_and_counts_what_is_left(tmp_pat
         assert item in text, item
     if before is not None:
         assert set(distributed.Client._instances) == before
-    assert cli.main(["mc", str(TINY), "-n", "2", "--out", str(out), "--workers", "1",
-                     "--quiet"]) == 0
+    assert cli.main(["mc", str(TINY), "-n", "2", "--out", str(out), "--scheduler",
+                     dask_scheduler, "--quiet"]) == 0
     capsys.readouterr()
     snapshot = _tree(out)
     assert cli.main(["mc", str(TINY), "-n", "5", "--out", str(out), "--dry-run"]) == 0

@@ -66,3 +66,15 @@ def test_wrong_noise_is_an_error(slope):
     bad[0, 0] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
         sample_point_property(scene, grid, pts, None, noise=bad)
+
+
+def test_the_api_exports_the_noise_functions(slope):
+    """``api.noise_shape`` / ``api.field_noise`` (in ``api.__all__``, issue 18) are the
+    random field's: a realization run from ``api.field_noise`` equals the seed's."""
+    scene, grid, _ = slope
+    assert {"noise_shape", "field_noise"} <= set(api.__all__)
+    eps = api.field_noise(scene, grid, 3)
+    assert eps.shape == api.noise_shape(scene, grid) == noise_shape(scene, grid)
+    assert np.array_equal(eps, field_noise(scene, grid, 3))
+    g2, _ = api.prepare(scene)
+    assert api.noise_shape(scene, g2) == eps.shape

@@ -288,12 +288,9 @@ def test_perfect_correlation_n400_within_two_standard_errors(meshes):
 
 
 @pytest.fixture(scope="module")
-def client():
-    from fem_rmpm import campaign as mc
-    c, cluster = mc.start_local_cluster(2)
-    yield c
-    c.close(timeout=10)
-    cluster.close(timeout=10)
+def client(dask_client):
+    """The session's shared local cluster (tests/conftest.py)."""
+    return dask_client
 
 
 def test_campaign_with_factor_of_safety(tmp_path, client):

@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 
 from fem_rmpm import api, cli
-from fem_rmpm.campaign import start_local_cluster
-from fem_rmpm.campaign.subset_runner import run_subset_campaign, sample_noise
+from fem_rmpm.campaign import subset_runner
+from fem_rmpm.campaign.backends import ClusterSpec
+from fem_rmpm.campaign.subset_runner import sample_noise
 
 DATA = Path(__file__).resolve().parent / "data"
 TINY = DATA / "mc_tiny.toml"
@@ -41,19 +42,23 @@ def _subset(out: Path) -> dict:
     return json.loads((out / "summary.json").read_text())["subset"]
 
 
+def _env() -> dict:
+    return dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory) -> Path:
-    """An uninterrupted campaign on ONE worker: what 2 workers and a killed and resumed
-    campaign must reproduce."""
+    """An uninterrupted campaign on ONE worker (``fem-rmpm mc --workers 1`` in a
+    subprocess, its own LocalCluster): what 2 workers and a killed and resumed campaign
+    must reproduce."""
     out = tmp_path_factory.mktemp("subset") / "reference"
-    client, cluster = start_local_cluster(1)
-    try:
-        res = run_subset_campaign(api.load_scene(TINY), out, "max_displacement", 1.0, n=100,
-                                  client=client, progress=False)
-    finally:
-        client.close(timeout=10)
-        cluster.close(timeout=10)
-    assert res.computed == 190 and res.result is not None and len(res.result.levels) == 2
+    r = subprocess.run([sys.executable, "-m", "fem_rmpm.cli", "mc", str(TINY), "--out",
+                        str(out), "--workers", "1", *ARGS], env=_env(), capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    run = json.loads((out / "summary.json").read_text())["this_run"]
+    assert run["computed"] == 190 and run["workers"] == "1 local worker process"
+    assert len(_subset(out)["levels"]) == 2
     return out
 
 
@@ -69,15 +74,15 @@ def _wait_records(out: Path, proc, at_least: int, timeout: float = 300.0) -> Non
     raise AssertionError(f"no {at_least} records within {timeout} s")
 
 
-def test_sigkill_during_a_level_then_rerun_on_two_workers_equals_one_worker(tmp_path, reference):
+def test_sigkill_during_a_level_then_rerun_on_two_workers_equals_one_worker(tmp_path, reference,
+                                                                          dask_scheduler):
     """Acceptance 4: `fem-rmpm mc --method subset` on 2 workers is SIGKILLed (the client)
     during level 1 (after 100 level-0 records and at least 5 chain samples); the same
     command again computes only the samples without a record; estimate, thresholds and
     every record (but where and how long it ran) equal the 1-worker uninterrupted run."""
     out = tmp_path / "killed"
     argv = ["mc", str(TINY), "--out", str(out), "--workers", "2", *ARGS]
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    proc = subprocess.Popen([sys.executable, "-m", "fem_rmpm.cli", *argv], env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "fem_rmpm.cli", *argv], env=_env(),
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             start_new_session=True)
     try:
@@ -92,6 +97,8 @@ def test_sigkill_during_a_level_then_rerun_on_two_workers_equals_one_worker(tmp_
         proc.stderr.close()
     done = len(list((out / "records").glob("L*.json")))
     assert 105 <= done < 190 and not (out / "summary.json").exists()
+    # the rerun in this process, on the session's 2-worker cluster (tests/conftest.py)
+    argv[argv.index("--workers"):argv.index("--workers") + 2] = ["--scheduler", dask_scheduler]
     assert cli.main(argv) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["this_run"]["computed"] == 190 - done and s["this_run"]["reused_records"] == done
@@ -181,3 +188,84 @@ def test_another_campaign_in_the_directory_is_refused(tmp_path, reference, capsy
     assert cli.main(crude) == 2
     assert "not a 'fem_rmpm campaign 1' campaign" in capsys.readouterr().err
     assert sorted(p.name for p in reference.iterdir()) == before
+
+
+def test_subset_refuses_dry_run_in_one_line(tmp_path, capsys):
+    """Issue 18 leftover: ``--dry-run`` estimates crude campaigns only (a subset campaign's
+    runs depend on its levels): exit 2, one line naming the option, nothing written."""
+    out = tmp_path / "dry"
+    assert cli.main(["mc", str(TINY), "--out", str(out), *ARGS, "--dry-run"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("fem-rmpm: error: --dry-run: only for crude campaigns"), err
+    assert len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("argv, names", [
+    (["--cluster", "slurmx"], "--cluster 'slurmx': unknown cluster kind"),
+    (["--queue", "debug"], "--queue: options of batch-system workers"),
+    (["--cluster", "sge", "--memory", "lots"], "--memory 'lots'"),
+    (["--cluster", "pbs", "--scheduler", "tcp://127.0.0.1:1"], "--scheduler joins"),
+    (["--cluster", "slurm", "--adapt", "3:1"], "--adapt '3:1'"),
+])
+def test_subset_checks_the_cluster_options_like_crude(tmp_path, capsys, argv, names):
+    """The cluster options go through the crude campaign's checks: exit 2, one line,
+    nothing written (before, ``--method subset`` ignored them)."""
+    out = tmp_path / "c"
+    assert cli.main(["mc", str(TINY), "--out", str(out), *ARGS, *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert names in err and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert not out.exists()
+
+
+class _RecordingBackend:
+    """A campaign backend that records its calls and runs on the session's cluster."""
+    description = "the recording backend"
+
+    def __init__(self, client):
+        self.client, self.calls = client, []
+
+    def preflight(self, n_tasks):
+        self.calls.append(("preflight", n_tasks))
+
+    def start(self, n_tasks, out):
+        self.calls.append(("start", (out / "campaign.json").exists()))
+        return self.client
+
+    def check_directory(self, client, out):
+        self.calls.append(("check_directory", client is self.client))
+
+    def close(self):
+        self.calls.append(("close",))
+
+
+def test_subset_runs_on_the_backend_of_the_cluster_options(tmp_path, capsys, monkeypatch,
+                                                           dask_client):
+    """``mc --method subset --cluster slurm ...`` builds the same ClusterSpec as crude
+    Monte Carlo and runs its samples on that backend: checked before anything is written
+    (preflight), started after campaign.json, the workers' directory checked, closed at
+    the end; the samples ran on the backend's client.  (The real SLURM path is
+    tests/test_slurm.py; here the backend is replaced by a recorder.)"""
+    seen = {}
+
+    def backend(spec, workers, scheduler, cases):
+        seen.update(spec=spec, workers=workers, scheduler=scheduler,
+                    cases=[c.name for c in cases], out_exists=out.exists())
+        seen["backend"] = _RecordingBackend(dask_client)
+        return seen["backend"]
+
+    monkeypatch.setattr(subset_runner, "campaign_backend", backend)
+    out = tmp_path / "cl"
+    argv = ["mc", str(TINY), "--out", str(out), "--cluster", "slurm", "--queue", "debug",
+            "--cores", "2", "--walltime", "00:10:00", "--workers", "2",
+            *[a if a != "1.0" else "0.01" for a in ARGS]]
+    assert cli.main(argv) == 0, capsys.readouterr().err
+    spec = seen["spec"]
+    assert isinstance(spec, ClusterSpec) and (spec.kind, spec.queue, spec.cores,
+                                              spec.walltime) == ("slurm", "debug", 2, "00:10:00")
+    assert seen["workers"] == 2 and seen["scheduler"] is None and seen["cases"] == ["scene"]
+    assert not seen["out_exists"]
+    assert seen["backend"].calls == [("preflight", 100), ("start", True),
+                                     ("check_directory", True), ("close",)]
+    run = json.loads((out / "summary.json").read_text())["this_run"]
+    assert run["computed"] == 100 and run["workers"] == "the recording backend"

@@ -69,7 +69,7 @@ from ..random_field import field_noise
 from ..scene import Scene
 from ..strength_reduction import FSOptions, factor_of_safety
 from .cases import CampaignError, parse_case
-from .cluster import start_client
+from .backends import ClusterSpec, campaign_backend
 from .store import FORMAT, Lock, campaign_doc, check_directory, read_record
 from .subset import MethodResult, Sample, SubsetSimulation, SubsetWarning
 from .subset_plots import plot_levels
@@ -217,11 +217,15 @@ class _Evaluator:
     """Evaluates a method's batches: stored records first, the rest on Dask."""
 
     def __init__(self, out: Path, scene: Scene, response: Response, workers, scheduler,
-                 client, force: bool, progress: bool, fs_options: dict):
+                 client, force: bool, progress: bool, fs_options: dict,
+                 cluster: ClusterSpec | None = None):
         self.out, self.scene, self.response = out, scene, response
         self.fs_options = fs_options
-        self.workers, self.scheduler, self.force = workers, scheduler, force
-        self.client, self.cluster, self.own = client, None, client is None
+        self.force = force
+        self.client, self.own = client, client is None
+        # where the samples run: the crude campaign's backends (local, --scheduler, SLURM...)
+        self.backend = (campaign_backend(cluster, workers, scheduler,
+                                         [parse_case("scene", scene)]) if self.own else None)
         self.desc = ("no workers needed" if client is None
                      else f"the given Dask client ({len(client.nthreads())} workers)")
         self.records: dict[str, dict] = {}
@@ -259,8 +263,10 @@ class _Evaluator:
 
     def _compute(self, tasks: list[dict]) -> None:
         if self.client is None:
-            self.client, self.cluster, self.desc = start_client(
-                self.workers, self.scheduler, max(len(tasks), 1000))
+            # a local cluster sized for a level, not for this (possibly small) batch
+            self.client = self.backend.start(max(len(tasks), 1000), self.out)
+            self.desc = self.backend.description
+            self.backend.check_directory(self.client, self.out)   # the workers share it
         t0 = time.perf_counter()
         token = uuid.uuid4().hex[:8]
         futures = self.client.map(run_subset_sample, tasks, pure=False, retries=0,
@@ -291,10 +297,8 @@ class _Evaluator:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
-        if self.own and self.client is not None:
-            self.client.close(timeout=10)
-        if self.cluster is not None:
-            self.cluster.close(timeout=10)
+        if self.backend is not None:
+            self.backend.close()
 
 
 def _identity(scene: Scene, response: Response, p0: float, n: int, fs_options: dict) -> dict:
@@ -339,14 +343,16 @@ def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
                         threshold: float | None = None, p0: float = 0.1, n: int | None = None,
                         workers: int | None = None, scheduler: str | None = None,
                         client=None, force: bool = False, progress: bool = True,
-                        figures: bool = True, fs_options: dict | None = None
-                        ) -> SubsetCampaignResult:
+                        figures: bool = True, fs_options: dict | None = None,
+                        cluster: ClusterSpec | None = None) -> SubsetCampaignResult:
     """Run (or finish, or extend) a subset-simulation campaign in ``out`` (module docstring).
 
     ``response``: a :data:`RESPONSES` name or alias (or a :class:`Response`);
     ``threshold``: failure above it (below it for the FS, default 1); ``p0``: level
     probability in (0, 0.5]; ``n``: samples per level (default 1000; ``n p0 >= 10``);
-    ``workers`` / ``scheduler`` / ``client``: as for crude Monte Carlo; ``fs_options``:
+    ``workers`` / ``scheduler`` / ``client`` / ``cluster``: as for crude Monte Carlo
+    (:func:`fem_rmpm.campaign.run_campaign`; ``cluster`` a
+    :class:`~fem_rmpm.campaign.backends.ClusterSpec`, e.g. SLURM workers); ``fs_options``:
     :class:`fem_rmpm.strength_reduction.FSOptions` fields for the factor of safety
     (part of the campaign identity).  Raises
     :class:`CampaignError` or :class:`SubsetError` (both input errors) before anything
@@ -366,10 +372,14 @@ def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
                               on_failure="reject", label=resp.describe())
     doc = _identity(scene, resp, float(p0), int(n), dict(fs_options or {}))
     _check_subset_directory(out, doc)
+    if client is not None and cluster is not None:
+        raise CampaignError("give a client or a cluster, not both")
     ev = _Evaluator(out, scene, resp, workers, scheduler, client, force, progress,
-                    dict(fs_options or {}))
+                    dict(fs_options or {}), cluster)
     result, lost = None, []
     try:
+        if ev.backend is not None:     # before anything is written: refused, unreachable
+            ev.backend.preflight(n)
         with Lock(out):
             _check_subset_directory(out, doc)
             if not (out / "campaign.json").exists():
