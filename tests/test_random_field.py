@@ -522,30 +522,49 @@ def test_domain_average_has_no_heavy_tails(xi, size):
 # ----------------------------------------------------------------------------- acceptance 6
 @pytest.mark.parametrize("theta_h,theta_v", [(6.0, 0.5), (0.5, 0.5), (2.0, 0.25)])
 def test_variogram_fit_recovers_scales(theta_h, theta_v):
-    """Acceptance 6 ([FG08] ch. 5 variogram estimation; Markov model [D7]): on 6 synthetic
-    point fields (lognormal, known theta_v and theta_h) sampled on a 0.125 m x theta_h/8 grid,
-    the pooled fit is within 20 % of both scales."""
+    """Acceptance 6 ([FG08] ch. 5 variogram estimation; Markov model [D7]): synthetic
+    lognormal point fields with known theta_h, theta_v on a theta_h/8 x 0.125 m grid
+    (20 theta_h x 12 theta_v).  The estimator's standard error comes from the test's own
+    sample: K = 24 independent single-field fits, SD s of each parameter (achieved: 8.5-9 %
+    of theta, 5.5-6.5 % of the sill).
+    * the mean of the K fits is within 5 SE = 5 s / sqrt(K) of the truth (achieved offsets
+      <= 0.6 SE, except theta_v = 2 cells: -2.3 SE, a 4 % bias of the finite grid);
+    * a fit pooled over R = 6 further fields is within 5 s / sqrt(R) (its own SE, about
+      3.5 % of theta; the former fixed bound of 20 % was this 5 SE, not derived)."""
     model = rf.MarkovModel(theta_h, theta_v)
     h1, h2 = theta_h / 8, 0.125
     shape = (int(round(20 * theta_h / h1)), int(round(12 * theta_v / h2)))
     emb = rf.circulant_embedding(model, (h1, h2), shape, False)
     i, j = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]))
     x, y = ((i.ravel() + 0.5) * h1), ((j.ravel() + 0.5) * h2)
-    R = 6
-    z = np.concatenate([emb.sample(100 + s).ravel() for s in range(R)])
     spec = make_scene((1.0, 1.0), (0.25, 0.25), {}).random_field
-    v = rf.gaussian_to_property(z, MU, spec)
-    fit = rf.fit_scales(np.tile(x, R), np.tile(y, R), v, log=True,
-                        group=np.repeat(np.arange(R), len(x)))
-    assert fit.theta_h == pytest.approx(theta_h, rel=0.2)
-    assert fit.theta_v == pytest.approx(theta_v, rel=0.2)
-    assert fit.sill == pytest.approx(math.log(1 + COV ** 2), rel=0.2)
+    truth = np.array([theta_h, theta_v, math.log(1 + COV ** 2)])
+
+    def fit(seeds):
+        z = np.concatenate([emb.sample(s).ravel() for s in seeds])
+        v = rf.gaussian_to_property(z, MU, spec)
+        f = rf.fit_scales(np.tile(x, len(seeds)), np.tile(y, len(seeds)), v, log=True,
+                          group=np.repeat(np.arange(len(seeds)), len(x)))
+        return np.array([f.theta_h, f.theta_v, f.sill])
+
+    K, R = 24, 6
+    single = np.array([fit([1000 + k]) for k in range(K)])
+    sd = single.std(axis=0, ddof=1)
+    assert np.all(sd > 0.02 * truth) and np.all(sd < 0.2 * truth), sd / truth
+    assert np.all(np.abs(single.mean(axis=0) - truth) <= 5 * sd / math.sqrt(K)), \
+        (single.mean(axis=0) - truth) / (sd / math.sqrt(K))
+    pooled = fit([100 + s for s in range(R)])
+    assert np.all(np.abs(pooled - truth) <= 5 * sd / math.sqrt(R)), \
+        (pooled - truth) / (sd / math.sqrt(R))
 
 
 def test_variogram_fit_from_cpt_profiles_via_cli(tmp_path, capsys):
     """Acceptance 6 from the CLI ([FG08]): vertical profiles (cone tests) every theta_h/4,
-    sampled every 0.05 m, of one synthetic field with theta_h = 6 m, theta_v = 0.5 m: fitted
-    within 20 %, printed and written to fit.json."""
+    sampled every 0.05 m, of one synthetic field with theta_h = 6 m, theta_v = 0.5 m:
+    fitted, printed and written to fit.json.  The bound is 3 SD of this estimator: over
+    N = 30 other seeds (100-129) the fits have mean +1.7 % / +0.6 % and SD 5.5 % / 4.7 %
+    (theta_h / theta_v); seed 42 achieves +2.0 % / +1.4 %; asserts 16.5 % / 14 % (was a
+    fixed 20 %)."""
     model = rf.MarkovModel(6.0, 0.5)
     h1, h2 = 1.5, 0.05
     shape = (160, 200)                                   # 240 m x 10 m
@@ -563,8 +582,8 @@ def test_variogram_fit_from_cpt_profiles_via_cli(tmp_path, capsys):
                      "--fit", str(csv)]) == 0
     import json
     fit = json.loads((out / "fit.json").read_text())
-    assert fit["theta_h"] == pytest.approx(6.0, rel=0.2)
-    assert fit["theta_v"] == pytest.approx(0.5, rel=0.2)
+    assert fit["theta_h"] == pytest.approx(6.0, rel=3 * 0.055)
+    assert fit["theta_v"] == pytest.approx(0.5, rel=3 * 0.047)
     assert "theta_v" in capsys.readouterr().out
     assert (out / "variogram.png").stat().st_size > 0
 
