@@ -24,7 +24,7 @@ import meshio
 import numpy as np
 
 from .output import to_true_frame
-from .plots import STRAIN_FLOOR, _plt, draw_ground, plot_field, strain_norm
+from .plots import _plt, strain_norm, strain_panel
 
 __all__ = ["campaign_figures", "plot_exceedance", "plot_histograms", "plot_convergence",
            "plot_cases", "final_snapshot"]
@@ -211,15 +211,7 @@ def plot_cases(path: Path, panels, frame_angle_deg: float, spacing: float,
     sc = None
     norm = strain_norm(max(float(v.max()) for _, _, v in panels))
     for ax, (label, _, v), X in zip(axes[:, 0], panels, Xs):
-        if scene is not None:
-            draw_ground(ax, scene)
-        sc = plot_field(ax, X, np.maximum(v, STRAIN_FLOOR), spacing, cmap="turbo")
-        sc.set_norm(norm)
-        ax.set_aspect("equal")
-        ax.set_xlim(allX[:, 0].min() - 1, allX[:, 0].max() + 1)
-        ax.set_ylim(allX[:, 1].min() - 1, allX[:, 1].max() + 1)
-        ax.set_ylabel("Y (m)")
-        ax.set_title(label, fontsize=9, loc="left")
+        sc = strain_panel(ax, X, v, spacing, norm, allX, label, scene)
     axes[-1, 0].set_xlabel("X, true horizontal (m)")
     if scene is not None and scene.bedrock:
         axes[0, 0].legend(fontsize=7, loc="upper right")

@@ -8,7 +8,7 @@ import numpy as np
 from .output import to_true_frame
 
 __all__ = ["plot_snapshots", "plot_profile", "plot_field", "draw_ground", "strain_norm",
-           "STRAIN_FLOOR"]
+           "strain_panel", "STRAIN_FLOOR"]
 
 #: Lower end of the logarithmic plastic-strain colour scale: points below it (elastic or
 #: barely yielded) take the lowest colour.
@@ -34,6 +34,23 @@ def draw_ground(ax, scene) -> None:
         P = to_true_frame(np.vstack([soil.polygon, soil.polygon[:1]]), a)
         ax.plot(P[:, 0], P[:, 1], "k--", lw=0.7, zorder=3,
                 label="initial soil" if k == 0 else None)
+
+
+def strain_panel(ax, X: np.ndarray, strain: np.ndarray, spacing: float, norm,
+                 allX: np.ndarray, title: str, scene=None):
+    """One panel of plastic shear strain: points X (n, 2, true frame, m) coloured on the
+    shared logarithmic ``norm``, equal aspect, limits 1 m beyond ``allX`` (every panel's
+    points), the ground if ``scene`` is given; returns the scatter (for a colour bar)."""
+    if scene is not None:
+        draw_ground(ax, scene)
+    sc = plot_field(ax, X, np.maximum(strain, STRAIN_FLOOR), spacing, cmap="turbo")
+    sc.set_norm(norm)
+    ax.set_aspect("equal")
+    ax.set_xlim(allX[:, 0].min() - 1, allX[:, 0].max() + 1)
+    ax.set_ylim(allX[:, 1].min() - 1, allX[:, 1].max() + 1)
+    ax.set_ylabel("Y (m)")
+    ax.set_title(title, fontsize=9, loc="left")
+    return sc
 
 
 def _plt():
@@ -72,17 +89,9 @@ def plot_snapshots(path: str | Path, snapshots: list[tuple[float, np.ndarray, np
     mech = int(np.argmin(np.abs(times - mechanism_time))) if mechanism_time is not None else -1
     fig, axes = plt.subplots(n, 1, figsize=(11, 1.0 + 2.1 * n), squeeze=False, sharex=True)
     for k, (ax, (t, x, v)) in enumerate(zip(axes[:, 0], snapshots)):
-        X = to_true_frame(x, frame_angle_deg)
-        if scene is not None:
-            draw_ground(ax, scene)
-        sc = plot_field(ax, X, np.maximum(v, STRAIN_FLOOR), spacing, cmap="turbo")
-        sc.set_norm(norm)
-        ax.set_aspect("equal")
-        ax.set_xlim(allX[:, 0].min() - 1, allX[:, 0].max() + 1)
-        ax.set_ylim(allX[:, 1].min() - 1, allX[:, 1].max() + 1)
-        ax.set_ylabel("Y (m)")
-        ax.set_title(f"t = {t:.2f} s" + (" (mechanism time)" if k == mech else "")
-                     + (" (final)" if k == n - 1 and n > 1 else ""), fontsize=9, loc="left")
+        sc = strain_panel(ax, to_true_frame(x, frame_angle_deg), v, spacing, norm, allX,
+                          f"t = {t:.2f} s" + (" (mechanism time)" if k == mech else "")
+                          + (" (final)" if k == n - 1 and n > 1 else ""), scene)
     if scene is not None and scene.bedrock:
         axes[0, 0].legend(fontsize=7, loc="upper right")
     axes[-1, 0].set_xlabel("X, true horizontal (m)")

@@ -104,21 +104,37 @@ def test_four_literature_cases_match_readme(tmp_path):
         assert rounds_to(s["mean"], mean) and rounds_to(s["se"], se), (name, s, mean, se)
 
 
-@pytest.mark.slow
-def test_reference_slope_schemes_match_readme(tmp_path):
-    """README "The reference slope": the explicit column of the explicit-vs-implicit table
-    from a fresh run, and the implicit run (Newmark, dt = 0.02 s, about 20 minutes) agreeing
-    with it within the README's figures (run-out, retrogression, sliding area)."""
+_SCHEME_ROWS = {"runout_distance": r"^\| run-out \(m\) \| ([\d.]+) \| ([\d.]+) \|",
+                "retrogression_distance": r"^\| retrogression \(m\) \| ([\d.]+) \| ([\d.]+) \|",
+                "sliding_area": r"^\| sliding area \(m2\) \| ([\d.]+) \| ([\d.]+) \|"}
+
+
+def _reference_slope_measures(out: Path, **settings) -> dict:
     from fem_rmpm import api
     from fem_rmpm.scene import load_scene, with_values
     scene = load_scene(ROOT / "meshes" / "slope_reference.toml")
-    rows = {"runout_distance": r"^\| run-out \(m\) \| ([\d.]+) \| ([\d.]+) \|",
-            "retrogression_distance": r"^\| retrogression \(m\) \| ([\d.]+) \| ([\d.]+) \|",
-            "sliding_area": r"^\| sliding area \(m2\) \| ([\d.]+) \| ([\d.]+) \|"}
-    exp = api.run(scene, out=tmp_path / "exp").measures
-    imp = api.run(with_values(scene, {"solver.scheme": "implicit", "solver.dynamic": True,
-                                      "solver.dt": 0.02}), out=tmp_path / "imp").measures
-    for key, pattern in rows.items():
-        e, i = readme_numbers(pattern)
+    return api.run(with_values(scene, settings), out=out).measures
+
+
+@pytest.mark.slow
+def test_reference_slope_explicit_matches_readme(tmp_path):
+    """README "The reference slope": the explicit column of the explicit-vs-implicit table
+    (run-out, retrogression, sliding area) from a fresh run of meshes/slope_reference.toml
+    (about 20 s idle, several minutes under load)."""
+    exp = _reference_slope_measures(tmp_path / "exp")
+    for key, pattern in _SCHEME_ROWS.items():
+        e, _ = readme_numbers(pattern)
         assert rounds_to(exp[key], e), (key, exp[key], e)
+
+
+@pytest.mark.slow
+def test_reference_slope_implicit_matches_readme(tmp_path):
+    """README "The reference slope": the implicit column of the table, from the run the
+    README describes (the default adaptive steps, ``--set solver.scheme=implicit --set
+    solver.dynamic=true``; 2110 s on the loaded machine).  (The first version of this test
+    fixed dt = 0.02 s, which is not the README's run.)"""
+    imp = _reference_slope_measures(tmp_path / "imp", **{"solver.scheme": "implicit",
+                                                         "solver.dynamic": True})
+    for key, pattern in _SCHEME_ROWS.items():
+        _, i = readme_numbers(pattern)
         assert rounds_to(imp[key], i), (key, imp[key], i)
