@@ -17,6 +17,16 @@ Also times scikit-fem's ``asm`` of the same tangent (material points as quadratu
 Writes ``validation/out/bench_implicit.json``.  Each case is run ``--repeat`` times and
 the fastest time of each part is reported (the machine is shared; all runs are in the JSON).  Run:
 ``nice python validation/bench_implicit.py`` (a few minutes; ``--small`` for 4600 only).
+
+``--case-i``: the Newton iteration of case (i) (meshes/slope_reference.toml, 4565
+elements, 18 260 points), implicit dynamics with the default settings over its first
+``--t-end`` seconds (1 s: about 20 steps, 75 iterations), measured in CPU time
+(``time.process_time`` in place of the wall clock, so the parts are CPU seconds even on a
+loaded machine) after a short warm-up run that loads numba's cache.  It prints one line
+per repeat and appends it to ``validation/out/bench_implicit_case_i.jsonl``.  It uses only
+``run_implicit`` and the run record, so the same file measures an older checkout:
+``PYTHONPATH=/path/to/old nice python validation/bench_implicit.py --case-i --label before``
+interleaved with ``--label after`` (see the README's implicit cost figures).
 """
 from __future__ import annotations
 
@@ -97,12 +107,60 @@ def skfem_vs_fast(cell: float) -> dict:
             "force_rel_difference": float(np.abs(f - fs[S.free_dofs]).max() / np.abs(fs).max())}
 
 
+def case_i(t_end: float, label: str, linear_solver: str | None) -> dict:
+    """CPU ms per Newton iteration of case (i), implicit dynamics to ``t_end`` (see the
+    module docstring); the parts are the run record's, timed by ``process_time``."""
+    import fem_rmpm
+    time.perf_counter = time.process_time     # the record's clocks become CPU clocks
+    scene = load_scene(HERE.parent / "meshes" / "slope_reference.toml")
+
+    def run(t):
+        sv = dataclasses.replace(scene.solver, scheme="implicit", dynamic=True, t_end=t)
+        if linear_solver:
+            sv = dataclasses.replace(sv, linear_solver=linear_solver)
+        sc = dataclasses.replace(scene, solver=sv)
+        grid = make_grid(sc)
+        pts = seed_particles(sc, grid)
+        c0 = time.process_time()
+        rec = run_implicit(sc, grid, pts)
+        return rec, time.process_time() - c0
+
+    run(0.1)                                  # warm-up: numba's cache, imports
+    rec, cpu = run(t_end)
+    s = rec.solver
+    ms = s["ms_per_iteration"]
+    its = s["iterations_total"]
+    return {"label": label, "code": str(Path(fem_rmpm.__file__).parent), "t_end_s": t_end,
+            "steps": s["n_steps"], "iterations": its, "ms_per_iteration": ms,
+            "ms_total_per_iteration": sum(ms.values()),
+            "run_cpu_ms_per_iteration": 1e3 * cpu / max(its, 1), "run_cpu_s": cpu,
+            "linear_solver": rec.solver.get("linear_solver", linear_solver or "default"),
+            "load_average": os.getloadavg()}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--small", action="store_true", help="only the 4600-element slope")
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--case-i", action="store_true",
+                    help="CPU ms per Newton iteration of case (i) implicit dynamics")
+    ap.add_argument("--t-end", type=float, default=1.0, help="--case-i: simulated time (s)")
+    ap.add_argument("--label", default="", help="--case-i: a name for this code version")
+    ap.add_argument("--linear-solver", default=None, help="--case-i: override the scene's")
     a = ap.parse_args()
     OUT.mkdir(exist_ok=True)
+    if a.case_i:
+        for _ in range(a.repeat):
+            r = case_i(a.t_end, a.label, a.linear_solver)
+            m = r["ms_per_iteration"]
+            print(f"{r['label'] or r['code']}: {r['steps']} steps, {r['iterations']} its; "
+                  + ", ".join(f"{k} {v:.1f}" for k, v in m.items())
+                  + f"; total {r['ms_total_per_iteration']:.1f} ms, whole run "
+                  f"{r['run_cpu_ms_per_iteration']:.1f} ms CPU per iteration "
+                  f"(load {r['load_average'][0]:.1f})", flush=True)
+            with open(OUT / "bench_implicit_case_i.jsonl", "a") as f:
+                f.write(json.dumps(r) + "\n")
+        return
     cells = [0.25] if a.small else [0.25, 1 / 13]
     rows = []
     print(f"{'elements':>8} {'points':>7} {'solver':>8} {'its':>3} {'setup':>7} {'material':>8} "

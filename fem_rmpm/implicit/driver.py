@@ -248,6 +248,9 @@ class _Run:
         stats["n_steps"] = len(steps)
         stats["iterations_per_step"] = its / max(len(steps), 1)
         stats["dt_history"] = [[s["time"], s["size"]] for s in steps if "time" in s]
+        solver = self.system.solver
+        stats["factorizations_by"] = dict(solver.factorizations_by)
+        stats["symbolic_analyses"] = solver.symbolic_analyses
         self.rec.steps = self.step
         self.rec.wall_time = time.perf_counter() - self.wall0
         return self.rec

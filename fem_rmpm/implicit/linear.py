@@ -1,5 +1,14 @@
 """Linear solvers of the implicit Newton iteration.
 
+``"cholmod"``: sparse Cholesky (SuiteSparse CHOLMOD through cvxopt) of a symmetric
+positive-definite tangent -- the usual case of a dynamic step, whose mass term
+``m / (beta dt^2)`` dominates the diagonal; the symbolic analysis (fill-reducing
+ordering, elimination tree, supernodes) is done once per sparsity pattern and reused by
+every factorization while the pattern stays, the numeric factorization alone is
+repeated.  A tangent that is not symmetric (F-bar coupling, non-associated flow: checked
+entry by entry against its transpose, 1e-12 of the largest) or not positive definite
+(softening under large steps), or a missing cvxopt, goes to SuperLU for that solve;
+``factorizations_by`` counts which solver did each.
 ``"superlu"`` (default): sparse LU of the free-DOF tangent with ``permc_spec =
 "MMD_AT_PLUS_A"`` (about 2x the default ordering on these 2-D meshes).  ``"pyamg"``:
 conjugate gradients preconditioned by pyamg smoothed aggregation whose near-null space is
@@ -13,6 +22,12 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import cg, gmres, splu
+
+try:                                   # SuiteSparse's CHOLMOD (cvxopt ships it in its wheels)
+    import cvxopt
+    from cvxopt import cholmod
+except ImportError:                    # pragma: no cover - a core dependency
+    cvxopt = cholmod = None
 
 __all__ = ["LinearSolver", "LinearSolveError"]
 
@@ -29,7 +44,10 @@ class LinearSolver:
         self.kind = kind
         self._ml = None
         self._order = None        # fill-reducing ordering of the last sparsity pattern
+        self._chol = None         # CHOLMOD's symbolic factor of the last sparsity pattern
         self.factorizations = 0
+        self.factorizations_by = {"cholmod": 0, "superlu": 0}
+        self.symbolic_analyses = 0
 
     def new_step(self) -> None:
         """A new step: the pyamg hierarchy is rebuilt (the LU ordering of a sparsity
@@ -37,9 +55,41 @@ class LinearSolver:
         self._ml = None
 
     def solve(self, K: sp.csr_matrix, b: np.ndarray, modes=None, rtol: float = 1e-10) -> np.ndarray:
+        if self.kind == "cholmod":
+            return self._cholmod(K, b)
         if self.kind == "superlu":
             return self._superlu(K, b)
         return self._pyamg(K, b, modes, rtol)
+
+    def _cholmod(self, K: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
+        """Sparse Cholesky with the symbolic factor of the pattern reused (see the module
+        docstring); SuperLU where the tangent is not symmetric positive definite."""
+        if cholmod is None:
+            return self._superlu(K, b)
+        c = self._chol
+        if c is None or not (np.array_equal(c["indptr"], K.indptr)
+                             and np.array_equal(c["indices"], K.indices)):
+            c = self._chol = _cholmod_pattern(K)
+            self.symbolic_analyses += 1
+        data = K.data
+        if np.max(np.abs(data - data[c["transpose"]]), initial=0.0) \
+                > 1e-12 * np.max(np.abs(data), initial=0.0):
+            return self._superlu(K, b)
+        c["A"].V = cvxopt.matrix(data[c["lower"]])
+        try:
+            if c["F"] is None:
+                c["F"] = cholmod.symbolic(c["A"], uplo="L")
+            cholmod.numeric(c["A"], c["F"])
+        except ArithmeticError:              # not positive definite
+            return self._superlu(K, b)
+        x = cvxopt.matrix(np.array(b, dtype=float))
+        cholmod.solve(c["F"], x)
+        x = np.array(x).ravel()
+        if not np.all(np.isfinite(x)):
+            return self._superlu(K, b)
+        self.factorizations += 1
+        self.factorizations_by["cholmod"] += 1
+        return x
 
     def _superlu(self, K: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
         """Sparse LU.
@@ -72,6 +122,7 @@ class LinearSolver:
         except RuntimeError as exc:           # "Factor is exactly singular"
             raise LinearSolveError(f"SuperLU: {exc}") from None
         self.factorizations += 1
+        self.factorizations_by["superlu"] += 1
         x = apply(b)
         if not np.all(np.isfinite(x)):
             raise LinearSolveError("SuperLU returned a non-finite solution (singular tangent)")
@@ -104,3 +155,24 @@ def _ordering(K: sp.csr_matrix, ip: np.ndarray) -> dict:
     return {"indptr": K.indptr.copy(), "indices": K.indices.copy(), "ip": ip,
             "gather": Kp.data.astype(np.int64) - 1, "p_indices": Kp.indices,
             "p_indptr": Kp.indptr}
+
+
+def _cholmod_pattern(K: sp.csr_matrix) -> dict:
+    """For a structurally symmetric CSR pattern: the entries of its lower triangle in
+    CHOLMOD's column order (CSR row ``j`` from the diagonal on is column ``j`` of the lower
+    triangle of a symmetric matrix), the gather ``transpose`` with ``data[transpose]`` the
+    data of ``K^T`` in ``K``'s pattern, and cvxopt's matrix of that triangle (its values
+    are replaced per factorization)."""
+    n = K.shape[0]
+    row = np.repeat(np.arange(n, dtype=np.int64), np.diff(K.indptr))
+    col = K.indices.astype(np.int64)
+    key = row * n + col                                   # sorted: CSR order
+    transpose = np.searchsorted(key, col * n + row)
+    if len(key) and not np.array_equal(key[np.minimum(transpose, len(key) - 1)],
+                                       col * n + row):
+        raise ValueError("the tangent's sparsity pattern is not symmetric")
+    lower = np.nonzero(col >= row)[0]
+    A = cvxopt.spmatrix(K.data[lower], cvxopt.matrix(col[lower]), cvxopt.matrix(row[lower]),
+                        (n, n))
+    return {"indptr": K.indptr.copy(), "indices": K.indices.copy(), "transpose": transpose,
+            "lower": lower, "A": A, "F": None}

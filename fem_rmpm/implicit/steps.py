@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import kernels
 from ..grid import Grid, points_in_polygon
 from ..locking import bbar_gradient, fbar_increment, fbar_q, fbar_weights
 from ..materials import MaterialPoints, small_strain_update, stress_update
@@ -85,6 +86,12 @@ class ImplicitSystem:
             target[r["mask"]] = np.broadcast_to(r["displacement"], r["mask"].shape)[r["mask"]]
         self.presc_mask, self.presc_target = mask, target
         self.fixed = grid.fixed | mask
+        # the residual's stress update: the compiled point update of the explicit kernels
+        # (equal to the numpy reference to 1e-12, tests/test_kernels.py) or that reference
+        compiled = getattr(self.sv, "kernel", "numba") == "numba"
+        self.stress_update = kernels.stress_update_points if compiled else stress_update
+        self.small_strain_update = (kernels.small_strain_update_points if compiled
+                                    else small_strain_update)
 
     def begin(self, lf_new: float, lf_old: float, dt: float = 0.0,
               dynamic: bool = False) -> StepData:
@@ -227,7 +234,7 @@ class Geostatic(StepKind):
         sys_ = self.sys
         Hm = bbar_gradient(H, st.Vn, st.S.host, sys_.grid.n_cells) if sys_.fbar else H
         t1 = time.perf_counter()
-        ls, q, tau = small_strain_update(Hm, st.ls0, st.state0, st.soil)
+        ls, q, tau = sys_.small_strain_update(Hm, st.ls0, st.state0, st.soil)
         st.clock["material"] += time.perf_counter() - t1
         st.cache.update(H=Hm, g=st.S.dN, tau=tau)
         return ls, q, tau, st.S.dN, None
@@ -269,7 +276,7 @@ class QuasiStatic(StepKind):
         else:
             dFm = dF
         t1 = time.perf_counter()
-        ls, q, tau = stress_update(dFm, st.ls0, st.state0, st.soil)
+        ls, q, tau = sys_.stress_update(dFm, st.ls0, st.state0, st.soil)
         st.clock["material"] += time.perf_counter() - t1
         g = np.matmul(st.S.dN, Finv)
         st.cache.update(H=H, dF=dFm, g=g, tau=tau)

@@ -7,51 +7,83 @@ with respect to the displacement-increment gradient:
 * :func:`finite_strain_tangent` for the large-deformation steps, the spatial tangent
   ``A_ijlm = d tau_ij / d(grad_x du)_lm - delta_jl tau_im`` (material and geometric part).
 
-Both differentiate by complex step the very same update the residual uses: each point's
-model update of :mod:`fem_rmpm.materials` (its numpy ``update``, which works on complex
-input), so the derivative is exact to round-off, return mapping and softening branch
-included, for any registered model; the scheme holds no material constants.  ``state``
-is the points' state array (n, S) of their models (or the plastic shear strain (n,)).
+Both are exact derivatives of the very same update the residual uses, return mapping and
+softening branch included, for any registered model; the scheme holds no material
+constants.  The model's part, ``D = d tau / d eps_tr`` at the trial log strain
+(:func:`trial_stiffness`), comes from the model's optional ``tangent`` hook (an analytic
+consistent tangent, e.g. von Mises) or else from the complex step of its numpy ``update``
+(which works on complex input).  The kinematics of the finite-strain step (the trial log
+strain of ``b_tr = dF b_e dF^T`` and its derivative) and the joining of the pieces are
+compiled loops (:mod:`.tangent_kernels`).  :func:`finite_strain_tangent_reference` is the
+complex step of the whole update through the model's numpy code, the reference both are
+tested against.  ``state`` is the points' state array (n, S) of their models (or the
+plastic shear strain (n,)).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..materials import MaterialPoints, exp_sym2, log_sym2, return_map, small_strain_update
+from ..materials import (MaterialPoints, exp_sym2, log_sym2, registry, return_map,
+                         small_strain_update)
+from . import tangent_kernels as tk
 
-__all__ = ["small_strain_tangent", "finite_strain_tangent", "elastic_left_cauchy_green",
-           "tensor", "inv2"]
+__all__ = ["small_strain_tangent", "finite_strain_tangent", "finite_strain_tangent_reference",
+           "trial_stiffness", "elastic_left_cauchy_green", "tensor", "inv2"]
+
+_IN_PLANE = [0, 1, 3]     # trial strain components a plane-strain perturbation moves
 
 
 def small_strain_tangent(grad_du: np.ndarray, log_strain: np.ndarray, state: np.ndarray,
                          soil: MaterialPoints, step: float = 1e-30):
-    """Consistent tangent of the small-strain (geostatic) update, by complex step.
+    """Consistent tangent of the small-strain (geostatic) update.
 
     Returns ``(tau, D)``: ``tau`` (n, 4) [xx, yy, zz, xy] from
     :func:`~fem_rmpm.materials.small_strain_update` and ``D`` (n, 2, 2, 2, 2) with
     ``D_ijlm = d tau_ij / d grad(du)_lm`` (kPa), exact to round-off including the
-    return mapping.  ``K_ai,bl = sum_p V_p dN_aj D_ijlm dN_bm``: the same
-    contraction as the finite-strain tangent with ``g = dN``.  The update depends
-    on ``sym(grad du)`` only, so ``D_ij01 = D_ij10`` and three complex
-    evaluations suffice (done as one call on 3n points).
+    return mapping (:func:`trial_stiffness` at the trial strain ``eps + sym(grad du)``).
+    ``K_ai,bl = sum_p V_p dN_aj D_ijlm dN_bm``: the same contraction as the
+    finite-strain tangent with ``g = dN``.  The update depends on ``sym(grad du)``
+    only, so ``D_ij01 = D_ij10``.
     """
     n = grad_du.shape[0]
     _, _, tau = small_strain_update(grad_du, log_strain, state, soil)
-    # trial strain of small_strain_update, eps + sym(grad du), perturbed in 3 directions
-    e3 = np.tile(log_strain.astype(complex), (3, 1))
-    e3[:, 0] += np.tile(grad_du[:, 0, 0], 3)
-    e3[:, 1] += np.tile(grad_du[:, 1, 1], 3)
-    e3[:, 3] += np.tile(0.5 * (grad_du[:, 0, 1] + grad_du[:, 1, 0]), 3)
-    e3[:n, 0] += 1j * step
-    e3[n:2 * n, 1] += 1j * step
-    e3[2 * n:, 3] += 0.5j * step
-    d = _derivatives(e3, state, soil, step).reshape(3, n, 4)
+    e = np.array(log_strain, dtype=float)
+    e[:, 0] += grad_du[:, 0, 0]
+    e[:, 1] += grad_du[:, 1, 1]
+    e[:, 3] += 0.5 * (grad_du[:, 0, 1] + grad_du[:, 1, 0])
+    d = trial_stiffness(e, state, soil, step)              # (n, 4, 3)
     D = np.empty((n, 2, 2, 2, 2))
-    for k, (l, m) in enumerate(((0, 0), (1, 1), (0, 1))):
-        D[:, 0, 0, l, m], D[:, 1, 1, l, m] = d[k, :, 0], d[k, :, 1]
-        D[:, 0, 1, l, m] = D[:, 1, 0, l, m] = d[k, :, 3]
+    for k, (l, m, f) in enumerate(((0, 0, 1.0), (1, 1, 1.0), (0, 1, 0.5))):
+        D[:, 0, 0, l, m], D[:, 1, 1, l, m] = f * d[:, 0, k], f * d[:, 1, k]
+        D[:, 0, 1, l, m] = D[:, 1, 0, l, m] = f * d[:, 3, k]
     D[..., 1, 0] = D[..., 0, 1]
     return tau, D
+
+
+def trial_stiffness(eps_tr: np.ndarray, state: np.ndarray, soil: MaterialPoints,
+                    step: float = 1e-30) -> np.ndarray:
+    """``d tau / d eps_tr`` (n, 4, 3) of each point's model update at the trial log
+    strain (n, 4) (kPa): rows ``tau [xx, yy, zz, xy]``, columns the in-plane trial
+    components ``xx, yy, xy`` (``xy`` a symmetric, tensor perturbation).  A model with
+    the ``tangent`` hook gives it analytically; for the others the complex step of their
+    ``update`` (:func:`fem_rmpm.materials.return_map`, one call on 3n trial states)."""
+    n = len(eps_tr)
+    st = state[:, None] if state.ndim == 1 else state
+    out = np.empty((n, 4, 3))
+    ids = np.unique(soil.model)
+    for k in ids:
+        idx = slice(None) if len(ids) == 1 else np.nonzero(soil.model == k)[0]
+        hook = getattr(registry.model(int(k)), "tangent", None)
+        if hook is not None:
+            out[idx] = hook(eps_tr[idx], st[idx], soil.params[idx])[:, :, _IN_PLANE]
+            continue
+        e, m = eps_tr[idx], len(eps_tr[idx])
+        e3 = np.tile(e.astype(complex), (3, 1))
+        for j, c in enumerate(_IN_PLANE):
+            e3[j * m:(j + 1) * m, c] += 1j * step
+        d = _derivatives(e3, st[idx], soil.take(np.arange(n)[idx]), step).reshape(3, m, 4)
+        out[idx] = np.transpose(d, (1, 2, 0))
+    return out
 
 
 def _derivatives(eps_c: np.ndarray, state: np.ndarray, soil: MaterialPoints,
@@ -76,7 +108,39 @@ def elastic_left_cauchy_green(log_strain: np.ndarray) -> np.ndarray:
 def finite_strain_tangent(dF: np.ndarray, log_strain: np.ndarray, state: np.ndarray,
                           soil: MaterialPoints, step: float = 1e-30, b_e: np.ndarray | None = None,
                           tau: np.ndarray | None = None):
-    """Same ``(tau, A)`` as :func:`fem_rmpm.materials.spatial_tangent`, about 3x faster.
+    """``(tau, A)`` of the finite-strain update: ``tau`` (n, 4) and the spatial tangent
+    ``A_ijlm = d tau_ij / d(grad_x du)_lm - delta_jl tau_im`` (n, 2, 2, 2, 2), kPa.
+
+    A perturbation ``dF -> (I + E) dF`` splits into its symmetric part, which moves the
+    trial log strain by ``J E`` (:func:`.tangent_kernels.trial_jacobian`) and the stress
+    by ``D J E`` (:func:`trial_stiffness`), and its spin ``W``, whose effect is exact and
+    analytic for an isotropic law: ``d tau = W tau - tau W``.  Equal to
+    :func:`finite_strain_tangent_reference` (complex step of the whole update) to
+    round-off (tested).  Within a Newton step ``b_e`` (:func:`elastic_left_cauchy_green`
+    of the step-start strain) and ``tau`` (from the residual evaluation at the same
+    ``dF``) may be passed in to save their evaluation.
+    """
+    n = dF.shape[0]
+    B = elastic_left_cauchy_green(log_strain) if b_e is None else b_e
+    eps_tr = np.empty((n, 4))
+    eps_tr[:, 2] = log_strain[:, 2]
+    eps_tr, J = tk.trial_jacobian(np.ascontiguousarray(dF, dtype=float),
+                                  np.ascontiguousarray(B, dtype=float), eps_tr,
+                                  np.empty((n, 3, 3)))
+    if tau is None:
+        tau = return_map(eps_tr, state, soil)[2]
+    D = trial_stiffness(eps_tr, state, soil, step)
+    A = tk.spatial_tangent(D, J, np.ascontiguousarray(tau, dtype=float),
+                           np.empty((n, 2, 2, 2, 2)))
+    return tau, A
+
+
+def finite_strain_tangent_reference(dF: np.ndarray, log_strain: np.ndarray, state: np.ndarray,
+                          soil: MaterialPoints, step: float = 1e-30, b_e: np.ndarray | None = None,
+                          tau: np.ndarray | None = None):
+    """Same ``(tau, A)`` as :func:`fem_rmpm.materials.spatial_tangent`, about 3x faster:
+    the complex step of the whole update through the models' numpy code (the reference of
+    :func:`finite_strain_tangent`).
 
     ``A_ijlm = d tau_ij / d(grad_x du)_lm - delta_jl tau_im`` where a perturbation
     ``dF -> (I + E) dF`` is split into its symmetric part (three complex-step

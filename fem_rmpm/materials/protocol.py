@@ -33,7 +33,11 @@ current strength per point in kPa for outputs; default: infinite) and
 strengths divided by the trial factor ``F`` of a factor-of-safety search by strength
 reduction, e.g. ``c / F`` and ``tan(phi) / F``; without ``softening`` residual = reduced
 peak; a model without it has its ``STRENGTHS`` names, or the default table of
-:mod:`fem_rmpm.strength_reduction`, divided by ``F``; see there).
+:mod:`fem_rmpm.strength_reduction`, divided by ``F``; see there), and
+``tangent(eps_tr, state, params) -> D`` (the consistent tangent ``d tau / d eps_tr``
+(n, 4, 4) of ``update`` at the trial log strains, columns ``[xx, yy, zz, xy]``; the
+implicit scheme uses it instead of the complex step of ``update``, which is ~10x slower;
+a test must show the two agree).
 """
 from __future__ import annotations
 

@@ -188,3 +188,64 @@ def point_update(e0, e1, e2, e3, state, params, i):
     state[i, 0] = gam + dg
     return (e0, e1, e2, e3, 2 * G * e0 + lam * vol, 2 * G * e1 + lam * vol,
             2 * G * e2 + lam * vol, 2 * G * e3)
+
+
+# --------------------------------------------------------------- consistent tangent (implicit)
+def tangent(eps_tr: np.ndarray, state: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """Consistent (algorithmic) tangent ``D = d tau / d eps_tr`` (n, 4, 4) of
+    :func:`update` at the trial log strains (n, 4), kPa; column ``k`` is the derivative
+    along the trial strain component ``k`` of ``[xx, yy, zz, xy]`` (``xy`` a symmetric,
+    tensor perturbation).  Elastic: ``K 1 1^T + 2 G I_dev``; plastic (radial return,
+    ``s = s_tr (1 - G dgamma / q_tr)``, ``q = sqrt(J2)``)::
+
+        D = K 1 1^T + 2 G (1 - G dgamma / q) I_dev
+            - 2 G^2 (d dgamma/d q - dgamma / q) / q  s_tr (x) w,   w = d q / d s_tr
+
+    with ``d dgamma / d q = 1 / (G + c'(gamma_p + dgamma))`` on the branch the update
+    takes (softening slope, residual, exponential).  Optional protocol hook: the implicit
+    scheme uses it instead of the complex step of :func:`update`; the two agree to
+    round-off (``tests/test_implicit_tangent.py``)."""
+    eps = np.ascontiguousarray(np.real(eps_tr), dtype=float)
+    st = np.ascontiguousarray(np.real(state), dtype=float).reshape(len(eps), -1)
+    return _tangent_points(eps, st, np.ascontiguousarray(params, dtype=float),
+                           np.empty((len(eps), 4, 4)))
+
+
+@njit(cache=True, error_model="numpy")
+def _tangent_points(eps, state, params, D):
+    for i in range(eps.shape[0]):
+        G, K = params[i, 0], params[i, 1]
+        cp, cr, gs, expo = params[i, _CP], params[i, _CR], params[i, _GS], params[i, _EXP] == 1.0
+        gam = state[i, 0]
+        e0, e1, e2, e3 = eps[i, 0], eps[i, 1], eps[i, 2], eps[i, 3]
+        v3 = (e0 + e1 + e2) / 3
+        s = (2 * G * (e0 - v3), 2 * G * (e1 - v3), 2 * G * (e2 - v3), 2 * G * e3)
+        q = math.sqrt(0.5 * (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) + s[3] * s[3])
+        c0, _ = _cohesion(gam, cp, cr, gs, expo)
+        scale, beta = 1.0, 0.0
+        if q > c0 * (1 + 1e-12):                     # plastic: the branch of point_update
+            if expo:
+                dg = (q - c0) / G
+                for _ in range(40):
+                    c, dc = _cohesion(gam + dg, cp, cr, gs, expo)
+                    step = (q - G * dg - c) / (G + dc)
+                    if step == 0.0:
+                        break
+                    dg = dg + step
+                _, dc = _cohesion(gam + dg, cp, cr, gs, expo)
+            else:
+                hs = (cp - cr) / gs
+                d1 = (q - c0) / (G - hs)
+                if gam < gs and gam + d1 <= gs:
+                    dg, dc = d1, -hs
+                else:
+                    dg, dc = (q - cr) / G, 0.0
+            scale = 1 - G * dg / q
+            beta = 2 * G * G * (1 / (G + dc) - dg / q) / (q * q)
+        w = (0.5 * s[0], 0.5 * s[1], 0.5 * s[2], s[3])     # q d q / d s_tr
+        for a in range(4):
+            for b in range(4):
+                dev = (1.0 if a == b else 0.0) - (1 / 3 if (a < 3 and b < 3) else 0.0)
+                vol = K if (a < 3 and b < 3) else 0.0
+                D[i, a, b] = vol + 2 * G * scale * dev - beta * s[a] * w[b]
+    return D
