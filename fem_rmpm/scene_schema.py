@@ -79,7 +79,7 @@ _CHOICES: dict[str, tuple[str, ...]] = {
     "random_field.correlation": ("markov_elliptic", "markov_separable"),
     "random_field.property": ("cohesion_peak",),
     "solver.scheme": SCHEMES, "solver.shape": SHAPES, "solver.edge_policy": EDGE_POLICIES,
-    "solver.linear_solver": ("superlu", "pyamg"),
+    "solver.linear_solver": ("cholmod", "superlu", "pyamg"),
     "solver.gravity_phase": ("dynamic", "geostatic"),
     "solver.kernel": ("numba", "numpy"),
     "prescribed.components": ("xy", "x", "y"),

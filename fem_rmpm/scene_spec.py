@@ -166,7 +166,7 @@ class SolverSpec:
     max_iterations: int = 15
     tolerance: float = 1e-9              # relative residual
     max_cuts: int = 4                    # step cuts before giving up
-    linear_solver: str = "superlu"       # "superlu" | "pyamg"
+    linear_solver: str = "cholmod"       # "cholmod" | "superlu" | "pyamg" (implicit)
     fbar: bool = False                   # F-bar locking remedy (cell-averaged volume change)
     adaptive: bool = True                # implicit: step size follows Newton and kinematic limits
     dt_max: float = 0.1                  # implicit dynamic: largest adaptive time step (s)
