@@ -200,4 +200,8 @@ def test_cholmod_hands_non_symmetric_and_indefinite_tangents_to_superlu():
     indefinite.sort_indices()
     x = s.solve(indefinite, b)
     assert np.linalg.norm(indefinite @ x - b) <= 1e-10 * np.linalg.norm(b)
-    assert s.factorizations_by == {"cholmod": 0, "superlu": 2}
+    unsymmetric_pattern = sp.csr_matrix(A + sp.diags([0.01], [1], shape=A.shape))
+    unsymmetric_pattern.sort_indices()
+    x = s.solve(unsymmetric_pattern, b)
+    assert np.linalg.norm(unsymmetric_pattern @ x - b) <= 1e-12 * np.linalg.norm(b)
+    assert s.factorizations_by == {"cholmod": 0, "superlu": 3}

@@ -72,7 +72,7 @@ class LinearSolver:
             c = self._chol = _cholmod_pattern(K)
             self.symbolic_analyses += 1
         data = K.data
-        if np.max(np.abs(data - data[c["transpose"]]), initial=0.0) \
+        if c["transpose"] is None or np.max(np.abs(data - data[c["transpose"]]), initial=0.0) \
                 > 1e-12 * np.max(np.abs(data), initial=0.0):
             return self._superlu(K, b)
         c["A"].V = cvxopt.matrix(data[c["lower"]])
@@ -158,11 +158,12 @@ def _ordering(K: sp.csr_matrix, ip: np.ndarray) -> dict:
 
 
 def _cholmod_pattern(K: sp.csr_matrix) -> dict:
-    """For a structurally symmetric CSR pattern: the entries of its lower triangle in
+    """For a CSR pattern: the entries of its lower triangle in
     CHOLMOD's column order (CSR row ``j`` from the diagonal on is column ``j`` of the lower
     triangle of a symmetric matrix), the gather ``transpose`` with ``data[transpose]`` the
-    data of ``K^T`` in ``K``'s pattern, and cvxopt's matrix of that triangle (its values
-    are replaced per factorization)."""
+    data of ``K^T`` in ``K``'s pattern (None for a pattern that is not symmetric, e.g.
+    with the F-bar coupling), and cvxopt's matrix of that triangle (its values are
+    replaced per factorization)."""
     n = K.shape[0]
     row = np.repeat(np.arange(n, dtype=np.int64), np.diff(K.indptr))
     col = K.indices.astype(np.int64)
@@ -170,7 +171,7 @@ def _cholmod_pattern(K: sp.csr_matrix) -> dict:
     transpose = np.searchsorted(key, col * n + row)
     if len(key) and not np.array_equal(key[np.minimum(transpose, len(key) - 1)],
                                        col * n + row):
-        raise ValueError("the tangent's sparsity pattern is not symmetric")
+        return {"indptr": K.indptr.copy(), "indices": K.indices.copy(), "transpose": None}
     lower = np.nonzero(col >= row)[0]
     A = cvxopt.spmatrix(K.data[lower], cvxopt.matrix(col[lower]), cvxopt.matrix(row[lower]),
                         (n, n))
