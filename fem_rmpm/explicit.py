@@ -132,7 +132,8 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     w = work if work is not None else Workspace.for_grid(grid, pts.n)
     (P, M), N, S, call = w.bind(grid, pts), w.nodes, w.scratch, w.call
     o = K.StepOptions(float(dt), float(gravity[0]), float(gravity[1]), float(damping),
-                      float(flip), bool(geostatic), shape == "gimp", bool(fbar), int(threads))
+                      float(flip), bool(geostatic), shape == "gimp", bool(fbar), int(threads),
+                      w.model)
     # 1. map to nodes: mass, momentum and force (locate + shape + scatter, one pass)
     call(K.map_to_nodes, P, M, N, o)
     # 2. solve on the mesh: momentum balance on the active nodes

@@ -109,7 +109,7 @@ def stages_numba(scene, grid, pts, geostatic, steps):
     clk = time.perf_counter
     explicit_step(grid, pts, 1e-4, g, sv.damping, sv.flip, sv.shape, geostatic, "numba", w)
     (P, M), N, S, call = w.bind(grid, pts), w.nodes, w.scratch, w.call
-    finish = K.material_kernels()[0]
+    finish = K.material_kernels(w.model)[0]
     for _ in range(steps):
         dt = stable_time_step(pts, grid.cell, sv.cfl)
         o = K.StepOptions(dt, float(g[0]), float(g[1]), sv.damping, sv.flip, geostatic, False,

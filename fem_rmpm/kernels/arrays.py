@@ -48,11 +48,14 @@ F-bar host cells (n,), increments D (n, 4) and per-cell sums of V and V dJ (n_ce
 ``out`` (4,) = largest P-wave speed, largest point speed, non-finite and outside points,
 and ``parts`` (64, 4) the same per chunk of points (threads)."""
 
-StepOptions = namedtuple("StepOptions", "dt gx gy damping flip geostatic gimp fbar threads",
-                         defaults=(1,))
+StepOptions = namedtuple("StepOptions",
+                         "dt gx gy damping flip geostatic gimp fbar threads model",
+                         defaults=(1, -1))
 StepOptions.__doc__ = """One step: dt (s), gravity (m/s2), local damping (-), FLIP fraction
 (-), geostatic (small strain, points fixed), gimp (uGIMP basis), fbar (F-bar remedy),
-threads (the per-point passes of the stress update on that many threads)."""
+threads (the per-point passes of the stress update on that many threads), model (the
+one material model id of all points, -1 if they mix models: selects the finish pass
+compiled for that model alone, :func:`.stress.material_kernels`)."""
 
 
 def mesh_of(grid) -> Mesh:
@@ -81,12 +84,15 @@ class Workspace:
     groups above hold ~60 arrays over the 7 kernel calls of a step: ~5 ns per point-step
     on the reference slope, 7 % of the step).  :meth:`call` does that once per kernel and
     then calls the compiled entry point directly (~3x cheaper), as long as :meth:`bind`
-    sees the same point arrays (a new array drops the resolved calls)."""
+    sees the same point arrays (a new array drops the resolved calls).  ``model``: the
+    one model id of the bound points (-1: several), found at :meth:`bind` (a point's
+    model is set when the points are made and never changes during a run)."""
     nodes: NodeArrays
     scratch: Scratch
     mesh: Mesh | None = None
     points: PointArrays | None = None
     calls: dict = field(default_factory=dict)
+    model: int = -1
 
     def bind(self, grid, pts) -> tuple[PointArrays, Mesh]:
         """The point and mesh groups of ``pts`` and ``grid`` (kept while the arrays are)."""
@@ -94,6 +100,8 @@ class Workspace:
         if self.points is None or any(a is not b for a, b in zip(P, self.points)):
             self.points, self.mesh = P, mesh_of(grid)
             self.calls.clear()
+            m = P.model
+            self.model = int(m[0]) if len(m) and bool((m == m[0]).all()) else -1
         return self.points, self.mesh
 
     def call(self, kernel, *args):

@@ -39,8 +39,9 @@ def _trial_strain(geostatic, w0, w1, w2, w3, ta, tb, e2):
 
 # The model dispatch is called in the factories' bodies, where ``version`` is a closure
 # value and so a compile-time literal (see fem_rmpm.materials.dispatch).
-def _make_finish_pass(version):
-    """``(serial, parallel)`` finish pass compiled for one registry version (see
+def _make_finish_pass(version, only):
+    """``(serial, parallel)`` finish pass compiled for one registry version and model
+    restriction ``only`` (-1: any model; else the one model id of all points; see
     :mod:`fem_rmpm.materials.dispatch`): trial strain, the model update, Cauchy stress
     ``tau V0 / V``; ``S.out`` (4,) = max P-wave speed sqrt(M / rho), max |v|, number of
     non-finite points, number outside the grid (for the next CFL step and the guards)."""
@@ -48,7 +49,7 @@ def _make_finish_pass(version):
     def finish_pass(P, M, S, o):
         # one chunk starting at the constant 0: LLVM then drops the negative-index checks
         # (a chunk start known only at run time costs ~2.5 ns per point, measured)
-        _finish_chunk(version, P, M, S, o, 0, P.x.shape[0], S.parts[0])
+        _finish_chunk(version, only, P, M, S, o, 0, P.x.shape[0], S.parts[0])
         _combine(S, 1)
 
     @kernel_parallel
@@ -59,7 +60,7 @@ def _make_finish_pass(version):
         parts = S.parts
         nch = max(1, min(o.threads, parts.shape[0]))
         for c in prange(nch):
-            _finish_chunk(version, P, M, S, o, c * n // nch, (c + 1) * n // nch, parts[c])
+            _finish_chunk(version, only, P, M, S, o, c * n // nch, (c + 1) * n // nch, parts[c])
         _combine(S, nch)
     return finish_pass, finish_pass_parallel
 
@@ -81,7 +82,7 @@ def _combine(S, nch):
 
 
 @inline
-def _finish_chunk(version, P, M, S, o, start, stop, part):
+def _finish_chunk(version, only, P, M, S, o, start, stop, part):
     """The finish pass over points ``start:stop``; squared maxima and counts into
     ``part`` (4,) (a row of ``S.parts``)."""
     x, v, ls, stress, params, W, lo, hi = P.x, P.v, P.log_strain, P.stress, P.params, \
@@ -95,7 +96,7 @@ def _finish_chunk(version, P, M, S, o, start, stop, part):
             continue
         e0, e1, e2, e3 = _trial_strain(o.geostatic, W[i, 0], W[i, 1], W[i, 2], W[i, 3],
                                        S.ta[i], S.tb[i], ls[i, 2])
-        r = point_dispatch(version, P.model[i], e0, e1, e2, e3, P.state, params, i)
+        r = point_dispatch(version, only, P.model[i], e0, e1, e2, e3, P.state, params, i)
         ls[i, 0] = r[0]
         ls[i, 1] = r[1]
         ls[i, 2] = r[2]
@@ -139,7 +140,7 @@ def _make_material_pass(version):
         for i in range(n):
             e0, e1, e2, e3 = _trial_strain(geostatic, W[i, 0], W[i, 1], W[i, 2], W[i, 3],
                                            ta[i], tb[i], log_strain[i, 2])
-            r = point_dispatch(version, model[i], e0, e1, e2, e3, st, params, i)
+            r = point_dispatch(version, -1, model[i], e0, e1, e2, e3, st, params, i)
             eps[i, 0], eps[i, 1], eps[i, 2], eps[i, 3] = r[0], r[1], r[2], r[3]
             tau[i, 0], tau[i, 1], tau[i, 2], tau[i, 3] = r[4], r[5], r[6], r[7]
         return eps, st, tau
@@ -149,14 +150,15 @@ def _make_material_pass(version):
 _BY_VERSION: dict = {}
 
 
-def material_kernels():
+def material_kernels(only: int = -1):
     """``(finish_pass, material_pass, finish_pass_parallel)`` compiled for the current
-    model registry."""
-    v = registry.version()
-    if v not in _BY_VERSION:
-        serial, parallel = _make_finish_pass(v)
-        _BY_VERSION[v] = (serial, _make_material_pass(v), parallel)
-    return _BY_VERSION[v]
+    model registry; the finish passes for points of model ``only`` alone (-1: any model;
+    the material pass always takes any model)."""
+    key = (registry.version(), int(only))
+    if key not in _BY_VERSION:
+        serial, parallel = _make_finish_pass(*key)
+        _BY_VERSION[key] = (serial, _make_material_pass(key[0]), parallel)
+    return _BY_VERSION[key]
 
 
 def _direct(kernel, *args):
@@ -183,7 +185,7 @@ def update_stress(P, M, N, S, o, call=_direct) -> None:
         if not o.geostatic:
             np.log(S.ta, out=S.ta)
             np.arctanh(S.tb, out=S.tb)
-    finish = material_kernels()
+    finish = material_kernels(o.model)
     call(finish[2] if par else finish[0], P, M, S, o)
 
 

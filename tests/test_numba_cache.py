@@ -1,0 +1,84 @@
+"""numba's disk cache stays fresh when a file a kernel inlines changes
+(:mod:`fem_rmpm.numba_cache`).
+
+numba's own rule keys a cached function on its own source file only: the kernel
+``transfer.map_to_nodes`` inlines ``basis.q4``, so an edit of ``basis.py`` alone used to
+leave the cached ``map_to_nodes`` running the old basis (the stale cache that returned
+NaN after model edits).  The functional test edits ``basis.py`` in a copy of the package
+between two fresh processes and checks that the second runs the new code.
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from fem_rmpm import numba_cache
+
+PACKAGE = Path(numba_cache.__file__).resolve().parent
+
+_CHILD = """
+import numpy as np
+from fem_rmpm.kernels import arrays as A, transfer as T
+M = A.Mesh(0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 2, 2, np.zeros(2), np.full(2, 2.0),
+           np.zeros((9, 2), bool))
+z = np.zeros((1, 2))
+P = A.PointArrays(np.array([[0.5, 0.5]]), z.copy(), np.ones(1), np.ones(1), np.ones(1),
+                  np.zeros((1, 4)), np.ones(1, bool), np.full((1, 2), 0.25),
+                  np.zeros((1, 2, 2)), np.zeros((1, 4)), np.zeros((1, 1)), z.copy(),
+                  np.zeros(1, np.int64), np.zeros((1, 2)))
+N = A.NodeArrays(np.zeros(9), np.zeros((9, 2)), np.zeros((9, 2)), np.zeros((9, 2)),
+                 np.zeros((9, 2)), np.zeros((9, 2)), np.zeros(9, np.uint8),
+                 np.zeros(9, np.int64), np.zeros(1, np.int64))
+T.map_to_nodes(P, M, N, A.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False, False))
+print(N.m[0])
+"""
+
+
+def _node_mass(root: Path) -> float:
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["PYTHONPATH"] = str(root)
+    out = subprocess.run([sys.executable, "-c", _CHILD], env=env, cwd=root, check=True,
+                         capture_output=True, text=True, timeout=300)
+    return float(out.stdout.split()[-1])
+
+
+def test_edit_of_an_inlined_file_recompiles_the_kernels_using_it(tmp_path):
+    """A point at the centre of cell 0 gives node 0 a quarter of its mass (Q4); after
+    ``basis.q4`` is edited to double its weights, a fresh process must give half (the
+    cached ``map_to_nodes`` from before the edit would still give a quarter)."""
+    shutil.copytree(PACKAGE, tmp_path / "fem_rmpm",
+                    ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc"))
+    assert _node_mass(tmp_path) == 0.25
+    assert _node_mass(tmp_path) == 0.25          # from the cache this time
+    basis = tmp_path / "fem_rmpm" / "kernels" / "basis.py"
+    src = basis.read_text()
+    old = "(fs * ft, s * ft, s * t, fs * t)"
+    assert old in src
+    basis.write_text(src.replace(old, "(2.0 * fs * ft, s * ft, s * t, fs * t)"))
+    assert _node_mass(tmp_path) == 0.5
+
+
+def test_every_module_with_compiled_code_is_in_the_hashed_sources():
+    """Each package module that defines numba functions (``njit`` or the kernel
+    decorators of ``kernels.common``) lies in :data:`numba_cache.COMPILED_SOURCES`."""
+    listed = []
+    for rel in numba_cache.COMPILED_SOURCES:
+        p = PACKAGE / rel
+        listed += list(p.glob("*.py")) if p.is_dir() else [p]
+    uses = re.compile(r"@(njit|jit|kernel|inline|kernel_parallel)\b|serial_and_parallel\(|"
+                      r"\bnjit\(")
+    compiled = [f for f in PACKAGE.rglob("*.py")
+                if f.name != "numba_cache.py" and uses.search(f.read_text())]
+    assert compiled, "the pattern finds the kernels"
+    missing = sorted(str(f.relative_to(PACKAGE)) for f in compiled if f not in listed)
+    assert not missing, f"modules with numba code not in COMPILED_SOURCES: {missing}"
+
+
+def test_package_locators_are_first():
+    from numba.core.caching import CacheImpl
+    assert numba_cache.install()
+    assert CacheImpl._locator_classes[0].__name__.startswith("FemRmpm")
