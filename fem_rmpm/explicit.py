@@ -30,9 +30,11 @@ reference.
 """
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from . import kernels as K
@@ -46,15 +48,27 @@ from .scene import Scene
 from .shape import shape_at_points
 
 __all__ = ["StepStats", "Workspace", "explicit_step", "explicit_step_numpy",
-           "stable_time_step", "run_explicit", "KERNELS", "DEFAULT_KERNEL"]
+           "stable_time_step", "run_explicit", "KERNELS", "DEFAULT_KERNEL", "auto_threads"]
 
 _MASS_TOL = 1e-14
 KERNELS = ("numba", "numpy")
 DEFAULT_KERNEL = "numba"
-# [solver] threads = 0 (auto): one thread for now; two threads give bitwise the same run but
-# were not yet measured faster on an idle machine (on the shared, loaded one they were
-# slower); set [solver] threads = 2 to use them.  Campaign workers pin numba to 1.
-AUTO_THREADS = 1
+
+
+def auto_threads() -> int:
+    """Threads of ``[solver] threads = 0`` (auto): numba's thread count — all cores for a
+    single run (or ``NUMBA_NUM_THREADS``), 1 in a campaign worker (the task sets it) —
+    less the cores already busy (the 1-minute load average, rounded), at least 1.  Any
+    count gives bitwise the same run; on busy cores a second thread only waits (on the
+    shared 2-core machine at load 16: 3.5x the wall time of one thread, measured)."""
+    n = numba.get_num_threads()
+    if n <= 1:
+        return 1
+    try:
+        busy = os.getloadavg()[0]
+    except OSError:
+        busy = 0.0
+    return max(1, min(n, int(n - busy + 0.5)))
 
 
 @dataclass
@@ -78,19 +92,27 @@ def stable_time_step(pts: Particles, cell: np.ndarray, cfl: float) -> float:
     return cfl * float(np.min(cell)) / (wave_speed + vmax)
 
 
-def _scatter(nodes: np.ndarray, weights: np.ndarray, n_nodes: int) -> np.ndarray:
-    return np.bincount(nodes.ravel(), weights.ravel(), minlength=n_nodes)
+def _scatter(nodes: np.ndarray, weights: np.ndarray, n_nodes: int,
+             second: np.ndarray | None = None) -> np.ndarray:
+    if second is None:
+        return np.bincount(nodes.ravel(), weights.ravel(), minlength=n_nodes)
+    first = ~second         # each half summed in point order, then added (as the kernels)
+    return (np.bincount(nodes[first].ravel(), weights[first].ravel(), minlength=n_nodes)
+            + np.bincount(nodes[second].ravel(), weights[second].ravel(), minlength=n_nodes))
 
 
-def map_to_nodes(nodes, N, dN, mass, velocity, stress, volume, gravity, n_nodes):
-    """Stage 1: nodal mass (nn,), momentum (nn, 2) and force (nn, 2) from the points."""
-    m = _scatter(nodes, N * mass[:, None], n_nodes)
-    p = np.stack([_scatter(nodes, N * (mass * velocity[:, k])[:, None], n_nodes)
+def map_to_nodes(nodes, N, dN, mass, velocity, stress, volume, gravity, n_nodes, second=None):
+    """Stage 1: nodal mass (nn,), momentum (nn, 2) and force (nn, 2) from the points.
+    ``second`` (bool per point): the points summed apart and added last, as the compiled
+    two-part scatter (:mod:`fem_rmpm.kernels.transfer`); None: one sum in point order."""
+    m = _scatter(nodes, N * mass[:, None], n_nodes, second)
+    p = np.stack([_scatter(nodes, N * (mass * velocity[:, k])[:, None], n_nodes, second)
                   for k in range(2)], axis=1)
     sx, sy, sxy = (stress[:, i][:, None] * volume[:, None] for i in (0, 1, 3))
     fx = -(sx * dN[..., 0] + sxy * dN[..., 1]) + N * (mass * gravity[0])[:, None]
     fy = -(sxy * dN[..., 0] + sy * dN[..., 1]) + N * (mass * gravity[1])[:, None]
-    f = np.stack([_scatter(nodes, fx, n_nodes), _scatter(nodes, fy, n_nodes)], axis=1)
+    f = np.stack([_scatter(nodes, fx, n_nodes, second), _scatter(nodes, fy, n_nodes, second)],
+                 axis=1)
     return m, p, f
 
 
@@ -135,7 +157,7 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                       float(flip), bool(geostatic), shape == "gimp", bool(fbar), int(threads),
                       w.model)
     # 1. map to nodes: mass, momentum and force (locate + shape + scatter, one pass)
-    call(K.map_to_nodes, P, M, N, o)
+    call(K.map_to_nodes_parallel if threads > 1 else K.map_to_nodes, P, M, N, o)
     # 2. solve on the mesh: momentum balance on the active nodes
     ke = call(K.solve_on_mesh, M, N, o)
     # 3. update the points: move, (MUSL) re-map momentum, update stress
@@ -155,9 +177,10 @@ def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarr
     act = np.nonzero(pts.active)[0] if not pts.active.all() else slice(None)
     x, v, mass, vol = pts.x[act], pts.velocity[act], pts.mass[act], pts.volume[act]
     nn = grid.n_nodes
+    second = np.arange(pts.n)[act] >= pts.n // 2      # the kernels' second half of the points
     # 1. map point state to the nodes
     _, nodes, N, dN, _ = shape_at_points(grid, x, shape, pts.half_width[act])
-    m, p, f = map_to_nodes(nodes, N, dN, mass, v, pts.stress[act], vol, gravity, nn)
+    m, p, f = map_to_nodes(nodes, N, dN, mass, v, pts.stress[act], vol, gravity, nn, second)
     # 2. solve momentum balance on the mesh
     v_old, v_new, a = solve_on_mesh(m, p, f, grid.fixed, dt, damping)
     # 3. map back, move the points, then (MUSL) re-map momentum and update stress
@@ -167,7 +190,8 @@ def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarr
         pts.u_geostatic[act] += dt * v_pic
     else:
         x = x + dt * v_pic
-    _, p2, _ = map_to_nodes(nodes, N, dN, mass, v, pts.stress[act] * 0, vol, gravity * 0, nn)
+    _, p2, _ = map_to_nodes(nodes, N, dN, mass, v, pts.stress[act] * 0, vol, gravity * 0, nn,
+                            second)
     v_nodes = np.where(grid.fixed, 0.0, p2 / np.where(m > _MASS_TOL, m, 1.0)[:, None])
     L = np.einsum("pak,pal->pkl", v_nodes[nodes], dN)          # velocity gradient
     state = (pts.log_strain[act], pts.state[act], pts.soil.take(act))
@@ -213,11 +237,12 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     if kernel not in KERNELS:
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
     work = Workspace.for_grid(grid, pts.n) if kernel == "numba" else None
-    threads = int(getattr(sv, "threads", 0)) or AUTO_THREADS
+    threads = int(getattr(sv, "threads", 0)) or auto_threads()
     stats = None
     h_min = float(np.min(grid.cell))
     g_full = np.array(scene.gravity_vector)
     rec = RunRecord(scheme="explicit")
+    rec.solver["threads"] = threads
     t, step, ke_peak, next_out = 0.0, 0, 0.0, sv.output_interval
     geostatic = sv.gravity_phase == "geostatic"
     wall0 = time.perf_counter()

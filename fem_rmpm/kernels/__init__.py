@@ -34,11 +34,12 @@ from .arrays import (Mesh, NodeArrays, PointArrays, Scratch, StepOptions, Worksp
 from .basis import gimp_shape, q4_shape
 from .stress import (_direct, material_kernels, small_strain_update_points, stress_update_points,
                      update_stress)
-from .transfer import g2p, map_to_nodes, nodal_velocity, solve_on_mesh
+from .transfer import (g2p, g2p_parallel, map_to_nodes, map_to_nodes_parallel, nodal_velocity,
+                       solve_on_mesh)
 
 __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Workspace",
-           "mesh_of", "point_arrays", "map_to_nodes", "solve_on_mesh", "update_points", "g2p",
-           "nodal_velocity", "update_stress", "material_kernels", "q4_shape", "gimp_shape",
+           "mesh_of", "point_arrays", "map_to_nodes", "map_to_nodes_parallel", "solve_on_mesh",
+           "update_points", "g2p", "g2p_parallel", "nodal_velocity", "update_stress", "material_kernels", "q4_shape", "gimp_shape",
            "stress_update_points", "small_strain_update_points"]
 
 
@@ -47,7 +48,7 @@ def update_points(P: PointArrays, M: Mesh, N: NodeArrays, S: Scratch, o: StepOpt
     """Stage 3: move the points, MUSL re-map, then the stress update.  Returns the largest
     |v_pic| (m/s), the motion as the grid sees it.  ``call(kernel, *args)`` runs a kernel
     (e.g. :meth:`.Workspace.call`)."""
-    vmax = call(g2p, P, M, N, S, o)
+    vmax = call(g2p_parallel if o.threads > 1 else g2p, P, M, N, S, o)
     call(nodal_velocity, M, N)
     update_stress(P, M, N, S, o, call)
     return vmax

@@ -36,10 +36,13 @@ m3/m; Cauchy stress (n, 4) kPa; active (n,) bool; uGIMP half widths (n, 2) m; F 
 elastic log strain (n, 4); model state (n, S); geostatic displacement u_geo (n, 2) m;
 model id (n,) and parameter rows (n, P) (:mod:`fem_rmpm.materials`)."""
 
-NodeArrays = namedtuple("NodeArrays", "m p f v_new acc v_remap flag touched n_touched")
+NodeArrays = namedtuple("NodeArrays", "m p f v_new acc v_remap flag touched n_touched half",
+                        defaults=(None,))
 NodeArrays.__doc__ = """Nodes: mass (nn,), momentum, force, end-of-step velocity,
 acceleration and the MUSL re-mapped momentum then velocity ``v_remap`` (nn, 2); ``flag``
-(nn,) uint8 touched this step, ``touched[:n_touched[0]]`` the active nodes."""
+(nn,) uint8 touched this step, ``touched[:n_touched[0]]`` the active nodes; ``half``: the
+same arrays (without velocities and accelerations) for the sums of the second half of
+the points, added to these in a fixed order (:mod:`.transfer`)."""
 
 Scratch = namedtuple("Scratch", "x_old W ta tb tc host D cell_v cell_vdj out parts")
 Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the trial state W (n, 4)
@@ -119,9 +122,12 @@ class Workspace:
     @classmethod
     def for_grid(cls, grid, n_points: int) -> "Workspace":
         nn, n = grid.n_nodes, n_points
+        half = NodeArrays(np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((0, 2)),
+                          np.zeros((0, 2)), np.zeros((nn, 2)), np.zeros(nn, np.uint8),
+                          np.zeros(nn, np.int64), np.zeros(1, np.int64))
         nodes = NodeArrays(np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((nn, 2)),
                            np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros(nn, np.uint8),
-                           np.zeros(nn, np.int64), np.zeros(1, np.int64))
+                           np.zeros(nn, np.int64), np.zeros(1, np.int64), half)
         scratch = Scratch(np.zeros((n, 2)), np.zeros((n, 4)), np.zeros(n), np.zeros(n),
                           np.zeros(n), np.zeros(n, np.int64), np.zeros((n, 4)),
                           np.zeros(grid.n_cells), np.zeros(grid.n_cells), np.zeros(4),
