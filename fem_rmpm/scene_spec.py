@@ -156,8 +156,8 @@ class SolverSpec:
     output_interval: float = 0.5         # s between particle snapshots
     flip: float = 1.0                    # FLIP fraction of the particle velocity update (1 = FLIP, 0 = PIC)
     kernel: str = "numba"                # explicit step: "numba" (compiled) | "numpy" (reference)
-    threads: int = 0                     # explicit numba step: threads for the per-point stress
-    #                                      passes (0: auto, now 1; bitwise the same result)
+    threads: int = 0                     # explicit numba step: threads (0: auto = the idle cores,
+    #                                      1 in a campaign; any count: bitwise the same run)
     edge_policy: str = "freeze"          # what happens to points reaching the grid edge
     # implicit
     load_steps: int = 1                  # quasi-static: number of load steps
