@@ -51,7 +51,8 @@ __all__ = ["RunEstimate", "BudgetError", "estimate_run", "check_budget",
 #: Environment variable that sets the memory limit in GiB (default: 75 % of the RAM).
 MEMORY_LIMIT_ENV = "FEM_RMPM_MEMORY_LIMIT_GB"
 BASE_BYTES = 200e6          # interpreter + numpy/scipy/numba/scikit-fem, measured RSS ~190 MB
-BYTES_PER_CELL = 148.0      # mesh nodes and cells, node flags, seeding temporaries, workspace
+BYTES_PER_CELL = 213.0      # mesh nodes and cells, node flags, seeding temporaries, workspace
+#                             (65 B of it: the second-half scatter arrays of the kernels)
 BYTES_PER_POINT = 380.0     # point state (Particles) + explicit workspace per point
 BYTES_PER_POINT_SNAPSHOT = 24.0
 #: Whole-run cost per point-step (ns) by (scheme, kernel or shape); see the module docstring.

@@ -241,8 +241,7 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     stats = None
     h_min = float(np.min(grid.cell))
     g_full = np.array(scene.gravity_vector)
-    rec = RunRecord(scheme="explicit")
-    rec.solver["threads"] = threads
+    rec = RunRecord(scheme="explicit", solver={"threads": threads})
     t, step, ke_peak, next_out = 0.0, 0, 0.0, sv.output_interval
     geostatic = sv.gravity_phase == "geostatic"
     wall0 = time.perf_counter()

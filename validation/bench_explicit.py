@@ -26,7 +26,17 @@ included), next to the RSS of the same process after imports only.
 
 Compile cost: a fresh process with an empty ``NUMBA_CACHE_DIR`` (cold compile) and
 a second one with that cache filled (cache load): the time to the end of the first
-step.  Writes ``validation/out/bench_explicit.json``.
+step.
+
+Whole runs (the headline, what users get): ``fem-rmpm run meshes/slope_reference.toml``
+(case (i): von Mises softening, to rest) in a fresh process, after a short run that
+fills numba's cache; ns per point-step and MPUPS from the run's own ``summary.json``
+(the time loop with its VTK output; imports, set-up and the end figures not included),
+plus the process's CPU time.  One thread (``--quick`` and full) and two threads (full);
+full also the first simulated second (0.25 s at 1e6) of case (i) at ~1e4, ~1e5 and ~1e6
+points (cells 1/3, 0.1, 1/30 m) for the linear-cost check.  The machine is named (CPU
+model, cores, load average at start and end: wall figures mean something only on an
+idle machine).  Writes ``validation/out/bench_explicit.json``.
 """
 from __future__ import annotations
 
@@ -34,6 +44,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import subprocess
 import sys
 import tempfile
@@ -60,6 +71,72 @@ OUT = ROOT / "validation" / "out"
 REFERENCE = ROOT / "meshes" / "slope_elastic.toml"
 CASES = {"1e4": 1 / 3, "ref": 0.25, "1e5": 0.1, "1e6": 1 / 30}   # cell size (m)
 WORK_TARGET = 1.2e7          # point-steps per timed run (~1 s at 1e7 MPUPS)
+CASE_I = ROOT / "meshes" / "slope_reference.toml"
+SCALING = {"1e4": (1 / 3, 1.0), "1e5": (0.1, 1.0), "1e6": (1 / 30, 0.25)}   # cell m, t_end s
+
+
+def machine() -> dict:
+    """CPU model (lscpu), cores, load average: which machine the figures come from."""
+    model = platform.processor() or "?"
+    try:
+        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
+        model = next(ln.split(":", 1)[1].strip() for ln in out.splitlines()
+                     if ln.startswith("Model name"))
+    except (OSError, subprocess.CalledProcessError, StopIteration):
+        pass
+    return {"cpu_model": model, "cores": os.cpu_count(), "platform": platform.platform(),
+            "python": platform.python_version(), "numpy": np.__version__,
+            "numba": __import__("numba").__version__, "load_avg_start": os.getloadavg()}
+
+
+def whole_run(threads: int, changes=()) -> dict:
+    """``fem-rmpm run`` of case (i) (with ``--set`` ``changes``) in a fresh process:
+    the figures of its ``summary.json`` and the process's CPU time."""
+    sets = [a for c in (f"solver.threads={threads}", *changes) for a in ("--set", c)]
+    with tempfile.TemporaryDirectory() as d:
+        cmd = [sys.executable, "-m", "fem_rmpm.cli", "run", str(CASE_I), "--out", f"{d}/run",
+               "--quiet", *sets]
+        r0, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+        subprocess.run(cmd, check=True, capture_output=True,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT)))
+        wall, r1 = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
+        s = json.loads(Path(d, "run", "summary.json").read_text())
+    ns = s["ns_per_particle_step"]
+    return {"threads": threads, "threads_used": s["solver"].get("threads"),
+            "changes": list(changes), "points": s["particles"], "steps": s["steps"],
+            "stop_reason": s["stop_reason"], "run_wall_s": s["wall_time"],
+            "ns_per_point_step": ns, "mpups": 1e3 / ns, "process_wall_s": wall,
+            "process_cpu_s": r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime,
+            "measures": {k: s["measures"][k] for k in ("runout_distance", "sliding_area",
+                                                        "retrogression_distance")}}
+
+
+def whole_runs(quick: bool) -> dict:
+    """Case (i) on 1 (and, full, 2) threads; full: the 1e4 / 1e5 / 1e6 scaling runs."""
+    for th in (1,) if quick else (1, 2):      # fill numba's cache (serial / parallel kernels)
+        whole_run(th, ["solver.t_end=0.02"])
+    out = {"case_i": [whole_run(th) for th in ((1,) if quick else (1, 2))]}
+    for r in out["case_i"]:
+        print(f"WHOLE RUN case (i) {r['points']} points x {r['steps']} steps, {r['threads']} "
+              f"thread(s) (used {r['threads_used']}): {r['mpups']:.2f} MPUPS, "
+              f"{r['ns_per_point_step']:.1f} ns per point-step (summary.json, wall "
+              f"{r['run_wall_s']:.1f} s); process {r['process_wall_s']:.1f} s wall, "
+              f"{r['process_cpu_s']:.1f} s CPU", flush=True)
+    if quick:
+        return out
+    out["scaling"] = {}
+    for name, (cell, t_end) in SCALING.items():
+        ch = [f"grid.cell=[{cell!r}, {cell!r}]", f"solver.t_end={t_end}"]
+        out["scaling"][name] = [whole_run(th, ch) for th in ((1, 2) if name == "1e6" else (1,))]
+        for r in out["scaling"][name]:
+            print(f"WHOLE RUN case (i) first {t_end} s at {r['points']} points, {r['threads']} "
+                  f"thread(s): {r['ns_per_point_step']:.1f} ns per point-step "
+                  f"({r['mpups']:.2f} MPUPS)", flush=True)
+    ns = [out["scaling"][k][0]["ns_per_point_step"] for k in SCALING]
+    out["scaling_spread"] = max(ns) / min(ns) - 1
+    print(f"whole-run ns per point-step 1e4 / 1e5 / 1e6: {' / '.join(f'{v:.1f}' for v in ns)} "
+          f"(largest / smallest - 1 = {out['scaling_spread']:.1%})")
+    return out
 
 
 def make_case(cell: float, phase: str, softening: bool = False):
@@ -244,11 +321,11 @@ def main(argv=None):
     args = ap.parse_args(argv)
     cases = ["ref"] if args.quick else list(CASES)
     repeats = args.repeats or (3 if args.quick else 5)
-    res = {"machine": {"platform": platform.platform(), "processor": platform.processor(),
-                       "cpus": os.cpu_count(), "python": platform.python_version(),
-                       "numpy": np.__version__, "numba": __import__("numba").__version__,
-                       "load_avg_start": os.getloadavg()},
-           "repeats": repeats, "cases": {}}
+    res = {"machine": machine(), "repeats": repeats, "cases": {}}
+    m = res["machine"]
+    print(f"machine: {m['cpu_model']}, {m['cores']} cores, load average "
+          f"{' '.join(f'{v:.2f}' for v in m['load_avg_start'])} at start", flush=True)
+    res["whole_run"] = whole_runs(args.quick)
 
     with tempfile.TemporaryDirectory() as cache:
         res["compile"] = {"cold_cache": child_process(cache), "warm_cache": child_process(cache)}
@@ -323,14 +400,21 @@ def main(argv=None):
             res.setdefault("scaling_1e6_over_1e4_cpu", {})[phase] = b / a
             print(f"scaling {phase}: MPUPS(1e6) / MPUPS(1e4) = {b / a:.2f} (cpu time)")
     ref = res["cases"]["ref"]["finite"]["numba"]
-    res["headline"] = {"case": "reference slope, finite-strain phase, numba, run_explicit",
-                       "points": res["cases"]["ref"]["finite"]["points"],
-                       "mpups_wall": ref["mpups_wall"], "mpups_cpu": ref["mpups_cpu"],
+    one = res["whole_run"]["case_i"][0]
+    res["headline"] = {"case": "case (i), fem-rmpm run meshes/slope_reference.toml, 1 thread, "
+                               "summary.json", "points": one["points"], "steps": one["steps"],
+                       "mpups": one["mpups"], "ns_per_point_step": one["ns_per_point_step"],
+                       "kernel_step_mpups_wall": ref["mpups_wall"],
+                       "kernel_step_mpups_cpu": ref["mpups_cpu"],
                        "rss_peak_mb": c["warm_cache"]["rss_peak_mb"]}
     res["machine"]["load_avg_end"] = os.getloadavg()
-    print(f"\nHEADLINE reference slope ({res['headline']['points']} points): "
-          f"{ref['mpups_wall']:.2f} MPUPS wall, {ref['mpups_cpu']:.2f} MPUPS cpu "
-          f"(median of {repeats}); load average {res['machine']['load_avg_end'][0]:.1f}")
+    m = res["machine"]
+    print(f"\nHEADLINE case (i) whole run ({one['points']} points, {one['steps']} steps, 1 "
+          f"thread): {one['mpups']:.2f} MPUPS, {one['ns_per_point_step']:.1f} ns per "
+          f"point-step (summary.json); step alone (reference slope, finite strain): "
+          f"{ref['mpups_wall']:.2f} MPUPS wall, {ref['mpups_cpu']:.2f} cpu (median of "
+          f"{repeats}).  {m['cpu_model']}, {m['cores']} cores, load average "
+          f"{m['load_avg_start'][0]:.2f} at start, {m['load_avg_end'][0]:.2f} at end")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(res, indent=1))
     print(f"wrote {args.out}")
