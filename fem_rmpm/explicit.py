@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+from numba.np.ufunc import parallel as numba_parallel
 
 from . import kernels as K
 from .grid import Grid
@@ -61,7 +62,9 @@ def auto_threads() -> int:
     less the cores already busy (the 1-minute load average, rounded), at least 1.  Any
     count gives bitwise the same run; on busy cores a second thread only waits (on the
     shared 2-core machine at load 16: 3.5x the wall time of one thread, measured)."""
-    n = numba.get_num_threads()
+    # numba's pool size without starting the pool (get_num_threads would start it)
+    started = getattr(numba_parallel, "_is_initialized", True)
+    n = numba.get_num_threads() if started else int(numba.config.NUMBA_NUM_THREADS)
     if n <= 1:
         return 1
     try:
@@ -216,6 +219,23 @@ def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarr
     return StepStats(ke, float(np.sqrt(speed2.max(initial=0.0))))
 
 
+def _cfl_step(stats: StepStats | None, pts: Particles, grid: Grid, cfl: float,
+              h_min: float) -> float:
+    """CFL step (s): from the maxima the numba step returned, else :func:`stable_time_step`."""
+    if stats is not None and stats.wave_speed is not None:
+        return cfl * h_min / (stats.wave_speed + stats.point_speed)
+    return stable_time_step(pts, grid.cell, cfl)
+
+
+def _check_jump(jump: float, h_min: float, step: int, t: float, cfl: float) -> None:
+    """Stop when a point moved more than half a cell in one step (``jump``, m)."""
+    if jump > 0.5 * h_min:
+        raise SimulationError(
+            f"step {step} (t = {t:.4g} s): a material point moved {jump:.3g} m "
+            f"in one step (> half a cell); the explicit scheme is unstable — reduce [solver] "
+            f"cfl (now {cfl:g}; the CFL limit is 1, default 0.5)")
+
+
 def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
                  progress=None, kernel: str | None = None) -> RunRecord:
     """Time loop of the explicit scheme.
@@ -248,11 +268,7 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     if on_output:
         on_output(t, pts)
     while t < sv.t_end - 1e-12:
-        if stats is not None and stats.wave_speed is not None:
-            dt_cfl = sv.cfl * h_min / (stats.wave_speed + stats.point_speed)
-        else:
-            dt_cfl = stable_time_step(pts, grid.cell, sv.cfl)
-        dt = min(dt_cfl, sv.t_end - t)
+        dt = min(_cfl_step(stats, pts, grid, sv.cfl, h_min), sv.t_end - t)
         ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
         damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
         stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape, geostatic,
@@ -267,11 +283,7 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
             if not pts.active.any():
                 rec.stop_reason = "all points left the grid"
                 break
-        if stats.max_speed * dt > 0.5 * float(np.min(grid.cell)):
-            raise SimulationError(
-                f"step {step} (t = {t:.4g} s): a material point moved {stats.max_speed * dt:.3g} m "
-                f"in one step (> half a cell); the explicit scheme is unstable — reduce [solver] "
-                f"cfl (now {sv.cfl:g}; the CFL limit is 1, default 0.5)")
+        _check_jump(stats.max_speed * dt, h_min, step, t, sv.cfl)
         ke_peak = max(ke_peak, stats.kinetic_energy)
         if step % 20 == 0:
             rec.energy.append((t, stats.kinetic_energy))

@@ -53,10 +53,19 @@ def start_local_cluster(workers: int):
     :func:`worker_environment` set before they start (close both when done)."""
     env = {f"distributed.nanny.pre-spawn-environ.{key}": val
            for key, val in worker_environment().items()}
+    # the nannies set these in *this* process's environment before spawning; put ours
+    # back after (else a later numba compile here reads NUMBA_NUM_THREADS=1 and refuses
+    # to run once numba's thread pool has started with more threads)
+    saved = {key: os.environ.get(key) for key in worker_environment()}
     with dask.config.set(env):
         # ":0": the scheduler's HTTP server (and the dashboard, if bokeh is installed) on a
         # free port; None would still bind 8787 and warn when another cluster holds it
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                dashboard_address=":0", silence_logs=logging.ERROR)
+    for key, val in saved.items():
+        if val is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = val
     return Client(cluster, set_as_default=False), cluster
 
