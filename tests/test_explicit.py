@@ -48,7 +48,9 @@ def test_column_explicit_settles_onto_fem_and_closed_form(column_run):
     the MPM must be as far from the closed form as the FEM, no further.
     Achieved (0.25 m cells, 1599 steps): sigma_yy vs FEM 5.0e-5 (asserts 2e-4); closed-form
     error minus the FEM's 5.1e-8 (asserts 2.5e-7); K0 of the volume averages 1.6e-13 (asserts
-    1e-12) and of every point 5.2e-12 (asserts 2e-11); top settlement vs FEM 4.8e-4, the
+    1e-12) and of every point 3.0e-11, the points near the free top where sigma_yy is
+    ~1 kPa (asserts 1e-10; 5.2e-12 when the scatter summed all points in one sequence, before
+    it summed two fixed halves apart for threads); top settlement vs FEM 4.8e-4, the
     residual motion of the at-rest stop (asserts 1.5e-3)."""
     scene, res = column_run
     pts, grid = res.particles, res.grid
@@ -65,7 +67,7 @@ def test_column_explicit_settles_onto_fem_and_closed_form(column_run):
     assert abs(err_cf - err_fem_cf) < 2.5e-7
     k0 = np.sum(pts.stress[:, 0] * w) / np.sum(pts.stress[:, 1] * w)
     assert abs(k0 / (0.33 / 0.67) - 1) < 1e-12
-    assert np.abs(pts.stress[:, 0] / pts.stress[:, 1] / (0.33 / 0.67) - 1).max() < 2e-11
+    assert np.abs(pts.stress[:, 0] / pts.stress[:, 1] / (0.33 / 0.67) - 1).max() < 1e-10
     top = pts.displacement[:, 1].min()
     assert abs(top / fem.displacement[:, 1].min() - 1) < 1.5e-3
 
