@@ -23,7 +23,7 @@ small-strain B-bar); about 5 % more time per step (Q4, measured on the reference
 The stable step (CFL) is mapped in :mod:`.stability` and ``validation/stability_map.py``.
 
 Two implementations of the same step, equal to round-off (``tests/test_kernels.py``):
-``kernel="numba"`` (default) runs the compiled serial loops of :mod:`.kernels`
+``kernel="numba"`` (default) runs the compiled loops of :mod:`.kernels`
 (~10x faster, only the nodes the points touch take part);
 ``kernel="numpy"`` runs :func:`explicit_step_numpy`, the readable vectorised
 reference.

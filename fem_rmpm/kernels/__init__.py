@@ -24,8 +24,11 @@ Every formula is the one of the numpy path, in the same order where it matters, 
 two agree to round-off (``tests/test_kernels.py``: 1e-12 relative over several steps,
 measured ~1e-14).  ``cache=True`` keeps the compiled code on disk (the first call in a
 fresh environment compiles for 11-25 s on the shared 2-core machine, then 0.4-0.7 s to
-load; ``validation/bench_explicit.py`` measures it); no threads: a Monte Carlo campaign
-parallelises over realizations.
+load; ``validation/bench_explicit.py`` measures it; :mod:`fem_rmpm.numba_cache` keys it on
+every compiled source file).  Threads (``StepOptions.threads`` > 1): the per-point passes
+run with ``prange`` and the two scatters sum two fixed halves of the points
+(:mod:`.transfer`), so any thread count gives bitwise the single-thread result; a Monte
+Carlo campaign runs one thread per realization.
 """
 from __future__ import annotations
 
