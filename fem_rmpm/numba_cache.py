@@ -23,6 +23,11 @@ import functools
 import hashlib
 from pathlib import Path
 
+try:
+    from numba.core.caching import CacheImpl
+except ImportError:          # numba's internals moved: numba's own rule applies (install)
+    CacheImpl = None
+
 __all__ = ["COMPILED_SOURCES", "sources_hash", "install"]
 
 PACKAGE = Path(__file__).resolve().parent
@@ -71,9 +76,8 @@ def install() -> bool:
     """Put the package's locators first in numba's list (idempotent).  False if numba's
     cache machinery does not look as expected (then numba's own rule applies)."""
     try:
-        from numba.core.caching import CacheImpl
         classes = list(CacheImpl._locator_classes)
-    except (ImportError, AttributeError):
+    except AttributeError:   # also CacheImpl None
         return False
     if any(c.__name__.startswith("FemRmpm") for c in classes):
         return True
