@@ -43,7 +43,7 @@ from .measures import compute_measures, excluded_summary
 from .output import PvdSeries, write_grid, write_json
 from .particles import Particles, seed_particles, soil_cells
 from .plots import plot_profile, plot_snapshots
-from .random_field import field_noise, noise_shape, sample_point_property
+from .random_field import apply_to_points, field_noise, noise_shape, sample_point_properties
 from .rundir import RunDirError, check_run_dir, run_files, start_run_dir
 from .scene import Scene, SceneError, check_seed, load_scene, scene_to_dict, with_value
 
@@ -73,13 +73,8 @@ def prepare(scene: Scene, seed: int | None = None, noise=None) -> tuple[Grid, Pa
     pts = seed_particles(scene, grid)
     if scene.random_field is not None:
         seed = scene.montecarlo.seed if seed is None else seed
-        peak = sample_point_property(scene, grid, pts, seed, noise=noise)
-        old_peak = pts.soil.cohesion_peak
-        finite = np.isfinite(old_peak)                 # elastic points keep c = inf
-        ratio = np.divide(pts.soil.cohesion_residual, old_peak, out=np.ones_like(old_peak),
-                          where=finite)
-        pts.soil = dataclasses.replace(pts.soil, cohesion_peak=np.where(finite, peak, old_peak),
-                                       cohesion_residual=np.where(finite, peak * ratio, old_peak))
+        values = sample_point_properties(scene, grid, pts, seed, noise=noise)
+        pts.soil = apply_to_points(pts.soil, values)   # residuals in proportion to peak
         _check_point_strength(scene, pts, seed if noise is None else "(given noise)")
     return grid, pts
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import api
+from . import api, materials
 from .campaign import LITERATURE_CASES, CampaignResult, run_campaign
 from .campaign.backends import ClusterSpec, parse_adapt
 from .campaign.estimate import estimate_campaign, estimate_text
@@ -28,14 +28,14 @@ from .field_output import plot_realization, plot_variogram, write_field_vtu
 from .grid import make_grid
 from .output import OutputError, write_json
 from .particles import seed_particles
-from .random_field import (embedding_for, field_layout, field_values, fit_scales,
-                           read_measurements)
+from .random_field import (apply_to_points, embeddings_for, field_layout, fit_scales,
+                           point_fields, read_measurements)
 from .random_field.conditioning import resolve_data_path
 from .report import ReportError, write_report
 from .run import SimulationError
 from .rundir import output_dir_for
-from .scene import (RandomFieldSpec, Scene, SceneError, check_seed, load_scene, with_value,
-                    with_values)
+from .scene import (RandomFieldSpec, Scene, SceneError, check_seed, load_scene, scene_to_dict,
+                    with_value, with_values)
 from .strength_reduction import fs_cli
 
 __all__ = ["main", "default_scene_path", "build_parser", "parse_settings", "summary_text",
@@ -284,22 +284,31 @@ def _field_fit(path: str, rf: RandomFieldSpec, out: Path) -> str:
             "random_field.theta_v / anisotropy to use them).")
 
 
-def _field_on_points(pts, values: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Give the points the realization's peak cohesion (as ``api.prepare``, residual in
-    proportion); returns the value shown per point: the field on the field's soils, the
-    peak cohesion elsewhere, -1 on linear elastic points (infinite strength)."""
-    base = pts.soil.cohesion_peak
+def _field_on_points(pts, name: str, values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Give the points the realization's value of property ``name`` (as ``api.prepare``, a
+    residual in proportion); returns the value shown per point: the field on the field's
+    soils, the soil's value elsewhere, -1 where that is infinite (linear elastic)."""
+    base = getattr(pts.soil, name)
     finite = np.isfinite(base)
-    peak = np.where(mask & finite, values, base)         # as sample_point_property
-    ratio = np.divide(pts.soil.cohesion_residual, base, out=np.ones(pts.n), where=finite)
-    pts.soil = replace(pts.soil, cohesion_peak=peak,
-                       cohesion_residual=np.where(finite, peak * ratio, np.inf))
-    return np.where(mask, values, np.where(finite, peak, -1.0))
+    pts.soil = apply_to_points(pts.soil, {name: np.where(mask & finite, values, base)})
+    return np.where(mask, values, np.where(finite, base, -1.0))
 
 
-def _field_text(scene: Scene, seed: int, layout, emb, meas, v: np.ndarray) -> str:
+def _field_property(scene: Scene, name: str | None) -> tuple[int, RandomFieldSpec]:
+    """``--property``: the index and spec of the field shown (default: the first)."""
+    fields = scene.random_field.fields()
+    names = [f.property for f in fields]
+    if name is None:
+        return 0, fields[0]
+    if name not in names:
+        raise InputError(f"--property {name}: [property] not a random property of "
+                         f"{scene.source}; allowed: {' | '.join(names)}")
+    return names.index(name), fields[names.index(name)]
+
+
+def _field_text(scene: Scene, rf: RandomFieldSpec, seed: int, layout, emb, meas,
+                v: np.ndarray) -> str:
     """The one-paragraph summary of ``fem-rmpm field`` (without note, fit and output)."""
-    rf = scene.random_field
     xi = rf.anisotropy
     avg = (f"local averages over {layout.cell[0]:g} x {layout.cell[1]:g} m cells (variance "
            f"{emb.variance:.3f})" if rf.local_averaging else
@@ -311,9 +320,26 @@ def _field_text(scene: Scene, seed: int, layout, emb, meas, v: np.ndarray) -> st
             f"{layout.shape[1]} field cells, seed {seed}, circulant embedding {emb.padded[0]} x "
             f"{emb.padded[1]} (lambda_min/lambda_max {emb.lambda_min / emb.lambda_max:.1e}, "
             f"{'exact' if emb.clipped == 0 else f'clipped {emb.clipped:.1e}'})"
+            + _cross_text(scene, rf)
             + (f", conditioned on {len(meas.x)} measurements of {meas.source}" if meas else "")
-            + f"; {len(v)} material points get {v.min():.3g} to {v.max():.3g} kPa "
+            + f"; {len(v)} material points get {v.min():.3g} to {v.max():.3g} {_unit(rf)} "
             f"(mean {v.mean():.3g}, COV {v.std() / v.mean():.3g}).")
+
+
+def _cross_text(scene: Scene, rf: RandomFieldSpec) -> str:
+    """``, cross-correlated with X (rho r), ...`` when the field has several properties."""
+    names = [f.property for f in scene.random_field.fields()]
+    if len(names) == 1:
+        return ""
+    R = scene.random_field.cross_correlation or np.eye(len(names))
+    k = names.index(rf.property)
+    return ", cross-correlated with " + ", ".join(
+        f"{n} (rho {R[k][j]:g})" for j, n in enumerate(names) if j != k)
+
+
+def _unit(rf: RandomFieldSpec) -> str:
+    p = materials.registry.parameter(rf.property)
+    return p.unit if p is not None else "-"
 
 
 def _cmd_fs(a) -> int:
@@ -326,27 +352,29 @@ def _cmd_field(a) -> int:
     """``fem-rmpm field [SCENE] --seed S --out DIR [--data CSV] [--fit CSV]``."""
     t0 = time.perf_counter()
     scene, note = _field_scene(a)
-    rf = scene.random_field
+    k, rf = _field_property(scene, getattr(a, "property", None))
     seed = scene.montecarlo.seed if getattr(a, "seed", None) is None else check_seed(a.seed)
     with output_dir_for(a.out) as out:          # bad input leaves no directory behind
         fit_text = _field_fit(a.fit, rf, out) if getattr(a, "fit", None) else ""
         grid = make_grid(scene)
         pts = seed_particles(scene, grid)
         layout = field_layout(scene, grid)
-        emb = embedding_for(scene, layout)
-        path = resolve_data_path(scene, getattr(a, "data", None))
+        emb = embeddings_for(scene, layout)[k]
+        path = resolve_data_path(scene, getattr(a, "data", None), rf)
         meas = read_measurements(path) if path is not None else None
-        values, mask = field_values(scene, grid, pts, seed, meas)
-        shown = _field_on_points(pts, values, mask)
+        values, mask = point_fields(scene, grid, pts, seed, meas, data_index=k)
+        values = values[rf.property]
+        shown = _field_on_points(pts, rf.property, values, mask)
         write_field_vtu(out / "field.vtu", pts, shown)
-        title = (f"{scene.scene.name}: peak cohesion (kPa), {rf.distribution}, COV {rf.cov:g}, "
+        label = f"{rf.property.replace('_', ' ')} ({_unit(rf)})"
+        title = (f"{scene.scene.name}: {label}, {rf.distribution}, COV {rf.cov:g}, "
                  f"theta_v {rf.theta_v:g} m, xi = {rf.anisotropy:g}, seed {seed}"
                  + (f", conditioned on {len(meas.x)} data" if meas is not None else ""))
-        plot_realization(out / "field.png", scene, pts, shown, mask, title)
+        plot_realization(out / "field.png", scene, pts, shown, mask, title, label=label)
         v = values[mask]
         write_json(out / "field.json", {
-            "scene_file": scene.source, "seed": seed,
-            "random_field": {k: getattr(rf, k) for k in rf.__dataclass_fields__},
+            "scene_file": scene.source, "seed": seed, "property": rf.property,
+            "random_field": scene_to_dict(scene)["random_field"],
             "field_cells": list(layout.shape), "field_cell_size": layout.cell.tolist(),
             "embedding": list(emb.padded), "lambda_min": emb.lambda_min,
             "lambda_min_over_max": emb.lambda_min / emb.lambda_max, "clipped": emb.clipped,
@@ -354,7 +382,7 @@ def _cmd_field(a) -> int:
             "min": float(v.min()), "mean": float(v.mean()), "max": float(v.max()),
             "std": float(v.std()), "conditioned_on": None if meas is None else meas.source,
             "wall_time": time.perf_counter() - t0})
-        print(_field_text(scene, seed, layout, emb, meas, v) + f"{note}{fit_text} Output: "
+        print(_field_text(scene, rf, seed, layout, emb, meas, v) + f"{note}{fit_text} Output: "
               f"{out / 'field.vtu'}, {out / 'field.png'}, {out / 'field.json'} "
               f"({time.perf_counter() - t0:.2f} s).")
     return 0
@@ -521,6 +549,9 @@ def _add_field(sub) -> None:
     fl.add_argument("--data", default=None,
                     help="CSV with header x,y,value (grid frame m, kPa) to condition the "
                     "field on (simple kriging); default: the scene's [random_field] data")
+    fl.add_argument("--property", default=None,
+                    help="the random property to show, condition (--data) and fit (--fit) "
+                    "when [random_field] has several (default: the first)")
     fl.add_argument("--fit", default=None,
                     help="CSV with header x,y,value[,group]: estimate theta_v and theta_h "
                     "from its semivariograms (writes fit.json, variogram.png)")

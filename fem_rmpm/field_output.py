@@ -15,7 +15,7 @@ from .random_field import FitResult
 __all__ = ["plot_realization", "plot_variogram", "write_field_vtu"]
 
 
-def plot_realization(path, scene, pts, values, mask, title):
+def plot_realization(path, scene, pts, values, mask, title, label="peak cohesion (kPa)"):
     plt = _plt()
     X = to_true_frame(pts.x0, scene.scene.frame_angle_deg)
     span = np.ptp(X, axis=0) + 1e-9
@@ -29,7 +29,7 @@ def plot_realization(path, scene, pts, values, mask, title):
     ax.set_xlabel("X, true horizontal (m)")
     ax.set_ylabel("Y (m)")
     ax.set_title(title, fontsize=10)
-    fig.colorbar(sc, ax=ax, label="peak cohesion (kPa)", shrink=0.8)
+    fig.colorbar(sc, ax=ax, label=label, shrink=0.8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -2,7 +2,8 @@
 
 :func:`with_value` / :func:`with_values` return a validated, modified copy of a scene
 (for driver scripts, ``--set`` and campaign cases).  The spec dataclasses live in
-:mod:`fem_rmpm.scene_spec`, reading and validating TOML in :mod:`fem_rmpm.scene_schema`;
+:mod:`fem_rmpm.scene_spec`, reading and validating TOML in :mod:`fem_rmpm.scene_schema`
+(typed values :mod:`fem_rmpm.scene_values`, the random field :mod:`fem_rmpm.scene_fields`);
 every public name of both is re-exported here, so ``from fem_rmpm.scene import
 load_scene, Scene, SceneError`` keeps working.
 """
@@ -11,16 +12,17 @@ from __future__ import annotations
 import re
 from typing import Any
 
-from .scene_schema import (_LISTS, _fail, check_seed, load_scene, polygon_problem,
-                           scene_from_dict, scene_to_dict)
+from .scene_schema import (_LISTS, check_seed, load_scene, polygon_problem, scene_from_dict,
+                           scene_to_dict)
 from .scene_spec import (BedrockSpec, BoundarySpec, GridSpec, MonteCarloSpec, OutputSpec,
-                         PrescribedSpec, RandomFieldSpec, Scene, SceneError, SceneInfo,
-                         SoilSpec, SolverSpec)
+                         PrescribedSpec, PropertyFieldSpec, RandomFieldSpec, Scene, SceneError,
+                         SceneInfo, SoilSpec, SolverSpec)
+from .scene_values import _fail
 
 __all__ = [
     "SceneError", "Scene", "SceneInfo", "GridSpec", "BoundarySpec", "SoilSpec",
-    "BedrockSpec", "PrescribedSpec", "RandomFieldSpec", "SolverSpec", "MonteCarloSpec", "OutputSpec",
-    "load_scene", "scene_from_dict", "with_value", "with_values", "scene_to_dict",
+    "BedrockSpec", "PrescribedSpec", "RandomFieldSpec", "PropertyFieldSpec", "SolverSpec",
+    "MonteCarloSpec", "OutputSpec", "load_scene", "scene_from_dict", "with_value", "with_values", "scene_to_dict",
     "check_seed", "polygon_problem",
 ]
 

@@ -9,14 +9,15 @@ in t/m3.  Reading and validating a TOML file into these classes is
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = [
     "SceneError", "Scene", "SceneInfo", "GridSpec", "BoundarySpec", "SoilSpec",
-    "BedrockSpec", "PrescribedSpec", "RandomFieldSpec", "SolverSpec", "MonteCarloSpec", "OutputSpec",
-    "BOUNDARY_KINDS", "SCHEMES", "SHAPES", "EDGE_POLICIES",
+    "BedrockSpec", "PrescribedSpec", "RandomFieldSpec", "PropertyFieldSpec", "SolverSpec", "MonteCarloSpec", "OutputSpec",
+    "BOUNDARY_KINDS", "SCHEMES", "SHAPES", "EDGE_POLICIES", "DISTRIBUTIONS", "CORRELATIONS",
 ]
 
 
@@ -32,6 +33,8 @@ BOUNDARY_KINDS = ("fixed", "roller", "free")
 SCHEMES = ("explicit", "implicit")
 SHAPES = ("standard", "gimp")
 EDGE_POLICIES = ("freeze", "stop")
+DISTRIBUTIONS = ("normal", "lognormal", "beta")
+CORRELATIONS = ("markov_elliptic", "markov_separable")
 
 
 @dataclass(frozen=True)
@@ -126,9 +129,30 @@ class PrescribedSpec:
 
 
 @dataclass(frozen=True)
+class PropertyFieldSpec:
+    """One ``[[random_field.properties]]`` table: the marginal of one property of the
+    field's soils and, where given, its own correlation structure (None: the value of
+    ``[random_field]``, shared by the properties)."""
+    property: str                        # a parameter of the soil's model, e.g. friction_angle_peak
+    distribution: str = "lognormal"      # "normal" | "lognormal" | "beta" (bounded: low, high)
+    cov: float = 0.25                    # coefficient of variation (-)
+    low: float | None = None             # beta: lower bound (property units)
+    high: float | None = None            # beta: upper bound (property units)
+    theta_v: float | None = None         # m
+    anisotropy: float | None = None      # -
+    correlation: str | None = None
+    layering_angle_deg: float | None = None
+    data: str | None = None              # CSV of x, y, value of this property (kriging)
+
+
+@dataclass(frozen=True)
 class RandomFieldSpec:
+    """``[random_field]``: one random property (``property`` ... ``data`` here), or several
+    cross-correlated ones (``properties``, one :class:`PropertyFieldSpec` each, and the
+    correlation matrix ``cross_correlation`` of their standard Gaussian fields, default
+    the identity).  The other keys are shared by the properties."""
     property: str = "cohesion_peak"
-    distribution: str = "lognormal"      # "normal" | "lognormal"
+    distribution: str = "lognormal"      # "normal" | "lognormal" | "beta" (bounded: low, high)
     cov: float = 0.25                    # coefficient of variation (-)
     theta_v: float = 0.5                 # vertical scale of fluctuation (m)
     anisotropy: float = 1.0              # xi = theta_h / theta_v (-)
@@ -138,6 +162,20 @@ class RandomFieldSpec:
     local_averaging: bool = True
     soil: str | None = None              # name of the soil the field applies to (default: all)
     data: str | None = None              # CSV of x, y, value to condition on (kriging)
+    low: float | None = None             # beta: lower bound (property units)
+    high: float | None = None            # beta: upper bound (property units)
+    properties: tuple[PropertyFieldSpec, ...] = ()
+    cross_correlation: tuple[tuple[float, ...], ...] = ()   # p x p, rows in properties' order
+
+    def fields(self) -> tuple["RandomFieldSpec", ...]:
+        """One single-property spec per random property, in order: this spec itself
+        without ``properties``; else each property's keys over the shared ones."""
+        if not self.properties:
+            return (self,)
+        return tuple(dataclasses.replace(
+            self, properties=(), cross_correlation=(),
+            **{k: v for k, v in dataclasses.asdict(p).items() if v is not None})
+            for p in self.properties)
 
 
 @dataclass(frozen=True)

@@ -3,8 +3,10 @@
 Modules: :mod:`.model` (correlation model, marginal transform), :mod:`.quadrature`
 (covariance of local averages between field cells), :mod:`.embedding` (circulant
 embedding; :meth:`Embedding.from_noise` maps standard-normal noise to a field),
-:mod:`.layout` (the field cells of a scene), :mod:`.conditioning` (measurements,
-kriging), :mod:`.points` (the field of a seed on the material points) and
+:mod:`.cross` (several cross-correlated properties: the noises mixed by the
+Cholesky factor of the cross-correlation matrix), :mod:`.layout` (the field cells of a
+scene), :mod:`.conditioning` (measurements, kriging), :mod:`.points` (the fields of a
+seed or a noise array on the material points) and
 :mod:`.variogram` (scale estimation).  Figures and VTU of ``fem-rmpm field`` are in
 :mod:`fem_rmpm.field_output`, its command line in :mod:`fem_rmpm.cli`.
 
@@ -131,10 +133,13 @@ from __future__ import annotations
 from .conditioning import Measurements, condition, read_measurements
 from .embedding import Embedding, circulant_embedding, dense_covariance, sample_dense
 from .layout import FieldLayout, field_layout
-from .model import (KINDS, MarkovModel, gaussian_to_property, local_average_covariance_1d,
-                    model_from_spec, property_to_gaussian, variance_function)
-from .points import (embedding_for, field_noise, field_values, gaussian_field, noise_shape,
-                     sample_point_property)
+from .cross import cholesky_factor, coherence, mix_noise
+from .model import (KINDS, MarkovModel, beta_shape, gaussian_to_property,
+                    local_average_covariance_1d, model_from_spec, property_to_gaussian,
+                    variance_function)
+from .points import (apply_to_points, embedding_for, embeddings_for, field_noise, field_values,
+                     gaussian_field, gaussian_fields, noise_shape, point_fields,
+                     sample_point_properties, sample_point_property)
 from .quadrature import lattice_covariance
 from .variogram import FitResult, empirical_variogram, fit_scales
 
@@ -145,4 +150,6 @@ __all__ = [
     "gaussian_to_property", "property_to_gaussian", "Measurements", "read_measurements",
     "condition", "gaussian_field", "field_values", "sample_point_property",
     "noise_shape", "field_noise", "empirical_variogram", "fit_scales", "FitResult",
+    "beta_shape", "cholesky_factor", "mix_noise", "coherence", "embeddings_for",
+    "gaussian_fields", "point_fields", "sample_point_properties", "apply_to_points",
 ]

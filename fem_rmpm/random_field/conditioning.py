@@ -12,7 +12,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from ..grid import locate
 from ..particles import soil_cells
-from ..scene import Scene, SceneError
+from ..scene import RandomFieldSpec, Scene, SceneError
 from .embedding import Embedding
 from .layout import FieldLayout
 from .model import property_to_gaussian
@@ -88,9 +88,11 @@ def read_measurements(path, key: str = "random_field.data") -> Measurements:
                         group=np.array(groups) if gcol is not None else None)
 
 
-def resolve_data_path(scene: Scene, data) -> Path | None:
+def resolve_data_path(scene: Scene, data, spec: RandomFieldSpec | None = None) -> Path | None:
+    """The CSV to condition on: ``data`` if given, else the ``data`` of ``spec`` (one
+    property's spec, default the scene's ``[random_field]``), relative to the scene file."""
     if data is None:
-        data = scene.random_field.data
+        data = (spec or scene.random_field).data
         if data is None:
             return None
         p = Path(data)
@@ -101,9 +103,12 @@ def resolve_data_path(scene: Scene, data) -> Path | None:
 
 
 def data_cells(scene: Scene, grid, layout: FieldLayout, meas: Measurements,
-                key: str = "random_field.data") -> tuple[np.ndarray, np.ndarray]:
-    """Field cells and Gaussian values of the measurements (checked to lie in the field's soil)."""
-    rf = scene.random_field
+               key: str = "random_field.data",
+               spec: RandomFieldSpec | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Field cells and Gaussian values of the measurements of the property of ``spec``
+    (default the scene's ``[random_field]``), checked to lie in the field's soil and in
+    the range of the property's distribution."""
+    rf = spec or scene.random_field
     pts = np.stack([meas.x, meas.y], axis=1)
     fidx, inside = layout.locate(pts)
     gcell, _, ginside = locate(grid, pts)
@@ -120,15 +125,24 @@ def data_cells(scene: Scene, grid, layout: FieldLayout, meas: Measurements,
             f"lies outside the domain of the random field (soil {names} within "
             f"[{lo[0]:g}, {hi[0]:g}] x [{lo[1]:g}, {hi[1]:g}] m, grid frame); allowed: "
             "points inside the field's soil cells")
-    mean = np.array([s.cohesion_peak for s in scene.soils])[owner[gcell]]
+    mean = np.array([np.nan if (v := s.value(rf.property)) is None else float(v)
+                     for s in scene.soils])[owner[gcell]]
     if rf.distribution == "lognormal":
         bad = np.nonzero(meas.value <= 0)[0]
         if len(bad):
             r = bad[0]
             raise SceneError(f"{meas.source}: [{key}] row {meas.rows[r]}: value "
                              f"{meas.value[r]:g} <= 0 with a lognormal field; allowed: values > 0")
+    if rf.distribution == "beta":
+        bad = np.nonzero(~((meas.value > rf.low) & (meas.value < rf.high)))[0]
+        if len(bad):
+            r = bad[0]
+            raise SceneError(f"{meas.source}: [{key}] row {meas.rows[r]}: value "
+                             f"{meas.value[r]:g} outside the beta field's ({rf.low:g}, "
+                             f"{rf.high:g}); allowed: low < value < high")
     if rf.cov == 0:
-        raise SceneError(f"{scene.source}: [random_field.cov] conditioning needs cov > 0; "
+        cov_key = key.rsplit(".", 1)[0] + ".cov"
+        raise SceneError(f"{scene.source}: [{cov_key}] conditioning needs cov > 0; "
                          "allowed: cov > 0 with a data file")
     z = property_to_gaussian(meas.value, mean, rf)
     cells, inv = np.unique(fidx, return_inverse=True)

@@ -93,7 +93,7 @@ class SingleVariable:
     R_MAX = 0.01
 
     def white_noise(self, seed) -> np.ndarray:
-        return np.random.default_rng(seed).standard_normal((1, 1))
+        return np.random.default_rng(seed).standard_normal((self.padded[1], self.padded[0]))
 
     def from_noise(self, eps: np.ndarray) -> np.ndarray:
         n1, n2 = self.shape
@@ -130,15 +130,16 @@ def _table(model, cell, m1, m2, averaging) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=16)
-def _embedding_cached(mkey, cell, shape, averaging, pad_thetas) -> Embedding:
+def _embedding_cached(mkey, cell, shape, averaging, pad_thetas,
+                      min_padded=(0, 0)) -> Embedding:
     t0 = time.perf_counter()
     model = MarkovModel(*mkey)
     n1, n2 = shape
     ext = model.extent()
     pads = [min(int(math.ceil(pad_thetas * ext[a] / cell[a])), 2 * shape[a] + 64) for a in (0, 1)]
     for attempt in range(1, 7):
-        m1 = sfft.next_fast_len(max(2 * (n1 - 1) + pads[0], 2), real=True)
-        m2 = sfft.next_fast_len(max(2 * (n2 - 1) + pads[1], 2), real=True)
+        m1 = sfft.next_fast_len(max(2 * (n1 - 1) + pads[0], 2, min_padded[0]), real=True)
+        m2 = sfft.next_fast_len(max(2 * (n2 - 1) + pads[1], 2, min_padded[1]), real=True)
         tab = _table(model, cell, m1, m2, averaging)
         eig = sfft.rfft2(tab).real
         lmin, lmax = float(eig.min()), float(eig.max())
@@ -164,9 +165,11 @@ def _embedding_cached(mkey, cell, shape, averaging, pad_thetas) -> Embedding:
 
 
 def circulant_embedding(model: MarkovModel, cell, shape, averaging: bool = True,
-                        pad_thetas: float = 2.0) -> Embedding:
+                        pad_thetas: float = 2.0, min_padded=(0, 0)) -> Embedding:
     """The (cached) embedding of a field of ``shape = (n1, n2)`` cells of size ``cell`` (m);
-    a :class:`SingleVariable` when the field is perfectly correlated across its extent."""
+    a :class:`SingleVariable` when the field is perfectly correlated across its extent.
+    ``min_padded``: the smallest periodic lattice ``(m1, m2)`` (several properties share
+    one, so that their noises can be mixed)."""
     cell = (float(cell[0]), float(cell[1]))
     shape = (int(shape[0]), int(shape[1]))
     if min(shape) < 1 or min(cell) <= 0:
@@ -174,8 +177,9 @@ def circulant_embedding(model: MarkovModel, cell, shape, averaging: bool = True,
     ext = np.array([shape[0] * cell[0], shape[1] * cell[1]])
     if float(np.max(model.scaled_norm(np.array([ext[0], ext[0]]), np.array([ext[1], -ext[1]])))) \
             <= SingleVariable.R_MAX:
-        return SingleVariable(shape)
-    return _embedding_cached(model.key(), cell, shape, bool(averaging), float(pad_thetas))
+        return SingleVariable(shape, padded=(max(min_padded[0], 1), max(min_padded[1], 1)))
+    return _embedding_cached(model.key(), cell, shape, bool(averaging), float(pad_thetas),
+                             (int(min_padded[0]), int(min_padded[1])))
 
 
 

@@ -44,15 +44,21 @@ class FieldLayout:
 
 
 def _field_soils(scene: Scene) -> tuple[int, ...]:
+    """The soils the field applies to: the named one, or every soil whose value of each
+    random property is finite (a linear elastic soil has infinite strength: no field)."""
     rf = scene.random_field
     names = [s.name for s in scene.soils]
+    props = [f.property for f in rf.fields()]
     cand = range(len(scene.soils)) if rf.soil is None else [names.index(rf.soil)]
-    soils = tuple(k for k in cand if math.isfinite(scene.soils[k].cohesion_peak))
+
+    def finite(s) -> bool:
+        return all(isinstance(v := s.value(p), (int, float)) and math.isfinite(v) for p in props)
+    soils = tuple(k for k in cand if finite(scene.soils[k]))
     if not soils:
         which = "the soils" if rf.soil is None else f"soil {rf.soil!r}"
         raise SceneError(f"{scene.source}: [random_field.soil] {which} of the random field "
-                         "have no finite cohesion_peak (the field's mean); allowed: a soil with "
-                         "cohesion_peak > 0 kPa")
+                         f"have no finite {' / '.join(props)} (the field's mean); allowed: a "
+                         "soil with finite values, e.g. cohesion_peak > 0 kPa")
     return soils
 
 

@@ -1,17 +1,33 @@
 """The correlation model of the field (Markov, elliptic or separable, rotated with the
 layering), Vanmarcke's 1-D local-average results and the marginal transform between
-the standard Gaussian field and the soil property."""
+the standard Gaussian field and the soil property.
+
+Marginals, with the point parameters (``mean`` = the soil's value of the property):
+
+* ``normal``: ``v = mean (1 + cov z)``;
+* ``lognormal``: ``v = exp(m_ln + s_ln z)``, ``s_ln^2 = ln(1 + cov^2)``,
+  ``m_ln = ln(mean) - s_ln^2 / 2`` (mean ``mean``, COV ``cov``);
+* ``beta`` on ``[low, high]`` (bounded, e.g. a friction angle): ``v = low + (high - low)
+  B^-1(Phi(z); a, b)``, the shape parameters from the mean and the standard deviation
+  ``sigma = cov mean``: ``m = (mean - low) / (high - low)``, ``s = sigma / (high - low)``,
+  ``k = m (1 - m) / s^2 - 1``, ``a = m k``, ``b = (1 - m) k`` (needs
+  ``sigma^2 < (mean - low)(high - mean)``, checked by the scene).  ``Phi`` and ``B^-1``
+  are :func:`scipy.special.ndtr` and ``betaincinv`` (``betainccinv`` of ``Phi(-z)`` for
+  ``z > 0``, so the upper tail keeps its precision); every value lies in ``[low, high]``.
+"""
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import special
 
 from ..scene import RandomFieldSpec
 
 __all__ = ["KINDS", "MarkovModel", "model_from_spec", "variance_function",
-           "local_average_covariance_1d", "gaussian_to_property", "property_to_gaussian"]
+           "local_average_covariance_1d", "gaussian_to_property", "property_to_gaussian",
+           "beta_shape"]
 
 KINDS = ("markov_elliptic", "markov_separable")
 
@@ -97,23 +113,43 @@ def local_average_covariance_1d(k, T, theta) -> np.ndarray:
     return np.where(k < 0.5, variance_function(T, theta), far)
 
 
-def gaussian_to_property(z, mean, spec: RandomFieldSpec) -> np.ndarray:
-    """Marginal transform of standard Gaussian values with the point parameters.
+def beta_shape(mean, cov: float, low: float, high: float) -> tuple[np.ndarray, np.ndarray]:
+    """Shape parameters ``(a, b)`` of the beta distribution on ``[low, high]`` with the
+    given mean and coefficient of variation (arrays broadcast like ``mean``)."""
+    width = high - low
+    m = (np.asarray(mean, float) - low) / width
+    s = cov * np.asarray(mean, float) / width
+    k = m * (1.0 - m) / (s * s) - 1.0
+    return m * k, (1.0 - m) * k
 
-    ``normal``: ``mean (1 + cov z)``; ``lognormal``: ``exp(m_ln + s_ln z)`` with
-    ``s_ln^2 = ln(1 + cov^2)``, ``m_ln = ln(mean) - s_ln^2 / 2`` (same units as ``mean``)."""
+
+def gaussian_to_property(z, mean, spec) -> np.ndarray:
+    """Marginal transform of standard Gaussian values ``z`` with the point parameters
+    (``spec``: the property's ``distribution``, ``cov``, ``low``, ``high``; same units as
+    ``mean``)."""
     z = np.asarray(z, float)
     if spec.distribution == "normal":
         return mean * (1.0 + spec.cov * z)
+    if spec.distribution == "beta":
+        if spec.cov == 0:
+            return np.broadcast_to(np.asarray(mean, float), z.shape).copy()
+        a, b = beta_shape(mean, spec.cov, spec.low, spec.high)
+        u = np.where(z <= 0.0, special.betaincinv(a, b, special.ndtr(np.minimum(z, 0.0))),
+                     special.betainccinv(a, b, special.ndtr(-np.maximum(z, 0.0))))
+        return np.clip(spec.low + (spec.high - spec.low) * u, spec.low, spec.high)
     s2 = math.log1p(spec.cov ** 2)
     return mean * np.exp(math.sqrt(s2) * z - 0.5 * s2)      # = exp(m_ln + s_ln z)
 
 
-def property_to_gaussian(v, mean, spec: RandomFieldSpec) -> np.ndarray:
-    """Inverse of :func:`gaussian_to_property` (cov > 0)."""
+def property_to_gaussian(v, mean, spec) -> np.ndarray:
+    """Inverse of :func:`gaussian_to_property` (cov > 0; beta: ``low < v < high``)."""
     v = np.asarray(v, float)
     if spec.distribution == "normal":
         return (v / mean - 1.0) / spec.cov
+    if spec.distribution == "beta":
+        a, b = beta_shape(mean, spec.cov, spec.low, spec.high)
+        x = (v - spec.low) / (spec.high - spec.low)
+        lower = special.betainc(a, b, x)
+        return np.where(lower <= 0.5, special.ndtri(lower), -special.ndtri(special.betaincc(a, b, x)))
     s2 = math.log1p(spec.cov ** 2)
     return (np.log(v) - (np.log(mean) - 0.5 * s2)) / math.sqrt(s2)
-
