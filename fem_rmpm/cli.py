@@ -309,6 +309,7 @@ def _field_property(scene: Scene, name: str | None) -> tuple[int, RandomFieldSpe
 def _field_text(scene: Scene, rf: RandomFieldSpec, seed: int, layout, emb, meas,
                 v: np.ndarray) -> str:
     """The one-paragraph summary of ``fem-rmpm field`` (without note, fit and output)."""
+    unit = materials.registry.parameter(rf.property).unit
     xi = rf.anisotropy
     avg = (f"local averages over {layout.cell[0]:g} x {layout.cell[1]:g} m cells (variance "
            f"{emb.variance:.3f})" if rf.local_averaging else
@@ -322,24 +323,16 @@ def _field_text(scene: Scene, rf: RandomFieldSpec, seed: int, layout, emb, meas,
             f"{'exact' if emb.clipped == 0 else f'clipped {emb.clipped:.1e}'})"
             + _cross_text(scene, rf)
             + (f", conditioned on {len(meas.x)} measurements of {meas.source}" if meas else "")
-            + f"; {len(v)} material points get {v.min():.3g} to {v.max():.3g} {_unit(rf)} "
+            + f"; {len(v)} material points get {v.min():.3g} to {v.max():.3g} {unit} "
             f"(mean {v.mean():.3g}, COV {v.std() / v.mean():.3g}).")
 
 
 def _cross_text(scene: Scene, rf: RandomFieldSpec) -> str:
     """``, cross-correlated with X (rho r), ...`` when the field has several properties."""
     names = [f.property for f in scene.random_field.fields()]
-    if len(names) == 1:
-        return ""
-    R = scene.random_field.cross_correlation or np.eye(len(names))
-    k = names.index(rf.property)
-    return ", cross-correlated with " + ", ".join(
+    R, k = scene.random_field.cross_correlation or np.eye(len(names)), names.index(rf.property)
+    return "" if len(names) == 1 else ", cross-correlated with " + ", ".join(
         f"{n} (rho {R[k][j]:g})" for j, n in enumerate(names) if j != k)
-
-
-def _unit(rf: RandomFieldSpec) -> str:
-    p = materials.registry.parameter(rf.property)
-    return p.unit if p is not None else "-"
 
 
 def _cmd_fs(a) -> int:
@@ -366,7 +359,8 @@ def _cmd_field(a) -> int:
         values = values[rf.property]
         shown = _field_on_points(pts, rf.property, values, mask)
         write_field_vtu(out / "field.vtu", pts, shown)
-        label = f"{rf.property.replace('_', ' ')} ({_unit(rf)})"
+        unit = materials.registry.parameter(rf.property).unit
+        label = f"{rf.property.replace('_', ' ')} ({unit})"
         title = (f"{scene.scene.name}: {label}, {rf.distribution}, COV {rf.cov:g}, "
                  f"theta_v {rf.theta_v:g} m, xi = {rf.anisotropy:g}, seed {seed}"
                  + (f", conditioned on {len(meas.x)} data" if meas is not None else ""))

@@ -12,12 +12,14 @@ normal and the marginal transforms are exact.
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 
 import numpy as np
 import pytest
 
 from fem_rmpm import api
+from fem_rmpm import campaign as mc
 from fem_rmpm import random_field as rf
 from fem_rmpm.cli import main as cli_main
 from fem_rmpm.grid import make_grid
@@ -284,7 +286,6 @@ def test_field_command_shows_and_fits_one_property(tmp_path, capsys):
                          "--fit", str(csv)]) == 0
         text = capsys.readouterr().out
         assert f"random field of {prop}" in text and "cross-correlated with" in text
-        import json
         fit = json.loads((out / "fit.json").read_text())
         assert fit["log_transformed"] is log
         field = json.loads((out / "field.json").read_text())
@@ -301,7 +302,6 @@ def test_drained_random_scene_round_trips_and_draws_both_fields():
     """The shipped scene: reads back from scene_to_dict through JSON, and realization 1
     gives every soil point a cohesion and a friction angle from the fields (phi in its
     bounds, the two negatively correlated: Pearson of ln c and phi about -0.5)."""
-    import json
     scene = load_scene(DRAINED)
     assert scene_from_dict(json.loads(json.dumps(scene_to_dict(scene))), scene.source) == scene
     _, pts = api.prepare(scene, 1)
@@ -402,13 +402,12 @@ def test_a_property_of_another_model_is_refused():
 
 
 # ----------------------------------------------------------------------------- a campaign
-def test_two_realization_campaign_of_a_cut_in_c_phi_soil(tmp_path):
+def test_two_realization_campaign_of_a_cut_in_c_phi_soil(tmp_path, dask_client):
     """The mc_tiny cut (2 m high, 45 deg) in Mohr-Coulomb soil (c' 4 -> 1 kPa lognormal
     COV 0.3, phi' 25 -> 20 deg beta on [15, 35] COV 0.1, rho = -0.5): a 2-realization
-    campaign on 1 worker finishes both realizations, they differ, each record's run is the
+    campaign (the session's 2-worker Dask cluster) finishes both realizations, they differ, each record's run is the
     realization's seed run in this process (pure function of scene and seed), and a rerun
     of the same campaign finds nothing to do (the campaign identity reads the new keys)."""
-    from fem_rmpm import campaign as mc
     d = scene_to_dict(load_scene(TINY))
     soil = {k: v for k, v in d["soil"][0].items() if k not in ("cohesion_peak",
                                                                "cohesion_residual")}
@@ -423,12 +422,12 @@ def test_two_realization_campaign_of_a_cut_in_c_phi_soil(tmp_path):
                               "cov": 0.1, "low": 15.0, "high": 35.0}]}
     scene = scene_from_dict(d, TINY)
     out = tmp_path / "cphi"
-    res = mc.run_campaign(scene, out, 2, workers=1, progress=False, figures=False)
+    res = mc.run_campaign(scene, out, 2, client=dask_client, progress=False, figures=False)
     assert res.computed == 2 and not res.lost
     rows = mc.read_results(out / "results.csv")
     assert [r["status"] for r in rows] == ["ok", "ok"]
     assert rows[0]["max_displacement"] != rows[1]["max_displacement"]
     alone = api.run(scene, seed=mc.realization_seed(scene.montecarlo.seed, 1), progress=False)
     assert alone.measures["max_displacement"] == rows[1]["max_displacement"]
-    again = mc.run_campaign(scene, out, 2, workers=1, progress=False, figures=False)
+    again = mc.run_campaign(scene, out, 2, client=dask_client, progress=False, figures=False)
     assert again.computed == 0 and again.skipped == 2
