@@ -114,7 +114,8 @@ def plot(states: dict, scene, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     names = sorted({k.rsplit("/", 1)[0] for k in states}, key=lambda n: list(states).index(n + "/explicit"))
-    fig, axes = plt.subplots(len(names), 2, figsize=(14, 2.9 * len(names)), squeeze=False)
+    fig, axes = plt.subplots(len(names), 2, figsize=(14, 2.4 * len(names)), squeeze=False,
+                             constrained_layout=True)
     a = scene.scene.frame_angle_deg
     vmax = max(float(np.max(s["gamma"])) for s in states.values())
     norm = strain_norm(vmax)
@@ -128,10 +129,11 @@ def plot(states: dict, scene, path: Path) -> None:
             sc.set_norm(norm)
             ax.set_aspect("equal")
             ax.set_xlim(-5, 125)
+            ax.set_ylim(-26, 6)
             ax.set_title(f"{name}: {scheme}", fontsize=10)
             ax.set_xlabel("x (m)")
             ax.set_ylabel("y (m)")
-    fig.colorbar(sc, ax=axes, shrink=0.6, label="plastic shear strain (-)")
+    fig.colorbar(sc, ax=axes, shrink=0.8, label="plastic shear strain (-)")
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -148,7 +150,6 @@ def main():
     js = OUT / "implicit_vs_explicit.json"
     if a.plot_only:
         data = np.load(npz)
-        states = {k.rsplit("/", 1)[0]: {} for k in data.files}
         states = {}
         for k in data.files:
             key, field = k.rsplit("/", 1)
