@@ -154,7 +154,8 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     measures = compute_measures(pts, scene.scene.frame_angle_deg,
                                 scene.montecarlo.failure_displacement, grid.cell,
                                 rec.time if rec.stop_reason == "at rest" else None,
-                                snapshots=snapshots, grid=grid)
+                                snapshots=snapshots, grid=grid,
+                                mechanism_time=MECHANISM_TIME + rec.solver.get("geostatic_end_time", 0.0))
     summary = {**_summary(scene, seed, pts, rec, measures), "estimate": estimate.to_dict()}
     if out is not None:
         if figures and snapshots and error is None:
@@ -165,6 +166,12 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     if error is not None:
         raise error
     return RunResult(scene, seed, grid, pts, rec, measures, summary, out, snapshots)
+
+
+#: Mechanism time (s) after the start of the large-deformation phase (t = 0, or the end of a
+#: geostatic phase, in which the points do not move): when the mass breaks up in the
+#: literature's figure 5 (Wang et al. 2017).
+MECHANISM_TIME = 3.0
 
 
 #: CPU time numba takes to compile the explicit kernels on a cold cache (s): 7 s measured on

@@ -44,7 +44,8 @@ and ``d_p > threshold``):
   stayed (``d_p <= threshold``) below the lowest sliding point; 0 where the whole
   column slid.  (The literature's xi = 48 case fails about a third of the depth above
   the base.)
-* ``intact_blocks``: at ``mechanism_time`` (default 3 s), the number of intact
+* ``intact_blocks``: at ``mechanism_time`` (default 3 s; runs take it 3 s after the end
+  of a geostatic phase, when the points start to move), the number of intact
   blocks the sliding mass has broken into: connected groups (4-neighbour cells of
   the grid) of at least 4 cells holding sliding points with ``gamma_p < 0.1``
   (the literature's "sub-blocks"; most for mid-range anisotropy).

@@ -1,0 +1,72 @@
+"""The risk scene (meshes/slope_risk.toml) and the study's rules (validation/risk_study.py)."""
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _study():
+    spec = importlib.util.spec_from_file_location("risk_study", ROOT / "validation" / "risk_study.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _row(index, failed, area=0.0, early=0.0, retro=0.0, runout=0.0, h=0.0):
+    return {"case": "xi12", "index": index, "status": "ok", "failed": failed,
+            "sliding_area": area, "sliding_area_early": early, "retrogression_distance": retro,
+            "runout_distance": runout, "slip_surface_height": h, "intact_blocks": 2,
+            "time_to_rest": 40.0, "excluded_frozen_points": 0, "excluded_stray_points": 0}
+
+
+def test_failure_mode_rule():
+    """The documented rule: toe slump when the failure stays within 2 H = 10 m of the
+    crest; else translational when at least half the final sliding area moved by the
+    mechanism time; else retrogressive; None when the slope stood."""
+    s = _study()
+    assert s.failure_mode(_row(0, False)) is None
+    assert s.failure_mode(_row(0, True, area=30, early=30, retro=10.0)) == "toe slump"
+    assert s.failure_mode(_row(0, True, area=200, early=100, retro=10.01)) == "translational"
+    assert s.failure_mode(_row(0, True, area=200, early=99.9, retro=40)) == "retrogressive"
+
+
+def test_case_summary_counts_and_interval():
+    """P(failure) = k / N with SE sqrt(p(1-p)/N) and the Wilson interval; measures given
+    failure only over the failed rows; modes and 'above the base' counted by the rule."""
+    s = _study()
+    rows = [_row(0, False), _row(1, True, 200, 150, 40, 30, 0.2),
+            _row(2, True, 100, 10, 30, 10, 1.0), _row(3, True, 20, 20, 5, 2, 0.0)]
+    out = s.case_summary(rows)
+    assert out["n"] == 4 and out["failed"] == 3
+    assert out["p_failure"] == 0.75
+    assert math.isclose(out["se"], math.sqrt(0.75 * 0.25 / 4))
+    lo, hi = out["wilson95"]
+    assert lo < 0.75 < hi
+    assert out["sliding_area"]["given_failure"]["mean"] == pytest.approx(320 / 3)
+    assert out["sliding_area"]["unconditional"]["mean"] == pytest.approx(80.0)
+    assert out["modes"] == {"toe slump": 1, "translational": 1, "retrogressive": 1}
+    assert out["above_base"] == 1                       # 1.0 m > H / 6 = 0.83 m
+    assert s._label("xi12") == "xi = 12" and s._label("homogeneous") == "homogeneous"
+
+
+def test_homogeneous_risk_slope_stands():
+    """meshes/slope_risk.toml without its random field stands (its file says so): the
+    geostatic phase comes to rest before geostatic_time, no point moves the failure
+    displacement, no point is frozen; the mechanism time is counted from the end of the
+    geostatic phase (3 s after it).  About 1 s of CPU."""
+    from fem_rmpm import api
+    from fem_rmpm.campaign import without_random_field
+    from fem_rmpm.scene import load_scene
+    scene = without_random_field(load_scene(ROOT / "meshes" / "slope_risk.toml"))
+    res = api.run(scene, vtk=False, figures=False)
+    geo = res.record.solver
+    assert geo["geostatic_at_rest"] and geo["geostatic_end_time"] < scene.solver.geostatic_time
+    assert res.record.stop_reason == "at rest"
+    assert not res.measures["failed"] and res.measures["max_displacement"] < 0.05
+    assert res.measures["excluded_frozen_points"] == 0
+    assert res.measures["mechanism_time"] == pytest.approx(3.0 + geo["geostatic_end_time"])
