@@ -11,6 +11,8 @@ realization), the figures (``*.png``) and the kept VTK (``vtk/...``) — and wri
 * **Results per case**: N, P(failure) with its standard error and Wilson 95 % interval,
   and mean / standard error / 5-50-95 % quantiles of every measure the summary holds
   (run-out, retrogression, sliding area, ..., factor of safety when computed);
+* **Risk study** (when ``validation/risk_study.py`` wrote ``risk_study.json``): per case
+  P(failure), P(FS < 1), the failure-mode split and the failure-surface depth;
 * **Realizations that failed numerically**, with their messages;
 * **Figures**: every PNG of the campaign directory, embedded as ``data:`` URIs;
 * **Representative realizations**: per case, among the realizations with kept VTK,
@@ -44,6 +46,11 @@ FIGURES = (
                         "run-out with +- 1.96 standard errors, against N."),
     ("cases.png", "Final plastic shear strain of one kept realization per case."),
     ("cases_mechanism.png", "One kept realization per case at the mechanism time."),
+    ("risk_exceedance.png", "Risk study: exceedance curves of sliding area, run-out and "
+                            "retrogression, over all realizations (top) and given failure "
+                            "(bottom)."),
+    ("risk_modes.png", "Risk study: failure modes per case (rule in the section above) and "
+                       "the failure surface's height above the base, given failure."),
 )
 
 #: Measures shown first in the per-case table (others follow in the summary's order).
@@ -217,6 +224,44 @@ def _subset(summary: dict) -> str:
                       "acceptance", "runs"), levels))
 
 
+def _risk_study(campaign: Path) -> str:
+    """The risk study (``risk_study.json`` of ``validation/risk_study.py``), when present:
+    per case P(failure), P(FS < 1), the failure-mode split and the failure-surface depth."""
+    try:
+        study = _read_json(campaign / "risk_study.json")
+    except (FileNotFoundError, ReportError):
+        return ""
+    rules = study.get("rules") or {}
+    fs = study.get("factor_of_safety") or {}
+    rows = []
+    for name, c in (study.get("cases") or {}).items():
+        w = c.get("wilson95") or [None, None]
+        f = fs.get(name) or {}
+        a = (c.get("sliding_area") or {}).get("given_failure") or {}
+        ro = (c.get("runout_distance") or {}).get("given_failure") or {}
+        m = c.get("modes") or {}
+        h = c.get("slip_surface_height") or {}
+        rows.append([_esc(name), _num(c.get("n")),
+                     f"{_num(c.get('p_failure'))} [{_num(w[0])}, {_num(w[1])}]",
+                     f"{_num(f.get('p_fs_below_1'))} (N {_num(f.get('n'))})" if f else "-",
+                     f"{_num(a.get('mean'))} ({_num(a.get('cov'), 2)})",
+                     f"{_num(ro.get('mean'))} ({_num(ro.get('cov'), 2)})",
+                     " / ".join(_num(m.get(k)) for k in ("toe slump", "translational",
+                                                         "retrogressive")),
+                     f"{_num(h.get('q50'))} ({_num(c.get('above_base'))})"])
+    rule = (f"Failure modes: toe slump when the retrogression is at most "
+            f"{_num(rules.get('toe_slump_retrogression_m'))} m; otherwise translational when at "
+            f"least {_num(rules.get('translational_early_fraction'))} of the final sliding area "
+            "moved by the mechanism time, else retrogressive. Above the base: failure-surface "
+            f"height over {_num(rules.get('above_base_height_m'))} m.")
+    return ("<h2>Risk study</h2><p>" + _esc(rule) + "</p>"
+            + _table(("case", "N", "P(failure) [Wilson 95 %]", "P(FS < 1)",
+                      "sliding area given failure: mean (COV)",
+                      "run-out given failure: mean (COV)",
+                      "toe slump / translational / retrogressive",
+                      "failure-surface height: median m (n above base)"), rows))
+
+
 def _failures(records: list[dict]) -> str:
     bad = [r for r in records if r.get("status") != "ok"]
     if not bad:
@@ -321,7 +366,7 @@ def report_html(campaign_dir: str | Path) -> str:
         'Files: <a href="results.csv">results.csv</a> · <a href="summary.json">summary.json</a>'
         ' · <a href="records/">records/</a></small></p>',
         _provenance(summary, identity, records), _subset(summary), _results(summary),
-        _failures(records),
+        _risk_study(campaign), _failures(records),
         _figures(campaign), _representatives(campaign, records)))
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
             f"<title>{_esc(title)}</title><style>{_CSS}</style><script>{_SCRIPT}</script>"

@@ -70,3 +70,21 @@ def test_homogeneous_risk_slope_stands():
     assert not res.measures["failed"] and res.measures["max_displacement"] < 0.05
     assert res.measures["excluded_frozen_points"] == 0
     assert res.measures["mechanism_time"] == pytest.approx(3.0 + geo["geostatic_end_time"])
+
+
+def test_report_shows_the_risk_study(tmp_path):
+    """report.html gains a 'Risk study' section from risk_study.json (the study's output:
+    P(failure) with its Wilson interval and the mode split per case); none without it."""
+    from fem_rmpm.report import report_html
+    s = _study()
+    rows = [_row(0, False), _row(1, True, 200, 150, 40, 30, 0.2)]
+    (tmp_path / "summary.json").write_text('{"scene": "slope_risk", "cases": []}')
+    assert "Risk study" not in report_html(tmp_path)
+    summary = {"xi12": s.case_summary(rows)}
+    import json
+    (tmp_path / "risk_study.json").write_text(json.dumps(
+        {"rules": {"toe_slump_retrogression_m": 10.0}, "cases": summary,
+         "factor_of_safety": {"xi12": None}}))
+    page = report_html(tmp_path)
+    assert "<h2>Risk study</h2>" in page and "xi12" in page
+    assert "0.5 [" in page and "0 / 1 / 0" in page

@@ -59,6 +59,8 @@ TOE_SLUMP_RETROGRESSION = 2 * LAYER_THICKNESS   # m
 TRANSLATIONAL_EARLY_FRACTION = 0.5
 ABOVE_BASE_HEIGHT = LAYER_THICKNESS / 6        # m
 MODES = ("toe slump", "translational", "retrogressive")
+SHORT = {"sliding_area": "area", "runout_distance": "run-out",
+         "retrogression_distance": "retrogression"}
 MEASURES = (("sliding_area", "sliding area (m2 per m)"),
             ("runout_distance", "run-out distance (m)"),
             ("retrogression_distance", "retrogression distance (m)"))
@@ -163,12 +165,12 @@ def plot_exceedance(path: Path, cases: dict[str, list[dict]]) -> Path:
                     continue
                 p = 1.0 - np.arange(1, len(x) + 1) / len(x)
                 axes[i, j].step(np.r_[0.0, x], np.r_[1.0, p], where="post",
-                                ls=styles[ci % 4], lw=1.6,
+                                ls=styles[ci % 4], lw=1.6, color=f"C{ci}",
                                 label=f"{_label(case)} (N = {len(x)})")
         for i, cond in enumerate(("all realizations", "given failure")):
             ax = axes[i, j]
             ax.set_xlabel(unit)
-            ax.set_ylabel(f"P({key.split('_')[0]} > x), {cond}")
+            ax.set_ylabel(f"P({SHORT[key]} > x), {cond}")
             ax.set_ylim(-0.02, 1.02)
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8)
