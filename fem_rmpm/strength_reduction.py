@@ -461,9 +461,10 @@ def _bisect_anew(run, o: FSOptions, result) -> FSResult:
 def _result(trials, bound, bracket, o, wall0, seed, best, grid) -> FSResult:
     fs = {">": o.f_max, "<": o.f_min}.get(bound, math.sqrt(bracket[0] * bracket[1])
                                           if bracket[0] > 0 else math.nan)
-    ok = sorted((t for t in trials if t.converged), key=lambda t: t.F)
-    jump = ok[-1].max_displacement / ok[0].max_displacement if len(ok) > 1 and \
-        ok[0].max_displacement > 0 else math.nan
+    # converged states: the converged trials and a failed continued trial's last solve
+    ok = sorted((t.F if t.converged else t.reached, t.max_displacement) for t in trials
+                if t.converged or t.reached > t.start)
+    jump = ok[-1][1] / ok[0][1] if len(ok) > 1 and ok[0][1] > 0 else math.nan
     return FSResult(fs, bound, (float(bracket[0]), float(bracket[1])), list(trials), o,
                     time.perf_counter() - wall0, seed, jump, best.get("pts"), grid)
 
