@@ -64,9 +64,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .run import SimulationError
+from .errors import InputError
 from .grid import Grid
+from .implicit import Geostatic, ImplicitSystem, LinearSolver, NewtonFailure, run_implicit
+from .materials import MaterialPoints, registry
+from .output import to_true_frame, write_json, write_particles
 from .particles import Particles
+from .plots import _plt, plot_field
+from .run import SimulationError
+from .rundir import check_run_dir
 from .scene import Scene, SceneError, with_values
 
 __all__ = ["STRENGTH_PARAMETERS", "FSOptions", "Trial", "FSResult", "NonPhysicalFailure",
@@ -188,7 +194,6 @@ def strength_parameters(model: str) -> tuple[str, ...]:
     """The per-point parameters of material ``model`` that are divided by ``F`` when the
     model has no ``reduce_strength`` hook: the model module's ``STRENGTHS``
     (:mod:`fem_rmpm.materials`), else :data:`STRENGTH_PARAMETERS`."""
-    from .materials import registry
     try:
         declared = getattr(registry.model(model), "STRENGTHS", None)
     except KeyError:
@@ -200,7 +205,6 @@ def _has_strength(spec) -> bool:
     """Does one ``[[soil]]`` have a strength to reduce?  A model with a ``reduce_strength``
     hook does (its scene check refuses a soil without strength); otherwise some declared
     strength parameter must be finite."""
-    from .materials import registry
     if hasattr(registry.model(spec.model), "reduce_strength"):
         return True
     return any(math.isfinite(float(spec.value(n, math.inf)))
@@ -219,7 +223,6 @@ def _check_has_strength(scene: Scene) -> None:
 def _divide_declared(model: int, params: np.ndarray, F: float, softening: bool) -> np.ndarray:
     """The default reduction: every declared strength column divided by ``F`` (infinite
     values stay infinite); without ``softening`` ``cohesion_residual`` = reduced peak."""
-    from .materials import registry
     p = params.copy()
     cols = {n: registry.column(model, n) for n in strength_parameters(registry.model(model).NAME)}
     for col in cols.values():
@@ -236,7 +239,6 @@ def reduce_strength(pts: Particles, scene: Scene, F: float, softening: bool = Fa
     (:func:`strength_parameters`; von Mises: the cohesions).  Without ``softening`` the
     residual strengths are set to the reduced peak (perfectly plastic).  Elastic points
     keep c = inf.  ``scene`` is not read (kept for the callers' signature)."""
-    from .materials import MaterialPoints, registry
     s = pts.soil
     params = s.params.copy()
     for k in np.unique(s.model):
@@ -268,7 +270,6 @@ def _failure_reason(msg: str) -> str:
 def _solve(scene: Scene, grid: Grid, base: Particles, F: float, o: FSOptions,
            load: float = 1.0) -> tuple[Trial, Particles]:
     """Apply ``load`` x gravity at trial factor ``F`` on a copy of ``base``."""
-    from .implicit import run_implicit
     pts = base.copy()
     reduce_strength(pts, scene, F, o.softening)
     if load != 1.0:
@@ -301,7 +302,6 @@ def _continue(scene: Scene, grid: Grid, base: Particles, start: Particles, F0: f
     (associated flow: the limit theorems), so this finds the same FS as applying gravity
     anew at every trial, at a fraction of the cost: far from collapse one or two Newton
     iterations, and the bisection's last trials change F by under 1 %."""
-    from .implicit import Geostatic, ImplicitSystem, LinearSolver, NewtonFailure
     pts = start.copy()
     system = ImplicitSystem(scene, grid, pts, LinearSolver(o.linear_solver))
     kind = Geostatic(system)
@@ -474,7 +474,6 @@ def write_outputs(res: FSResult, scene: Scene, out: str | Path) -> None:
     """``fs.json``, ``fs_displacement.png`` (max displacement against F), and the
     mechanism: ``mechanism.vtu`` (points at the largest converged F) with
     ``mechanism.png``."""
-    from .output import write_json, write_particles
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     d = res.to_dict()
@@ -491,7 +490,6 @@ def plot_displacement(path: Path, res: FSResult, name: str = "") -> None:
     """Maximum displacement (log scale) against the trial F; failed trials hollow, at the
     displacement of their last converged load step, labelled with the gravity fraction
     reached."""
-    from .plots import _plt
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4.2))
     ok = sorted((t for t in res.trials if t.converged), key=lambda t: t.F)
@@ -523,8 +521,6 @@ def plot_displacement(path: Path, res: FSResult, name: str = "") -> None:
 
 def plot_mechanism(path: Path, res: FSResult, scene: Scene) -> None:
     """Displacement magnitude of the last converged state just below FS (true frame)."""
-    from .output import to_true_frame
-    from .plots import _plt, plot_field
     plt = _plt()
     p = res.mechanism
     X = to_true_frame(p.x0, scene.scene.frame_angle_deg)
@@ -547,12 +543,10 @@ def plot_mechanism(path: Path, res: FSResult, scene: Scene) -> None:
 # ----------------------------------------------------------------------------- command line
 def fs_cli(a, scene: Scene, grid: Grid, pts: Particles) -> int:
     """``fem-rmpm fs``: print one line per static solve and a summary; write the outputs."""
-    from .errors import InputError
     if not 0 < a.tolerance < 1:
         raise InputError(f"--tolerance {a.tolerance:g}: allowed 0 < tolerance < 1 "
                          "(relative bracket width)")
     o = FSOptions(tolerance=a.tolerance, softening=a.softening)
-    from .rundir import check_run_dir
     check_run_dir(a.out, force=True)            # refuses a file, before any computing
 
     def show(t: Trial) -> None:

@@ -29,9 +29,8 @@ MARK = "long function:"
 #: the issue 11 closing note); anything else over the limit fails the test.
 KNOWN_BIG: set[str] = set()
 KNOWN_LONG: set[str] = set()
-#: Modules whose function-level imports their owner is still moving (this session's
-#: strength reduction); anything else fails the test.
-KNOWN_FUNCTION_IMPORTS = {"fem_rmpm.strength_reduction", "fem_rmpm.campaign.factor_of_safety"}
+#: Modules allowed function-level imports without a reason (none left).
+KNOWN_FUNCTION_IMPORTS: set[str] = set()
 
 
 def _module_name(path: Path) -> str:

@@ -22,6 +22,7 @@ from typing import Sequence
 import numpy as np
 
 from .. import api
+from ..plots import _plt
 from ..scene import Scene
 from ..strength_reduction import NonPhysicalFailure, factor_of_safety
 from .statistics import wilson_interval
@@ -123,7 +124,6 @@ def fs_text(s: dict | None) -> str:
 def plot_factor_of_safety(path: Path, cases, stats: dict, records: Sequence[dict]) -> Path:
     """Histogram of FS per case (FS = 1 marked; legend with P(FS < 1) and its interval);
     with MPM runs, FS against the MPM's maximum displacement, failed realizations red."""
-    from ..plots import _plt
     plt = _plt()
     have_mpm = any(_get(r, "failed") is not None and _get(r, "factor_of_safety") is not None
                    for r in records)
