@@ -3,7 +3,8 @@ run that produced a README number, into a temporary directory (never validation/
 files may be stale), reads the number from README.md itself and asserts the fresh result
 rounds to it.  So the README cannot drift from the code: change one and the test fails
 until the other follows.  All are @pytest.mark.slow (minutes each; `python -m pytest -m
-slow tests/test_readme_figures.py`).
+slow tests/test_readme_figures.py`); each has its own pytest timeout (the default 600 s of
+pyproject.toml stopped the literature-cases run after 10 minutes).
 """
 from __future__ import annotations
 
@@ -42,6 +43,7 @@ def _script(name: str, *args: str, timeout: float) -> subprocess.CompletedProces
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(4 * 3600)     # the suite's 600 s is for default tests
 def test_footing_table_and_richardson_match_readme(tmp_path):
     """README "Choosing a method", F-bar: q/c at 3 % of B for h = B/8 .. B/64 with and
     without F-bar, and "Richardson extrapolation of the F-bar values gives 5.137"
@@ -64,6 +66,7 @@ def test_footing_table_and_richardson_match_readme(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(3 * 3600)     # the suite's 600 s is for default tests
 def test_cfl_limits_match_readme(tmp_path):
     """README "Choosing a method", explicit stability: the bisected cfl limits of the column
     (large deformation undamped 1.08, damped 1.38; linear MUSL 1.65) and the spectral radius
@@ -85,6 +88,7 @@ def test_cfl_limits_match_readme(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(6 * 3600)     # the suite's 600 s is for default tests
 def test_four_literature_cases_match_readme(tmp_path):
     """README "What the four cases show" (validation/montecarlo_cases.py with its documented
     N, into a temporary directory): P(failure) = 1 in every case and the intact blocks at 3 s
@@ -117,6 +121,7 @@ def _reference_slope_measures(out: Path, **settings) -> dict:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(3600)     # the suite's 600 s is for default tests
 def test_reference_slope_explicit_matches_readme(tmp_path):
     """README "The reference slope": the explicit column of the explicit-vs-implicit table
     (run-out, retrogression, sliding area) from a fresh run of meshes/slope_reference.toml
@@ -128,6 +133,7 @@ def test_reference_slope_explicit_matches_readme(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(4 * 3600)     # the suite's 600 s is for default tests
 def test_reference_slope_implicit_matches_readme(tmp_path):
     """README "The reference slope": the implicit column of the table, from the run the
     README describes (the default adaptive steps, ``--set solver.scheme=implicit --set

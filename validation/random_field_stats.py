@@ -189,6 +189,20 @@ def realizations_figure(path, seed=2017):
     return info
 
 
+def _timed(model, cell, shape, n_fields):
+    """Embedding set-up time (s) and median time per field (ms) of ``n_fields`` samples."""
+    t0 = time.perf_counter()
+    emb = rf.circulant_embedding(model, cell, shape, True)
+    setup = time.perf_counter() - t0
+    ts = []
+    for s in range(n_fields):
+        t0 = time.perf_counter()
+        emb.sample(s)
+        ts.append(time.perf_counter() - t0)
+    return {"embedding": list(emb.padded), "setup_s": setup,
+            "ms_per_field": 1e3 * float(np.median(ts))}
+
+
 def timings(quick):
     out = {}
     base = load_scene(ROOT / "meshes" / "slope_elastic.toml")
@@ -198,29 +212,12 @@ def timings(quick):
         grid = make_grid(scene)
         layout = rf.field_layout(scene, grid)
         rf_embedding._embedding_cached.cache_clear()
-        t0 = time.perf_counter()
-        emb = rf.circulant_embedding(rf.model_from_spec(scene.random_field), tuple(layout.cell),
-                                     layout.shape, True)
-        setup = time.perf_counter() - t0
-        ts = []
-        for s in range(60):
-            t0 = time.perf_counter()
-            emb.sample(s)
-            ts.append(time.perf_counter() - t0)
-        out[f"slope_xi{xi}"] = {"cells": layout.n_cells, "embedding": list(emb.padded),
-                                "setup_s": setup, "ms_per_field": 1e3 * float(np.median(ts))}
+        out[f"slope_xi{xi}"] = {"cells": layout.n_cells, **_timed(
+            rf.model_from_spec(scene.random_field), tuple(layout.cell), layout.shape, 60)}
     for xi in ((12,) if quick else (1, 12, 48)):
         model = rf.MarkovModel(xi * THETA_V, THETA_V)
-        t0 = time.perf_counter()
-        emb = rf.circulant_embedding(model, (0.25, 0.25), (1000, 1000), True)
-        setup = time.perf_counter() - t0
-        ts = []
-        for s in range(3):
-            t0 = time.perf_counter()
-            emb.sample(s)
-            ts.append(time.perf_counter() - t0)
-        out[f"1e6_xi{xi}"] = {"cells": 10 ** 6, "embedding": list(emb.padded), "setup_s": setup,
-                              "ms_per_field": 1e3 * float(np.median(ts))}
+        out[f"1e6_xi{xi}"] = {"cells": 10 ** 6,
+                              **_timed(model, (0.25, 0.25), (1000, 1000), 3)}
     return out
 
 
