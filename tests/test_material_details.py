@@ -312,9 +312,14 @@ def test_mohr_coulomb_check_names_the_key_and_the_bound(kw, key, words):
                                 {"friction_angle_peak": 0.0, "friction_angle_residual": 0.0,
                                  "dilation_angle_peak": 0.0},
                                 {"softening_strain": 0.001, "softening": "exponential"},
-                                {"dilation_angle_peak": 30.0, "dilation_angle_residual": 25.0}])
+                                {"dilation_angle_peak": 30.0, "dilation_angle_residual": 25.0},
+                                {"cohesion_peak": 0.5, "cohesion_residual": 0.5,
+                                 "friction_angle_peak": 0.0, "friction_angle_residual": 0.0,
+                                 "dilation_angle_peak": 0.0},
+                                {"softening_strain": 10.0 / G}])
 def test_mohr_coulomb_check_accepts_the_boundaries(kw):
-    """Purely frictional; purely cohesive; a steep exponential start; psi = phi."""
+    """Purely frictional; purely cohesive; a steep exponential start; psi = phi; a small
+    cohesion alone; a linear softening modulus (c_p - c_r)/g_s = G/2."""
     assert mohr_coulomb.check(_mc_values(**kw)) is None
 
 
@@ -421,3 +426,32 @@ def test_exponential_return_converges_with_a_steep_softening_start():
     assert q_tr > CP and st[0, 0] > 0
     assert abs(q_tr - G * st[0, 0] - c[0]) <= 1e-12 * CP
     assert sqrt_j2(tau)[0] == pytest.approx(c[0], rel=1e-12)
+
+
+def test_check_messages_in_full():
+    """The whole message of the checks a user sees most (one line, units, the bound)."""
+    assert von_mises.check(_vm_values(cohesion_peak=math.inf)) == (
+        "cohesion_peak", "von_mises_softening needs finite cohesion_peak and "
+        "cohesion_residual (kPa)")
+    assert von_mises.check(_vm_values(softening_strain=0.01)) == (
+        "softening_strain", f"softening modulus {1600.0:g} kPa >= shear modulus {G:g} kPa "
+        "makes the local return mapping snap back; allowed: softening_strain > "
+        f"{16.0 / G:g}")
+    assert mohr_coulomb.check(_mc_values(cohesion_peak=0.0, cohesion_residual=0.0,
+                                         friction_angle_peak=0.0, friction_angle_residual=0.0,
+                                         dilation_angle_peak=0.0)) == (
+        "cohesion_peak", "mohr_coulomb_softening needs cohesion_peak > 0 or "
+        "friction_angle_peak > 0 (no strength at all)")
+
+
+def test_small_strain_update_of_a_zero_gradient_changes_nothing():
+    """The first geostatic step of points at rest: grad du = 0 leaves the log strain, the
+    state and the stress of elastic and yielding soil exactly as they were."""
+    soil = vm_points(np.full(2, G), np.full(2, K), [CP, math.inf], np.full(2, CR),
+                     np.full(2, GS), np.zeros(2))
+    eps0 = np.array([[1e-4, 2e-4, 3e-4, 4e-4]] * 2)
+    for g0 in (np.array([0.1, 0.0]), np.array([[0.1], [0.0]])):
+        eps, st, tau = small_strain_update(np.zeros((2, 2, 2)), eps0, g0, soil)
+        assert np.array_equal(eps, eps0) and np.array_equal(st, g0)
+        assert np.all(np.isfinite(tau))
+        assert np.array_equal(tau, hencky_stress(eps0.copy(), np.full(2, G), np.full(2, K)))
