@@ -241,7 +241,7 @@ def test_von_mises_invalid_points_mask():
     assert "softening modulus is not below the shear modulus" in why
 
 
-def test_von_mises_cohesion_laws_and_slopes():
+def test_von_mises_cohesion_laws_and_derivatives():
     """Linear: c_p - (c_p - c_r) g / g_s and slope -(c_p - c_r)/g_s before g_s, c_r and 0
     after; exponential: c_r + (c_p - c_r) e^{-g/g_s}, slope -(c_p - c_r)/g_s e^{-g/g_s};
     an elastic row (c_p = inf) has no drop."""
@@ -394,7 +394,7 @@ def test_stress_update_takes_complex_log_strain():
         assert np.allclose(d_cs, d_fd, rtol=1e-7, atol=1e-7 * np.abs(d_fd).max())
 
 
-def test_mixed_models_complex_step_equals_each_models_tangent():
+def test_mixed_models_complex_derivative_equals_each_models_tangent():
     """spatial_tangent (complex step through return_map) on a mix of von Mises and
     elastic points equals the tangent of each group alone, to 1e-12 relative (the mixed
     branch keeps the imaginary parts)."""
