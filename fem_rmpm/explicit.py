@@ -44,6 +44,7 @@ from .kernels import Workspace
 from .locking import bbar_gradient, fbar_increment, host_cells
 from .materials import hughes_winget_increment, small_strain_update, stress_update
 from .particles import Particles
+from .regularisation import average_softening
 from .run import RunRecord, SimulationError, at_rest, check_points
 from .scene import Scene
 from .shape import shape_at_points
@@ -273,6 +274,7 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
         damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
         stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape, geostatic,
                               kernel, work, bool(sv.fbar), threads)
+        average_softening(grid, pts)     # non-local softening (no-op for local soils)
         t += dt
         step += 1
         rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)

@@ -18,6 +18,7 @@ import numpy as np
 
 from .grid import Grid, points_in_polygon
 from .materials import MaterialPoints, cohesion, material_points, new_state
+from .regularisation import prepare_softening
 from .scene import Scene, SceneError
 
 __all__ = ["Particles", "seed_particles", "density"]
@@ -136,7 +137,7 @@ def seed_particles(scene: Scene, grid: Grid) -> Particles:
     volume = np.concatenate(vols)
     sp = scene.soils
     rho = np.array([density(s.unit_weight, scene.scene.gravity) for s in sp])[soil_id]
-    soil = material_points(sp, soil_id)
+    soil = prepare_softening(scene, grid, material_points(sp, soil_id), soil_id)
     n = len(x)
     return Particles(x=x.copy(), x0=x.copy(), velocity=np.zeros((n, 2)), mass=rho * volume,
                      volume0=volume.copy(), volume=volume.copy(), log_strain=np.zeros((n, 4)),

@@ -12,6 +12,7 @@ import time
 
 from ..grid import Grid
 from ..particles import Particles
+from ..regularisation import average_softening
 from ..run import RunRecord, SimulationError, at_rest, check_points
 from ..scene import Scene
 from .linear import LinearSolver
@@ -158,6 +159,7 @@ class _Run:
             out, h, cuts, verdict, limits = self.attempt(kind, pos, h, label, gravity_of,
                                                          ctl, h < 0.999 * size)
             info = out.commit() or {}
+            average_softening(self.grid, self.pts)    # staggered non-local softening
             pos += h
             size = verdict.size if ctl.adaptive else (h if cuts else size)
             self.t = time_of(pos)

@@ -40,15 +40,18 @@ def new_state(soil: MaterialPoints) -> np.ndarray:
 
 
 def cohesion(state: np.ndarray, soil: MaterialPoints) -> np.ndarray:
-    """Current strength per point (kPa) from the models' ``cohesion`` hook; inf where a
-    model has none (linear elastic)."""
+    """Current strength per point (kPa) from the models' ``cohesion`` hook (of the
+    ``softening_variable`` state column where the model has one, else of the plastic
+    shear strain); inf where a model has none (linear elastic)."""
     state = state[:, None] if state.ndim == 1 else state
     out = np.full(len(soil), math.inf)
     for k in np.unique(soil.model):
         m = registry.model(int(k))
         if hasattr(m, "cohesion"):
             idx = soil.model == k
-            out[idx] = m.cohesion(state[idx, 0], soil.params[idx])[0]
+            col = m.STATE.index("softening_variable") if (
+                "softening_variable" in m.STATE and state.shape[1] > 1) else 0
+            out[idx] = m.cohesion(state[idx, col], soil.params[idx])[0]
     return out
 
 

@@ -12,8 +12,17 @@
   work conjugate of ``sqrt(J2)`` (``tau : d_eps_p = c d_gamma_p``) and equals the
   engineering plastic shear strain in simple shear.
 
-Parameter row ``[G, K, cohesion_peak, cohesion_residual, softening_strain, softening]``
-(kPa, kPa, kPa, kPa, -, 0 linear / 1 exponential); state ``[plastic_shear_strain]``.
+* **Regularisation** (``regularisation``, :mod:`fem_rmpm.regularisation`): ``c`` softens
+  with the *softening variable* (state column 1).  ``"local"`` (default): it is the
+  point's own ``gamma_p``; ``"nonlocal"``: its increments are the Galavi-weighted mean of
+  the neighbours' over ``internal_length`` (m); ``"displacement"``: ``softening_strain``
+  is replaced by ``softening_displacement / h`` (h the cell, m) when the points are made.
+
+Parameter row ``[G, K, cohesion_peak, cohesion_residual, softening_strain, softening,
+regularisation, internal_length, softening_displacement]`` (kPa, kPa, kPa, kPa, -,
+0 linear / 1 exponential, 0 local / 1 nonlocal / 2 displacement, m, m); state
+``[plastic_shear_strain, softening_variable, plastic_shear_strain_averaged]`` (the last
+is the local value at the last non-local averaging).
 """
 from __future__ import annotations
 
@@ -36,14 +45,50 @@ PARAMETERS = (
                           "or the e-folding strain (exponential)"),
     Parameter("softening", "-", default="linear", choices=("linear", "exponential"),
               description="softening law"),
+    Parameter("regularisation", "-", default="local", choices=("local", "nonlocal", "displacement"),
+              description="what the strength softens with: the point's own plastic shear "
+                          "strain (local), its non-local mean over internal_length "
+                          "(nonlocal), or a softening strain softening_displacement / cell "
+                          "(displacement)"),
+    Parameter("internal_length", "m", 0.0, math.inf, False, False, math.nan,
+              description="internal length l of the non-local average (regularisation = "
+                          "'nonlocal'; default 0.5 m)"),
+    Parameter("softening_displacement", "m", 0.0, math.inf, False, False, math.nan,
+              description="displacement across the band at which c reaches the residual "
+                          "(regularisation = 'displacement': softening_strain = "
+                          "softening_displacement / cell)"),
 )
-STATE = ("plastic_shear_strain",)
-_CP, _CR, _GS, _EXP = 2, 3, 4, 5      # columns of the parameter row
+STATE = ("plastic_shear_strain", "softening_variable", "plastic_shear_strain_averaged")
+_CP, _CR, _GS, _EXP, _REG = 2, 3, 4, 5, 6     # columns of the parameter row
+_NONLOCAL = 1.0                               # regularisation index of "nonlocal"
+_KEYS = {"nonlocal": "internal_length", "displacement": "softening_displacement"}
+
+
+def _check_regularisation(values: dict):
+    """One regularisation at a time, and its key only with it."""
+    mode = values.get("regularisation", "local")
+    given = [k for k in _KEYS.values() if math.isfinite(values.get(k, math.nan))]
+    if len(given) == 2:
+        return "softening_displacement", ("both regularisations at once (internal_length "
+                                          "and softening_displacement); allowed: one of them")
+    for m, key in _KEYS.items():
+        if key in given and mode != m:
+            return key, (f"{key} belongs to regularisation = {m!r} (now {mode!r}); allowed: "
+                         f"regularisation = {m!r} with {key}, or no {key}")
+    if mode == "displacement" and not given:
+        return "softening_displacement", ("regularisation = 'displacement' needs "
+                                          "softening_displacement; allowed: a number in (0, "
+                                          "inf) (m)")
+    return None
 
 
 def check(values: dict):
-    """Scene check across parameters: finite strengths, residual <= peak, and a linear
-    softening modulus below G (else the local return mapping snaps back)."""
+    """Scene check across parameters: finite strengths, residual <= peak, a linear
+    softening modulus below G (else the local return mapping snaps back), one
+    regularisation at a time."""
+    bad = _check_regularisation(values)
+    if bad:
+        return bad
     cp, cr, gs = values["cohesion_peak"], values["cohesion_residual"], values["softening_strain"]
     G = values["shear_modulus"]
     if not math.isfinite(cp) or not math.isfinite(cr):
@@ -53,7 +98,8 @@ def check(values: dict):
         return "cohesion_residual", (f"{cr:g} kPa exceeds cohesion_peak {cp:g} kPa; allowed: "
                                      "0 < cohesion_residual <= cohesion_peak")
     h = (cp - cr) / gs
-    if values["softening"] == "linear" and h >= G:
+    if values["softening"] == "linear" and h >= G and \
+            values.get("regularisation", "local") != "displacement":
         return "softening_strain", (f"softening modulus {h:g} kPa >= shear modulus {G:g} kPa "
                                     "makes the local return mapping snap back; allowed: "
                                     f"softening_strain > {(cp - cr) / G:g}")
@@ -104,10 +150,18 @@ def _plastic_multiplier(q_tr, gamma_p, params):
     return np.where(expo, d_exp, d_lin)
 
 
+def _frozen(params: np.ndarray) -> np.ndarray:
+    """Points whose softening variable only the non-local pass changes (their return
+    mapping is perfectly plastic at the strength of the step's start)."""
+    if params.shape[1] <= _REG:
+        return np.zeros(len(params), dtype=bool)
+    return params[:, _REG] == _NONLOCAL
+
+
 def update(eps_tr: np.ndarray, state: np.ndarray, params: np.ndarray):
     """Radial return of trial log strains (n, 4); returns (eps_e, state, tau)."""
     G, K = params[:, 0], params[:, 1]
-    gamma_p = state[:, 0]
+    gamma_p = state[:, 1] if state.shape[1] > 1 else state[:, 0]    # softening variable
     tau_tr = hencky_stress(eps_tr, G, K)
     q_tr = sqrt_j2(tau_tr)
     c0, _ = cohesion(gamma_p, params)
@@ -117,6 +171,9 @@ def update(eps_tr: np.ndarray, state: np.ndarray, params: np.ndarray):
     idx = np.nonzero(plastic)[0]
     sp = params[idx]
     dgam = _plastic_multiplier(q_tr[idx], gamma_p[idx], sp)
+    frozen = _frozen(sp)                 # non-local: perfectly plastic within the step
+    if np.any(frozen):
+        dgam = np.where(frozen, (q_tr[idx] - c0[idx]) / sp[:, 0], dgam)
     scale = 1 - sp[:, 0] * dgam / q_tr[idx]                 # s = s_tr * scale
     e = eps_tr[idx]
     vol3 = (e[:, 0] + e[:, 1] + e[:, 2]) / 3
@@ -127,7 +184,9 @@ def update(eps_tr: np.ndarray, state: np.ndarray, params: np.ndarray):
     eps = eps_tr.copy()
     eps[idx] = e_new
     st = state.copy()
-    st[idx, 0] = gamma_p[idx] + dgam
+    st[idx, 0] = state[idx, 0] + dgam
+    if state.shape[1] > 1:
+        st[idx, 1] = np.where(frozen, gamma_p[idx], gamma_p[idx] + dgam)
     tau = tau_tr.copy()
     tau[idx] = hencky_stress(e_new, sp[:, 0], sp[:, 1])
     return eps, st, tau
@@ -151,7 +210,8 @@ def point_update(e0, e1, e2, e3, state, params, i):
     """:func:`update` for point ``i`` (writes ``state[i, 0]``)."""
     G, K = params[i, 0], params[i, 1]
     cp, cr, gs, expo = params[i, _CP], params[i, _CR], params[i, _GS], params[i, _EXP] == 1.0
-    gam = state[i, 0]
+    soft = 1 if state.shape[1] > 1 else 0          # the softening variable's column
+    gam = state[i, soft]
     lam = K - 2 / 3 * G
     vol = e0 + e1 + e2
     t0 = 2 * G * e0 + lam * vol
@@ -166,7 +226,10 @@ def point_update(e0, e1, e2, e3, state, params, i):
     c0, _ = _cohesion(gam, cp, cr, gs, expo)
     if not q > c0 * (1 + 1e-12):
         return e0, e1, e2, e3, t0, t1, t2, t3
-    if expo:                                        # Newton from the perfectly plastic guess
+    frozen = params.shape[1] > _REG and params[i, _REG] == _NONLOCAL
+    if frozen:                                      # non-local: strength of the step's start
+        dg = (q - c0) / G
+    elif expo:                                      # Newton from the perfectly plastic guess
         dg = (q - c0) / G
         for _ in range(40):
             c, dc = _cohesion(gam + dg, cp, cr, gs, expo)
@@ -185,7 +248,9 @@ def point_update(e0, e1, e2, e3, state, params, i):
     e2 = (e2 - vol3) * scale + vol3
     e3 = e3 * scale
     vol = e0 + e1 + e2
-    state[i, 0] = gam + dg
+    state[i, 0] += dg
+    if not frozen:
+        state[i, soft] = gam + dg
     return (e0, e1, e2, e3, 2 * G * e0 + lam * vol, 2 * G * e1 + lam * vol,
             2 * G * e2 + lam * vol, 2 * G * e3)
 
