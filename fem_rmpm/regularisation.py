@@ -60,7 +60,7 @@ from . import materials
 from .materials import registry
 
 __all__ = ["DEFAULT_INTERNAL_LENGTH", "CUTOFF", "MODES", "average_softening",
-           "prepare_softening", "nonlocal_average", "galavi_weight"]
+           "prepare_softening", "nonlocal_average", "cell_average", "stencil", "galavi_weight"]
 
 DEFAULT_INTERNAL_LENGTH = 0.5      # m (theta_v of the reference fields; 2 cells of 0.25 m)
 CUTOFF = 2.0                       # the weight is truncated at CUTOFF * l
@@ -116,18 +116,117 @@ def _plan(soil):
     return plan
 
 
-def average_softening(grid, pts) -> None:
+def average_softening(grid, pts, method: str = "cells") -> None:
     """The non-local step of the staggered update (in place, once per step): the
     softening variable of every non-local point grows by the weighted mean of the
     plastic shear strain increments since the last call.  Does nothing
-    (and costs nothing) when no soil is non-local."""
+    (and costs nothing) when no soil is non-local.
+
+    ``method``: ``"cells"`` (default) evaluates the mean on the background cells
+    (:func:`cell_average`: linear in the points, a fixed stencil per cell);
+    ``"points"`` sums over the point pairs (:func:`nonlocal_average`, the reference:
+    about 13 (l/h)^2 pairs per point at 4 points per cell, 10-30x the cost of a step).
+    """
     plan = _plan(pts.soil)
     if plan is None:
         return
     sel, length, full = plan
-    nonlocal_average(pts.x, pts.volume, pts.active, pts.state, sel, length, full,
-                     np.asarray(grid.origin, dtype=float), float(np.max(grid.cell)),
-                     int(grid.shape[0]), int(grid.shape[1]))
+    origin = np.asarray(grid.origin, dtype=float)
+    nx, ny = int(grid.shape[0]), int(grid.shape[1])
+    if method == "points":
+        nonlocal_average(pts.x, pts.volume, pts.active, pts.state, sel, length, full,
+                         origin, float(np.max(grid.cell)), nx, ny)
+        return
+    hx, hy = float(grid.cell[0]), float(grid.cell[1])
+    for ell in np.unique(length):          # one stencil per internal length (usually one)
+        rec = length == ell
+        da, db, w = stencil(float(ell), hx, hy)
+        cell_average(pts.x, pts.volume, pts.active, pts.state, sel, rec, full, origin,
+                     hx, hy, nx, ny, da, db, w)
+    pts.state[sel, 2] = pts.state[sel, 0]
+
+
+def stencil(length: float, hx: float, hy: float):
+    """Cell offsets (da, db) within ``CUTOFF * length`` of a cell centre and their
+    Galavi weights (1/m) between cell centres."""
+    ra, rb = int(math.ceil(CUTOFF * length / hx)), int(math.ceil(CUTOFF * length / hy))
+    a, b = np.meshgrid(np.arange(-ra, ra + 1), np.arange(-rb, rb + 1), indexing="ij")
+    w = galavi_weight(np.hypot(a * hx, b * hy), length)
+    keep = w > 0
+    return a[keep].astype(np.int64), b[keep].astype(np.int64), w[keep]
+
+
+@njit(cache=True)
+def cell_average(x, volume, active, state, sel, rec, full, origin, hx, hy, nx, ny, da, db, w):
+    """The non-local mean on the background cells: each cell sums the volume and the
+    volume-weighted plastic increment of its points; at every cell centre a receiver
+    needs, numerator and denominator of the mean are the stencil sums ``sum w I`` and
+    ``sum w V`` over the cells within ``CUTOFF * l``; a receiver point (``rec``, not
+    fully softened) adds the ratio of their bilinear interpolations to its softening
+    variable (its own increment if no neighbour is within reach).  Column 2 is left
+    to the caller.  O(points + needed cells x stencil)."""
+    nc = nx * ny
+    inc_sum = np.zeros(nc)
+    vol_sum = np.zeros(nc)
+    m = len(sel)
+    for k in range(m):
+        i = sel[k]
+        if not active[i]:
+            continue
+        cx = min(max(int((x[i, 0] - origin[0]) / hx), 0), nx - 1)
+        cy = min(max(int((x[i, 1] - origin[1]) / hy), 0), ny - 1)
+        inc_sum[cy * nx + cx] += volume[i] * (state[i, 0] - state[i, 2])
+        vol_sum[cy * nx + cx] += volume[i]
+    need = np.zeros(nc, dtype=np.bool_)
+    for k in range(m):
+        i = sel[k]
+        if not (rec[k] and active[i]) or state[i, 1] >= full[k]:
+            continue
+        ax, ay, _, _ = _corner(x[i, 0], x[i, 1], origin, hx, hy, nx, ny)
+        need[ay * nx + ax] = need[ay * nx + ax + 1] = True
+        need[(ay + 1) * nx + ax] = need[(ay + 1) * nx + ax + 1] = True
+    num = np.zeros(nc)
+    den = np.zeros(nc)
+    for c in range(nc):
+        if not need[c]:
+            continue
+        ca, cb = c % nx, c // nx
+        sn, sd = 0.0, 0.0
+        for e in range(len(w)):
+            a, b = ca + da[e], cb + db[e]
+            if a < 0 or a >= nx or b < 0 or b >= ny:
+                continue
+            sn += w[e] * inc_sum[b * nx + a]
+            sd += w[e] * vol_sum[b * nx + a]
+        num[c], den[c] = sn, sd
+    for k in range(m):
+        i = sel[k]
+        if not (rec[k] and active[i]) or state[i, 1] >= full[k]:
+            continue
+        ax, ay, tx, ty = _corner(x[i, 0], x[i, 1], origin, hx, hy, nx, ny)
+        c00, c10 = ay * nx + ax, ay * nx + ax + 1
+        c01, c11 = c00 + nx, c10 + nx
+        n_i = ((1 - tx) * (1 - ty) * num[c00] + tx * (1 - ty) * num[c10]
+               + (1 - tx) * ty * num[c01] + tx * ty * num[c11])
+        d_i = ((1 - tx) * (1 - ty) * den[c00] + tx * (1 - ty) * den[c10]
+               + (1 - tx) * ty * den[c01] + tx * ty * den[c11])
+        if d_i > 0.0:
+            state[i, 1] += n_i / d_i
+        else:
+            state[i, 1] += state[i, 0] - state[i, 2]
+
+
+@njit(inline="always")
+def _corner(px, py, origin, hx, hy, nx, ny):
+    """Lower-left cell of the 2 x 2 cell centres around a point and its bilinear
+    coordinates (clamped at the grid edge)."""
+    fx = (px - origin[0]) / hx - 0.5
+    fy = (py - origin[1]) / hy - 0.5
+    ax = min(max(int(math.floor(fx)), 0), max(nx - 2, 0))
+    ay = min(max(int(math.floor(fy)), 0), max(ny - 2, 0))
+    tx = min(max(fx - ax, 0.0), 1.0)
+    ty = min(max(fy - ay, 0.0), 1.0)
+    return ax, ay, tx, ty
 
 
 @njit(cache=True)
