@@ -275,8 +275,7 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
         stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape, geostatic,
                               kernel, work, bool(sv.fbar), threads)
         average_softening(grid, pts)     # non-local softening (no-op for local soils)
-        t += dt
-        step += 1
+        t, step = t + dt, step + 1
         rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
         if stats.wave_speed is None or stats.n_bad or stats.n_outside:
             check_points(grid, pts, step, t, sv.edge_policy, rec)

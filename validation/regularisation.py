@@ -1,0 +1,257 @@
+"""Mesh convergence of the failure mechanism with local, displacement-scaled and non-local
+softening (issue 14, acceptance 1).
+
+Two slopes: case (i) (meshes/slope_reference.toml, c 20 -> 4 kPa) and one fixed random
+realization of it (lognormal c_peak, COV 0.25, theta_v 0.5 m, xi = 12, field cells 0.25 m,
+seed 12), both on an open run-out floor instead of the reference's valley: the floor is
+horizontal in the true frame and 113 m long (grid 174 x 42 m, bedrock triangle
+[[61, 0], [174, 0], [174, 41.1283]], the geometry of meshes/slope_risk.toml), so neither a
+valley side nor the grid edge bounds the outcome (the script reports the frozen points).
+Each at 0.5, 0.25 and 0.125 m cells with
+
+* local softening (softening_strain 0.5),
+* displacement-scaled softening (softening_displacement 0.125 m = 0.5 x 0.25 m: the same
+  as the local law at 0.25 m),
+* non-local softening (internal_length 0.5 m, the default).
+
+The runs stop at ``--t-end`` (default 3.5 s): the mechanism (blocks and band at the
+mechanism time 3 s, sliding area and retrogression) has formed by then; the run-out is
+the front at t_end, not at rest (the cost of the 0.125 m runs to rest is hours on the
+shared machine).  Outputs in validation/out/: regularisation_<slope>.json (every run as
+it finishes; rerunning skips the runs already there; ``--slopes`` runs one slope per
+process), regularisation_<slope>.png (plastic shear strain at the
+mechanism time, one row per mesh, one column per softening), regularisation_width.png
+(main shear band width against the cell) and the tables printed at the end.
+
+Main shear band width, two measures of the basal band (case (i) fails at the base), in
+1 m wide columns of the initial mid-slope (x0 from 15 to 45 m), median over the columns:
+
+* ``band_width``: the effective width of the plastic shear strain
+  ``(sum V gamma_p)^2 / (b sum V gamma_p^2)`` (b = 1 m; a band of uniform strain and
+  thickness t gives t) at the mechanism time.  Metres of slip at residual strength
+  (perfectly plastic, no length scale) pile up in the cells next to the fixed base
+  whatever the softening law, so this measure follows the cell in every variant;
+* ``softened_width``: the thickness of the softened zone, the material that has lost
+  more than half of its strength drop (c < (c_peak + c_residual) / 2), at t_end: the
+  band the softening law makes.
+
+Cost (acceptance 4): ``--cost N`` runs case (i) as it is (0.25 m, to rest) N times local
+and non-local, interleaved, and prints the CPU times.
+
+Run: ``nice python validation/regularisation.py [--t-end 6] [--cells 0.5 0.25 0.125]``
+(the 0.125 m runs hold 73 000 points: several minutes each); ``--report`` redraws.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from fem_rmpm import api
+from fem_rmpm.scene import load_scene, with_values
+
+HERE = Path(__file__).parent
+OUT = HERE / "out"
+ROOT = HERE.parent
+FLOOR = {"grid.size": [174.0, 42.0], "bedrock.polygon": [[61.0, 0.0], [174.0, 0.0],
+                                                          [174.0, 41.1283]]}
+SOFTENING = {
+    "local": {},
+    "displacement": {"soil.regularisation": "displacement", "soil.softening_displacement": 0.125},
+    "nonlocal": {"soil.regularisation": "nonlocal", "soil.internal_length": 0.5},
+}
+SLOPES = {"case_i": {}, "xi12": {"random_field.anisotropy": 12.0, "random_field.cov": 0.25,
+                                 "random_field.theta_v": 0.5, "random_field.cell_size": 0.25}}
+SEED = 12
+MEASURES = ("sliding_area", "retrogression_distance", "runout_distance", "slip_surface_height",
+            "intact_blocks", "band_width", "softened_width")
+
+
+def band_width(x0, vol0, gamma, lo=15.0, hi=45.0, b=1.0) -> float:
+    """Median effective thickness (m) of the plastic strain across the layer in columns
+    of width ``b`` of the initial configuration between x0 = ``lo`` and ``hi``."""
+    out = []
+    for a in np.arange(lo, hi, b):
+        m = (x0[:, 0] >= a) & (x0[:, 0] < a + b)
+        s1, s2 = float(np.sum(vol0[m] * gamma[m])), float(np.sum(vol0[m] * gamma[m] ** 2))
+        if s2 > 0:
+            out.append(s1 * s1 / (b * s2))
+    return float(np.median(out)) if out else float("nan")
+
+
+def softened_width(x0, vol0, softened, lo=15.0, hi=45.0, b=1.0) -> float:
+    """Median thickness (m) of the softened material (``softened`` mask) in columns of
+    width ``b`` of the initial configuration between x0 = ``lo`` and ``hi``."""
+    out = [float(np.sum(vol0[(x0[:, 0] >= a) & (x0[:, 0] < a + b) & softened])) / b
+           for a in np.arange(lo, hi, b)]
+    return float(np.median(out))
+
+
+def scene_for(slope: str, soft: str, cell: float, t_end: float):
+    base = load_scene(ROOT / "meshes" / "slope_reference.toml")
+    ch = {**FLOOR, "grid.cell": cell, "solver.t_end": t_end, **SLOPES[slope], **SOFTENING[soft]}
+    return with_values(base, ch)
+
+
+def one_run(slope, soft, cell, t_end):
+    s = scene_for(slope, soft, cell, t_end)
+    t0 = time.process_time()
+    res = api.run(s, seed=SEED if slope != "case_i" else None, vtk=False, figures=False)
+    cpu = time.process_time() - t0
+    m = res.measures
+    times = np.array([t for t, *_ in res.snapshots])
+    k = int(np.argmin(np.abs(times - m["mechanism_time"])))
+    t_m, x_m, g_m = res.snapshots[k]
+    p = res.particles
+    return {"slope": slope, "softening": soft, "cell": cell, "points": int(p.n),
+            "steps": res.record.steps, "t": res.record.time, "cpu_s": cpu,
+            "frozen_points": int((~p.active).sum()),
+            **{k2: m[k2] for k2 in MEASURES if k2 in m},
+            "band_width": band_width(p.x0, p.volume0, g_m), "mechanism_time": t_m,
+            "softened_width": softened_width(p.x0, p.volume0, _softened(p)),
+            "snapshot": {"x": x_m[::max(1, len(x_m) // 40000)].round(3).tolist(),
+                         "g": g_m[::max(1, len(x_m) // 40000)].round(4).tolist()}}
+
+
+def _softened(p) -> np.ndarray:
+    """Points that lost more than half of their strength drop (at the end of the run)."""
+    cp, cr = p.soil.cohesion_peak, p.soil.cohesion_residual
+    return p.cohesion < 0.5 * (cp + cr)
+
+
+def table(runs, slope, soft) -> str:
+    rows = sorted((r for r in runs if r["slope"] == slope and r["softening"] == soft),
+                  key=lambda r: -r["cell"])
+    if not rows:
+        return ""
+    fine = rows[-1]
+    lines = [f"{slope}, {soft} softening (relative to the finest mesh {fine['cell']} m)",
+             "| cell (m) | " + " | ".join(MEASURES) + " | frozen | CPU (s) |",
+             "|---" * (len(MEASURES) + 3) + "|"]
+    for r in rows:
+        cells = []
+        for k in MEASURES:
+            v, f = r.get(k), fine.get(k)
+            rel = "" if r is fine or not f else f" ({(v - f) / f:+.0%})"
+            cells.append(f"{v:.3g}{rel}" if isinstance(v, (int, float)) else str(v))
+        lines.append(f"| {r['cell']} | " + " | ".join(cells) + f" | {r['frozen_points']} | "
+                     f"{r['cpu_s']:.0f} |")
+    return "\n".join(lines)
+
+
+def figures(runs):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    for slope in SLOPES:
+        cells = sorted({r["cell"] for r in runs if r["slope"] == slope}, reverse=True)
+        if not cells:
+            continue
+        fig, axes = plt.subplots(len(cells), 3, figsize=(20, 1.4 * len(cells) + 1.0), layout="constrained",
+                                 squeeze=False, sharex=True, sharey=True)
+        for i, c in enumerate(cells):
+            for j, soft in enumerate(SOFTENING):
+                ax = axes[i, j]
+                r = next((r for r in runs if r["slope"] == slope and r["cell"] == c
+                          and r["softening"] == soft), None)
+                if r is None:
+                    ax.set_axis_off()
+                    continue
+                x, g = np.array(r["snapshot"]["x"]), np.array(r["snapshot"]["g"])
+                sc = ax.scatter(x[:, 0], x[:, 1], c=np.clip(g, 0, 2), s=0.3, cmap="viridis",
+                                vmin=0, vmax=2, rasterized=True)
+                ax.set_title(f"{soft}, {c} m cells: softened zone {r['softened_width']:.2f} m, "
+                             f"strain width {r['band_width']:.2f} m, {r['intact_blocks']} blocks",
+                             fontsize=9)
+                ax.set_xlim(0, 72)
+                ax.set_ylim(-0.5, 6.5)
+                ax.set_aspect("equal")
+        fig.colorbar(sc, ax=axes, shrink=0.8, pad=0.01, label="plastic shear strain (-), clipped at 2")
+        fig.suptitle(f"{slope}: plastic shear strain at t = 3 s (bedrock frame, m)")
+        fig.savefig(OUT / f"regularisation_{slope}.png", dpi=110)
+        plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for slope, mk in zip(SLOPES, "os"):
+        for soft, col in zip(SOFTENING, ("C0", "C1", "C2")):
+            rr = sorted((r for r in runs if r["slope"] == slope and r["softening"] == soft),
+                        key=lambda r: r["cell"])
+            if rr:
+                ax.plot([r["cell"] for r in rr], [r["softened_width"] for r in rr], mk + "-",
+                        color=col, label=f"{slope}, {soft}: softened zone")
+                ax.plot([r["cell"] for r in rr], [r["band_width"] for r in rr], mk + ":",
+                        color=col, alpha=0.6, label=f"{slope}, {soft}: strain width")
+    ax.set_xlabel("cell (m)")
+    ax.set_ylabel("main shear band width (m)")
+    ax.plot([0.125, 0.5], [0.125, 0.5], "k--", lw=0.8, label="one cell")
+    ax.set_xscale("log", base=2)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(OUT / "regularisation_width.png", dpi=110)
+    plt.close(fig)
+
+
+def cost(repeats: int) -> None:
+    """Acceptance 4: whole runs of case (i) (meshes/slope_reference.toml as it is, 0.25 m,
+    to rest), local and non-local interleaved, CPU time (time.process_time) of each;
+    written to validation/out/regularisation_cost.json."""
+    base = load_scene(ROOT / "meshes" / "slope_reference.toml")
+    rows = []
+    for k in range(repeats):
+        for soft in ("local", "nonlocal"):
+            s = with_values(base, SOFTENING[soft]) if SOFTENING[soft] else base
+            t0 = time.process_time()
+            res = api.run(s, vtk=False, figures=False)
+            cpu = time.process_time() - t0
+            rows.append({"softening": soft, "repeat": k, "cpu_s": cpu, "steps": res.record.steps,
+                         "t": res.record.time, "stop": res.record.stop_reason,
+                         "ns_per_point_step": 1e9 * cpu / (res.record.steps * res.particles.n),
+                         **{m: res.measures.get(m) for m in MEASURES}})
+            print(rows[-1], flush=True)
+            (OUT / "regularisation_cost.json").write_text(json.dumps(rows))
+    loc = [r["cpu_s"] for r in rows if r["softening"] == "local"]
+    nl = [r["cpu_s"] for r in rows if r["softening"] == "nonlocal"]
+    print(f"CPU local {loc}, non-local {nl}: ratio {np.mean(nl) / np.mean(loc):.2f}")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--t-end", type=float, default=3.5)
+    ap.add_argument("--cells", type=float, nargs="+", default=[0.5, 0.25, 0.125])
+    ap.add_argument("--slopes", nargs="+", default=list(SLOPES), choices=list(SLOPES))
+    ap.add_argument("--report", action="store_true", help="only tables and figures")
+    ap.add_argument("--cost", type=int, default=0, metavar="N",
+                    help="only the cost check: N interleaved local / non-local whole runs")
+    a = ap.parse_args(argv)
+    OUT.mkdir(exist_ok=True)
+    if a.cost:
+        cost(a.cost)
+        return
+    runs = []
+    for slope in SLOPES:
+        path = OUT / f"regularisation_{slope}.json"
+        runs += json.loads(path.read_text()) if path.exists() else []
+    if not a.report:
+        for cell in a.cells:
+            for slope in a.slopes:
+                path = OUT / f"regularisation_{slope}.json"
+                for soft in SOFTENING:
+                    if any(r["slope"] == slope and r["softening"] == soft and r["cell"] == cell
+                           for r in runs):
+                        continue
+                    r = one_run(slope, soft, cell, a.t_end)
+                    runs.append(r)
+                    path.write_text(json.dumps([q for q in runs if q["slope"] == slope]))
+                    print(slope, soft, cell, {k: r.get(k) for k in MEASURES},
+                          f"cpu {r['cpu_s']:.0f} s", flush=True)
+    for slope in SLOPES:
+        for soft in SOFTENING:
+            print(table(runs, slope, soft), "\n")
+    figures(runs)
+
+
+if __name__ == "__main__":
+    main()
