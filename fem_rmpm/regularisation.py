@@ -58,6 +58,7 @@ from numba import njit
 
 from . import materials
 from .materials import registry
+from .scene import SceneError
 
 __all__ = ["DEFAULT_INTERNAL_LENGTH", "CUTOFF", "MODES", "average_softening",
            "prepare_softening", "nonlocal_average", "cell_average", "stencil", "galavi_weight"]
@@ -322,7 +323,6 @@ def prepare_softening(scene, grid, soil, soil_id: np.ndarray):
     ``soil_id`` (n,): the ``[[soil]]`` index of each point.  Returns the (possibly new) :class:`MaterialPoints`; raises ``SceneError`` naming the
     ``[[soil]]`` key for an internal length below one cell or a displacement-scaled
     softening modulus not below the shear modulus."""
-    from .scene import SceneError
     h_max = float(np.max(grid.cell))
     h = math.sqrt(float(grid.cell[0]) * float(grid.cell[1]))
     params = None

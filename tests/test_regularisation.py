@@ -14,6 +14,8 @@ import pytest
 from numba import njit
 
 from fem_rmpm import api, regularisation as R
+from fem_rmpm.cli import main
+from fem_rmpm.explicit import run_explicit
 from fem_rmpm.grid import make_grid
 from fem_rmpm.materials import von_mises
 from fem_rmpm.particles import seed_particles
@@ -181,7 +183,6 @@ def test_bad_regularisation_input(meshes, changes, key, words):
 
 def test_bad_regularisation_exits_2_from_the_cli(capsys, meshes, tmp_path):
     """The command line: exit 2, one line naming the key, nothing written."""
-    from fem_rmpm.cli import main
     out = tmp_path / "out"
     code = main(["run", str(meshes / "slope_reference.toml"), "--out", str(out), "--quiet",
                  "--set", "soil.regularisation=nonlocal", "--set", "soil.internal_length=0.1"])
@@ -211,7 +212,6 @@ def test_explicit_nonlocal_run_softens_through_the_average(meshes):
     in the band - and a local run keeps both columns equal (the old behaviour)."""
     scene = with_values(load_scene(meshes / "slope_reference.toml"),
                         {"solver.t_end": 2.0, "output.vtk": False, "output.png": False})
-    from fem_rmpm.explicit import run_explicit
     states = {}
     for mode in ("local", "nonlocal"):
         sc = with_values(scene, {"soil.regularisation": mode})
