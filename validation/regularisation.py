@@ -150,7 +150,7 @@ def figures(runs):
         cells = sorted({r["cell"] for r in runs if r["slope"] == slope}, reverse=True)
         if not cells:
             continue
-        fig, axes = plt.subplots(len(cells), 3, figsize=(20, 1.4 * len(cells) + 1.0), layout="constrained",
+        fig, axes = plt.subplots(len(cells), 3, figsize=(20, 0.95 * len(cells) + 0.9), layout="constrained",
                                  squeeze=False, sharex=True, sharey=True)
         for i, c in enumerate(cells):
             for j, soft in enumerate(SOFTENING):
@@ -161,7 +161,7 @@ def figures(runs):
                     ax.set_axis_off()
                     continue
                 x, g = np.array(r["snapshot"]["x"]), np.array(r["snapshot"]["g"])
-                sc = ax.scatter(x[:, 0], x[:, 1], c=np.clip(g, 0, 2), s=0.3, cmap="viridis",
+                sc = ax.scatter(x[:, 0], x[:, 1], c=np.clip(g, 0, 2), s=0.4 * (c / 0.125) ** 2, cmap="viridis",
                                 vmin=0, vmax=2, rasterized=True)
                 ax.set_title(f"{soft}, {c} m cells: softened zone {r['softened_width']:.2f} m, "
                              f"strain width {r['band_width']:.2f} m, {r['intact_blocks']} blocks",
@@ -173,7 +173,7 @@ def figures(runs):
         fig.suptitle(f"{slope}: plastic shear strain at t = 3 s (bedrock frame, m)")
         fig.savefig(OUT / f"regularisation_{slope}.png", dpi=110)
         plt.close(fig)
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plt.subplots(figsize=(9.5, 4.5))
     for slope, mk in zip(SLOPES, "os"):
         for soft, col in zip(SOFTENING, ("C0", "C1", "C2")):
             rr = sorted((r for r in runs if r["slope"] == slope and r["softening"] == soft),
@@ -187,7 +187,8 @@ def figures(runs):
     ax.set_ylabel("main shear band width (m)")
     ax.plot([0.125, 0.5], [0.125, 0.5], "k--", lw=0.8, label="one cell")
     ax.set_xscale("log", base=2)
-    ax.legend(fontsize=8)
+    ax.set_xticks([0.125, 0.25, 0.5], ["0.125", "0.25", "0.5"])
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(OUT / "regularisation_width.png", dpi=110)
