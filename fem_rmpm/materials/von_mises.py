@@ -281,7 +281,8 @@ def _tangent_points(eps, state, params, D):
     for i in range(eps.shape[0]):
         G, K = params[i, 0], params[i, 1]
         cp, cr, gs, expo = params[i, _CP], params[i, _CR], params[i, _GS], params[i, _EXP] == 1.0
-        gam = state[i, 0]
+        gam = state[i, 1] if state.shape[1] > 1 else state[i, 0]   # softening variable
+        frozen = params.shape[1] > _REG and params[i, _REG] == _NONLOCAL
         e0, e1, e2, e3 = eps[i, 0], eps[i, 1], eps[i, 2], eps[i, 3]
         v3 = (e0 + e1 + e2) / 3
         s = (2 * G * (e0 - v3), 2 * G * (e1 - v3), 2 * G * (e2 - v3), 2 * G * e3)
@@ -289,7 +290,9 @@ def _tangent_points(eps, state, params, D):
         c0, _ = _cohesion(gam, cp, cr, gs, expo)
         scale, beta = 1.0, 0.0
         if q > c0 * (1 + 1e-12):                     # plastic: the branch of point_update
-            if expo:
+            if frozen:                               # non-local: perfectly plastic step
+                dg, dc = (q - c0) / G, 0.0
+            elif expo:
                 dg = (q - c0) / G
                 for _ in range(40):
                     c, dc = _cohesion(gam + dg, cp, cr, gs, expo)
