@@ -201,7 +201,10 @@ def test_single_property_seed_path_is_bitwise_as_before():
         assert _sha(rf.gaussian_field(scene, grid, seed)) == GOLDEN[("gaussian_field", seed)]
         assert _sha(rf.sample_point_property(scene, grid, pts, seed)) == \
             GOLDEN[("sample_point_property", seed)]
-    assert _sha(api.prepare(scene, 11)[1].soil.params) == GOLDEN[("prepare", 11)]
+    # the parameter rows' first 6 columns (moduli + the von Mises parameters of bb8e4ed);
+    # columns added later (the regularisation keys) are not part of the golden hash
+    params = api.prepare(scene, 11)[1].soil.params
+    assert _sha(np.ascontiguousarray(params[:, :6])) == GOLDEN[("prepare", 11)]
     d = scene_to_dict(scene)
     f = d["random_field"]
     d["random_field"] = {"theta_v": f.pop("theta_v"), "anisotropy": f.pop("anisotropy"),
