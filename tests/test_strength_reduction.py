@@ -274,6 +274,20 @@ def perfectly_correlated(meshes, cell=2.5, cov=0.3):
                             "random_field.theta_v": 1e4, "random_field.anisotropy": 1.0})
 
 
+def _perfect_correlation_sample(meshes, n, tolerance):
+    """Fraction of ``n`` realizations (campaign seed 2004) of the perfectly correlated
+    Griffiths slope (5 m cells, COV 0.3) with FS < 1 (one static solve at F = 1 each),
+    the closed-form P(FS < 1) from the homogeneous FS of the same mesh (search to
+    ``tolerance``), and that homogeneous FS."""
+    from fem_rmpm.campaign import realization_seed
+    sc = perfectly_correlated(meshes, cell=5.0)
+    hom = fos(with_values(griffiths(meshes), {"grid.cell": 5.0}),
+              options=FSOptions(tolerance=tolerance))
+    p_cf = lognormal_p_below_1(hom.fs, 0.3)
+    below = sum(not stable(sc, realization_seed(2004, i)).converged for i in range(n))
+    return below / n, p_cf, hom.fs
+
+
 def test_perfect_correlation_matches_the_single_variable_closed_form(meshes):
     """Acceptance 3, fast: theta = 1e4 m (one random variable), COV 0.3, N = 50 on the
     Griffiths slope with 5 m cells (160 points; FS_hom 1.46 to a 5 % bracket); per realization
@@ -281,16 +295,10 @@ def test_perfect_correlation_matches_the_single_variable_closed_form(meshes):
     uses the homogeneous FS of the same mesh.  Bound: 3 binomial standard errors of the
     closed-form p (N = 50: SE = 0.047 at p = 0.13); the exact FS_i = FS_hom c_i / mu makes
     the estimate a plain binomial sample.  N >= 400: validation/griffiths_fenton.py."""
-    from fem_rmpm.campaign import realization_seed
-    sc = perfectly_correlated(meshes, cell=5.0)
-    hom = fos(with_values(griffiths(meshes), {"grid.cell": 5.0}),
-                           options=FSOptions(tolerance=0.05))
-    p_cf = lognormal_p_below_1(hom.fs, 0.3)
     n = 50
-    below = sum(not stable(sc, realization_seed(2004, i)).converged
-                for i in range(n))
+    fraction, p_cf, fs_hom = _perfect_correlation_sample(meshes, n, tolerance=0.05)
     se = math.sqrt(p_cf * (1 - p_cf) / n)
-    assert abs(below / n - p_cf) <= 3 * se, (below / n, p_cf, hom.fs)
+    assert abs(fraction - p_cf) <= 3 * se, (fraction, p_cf, fs_hom)
 
 
 @pytest.mark.slow
@@ -298,15 +306,9 @@ def test_perfect_correlation_n400_within_two_standard_errors(meshes):
     """Acceptance 3: as above with N = 400 (5 m cells), one static solve at F = 1 per
     realization (``stable_at``: the event FS < 1); within 2 binomial standard errors of
     the closed form (N = 400: SE = 0.017 at p = 0.13)."""
-    from fem_rmpm.campaign import realization_seed
-    sc = perfectly_correlated(meshes, cell=5.0)
-    hom = fos(with_values(griffiths(meshes), {"grid.cell": 5.0}),
-                           options=FSOptions(tolerance=0.002))
-    p_cf = lognormal_p_below_1(hom.fs, 0.3)
     n = 400
-    below = sum(not stable(sc, realization_seed(2004, i)).converged
-                for i in range(n))
-    assert abs(below / n - p_cf) <= 2 * math.sqrt(p_cf * (1 - p_cf) / n), (below / n, p_cf)
+    fraction, p_cf, _ = _perfect_correlation_sample(meshes, n, tolerance=0.002)
+    assert abs(fraction - p_cf) <= 2 * math.sqrt(p_cf * (1 - p_cf) / n), (fraction, p_cf)
 
 
 @pytest.fixture(scope="module")
