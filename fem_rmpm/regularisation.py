@@ -91,9 +91,8 @@ def _plan(soil):
     variable past which they are fully softened; cached per :class:`MaterialPoints`
     object (a changed material is a new object: ``replace`` copies)."""
     key = soil
-    hit = _PLANS.get(key)
-    if hit is not None:
-        return hit
+    if key in _PLANS:           # also a cached None (no non-local soil): one look-up a step
+        return _PLANS[key]
     sel, length, full = [], [], []
     nonlocal_code = float(MODES.index("nonlocal"))
     for k in np.unique(soil.model):
