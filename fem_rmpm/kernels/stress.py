@@ -52,6 +52,13 @@ def _make_finish_pass(version, only):
         _finish_chunk(version, only, P, M, S, o, 0, P.x.shape[0], S.parts[0])
         _combine(S, 1)
 
+    @kernel
+    def finish_chunk(P, M, S, o, start, stop, part):
+        # a compiled function, not inlined into the prange loop below: numba's parfor
+        # passes, run over the inlined model update, changed the result (1 vs 2 threads
+        # differed in tests/test_threads.py once the dispatch was inlined)
+        _finish_chunk(version, only, P, M, S, o, start, stop, part)
+
     @kernel_parallel
     def finish_pass_parallel(P, M, S, o):
         # the points in ``o.threads`` chunks; maxima and counts combined exactly, so the
@@ -60,7 +67,7 @@ def _make_finish_pass(version, only):
         parts = S.parts
         nch = max(1, min(o.threads, parts.shape[0]))
         for c in prange(nch):
-            _finish_chunk(version, only, P, M, S, o, c * n // nch, (c + 1) * n // nch, parts[c])
+            finish_chunk(P, M, S, o, c * n // nch, (c + 1) * n // nch, parts[c])
         _combine(S, nch)
     return finish_pass, finish_pass_parallel
 

@@ -37,7 +37,7 @@ def point_dispatch(version, only, model, e0, e1, e2, e3, state, params, i):
     raise NotImplementedError("point_dispatch runs inside numba kernels only")
 
 
-@overload(point_dispatch)
+@overload(point_dispatch, inline="always")
 def _point_dispatch(version, only, model, e0, e1, e2, e3, state, params, i):
     if not (isinstance(version, types.IntegerLiteral) and isinstance(only, types.IntegerLiteral)):
         raise TypingError("point_dispatch needs the registry version and the model "
