@@ -28,6 +28,7 @@ class RunRecord:
     steps: int = 0
     time: float = 0.0
     wall_time: float = 0.0
+    cpu_time: float = 0.0        # s of CPU of this process (all its threads) during the run
     stop_reason: str = ""
     dt_min: float = math.inf
     dt_max: float = 0.0

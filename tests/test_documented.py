@@ -415,6 +415,8 @@ def test_summary_json_holds_the_documented_keys(tmp_path):
     assert s["particles"] == p.n and s["wall_time"] > 0
     assert s["ns_per_particle_step"] == pytest.approx(1e9 * s["wall_time"] / (rec.steps * p.n),
                                                       rel=1e-9)
+    assert s["ns_per_particle_step_cpu"] == pytest.approx(
+        1e9 * s["cpu_time"] / (rec.steps * p.n), rel=1e-9) and s["cpu_time"] > 0
     assert s["scene"]["grid"]["size"] == [3.0, 2.0] and s["scene"]["soil"][0]["name"] == "clay"
     assert s["frozen_points"]["count"] == int((~p.active).sum()) > 0
     assert s["frozen_points"]["policy"] == "freeze"

@@ -3,6 +3,7 @@ memory per realization, compile cost (issue 7).  Plain script:
 
     nice python validation/bench_explicit.py              # all sizes, ~10 min on 2 cores
     python validation/bench_explicit.py --quick           # reference slope only
+    nice python validation/bench_explicit.py --scaling-only  # 1e4 / 1e5 / 1e6 whole runs
 
 Cases: the reference slope ``meshes/slope_elastic.toml`` (0.25 m cells, 18 260
 points, the headline) and variants with finer or coarser cells (1/3, 0.1, 1/30 m:
@@ -106,6 +107,7 @@ def whole_run(threads: int, changes=()) -> dict:
             "changes": list(changes), "points": s["particles"], "steps": s["steps"],
             "stop_reason": s["stop_reason"], "run_wall_s": s["wall_time"],
             "ns_per_point_step": ns, "mpups": 1e3 / ns, "process_wall_s": wall,
+            "run_cpu_s": s.get("cpu_time"), "ns_per_point_step_cpu": s.get("ns_per_particle_step_cpu"),
             "process_cpu_s": r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime,
             "measures": {k: s["measures"][k] for k in ("runout_distance", "sliding_area",
                                                         "retrogression_distance")}}
@@ -120,22 +122,35 @@ def whole_runs(quick: bool) -> dict:
         print(f"WHOLE RUN case (i) {r['points']} points x {r['steps']} steps, {r['threads']} "
               f"thread(s) (used {r['threads_used']}): {r['mpups']:.2f} MPUPS, "
               f"{r['ns_per_point_step']:.1f} ns per point-step (summary.json, wall "
-              f"{r['run_wall_s']:.1f} s); process {r['process_wall_s']:.1f} s wall, "
+              f"{r['run_wall_s']:.1f} s; CPU {r['ns_per_point_step_cpu']:.1f} ns); process "
+              f"{r['process_wall_s']:.1f} s wall, "
               f"{r['process_cpu_s']:.1f} s CPU", flush=True)
     if quick:
         return out
-    out["scaling"] = {}
+    out.update(scaling_runs(two_threads=True))
+    return out
+
+
+def scaling_runs(two_threads: bool) -> dict:
+    """The first simulated second (0.25 s at 1e6) of case (i) at ~1e4 / 1e5 / 1e6 points,
+    one thread (and two at 1e6): whole-run wall and CPU ns per point-step and their spread."""
+    out: dict = {"scaling": {}}
     for name, (cell, t_end) in SCALING.items():
         ch = [f"grid.cell=[{cell!r}, {cell!r}]", f"solver.t_end={t_end}"]
-        out["scaling"][name] = [whole_run(th, ch) for th in ((1, 2) if name == "1e6" else (1,))]
+        ths = (1, 2) if (name == "1e6" and two_threads) else (1,)
+        out["scaling"][name] = [whole_run(th, ch) for th in ths]
         for r in out["scaling"][name]:
             print(f"WHOLE RUN case (i) first {t_end} s at {r['points']} points, {r['threads']} "
                   f"thread(s): {r['ns_per_point_step']:.1f} ns per point-step "
-                  f"({r['mpups']:.2f} MPUPS)", flush=True)
-    ns = [out["scaling"][k][0]["ns_per_point_step"] for k in SCALING]
-    out["scaling_spread"] = max(ns) / min(ns) - 1
-    print(f"whole-run ns per point-step 1e4 / 1e5 / 1e6: {' / '.join(f'{v:.1f}' for v in ns)} "
-          f"(largest / smallest - 1 = {out['scaling_spread']:.1%})")
+                  f"({r['mpups']:.2f} MPUPS), {r['ns_per_point_step_cpu']:.1f} CPU ns",
+                  flush=True)
+    for key, label in (("ns_per_point_step", "wall"), ("ns_per_point_step_cpu", "CPU")):
+        ns = [out["scaling"][k][0][key] for k in SCALING]
+        out[f"scaling_spread_{label}"] = max(ns) / min(ns) - 1
+        print(f"whole-run {label} ns per point-step 1e4 / 1e5 / 1e6: "
+              f"{' / '.join(f'{v:.1f}' for v in ns)} "
+              f"(largest / smallest - 1 = {out[f'scaling_spread_{label}']:.1%})")
+    out["scaling_spread"] = out["scaling_spread_wall"]
     return out
 
 
@@ -318,7 +333,16 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="reference slope only, fewer repeats")
     ap.add_argument("--repeats", type=int, default=None, help="runs per case (5; --quick: 3)")
     ap.add_argument("--out", default=str(OUT / "bench_explicit.json"))
+    ap.add_argument("--scaling-only", action="store_true",
+                    help="only the 1e4 / 1e5 / 1e6 whole-run scaling, one thread (~3 CPU-min)")
     args = ap.parse_args(argv)
+    if args.scaling_only:
+        whole_run(1, ["solver.t_end=0.02"])       # fill numba's cache
+        res = {"machine": machine(), **scaling_runs(two_threads=False)}
+        res["machine"]["load_avg_end"] = os.getloadavg()
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps(res, indent=1))
+        return res
     cases = ["ref"] if args.quick else list(CASES)
     repeats = args.repeats or (3 if args.quick else 5)
     res = {"machine": machine(), "repeats": repeats, "cases": {}}
