@@ -10,7 +10,11 @@ against 9.8-10.4 through the chain, and 6.5 before the model registry existed). 
 numba
 ``overload`` whose body (an if-chain over the registered models) is written when a
 kernel calling it is compiled, so a model registered anywhere — a new module, or a test
-— runs in the kernels without any kernel code changing.
+— runs in the kernels without any kernel code changing.  The overload is inlined
+(``inline="always"``) into the calling kernel: compiled as a function of its own it was
+a call per point (the 8-tuple returned through memory, the state and parameter arrays
+passed as arguments), and the finish pass cost 18.7 ns per point against 14.4 inlined
+(finite strain; 19.1 / 13.3 geostatic; measured on the reference slope).
 
 Why the ``version`` argument (:func:`.registry.version`): numba compiles the chain into
 the calling kernel and caches that kernel on disk (``cache=True``: no recompilation in
