@@ -128,8 +128,9 @@ def run_target(name: str, work: Path, max_children: int, show: bool,
                        cwd=work, env=env, stdout=fh, stderr=subprocess.STDOUT, check=False)
     subprocess.run(["mutmut", "export-cicd-stats"], cwd=work, env=env, capture_output=True)
     stats = json.loads((work / "mutants" / "mutmut-cicd-stats.json").read_text())
-    listing = subprocess.run(["mutmut", "results"], cwd=work, env=env, capture_output=True,
-                             text=True).stdout
+    # ``--all true``: without it mutmut lists only the mutants that were not killed
+    listing = subprocess.run(["mutmut", "results", "--all", "true"], cwd=work, env=env,
+                             capture_output=True, text=True).stdout
     survivors, no_tests = _status(listing, "survived"), _status(listing, "no tests")
     if only:                 # a rerun: count the named mutants only (the others: not checked)
         names = set(only)
