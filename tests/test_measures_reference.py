@@ -120,8 +120,8 @@ def test_deposit_with_more_than_a_hundred_bodies_counts_only_the_largest():
 @pytest.mark.parametrize("seed", range(8))
 def test_intact_blocks_equal_the_brute_force_reference(seed):
     """8 random sets of moved points (N = 8), origin off the lattice, cells 0.6 x 0.4 m on a
-    30 x 25 grid, some points exactly on the grid's far edges and in its first row and
-    column: the block count equals the reference's."""
+    30 x 25 grid, some points exactly on the grid's far edges, in its first row and
+    column and beyond its lower-left corner (clipped into cell (0, 0)): the block count equals the reference's."""
     rng = np.random.default_rng(100 + seed)
     origin, cell, shape = np.array([-1.13, 0.37]), np.array([0.6, 0.4]), (30, 25)
     far = origin + cell * shape
@@ -130,6 +130,7 @@ def test_intact_blocks_equal_the_brute_force_reference(seed):
     x[20:40, 1] = far[1]                                  # on the top edge: last row
     x[40:60, 0] = origin[0] + rng.uniform(0, cell[0], 20)  # first column
     x[60:80, 1] = origin[1] + rng.uniform(0, cell[1], 20)  # first row
+    x[80:85] = origin - [0.3, 0.2]                          # beyond the corner: clipped in
     x0 = x - rng.choice([0.0, 1.0], (400, 1)) * [0.8, 0.0]
     gam = rng.choice([0.0, 0.05, 0.5], 400)
     got = intact_blocks(x, x0, gam, 0.5, origin, cell, shape)
