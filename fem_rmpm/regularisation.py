@@ -10,20 +10,35 @@ regularisation``:
     cell: the mechanism depends on the mesh.
 ``"nonlocal"``
     the strength falls with the *softening variable* ``gamma*``, whose increment at
-    point i is the weighted mean of the plastic shear strain increments of the points
-    around it (Galavi & Schweiger 2010, Int. J. Geomech. 10(1) 30-44; in MPM: González
-    Acosta et al. 2024, Comput. Geotech. 172, 106424)::
+    point i combines the weighted mean of the plastic shear strain increments of the
+    points around it (Galavi & Schweiger 2010, Int. J. Geomech. 10(1) 30-44; in MPM:
+    González Acosta et al. 2024, Comput. Geotech. 172, 106424) with its own increment
+    (the over-non-local form of Vermeer & Brinkgreve 1994, in Chambon et al. (eds.),
+    Localisation and Bifurcation Theory for Soils and Rocks, 89-100)::
 
-        d gamma*_i = sum_j w(r_ij) V_j d gamma_p,j / sum_j w(r_ij) V_j,
+        mean_i = sum_j w(r_ij) V_j d gamma_p,j / sum_j w(r_ij) V_j,
+        d gamma*_i = max(m mean_i + (1 - m) d gamma_p,i, 0),
         w(r) = r / l^2 exp(-(r / l)^2),   r_ij < 2 l
 
-    with ``l = internal_length`` (m) and V the current point volumes.  The weight is
-    zero at the point itself (the band cannot feed on its own strain), peaks at
+    with ``l = internal_length`` (m), ``m = nonlocal_factor`` (default 2) and V the
+    current point volumes.  The weight is zero at the point itself, peaks at
     ``r = l / sqrt(2)`` and is truncated at ``2 l`` (the part beyond holds 4.6 % of the
     full weight in 2D; the sum is normalised over the points present, so free surfaces
-    and the truncation need no correction).  The band width then follows ``l``, not
-    the cell.  The default ``l = 0.5 m`` is the vertical scale of fluctuation of the
-    reference random fields (theta_v = 0.5 m: strength varies on that scale, so a
+    and the truncation need no correction).  Why m = 2: with the plain mean (m = 1) the
+    regularisation is only partial - the dissipated energy and the softened zone follow
+    ``l``, but the plastic strain inside that zone still concentrates into a band that
+    narrows with the cell (Rolshoven & Jirásek 2001, in de Borst et al. (eds.), Fracture
+    Mechanics of Concrete Structures; Jirásek & Rolshoven 2003, Int. J. Eng. Sci. 41,
+    1553-1602:
+    the m = 1 consistency condition is a Fredholm equation of the first kind, whose
+    solution localises).  With m > 1 a point that deforms more than its neighbourhood
+    softens less than it, which spreads the plastic flow over a width set by ``l``.
+    Measured (README): on case (i) the strain width at band formation (1.5 s) is
+    0.87 / 0.67 / 0.51 m at 0.5 / 0.25 / 0.125 m cells with m = 1, 1.14 / 1.30 / 1.23 m
+    with m = 2.  The increment is kept >= 0: softening is irreversible (the total form
+    ``m gamma_bar + (1 - m) gamma_p`` would let a point that outruns its neighbours
+    regain strength).  The default ``l = 0.5 m`` is the vertical scale of fluctuation of
+    the reference random fields (theta_v = 0.5 m: strength varies on that scale, so a
     band cannot be thinner) and two 0.25 m cells, the least that resolves the
     averaging; ``l`` below one cell is refused (the average would see no neighbour).
 ``"displacement"``
@@ -36,8 +51,7 @@ Staggered update (both schemes): within a step the return mapping of a non-local
 is perfectly plastic at the strength ``c(gamma*)`` of the step's start (so an implicit
 step is a well-posed perfectly plastic problem: Newton needs no softening tangent);
 :func:`average_softening`, called once after each explicit step and each converged
-implicit step, then adds the non-local mean of the step's plastic increments to
-``gamma*``.  The softening lags one step (explicit steps are ~1e-3 s).  State columns of the von Mises model: ``[plastic_shear_strain
+implicit step, then adds the step's increment ``d gamma*`` to ``gamma*``.  The softening lags one step (explicit steps are ~1e-3 s).  State columns of the von Mises model: ``[plastic_shear_strain
 (local, for outputs), softening_variable (gamma*), plastic_shear_strain_averaged (the
 local value at the last averaging)]``.
 
@@ -60,10 +74,11 @@ from . import materials
 from .materials import registry
 from .scene import SceneError
 
-__all__ = ["DEFAULT_INTERNAL_LENGTH", "CUTOFF", "MODES", "average_softening",
+__all__ = ["DEFAULT_INTERNAL_LENGTH", "DEFAULT_FACTOR", "CUTOFF", "MODES", "average_softening",
            "prepare_softening", "nonlocal_average", "cell_average", "stencil", "galavi_weight"]
 
 DEFAULT_INTERNAL_LENGTH = 0.5      # m (theta_v of the reference fields; 2 cells of 0.25 m)
+DEFAULT_FACTOR = 2.0               # over-non-local m (Vermeer & Brinkgreve 1994)
 CUTOFF = 2.0                       # the weight is truncated at CUTOFF * l
 MODES = ("local", "nonlocal", "displacement")
 _EXP_FULL = 14.0                   # exponential law: c - c_r < 1e-6 (c_p - c_r) past 14 e-folds
@@ -79,21 +94,22 @@ def galavi_weight(r: np.ndarray, length: float) -> np.ndarray:
 
 
 def _columns(model_id: int):
-    """(regularisation, internal_length, softening_strain, softening) columns of a model,
-    or None if the model has no regularisation parameter."""
+    """(regularisation, internal_length, softening_strain, softening, nonlocal_factor)
+    columns of a model, or None if the model has no regularisation parameter."""
     cols = [registry.column(model_id, n) for n in
-            ("regularisation", "internal_length", "softening_strain", "softening")]
+            ("regularisation", "internal_length", "softening_strain", "softening",
+             "nonlocal_factor")]
     return None if cols[0] is None else cols
 
 
 def _plan(soil):
-    """Indices of the non-local points, their internal length (m) and the softening
-    variable past which they are fully softened; cached per :class:`MaterialPoints`
-    object (a changed material is a new object: ``replace`` copies)."""
+    """Indices of the non-local points, their internal length (m), the softening
+    variable past which they are fully softened and their factor m; cached per
+    :class:`MaterialPoints` object (a changed material is a new object: ``replace`` copies)."""
     key = soil
     if key in _PLANS:           # also a cached None (no non-local soil): one look-up a step
         return _PLANS[key]
-    sel, length, full = [], [], []
+    sel, length, full, factor = [], [], [], []
     nonlocal_code = float(MODES.index("nonlocal"))
     for k in np.unique(soil.model):
         cols = _columns(int(k))
@@ -107,9 +123,11 @@ def _plan(soil):
         sel.append(idx)
         length.append(np.where(np.isfinite(ell), ell, DEFAULT_INTERNAL_LENGTH))
         full.append(np.where(p[:, cols[3]] == 1.0, _EXP_FULL, 1.0) * p[:, cols[2]])
+        fac = p[:, cols[4]] if cols[4] is not None else np.full(len(idx), np.nan)
+        factor.append(np.where(np.isfinite(fac), fac, DEFAULT_FACTOR))
     if sel:
         plan = (np.concatenate(sel).astype(np.int64), np.concatenate(length),
-                np.concatenate(full))
+                np.concatenate(full), np.concatenate(factor))
     else:
         plan = None
     _PLANS[key] = plan
@@ -130,18 +148,18 @@ def average_softening(grid, pts, method: str = "cells") -> None:
     plan = _plan(pts.soil)
     if plan is None:
         return
-    sel, length, full = plan
+    sel, length, full, factor = plan
     origin = np.asarray(grid.origin, dtype=float)
     nx, ny = int(grid.shape[0]), int(grid.shape[1])
     if method == "points":
         nonlocal_average(pts.x, pts.volume, pts.active, pts.state, sel, length, full,
-                         origin, float(np.max(grid.cell)), nx, ny)
+                         factor, origin, float(np.max(grid.cell)), nx, ny)
         return
     hx, hy = float(grid.cell[0]), float(grid.cell[1])
     for ell in np.unique(length):          # one stencil per internal length (usually one)
         rec = length == ell
         da, db, w = stencil(float(ell), hx, hy)
-        cell_average(pts.x, pts.volume, pts.active, pts.state, sel, rec, full, origin,
+        cell_average(pts.x, pts.volume, pts.active, pts.state, sel, rec, full, factor, origin,
                      hx, hy, nx, ny, da, db, w)
     pts.state[sel, 2] = pts.state[sel, 0]
 
@@ -157,7 +175,8 @@ def stencil(length: float, hx: float, hy: float):
 
 
 @njit(cache=True)
-def cell_average(x, volume, active, state, sel, rec, full, origin, hx, hy, nx, ny, da, db, w):
+def cell_average(x, volume, active, state, sel, rec, full, factor, origin, hx, hy, nx, ny,
+                 da, db, w):
     """The non-local mean on the background cells: each cell sums the volume and the
     volume-weighted plastic increment of its points; at every cell centre a receiver
     needs, numerator and denominator of the mean are the stencil sums ``sum w I`` and
@@ -210,10 +229,16 @@ def cell_average(x, volume, active, state, sel, rec, full, origin, hx, hy, nx, n
                + (1 - tx) * ty * num[c01] + tx * ty * num[c11])
         d_i = ((1 - tx) * (1 - ty) * den[c00] + tx * (1 - ty) * den[c10]
                + (1 - tx) * ty * den[c01] + tx * ty * den[c11])
-        if d_i > 0.0:
-            state[i, 1] += n_i / d_i
-        else:
-            state[i, 1] += state[i, 0] - state[i, 2]
+        own = state[i, 0] - state[i, 2]
+        state[i, 1] += _increment(n_i / d_i if d_i > 0.0 else own, own, factor[k])
+
+
+@njit(inline="always")
+def _increment(mean, own, m):
+    """Softening increment of a receiver from the non-local mean of the plastic
+    increments and its own: ``m mean + (1 - m) own``, kept >= 0 (the softening variable
+    never decreases: the strength lost does not come back)."""
+    return max(m * mean + (1.0 - m) * own, 0.0)
 
 
 @njit(inline="always")
@@ -257,7 +282,7 @@ def _bins(x, active, sel, origin, h, nx, ny):
 
 
 @njit(cache=True)
-def nonlocal_average(x, volume, active, state, sel, length, full, origin, h, nx, ny):
+def nonlocal_average(x, volume, active, state, sel, length, full, factor, origin, h, nx, ny):
     """Add to the softening variable of the points ``sel`` the Galavi-weighted mean of
     the plastic increments of the selected points within ``CUTOFF * length``
     (state columns 0: plastic shear strain, 1: softening variable, 2: column 0 at the
@@ -306,10 +331,8 @@ def nonlocal_average(x, volume, active, state, sel, length, full, origin, h, nx,
                     num += w * inc[kj]
                     den += w
                     pairs += 1
-        if den > 0.0:
-            state[i, 1] += num / den
-        else:                            # no neighbour within reach: its own increment
-            state[i, 1] += inc[k]
+        # no neighbour within reach: its own increment
+        state[i, 1] += _increment(num / den if den > 0.0 else inc[k], inc[k], factor[k])
     for k in range(m):
         i = sel[k]
         state[i, 2] = state[i, 0]

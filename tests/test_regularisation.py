@@ -31,16 +31,17 @@ def _points(n=24, h=0.25, ppc=2):
     return x, vol, np.ones(len(x), dtype=bool), np.zeros((len(x), 3))
 
 
-def _average(method, x, vol, act, state, ell, h, n):
+def _average(method, x, vol, act, state, ell, h, n, m=1.0):
+    """The softening variable after one averaging (factor ``m``; 1: the plain mean)."""
     sel = np.arange(len(x))
-    length, full = np.full(len(x), ell), np.full(len(x), np.inf)
+    length, full, fac = np.full(len(x), ell), np.full(len(x), np.inf), np.full(len(x), m)
     st = state.copy()
     origin = np.zeros(2)
     if method == "points":
-        R.nonlocal_average(x, vol, act, st, sel, length, full, origin, h, n, n)
+        R.nonlocal_average(x, vol, act, st, sel, length, full, fac, origin, h, n, n)
     else:
         da, db, w = R.stencil(ell, h, h)
-        R.cell_average(x, vol, act, st, sel, np.ones(len(x), dtype=bool), full, origin,
+        R.cell_average(x, vol, act, st, sel, np.ones(len(x), dtype=bool), full, fac, origin,
                        h, h, n, n, da, db, w)
     return st[:, 1]
 
@@ -76,6 +77,28 @@ def test_cell_evaluation_matches_the_point_pairs_on_a_band():
         width = np.ptp(x[inner & (ref > 0.05 * ref.max()), 0])
         assert 1.5 * ell < width < 4.5 * ell
         assert ref[band].max() < ref.max()
+
+
+def test_over_nonlocal_factor_combines_the_mean_and_the_own_increment():
+    """Over-non-local softening (Vermeer & Brinkgreve 1994; Jirasek & Rolshoven 2003,
+    Int. J. Eng. Sci. 41, 1553-1602): the softening increment is m x (non-local mean)
+    + (1 - m) x (own increment), kept >= 0.  On a one-cell band of plastic increment both
+    evaluations give exactly max(2 mean - own, 0) for m = 2 (1e-15): the band itself,
+    whose own increment exceeds the mean, softens less than with the plain mean (here
+    not at all), its neighbours more, so the softening spreads over ~2 l; a uniform
+    increment still comes back unchanged (2 u - u = u, 1e-15)."""
+    x, vol, act, st = _points()
+    band = np.abs(x[:, 0] - 3.125) < 0.125
+    st[band, 0] = 1.0
+    for method in ("points", "cells"):
+        plain = _average(method, x, vol, act, st, 0.5, 0.25, 24, m=1.0)
+        over = _average(method, x, vol, act, st, 0.5, 0.25, 24, m=2.0)
+        assert np.max(np.abs(over - np.maximum(2 * plain - st[:, 0], 0.0))) < 1e-15, method
+        assert np.all(over[band] < plain[band]) and np.all(over[~band] >= plain[~band])
+        uni = st.copy()
+        uni[:, 0] = 0.01
+        assert np.max(np.abs(_average(method, x, vol, act, uni, 0.5, 0.25, 24, m=2.0)
+                             - 0.01)) < 1e-15
 
 
 def test_local_points_keep_both_columns_equal_and_numba_equals_numpy():
@@ -171,6 +194,9 @@ def test_biaxial_softening_converges_with_nonlocal_not_with_local(tmp_path):
     ({"soil.regularisation": "displacement", "soil.internal_length": 0.5},
      "internal_length", "regularisation = 'nonlocal'"),
     ({"soil.regularisation": "displacement"}, "softening_displacement", "needs"),
+    ({"soil.nonlocal_factor": 2.0}, "nonlocal_factor", "regularisation = 'nonlocal'"),
+    ({"soil.regularisation": "nonlocal", "soil.nonlocal_factor": 0.5},
+     "soil.nonlocal_factor", "out of range"),
     ({"soil.regularisation": "displacement", "soil.softening_displacement": 0.001},
      "softening_displacement", "snaps back"),
     ({"soil.regularisation": "gradient"}, "soil.regularisation", "'nonlocal'"),

@@ -14,13 +14,16 @@
 
 * **Regularisation** (``regularisation``, :mod:`fem_rmpm.regularisation`): ``c`` softens
   with the *softening variable* (state column 1).  ``"local"`` (default): it is the
-  point's own ``gamma_p``; ``"nonlocal"``: its increments are the Galavi-weighted mean of
-  the neighbours' over ``internal_length`` (m); ``"displacement"``: ``softening_strain``
+  point's own ``gamma_p``; ``"nonlocal"``: its increments are ``m`` times the
+  Galavi-weighted mean of the neighbours' over ``internal_length`` (m) plus ``1 - m``
+  times its own (``m = nonlocal_factor``, default 2: over-non-local), kept >= 0;
+  ``"displacement"``: ``softening_strain``
   is replaced by ``softening_displacement / h`` (h the cell, m) when the points are made.
 
 Parameter row ``[G, K, cohesion_peak, cohesion_residual, softening_strain, softening,
-regularisation, internal_length, softening_displacement]`` (kPa, kPa, kPa, kPa, -,
-0 linear / 1 exponential, 0 local / 1 nonlocal / 2 displacement, m, m); state
+regularisation, internal_length, softening_displacement, nonlocal_factor]`` (kPa, kPa,
+kPa, kPa, -, 0 linear / 1 exponential, 0 local / 1 nonlocal / 2 displacement, m, m, -);
+state
 ``[plastic_shear_strain, softening_variable, plastic_shear_strain_averaged]`` (the last
 is the local value at the last non-local averaging).
 """
@@ -57,22 +60,28 @@ PARAMETERS = (
               description="displacement across the band at which c reaches the residual "
                           "(regularisation = 'displacement': softening_strain = "
                           "softening_displacement / cell)"),
+    Parameter("nonlocal_factor", "-", 1.0, 4.0, True, True, math.nan,
+              description="m of the non-local softening increment m x (non-local mean) + "
+                          "(1 - m) x (own increment), kept >= 0 (regularisation = 'nonlocal'; "
+                          "1: plain mean, default 2: over-non-local)"),
 )
 STATE = ("plastic_shear_strain", "softening_variable", "plastic_shear_strain_averaged")
 _CP, _CR, _GS, _EXP, _REG = 2, 3, 4, 5, 6     # columns of the parameter row
 _NONLOCAL = 1.0                               # regularisation index of "nonlocal"
-_KEYS = {"nonlocal": "internal_length", "displacement": "softening_displacement"}
+_KEYS = {"internal_length": "nonlocal", "nonlocal_factor": "nonlocal",
+         "softening_displacement": "displacement"}
 
 
 def _check_regularisation(values: dict):
-    """One regularisation at a time, and its key only with it."""
+    """One regularisation at a time, and its keys only with it."""
     mode = values.get("regularisation", "local")
-    given = [k for k in _KEYS.values() if math.isfinite(values.get(k, math.nan))]
-    if len(given) == 2:
-        return "softening_displacement", ("both regularisations at once (internal_length "
-                                          "and softening_displacement); allowed: one of them")
-    for m, key in _KEYS.items():
-        if key in given and mode != m:
+    given = [k for k in _KEYS if math.isfinite(values.get(k, math.nan))]
+    if len({_KEYS[k] for k in given}) == 2:
+        return "softening_displacement", (f"both regularisations at once ({', '.join(given)}); "
+                                          "allowed: the keys of one of them")
+    for key in given:
+        m = _KEYS[key]
+        if mode != m:
             return key, (f"{key} belongs to regularisation = {m!r} (now {mode!r}); allowed: "
                          f"regularisation = {m!r} with {key}, or no {key}")
     if mode == "displacement" and not given:
