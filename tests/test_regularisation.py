@@ -145,7 +145,8 @@ def _biaxial(tmp_path, h, mode, ell=0.2):
     try:
         res = api.run(with_values(scene, changes), out=tmp_path / f"{mode}_{h}")
         done = res.record.stop_reason == "load applied"
-    except SimulationError:              # local softening: Newton may fail at the peak
+    except SimulationError as exc:       # local softening: Newton may fail at the peak
+        assert "snap-back" in str(exc) and "regularisation" in str(exc), exc   # says why
         done = False
     assert done or mode == "local"
     steps = json.loads((tmp_path / f"{mode}_{h}" / "summary.json").read_text())["solver"]["steps"]
@@ -160,8 +161,9 @@ def test_biaxial_softening_converges_with_nonlocal_not_with_local(tmp_path):
     axial strain) on cells of 0.1 and 0.05 m.  Local softening: the band is one cell
     wide, so the force after the peak falls with the cell (at 4 % axial strain 18.5
     kN/m on 0.1 m, 11.4 on 0.05 m: the coarse one 63 % higher; asserts > 25 %).
-    Non-local with l = 0.2 m: the curves agree within 4.1 % over the whole post-peak
-    branch (asserts 8 %; validation/biaxial_softening.py adds 0.025 m cells).  Newton converges in every non-local load step (about 4 iterations per step); with
+    Non-local with l = 0.2 m (nonlocal_factor 2, the default): the curves agree within
+    4.4 % over the whole post-peak branch (asserts 8 %; validation/biaxial_softening.py
+    adds 0.025 m cells).  Newton converges in every non-local load step (about 4 iterations per step); with
     local softening Newton may fail just after the peak on the finer mesh (a failure
     counts as not converging)."""
     curves = {(m, h): _biaxial(tmp_path, h, m) for m in ("local", "nonlocal") for h in (0.1, 0.05)}

@@ -16,6 +16,8 @@ Run: ``nice python validation/biaxial_softening.py`` (a few minutes on a shared 
 from __future__ import annotations
 
 import json
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -31,12 +33,12 @@ CELLS = (0.1, 0.05, 0.025)
 LENGTH = 0.2          # m
 
 
-def biaxial(h: float, mode: str) -> dict:
+def biaxial(h: float, mode: str, extra: dict | None = None, tag: str = "") -> dict:
     scene = load_scene(ROOT / "meshes" / "biaxial_softening.toml")
-    ch = {"grid.cell": h}
+    ch = {"grid.cell": h, **(extra or {})}
     if mode == "nonlocal":
         ch.update({"soil.regularisation": "nonlocal", "soil.internal_length": LENGTH})
-    out = OUT / "biaxial_runs" / f"{mode}_{h}"
+    out = OUT / "biaxial_runs" / f"{mode}_{h}{tag}"
     try:
         api.run(with_values(scene, ch), out=out, force=True)
         error = None
@@ -65,6 +67,47 @@ def soft_column(mode: str) -> dict:
             "stop": res.record.stop_reason}
 
 
+def load_step_error(h: float = 0.05, steps=(20, 40, 80, 160)) -> list[dict]:
+    """The staggering error in the implicit scheme alone: the non-local biaxial at
+    ``h`` with 20 ... 160 load steps (the softening lags one load step, so the error of
+    the lag falls with the step; 160 steps is the reference)."""
+    runs = []
+    for n in steps:
+        r = biaxial(h, "nonlocal", {"solver.load_steps": n}, tag=f"_{n}")
+        runs.append({**r, "load_steps": n})
+    for r in runs:
+        r["post_peak_vs_finest"] = _post_peak(r, runs[-1])
+    return runs
+
+
+def explicit_vs_implicit(t_end: float = 4.0) -> dict:
+    """The staggered non-local update in both schemes against each other: case (i)
+    (meshes/slope_reference.toml, 0.25 m, regularisation = "nonlocal") to ``t_end``
+    explicit (the update after every step, ~3.6e-3 s) and implicit dynamic (after every
+    converged step, up to 0.1 s): measures, softened area and Newton iterations."""
+    base = with_values(load_scene(ROOT / "meshes" / "slope_reference.toml"),
+                       {"soil.regularisation": "nonlocal", "solver.t_end": t_end,
+                        "output.vtk": False, "output.png": False})
+    out = {}
+    for scheme in ("explicit", "implicit"):
+        ch = {"solver.scheme": scheme, "solver.dynamic": True} if scheme == "implicit" else {}
+        d = OUT / "biaxial_runs" / f"slope_{scheme}"
+        t0 = time.process_time()
+        res = api.run(with_values(base, ch) if ch else base, out=d, force=True)
+        cpu = time.process_time() - t0
+        p = res.particles
+        soft = p.cohesion < 0.5 * (p.soil.cohesion_peak + p.soil.cohesion_residual)
+        steps = json.loads((d / "summary.json").read_text())["solver"].get("steps") or []
+        it = [s["iterations"] for s in steps if "iterations" in s]
+        out[scheme] = {"cpu_s": cpu, "steps": res.record.steps, "t": res.record.time,
+                       "softened_area": float(np.sum(p.volume0[soft])),
+                       "iterations_per_step": float(np.mean(it)) if it else None,
+                       "max_iterations": max(it) if it else None,
+                       **{m: res.measures.get(m) for m in ("sliding_area", "retrogression_distance",
+                                                          "runout_distance", "slip_surface_height")}}
+    return out
+
+
 def _post_peak(a: dict, b: dict) -> float:
     """Max relative difference of two curves between u = 0.05 and 0.12 m (post-peak)."""
     g = np.linspace(0.05, min(a["u"][-1], b["u"][-1]), 15)
@@ -72,7 +115,25 @@ def _post_peak(a: dict, b: dict) -> float:
     return float(np.max(np.abs(fa - fb) / np.abs(fb)))
 
 
+def staggered() -> None:
+    """Acceptance 3: the staggered scheme's error (``--staggered``)."""
+    OUT.mkdir(exist_ok=True)
+    runs = load_step_error()
+    for r in runs:
+        it = r["iterations"]
+        print(f"biaxial non-local 0.05 m, {r['load_steps']} load steps: post-peak difference "
+              f"to 160 steps {r['post_peak_vs_finest']:.4f}, {np.mean(it):.1f} iterations/step "
+              f"(max {max(it)}); {r['error'] or 'load applied'}", flush=True)
+    ei = explicit_vs_implicit()
+    for k, v in ei.items():
+        print(k, v, flush=True)
+    (OUT / "staggered_error.json").write_text(json.dumps({"load_steps": runs, "slope": ei}))
+
+
 def main() -> None:
+    if "--staggered" in sys.argv:
+        staggered()
+        return
     OUT.mkdir(exist_ok=True)
     runs = [biaxial(h, m) for m in ("local", "nonlocal") for h in CELLS]
     cols = [soft_column(m) for m in ("local", "nonlocal")]

@@ -37,7 +37,10 @@ def _advice(kind: StepKind, sv) -> str:
     return (f"increase [solver] load_steps (now {sv.load_steps}), max_iterations (now "
             f"{sv.max_iterations}) or max_cuts (now {sv.max_cuts}), or loosen tolerance (now "
             f"{sv.tolerance:g}); a residual that stalls instead of falling quadratically means "
-            "the soil cannot carry the load (limit load reached): run it with dynamic = true")
+            "the soil cannot carry the load (limit load reached): run it with dynamic = true; "
+            "with a softening soil it can also be a snap-back (a one-cell local softening band "
+            "dissipates less than the specimen's elastic energy releases, worse on finer "
+            "cells): regularisation = \"nonlocal\" widens the band")
 
 
 def _solver_stats(sv) -> dict:
