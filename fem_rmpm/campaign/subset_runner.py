@@ -54,7 +54,7 @@ import uuid
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 from distributed import as_completed
@@ -77,7 +77,7 @@ from .task import run_realization
 
 __all__ = ["SUBSET_FORMAT", "RESPONSES", "Response", "parse_response", "run_subset_sample",
            "run_subset_campaign", "SubsetCampaignResult", "subset_summary_text",
-           "sample_noise"]
+           "sample_noise", "sample_noises"]
 
 SUBSET_FORMAT = "fem_rmpm subset campaign 1"
 FS_RESPONSE = "factor_of_safety"
@@ -498,9 +498,10 @@ def subset_summary_text(res: SubsetCampaignResult) -> str:
     return "\n".join(lines)
 
 
-def sample_noise(scene: Scene, out: str | Path, key: str) -> np.ndarray:
-    """The noise vector of sample ``key`` of the campaign in ``out``, replayed from its
-    records (``api.run(scene, noise=sample_noise(scene, out, key))`` re-runs it)."""
+def sample_noises(scene: Scene, out: str | Path) -> Iterator[tuple[str, np.ndarray]]:
+    """``(key, noise)`` of every sample of the campaign in ``out`` in the order the method
+    asked for them, replayed from its records; stops before the first batch one of whose
+    samples has no record (the noise of that batch's samples is still yielded)."""
     doc = json.loads((Path(out) / "campaign.json").read_text())["method"]
     grid = make_grid(scene)
     method = SubsetSimulation(1e300, n=doc["samples_per_level"], p0=doc["p0"],
@@ -508,14 +509,22 @@ def sample_noise(scene: Scene, out: str | Path, key: str) -> np.ndarray:
                               noise_from_seed=lambda seed: field_noise(scene, grid, seed).ravel())
     resp = Response(doc["response"], 1.0)
     while (batch := method.next_batch()) is not None:
-        for s in batch:
-            if s.key == key:
-                return s.noise if s.noise is not None else method.noise_from_seed(s.seed)
         ys = []
+        for s in batch:
+            yield s.key, (s.noise if s.noise is not None else method.noise_from_seed(s.seed))
         for s in batch:
             rec = read_record(_record_path(Path(out), s.key))
             if rec is None:
-                raise CampaignError(f"{out}: no record of {s.key}, which comes before {key}")
+                return
             ys.append(resp.exceedance(rec.get("value")) if rec["status"] == "ok" else math.nan)
         method.tell(ys)
-    raise CampaignError(f"{out}: the campaign has no sample {key}")  # pragma: no cover
+
+
+def sample_noise(scene: Scene, out: str | Path, key: str) -> np.ndarray:
+    """The noise vector of sample ``key`` of the campaign in ``out``, replayed from its
+    records (``api.run(scene, noise=sample_noise(scene, out, key))`` re-runs it)."""
+    for k, noise in sample_noises(scene, out):
+        if k == key:
+            return noise
+    raise CampaignError(f"{out}: the campaign has no sample {key}, or a sample before it "
+                        "has no record")
