@@ -27,10 +27,17 @@ least ``N p0`` samples of a level exceed the final threshold; the last factor is
 fraction that does.  Runs: ``N + (m - 1) N (1 - p0)`` for ``m`` levels, e.g. 2 800
 for P = 1e-3 and 3 700 for P = 1e-4 with ``N = 1000``, ``p0 = 0.1``.
 
-When responses tie (a measure bounded by the geometry), the threshold is the tied
-value and the seeds are the samples strictly above it: the level's factor is then
-``n_seeds / N`` (exact for the empirical distribution), the chains' lengths differ by
-at most one, and the estimates below use the actual pairs.
+When responses tie at the quantile between repeats of one chain state (rejections), the
+threshold is the tied value, the seeds are the ``N p0`` largest (ties broken by sample
+order), the level's factor is ``p0`` and the chains accept candidates at or above the
+threshold: taking only the states strictly above the tied value biased the factor low by
+about half a repeated block per level.  When distinct samples share the value (an atom
+of the response: run-out exactly 0 of standing slopes), the threshold is the next float
+above it, the seeds are the samples strictly above it and the factor is their fraction:
+crediting ``p0`` to a domain that holds every tied sample biased P(Y > 1) of
+``Y = max(z - 1.4, 0)`` (an atom of 0.919 at 0) to 2-3e-3 against 8.2e-3.  Nothing above
+the atom (a response bounded there): :class:`SubsetError`.  Chains' lengths differ by at
+most one when ``N p0`` does not divide ``N``, and the estimates below use the actual pairs.
 
 Coefficient of variation (Au & Beck 2001, eqs. 27-29): level 0,
 ``delta_0^2 = (1 - P_0) / (N P_0)``; level ``j >= 1``,
@@ -330,12 +337,20 @@ def _chain_lengths(n: int, n_seeds: int) -> np.ndarray:
     return lengths
 
 
-def _intermediate_threshold(y: np.ndarray, n_seeds: int) -> tuple[float, np.ndarray]:
-    """``(b, seeds)``: b midway between the n_seeds-th and the next largest response (their
-    value if equal); seeds = the positions of the n_seeds largest (ties: the first ones)."""
+def _intermediate_threshold(y: np.ndarray, keys: np.ndarray, n_seeds: int
+                            ) -> tuple[float, np.ndarray]:
+    """``(b, seeds)``: b midway between the n_seeds-th and the next largest response, seeds =
+    the positions of the n_seeds largest.  A tie there between repeats of one chain state
+    (one key): b = the tied value, ties broken by order.  A tie between distinct samples
+    (an atom of the response): b = the next float above it, seeds = the samples strictly
+    above it (fewer than n_seeds; the level's factor is their fraction)."""
     order = np.argsort(-y, kind="stable")
     hi, lo = float(y[order[n_seeds - 1]]), float(y[order[n_seeds]])
-    return (hi if hi == lo else 0.5 * (hi + lo)), np.sort(order[:n_seeds])
+    if hi != lo:
+        return 0.5 * (hi + lo), np.sort(order[:n_seeds])
+    if math.isfinite(hi) and len(set(keys[y == hi])) > 1:
+        return float(np.nextafter(hi, np.inf)), np.nonzero(y > hi)[0]
+    return hi, np.sort(order[:n_seeds])
 
 
 class SubsetSimulation(_Coroutine):
@@ -388,8 +403,14 @@ class SubsetSimulation(_Coroutine):
                 b, pj = thr, k_fail / n
                 chosen = flat_y > thr
             else:
-                b, top = _intermediate_threshold(flat_y, self.n_seeds)
-                pj = self.n_seeds / n
+                b, top = _intermediate_threshold(flat_y, flat_k, self.n_seeds)
+                pj = len(top) / n
+                if math.isfinite(b) and not len(top):
+                    raise SubsetError(
+                        f"level {j}: at least N (1 - p0) + 1 = {n - self.n_seeds + 1} "
+                        f"samples share the largest response {flat_y.max()!r} (the response "
+                        f"is bounded there); the threshold {thr!r} cannot be reached: use a "
+                        f"threshold of at most {flat_y.max()!r}")
                 chosen = np.zeros(len(flat_y), bool)
                 chosen[top] = True
                 self._check_progress(j, b, levels)
