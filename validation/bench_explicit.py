@@ -194,8 +194,8 @@ def stages_numba(scene, grid, pts, geostatic, steps):
     w = Workspace.for_grid(grid, pts.n)
     g = np.array(scene.gravity_vector)
     sv = scene.solver
-    names = ("1 map_to_nodes", "2 solve_on_mesh", "3a g2p", "3b nodal_velocity",
-             "3c stress: exp args + exp/expm1 ufuncs", "3c stress: L, dF, F, V, trial b",
+    names = ("1 map_to_nodes", "2 solve_on_mesh", "3a g2p (+ exp args)", "3b nodal_velocity",
+             "3c stress: exp/expm1 ufuncs", "3c stress: L, dF, F, V, trial b",
              "3c stress: log/atanh ufuncs", "3c stress: material model + stress")
     T = {k: [] for k in names}
     clk = time.perf_counter
@@ -215,9 +215,8 @@ def stages_numba(scene, grid, pts, geostatic, steps):
         t.append(clk())
         call(K.nodal_velocity, M, N)
         t.append(clk())
-        if not geostatic:
+        if not geostatic:     # the exp arguments: written by g2p
             with np.errstate(all="ignore"):
-                call(KS.exp_args_pass, P, S)
                 np.exp(S.ta, out=S.ta)
                 np.expm1(S.tb, out=S.tb)
         t.append(clk())

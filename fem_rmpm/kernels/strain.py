@@ -24,7 +24,7 @@ from .common import inline, kernel, serial_and_parallel
 
 __all__ = ["exp_args_pass", "trial_pass", "kinematics_pass", "fbar_gradient_pass",
            "fbar_apply_pass", "log_sym2_from", "exp_args_pass_parallel",
-           "kinematics_pass_parallel", "fbar_apply_pass_parallel"]
+           "kinematics_pass_parallel", "fbar_apply_pass_parallel", "exp_args_into"]
 
 
 @inline
@@ -158,16 +158,28 @@ def _point_velocity_gradient(i, x, lp, M, vn, gimp_basis):
     return _velocity_gradient(q4(x[i, 0], x[i, 1], M), vn)
 
 
+@inline
+def exp_args_into(i, ls, S):
+    """``S.ta[i]``, ``S.tb[i]`` = 2 m, y of the log strain ``ls[i]`` (for exp, expm1);
+    ``S.tc[i]`` = y."""
+    a, b = _exp_args(ls[i, 0], ls[i, 1], ls[i, 3])
+    S.ta[i] = a
+    S.tb[i] = b
+    S.tc[i] = b
+
+
 def _exp_args_loop(P, S):
-    """Pass 0: ``ta``, ``tb`` = 2 m, y of the current log strains (for exp, expm1); tc = y."""
+    """Pass 0: ``ta``, ``tb`` = 2 m, y of the current log strains (for exp, expm1); tc = y.
+    The step computes them in :func:`fem_rmpm.kernels.transfer.g2p` instead (the same
+    values for the active points); this pass is the stage alone (benchmark, tests)."""
     ls, ta, tb = P.log_strain, S.ta, S.tb
     for i in prange(ls.shape[0]):
         if P.active[i]:
-            ta[i], tb[i] = _exp_args(ls[i, 0], ls[i, 1], ls[i, 3])
+            exp_args_into(i, ls, S)
         else:
             ta[i] = 0.0
             tb[i] = 0.0
-        S.tc[i] = tb[i]
+            S.tc[i] = 0.0
 
 
 @kernel

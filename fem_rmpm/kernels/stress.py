@@ -19,9 +19,8 @@ from numba import prange
 from ..materials import registry
 from ..materials.dispatch import point_dispatch
 from .common import inline, jit, kernel, kernel_parallel
-from .strain import (exp_args_pass, exp_args_pass_parallel, fbar_apply_pass,
-                     fbar_apply_pass_parallel, fbar_gradient_pass, kinematics_pass,
-                     kinematics_pass_parallel, log_sym2_from, trial_pass)
+from .strain import (fbar_apply_pass, fbar_apply_pass_parallel, fbar_gradient_pass,
+                     kinematics_pass, kinematics_pass_parallel, log_sym2_from, trial_pass)
 
 __all__ = ["update_stress", "material_kernels", "stress_update_points",
            "small_strain_update_points"]
@@ -176,12 +175,13 @@ def update_stress(P, M, N, S, o, call=_direct) -> None:
     """Stage 3c: velocity gradient from the re-mapped nodal velocities at the positions
     before the move (``S.x_old``), deformation increment (geostatic: small strain, J = 1),
     F, volume, the material update, Cauchy stress; ``S.out`` as the finish pass.
+    Finite strain: ``S.ta``, ``S.tb``, ``S.tc`` must hold the exp arguments of the log
+    strain (:func:`fem_rmpm.kernels.transfer.g2p` writes them, or ``exp_args_pass``).
     ``o.fbar``: the F-bar remedy (:mod:`fem_rmpm.locking`).  ``call(kernel, *args)``
     runs a kernel (e.g. :meth:`.Workspace.call`)."""
     par = o.threads > 1
     with np.errstate(all="ignore"):     # a non-finite point is reported by the guards
-        if not o.geostatic:
-            call(exp_args_pass_parallel if par else exp_args_pass, P, S)
+        if not o.geostatic:          # S.ta, S.tb: the exp arguments, written by g2p
             np.exp(S.ta, out=S.ta)
             np.expm1(S.tb, out=S.tb)
         if o.fbar:
