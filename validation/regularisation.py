@@ -35,8 +35,9 @@ Main shear band width, measures of the basal band (case (i) fails at the base), 
   shear stress that grows with depth that slip gathers in the cell at the no-slip base,
   whatever the softening law, so this later measure drifts towards the cell;
 * ``softened_width``: the thickness of the softened zone, the material that has lost
-  more than half of its strength drop (c < (c_peak + c_residual) / 2), at the end: the
-  band the softening law makes.
+  more than half of its strength drop (c < (c_peak + c_residual) / 2), at the mechanism
+  time (3 s): the band the softening law makes (``softened_width_end``: at the end, by
+  when the whole sliding layer may have softened).
 
 Cost (acceptance 4): ``--cost N`` runs case (i) as it is (0.25 m, to rest) N times local
 and non-local, interleaved, and prints the CPU times.
@@ -105,10 +106,30 @@ def scene_for(slope: str, soft: str, cell: float, t_end: float):
     return with_values(base, ch)
 
 
+def _softened_at(when: float, into: list):
+    """``api._run_scheme`` that also keeps the softened mask (:func:`_softened`) of the
+    output nearest ``when`` (s) in ``into`` (the run's snapshots hold only the plastic
+    strain, not the softening variable)."""
+    run_scheme = api._run_scheme
+
+    def hooked(scene, grid, pts, on_output, progress):
+        def both(t, p):
+            on_output(t, p)
+            if not into or abs(t - when) < abs(into[0][0] - when):
+                into[:] = [(t, _softened(p))]
+        return run_scheme(scene, grid, pts, both, progress)
+    return hooked
+
+
 def one_run(slope, soft, cell, t_end):
     s = scene_for(slope, soft, cell, t_end)
+    kept: list = []
+    plain, api._run_scheme = api._run_scheme, _softened_at(3.0, kept)
     t0 = time.process_time()
-    res = api.run(s, seed=SEED if slope != "case_i" else None, vtk=False, figures=False)
+    try:
+        res = api.run(s, seed=SEED if slope != "case_i" else None, vtk=False, figures=False)
+    finally:
+        api._run_scheme = plain
     cpu = time.process_time() - t0
     m = res.measures
     times = np.array([t for t, *_ in res.snapshots])
@@ -122,7 +143,8 @@ def one_run(slope, soft, cell, t_end):
             **{k2: m[k2] for k2 in MEASURES if k2 in m},
             "band_width": band_width(p.x0, p.volume0, g_b),
             "band_width_3s": band_width(p.x0, p.volume0, g_m), "mechanism_time": t_m,
-            "softened_width": softened_width(p.x0, p.volume0, _softened(p)),
+            "softened_width": softened_width(p.x0, p.volume0, kept[0][1]),
+            "softened_width_end": softened_width(p.x0, p.volume0, _softened(p)),
             "snapshot": {"x": x_m[::max(1, len(x_m) // 40000)].round(3).tolist(),
                          "g": g_m[::max(1, len(x_m) // 40000)].round(4).tolist()}}
 
