@@ -176,36 +176,52 @@ def table(runs, slope, soft) -> str:
     return "\n".join(lines)
 
 
+def compact_table(runs) -> str:
+    """One row per slope and softening, entries coarse / medium / fine mesh and the
+    medium mesh against the finest in per cent (the README's table)."""
+    cols = ("sliding_area", "retrogression_distance", "runout_distance", "slip_surface_height",
+            "intact_blocks", "band_width", "band_width_3s", "softened_width")
+    lines = ["| slope, softening | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for slope in SLOPES:
+        for soft in SOFTENING:
+            rr = sorted((r for r in runs if r["slope"] == slope and r["softening"] == soft),
+                        key=lambda r: -r["cell"])
+            if not rr:
+                continue
+            cells = []
+            for k in cols:
+                v = [r.get(k) for r in rr]
+                txt = " / ".join("-" if x is None else f"{x:.3g}" for x in v)
+                if len(v) > 1 and v[-1] and v[-2] is not None:
+                    txt += f" ({(v[-2] - v[-1]) / v[-1]:+.0%})"
+                cells.append(txt)
+            lines.append(f"| {slope}, {soft} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def figures(runs):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     for slope in SLOPES:
-        cells = sorted({r["cell"] for r in runs if r["slope"] == slope}, reverse=True)
-        if not cells:
+        rows = sorted((r for r in runs if r["slope"] == slope),
+                      key=lambda r: (list(SOFTENING).index(r["softening"]), -r["cell"]))
+        if not rows:
             continue
-        fig, axes = plt.subplots(len(cells), len(SOFTENING),
-                                 figsize=(6.7 * len(SOFTENING), 0.95 * len(cells) + 0.9), layout="constrained",
-                                 squeeze=False, sharex=True, sharey=True)
-        for i, c in enumerate(cells):
-            for j, soft in enumerate(SOFTENING):
-                ax = axes[i, j]
-                r = next((r for r in runs if r["slope"] == slope and r["cell"] == c
-                          and r["softening"] == soft), None)
-                if r is None:
-                    ax.set_axis_off()
-                    continue
-                x, g = np.array(r["snapshot"]["x"]), np.array(r["snapshot"]["g"])
-                sc = ax.scatter(x[:, 0], x[:, 1], c=np.clip(g, 0, 2), s=0.4 * (c / 0.125) ** 2, cmap="viridis",
-                                vmin=0, vmax=2, rasterized=True)
-                ax.set_title(f"{soft}, {c} m: softened {r['softened_width']:.2f} m, strain "
-                             f"width {r['band_width']:.2f} m (1.5 s) / {r['band_width_3s']:.2f} m "
-                             f"(3 s), {r['intact_blocks']} blocks",
-                             fontsize=9)
-                ax.set_xlim(0, 72)
-                ax.set_ylim(-0.5, 6.5)
-                ax.set_aspect("equal")
-        fig.colorbar(sc, ax=axes, shrink=0.8, pad=0.01, label="plastic shear strain (-), clipped at 2")
+        fig, axes = plt.subplots(len(rows), 1, figsize=(14, 1.25 * len(rows) + 0.8),
+                                 layout="constrained", squeeze=False, sharex=True, sharey=True)
+        for ax, r in zip(axes[:, 0], rows):
+            x, g = np.array(r["snapshot"]["x"]), np.array(r["snapshot"]["g"])
+            sc = ax.scatter(x[:, 0], x[:, 1], c=np.clip(g, 0, 2), s=0.5 * (r["cell"] / 0.125) ** 2,
+                            cmap="viridis", vmin=0, vmax=2, rasterized=True, linewidths=0)
+            ax.set_title(f"{r['softening']}, {r['cell']} m cells: softened zone "
+                         f"{r['softened_width']:.2f} m, strain width {r['band_width']:.2f} m "
+                         f"(1.5 s) / {r['band_width_3s']:.2f} m (3 s), {r['intact_blocks']} "
+                         "blocks", fontsize=9, loc="left")
+            ax.set_xlim(0, 75)
+            ax.set_ylim(-0.5, 6.5)
+            ax.set_aspect("equal")
+        fig.colorbar(sc, ax=axes, shrink=0.5, pad=0.01, label="plastic shear strain (-), clipped at 2")
         fig.suptitle(f"{slope}: plastic shear strain at the mechanism time t = 3 s "
                      "(bedrock frame, m)")
         fig.savefig(OUT / f"regularisation_{slope}.png", dpi=110)
@@ -290,6 +306,7 @@ def main(argv=None):
     for slope in SLOPES:
         for soft in SOFTENING:
             print(table(runs, slope, soft), "\n")
+    print(compact_table(runs))
     figures(runs)
 
 
