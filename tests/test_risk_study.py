@@ -88,3 +88,19 @@ def test_report_shows_the_risk_study(tmp_path):
     page = report_html(tmp_path)
     assert "<h2>Risk study</h2>" in page and "xi12" in page
     assert "0.5 [" in page and "0 / 1 / 0" in page
+
+
+def test_mesh_summary_pairs_by_index():
+    """The mesh check pairs realizations by index (same random field on both meshes):
+    P(failure) on each side over the pairs only, agreement on failed / stood, the mean
+    sliding area given failure per side and the mean |difference| where both failed."""
+    s = _study()
+    coarse = [_row(0, False), _row(1, True, 200), _row(2, True, 100), _row(3, True, 50)]
+    fine = [_row(1, True, 180), _row(2, False), _row(3, True, 80), _row(7, True, 999)]
+    m = s.mesh_summary(coarse, fine)
+    assert m["n"] == 3 and m["agree"] == 2            # indices 1, 2, 3; 2 disagrees
+    assert m["coarse"]["p_failure"] == 1.0 and m["fine"]["p_failure"] == pytest.approx(2 / 3)
+    assert m["coarse"]["sliding_area_given_failure"]["mean"] == pytest.approx(350 / 3)
+    assert m["fine"]["sliding_area_given_failure"]["mean"] == pytest.approx(130.0)
+    assert m["both_failed"] == 2 and m["area_abs_difference_mean"] == pytest.approx(25.0)
+    assert s.mesh_summary(coarse, []) is None

@@ -9,6 +9,10 @@ it stopped), then this script on its directory::
     python validation/risk_study.py runs/risk [--fs runs/risk_fs]
 
 ``--run N`` runs (or resumes) the campaign first with ``N`` realizations per random case.
+``--mesh DIR``: the mesh check, a campaign of the first realizations of a case on a finer
+mesh (``fem-rmpm mc meshes/slope_risk.toml -n 20 --case xi=48 --set grid.cell=0.25 --out
+DIR``); realization i has the same random field on both meshes (the field's own cells,
+``cell_size``, do not change): P(failure) and sliding area on each, pair by pair.
 ``--fs DIR``: a factor-of-safety campaign of the same scene and seed
 (``fem-rmpm mc meshes/slope_risk.toml --fs-only -n M --out DIR``; realization i has the same
 random field in both, the seeds being ``SeedSequence([campaign_seed, i])``): P(FS < 1) per
@@ -137,6 +141,31 @@ def fs_summary(mpm_rows: list[dict], fs_rows: list[dict]) -> dict | None:
             "fs_above_1_mpm_fails": sum(1 for a, b in both if b and not a)}
 
 
+def mesh_summary(coarse_rows: list[dict], fine_rows: list[dict]) -> dict | None:
+    """The same realizations (same index, hence the same random field: the field's cells do
+    not change with the MPM cell) on the scene's mesh and on a finer one: P(failure) on
+    each over the pairs, how many agree on failed / stood, and the sliding area given
+    failure (mean on each; mean absolute difference where both failed)."""
+    fine = {r["index"]: r for r in fine_rows
+            if r.get("status") == "ok" and r.get("failed") is not None}
+    pairs = [(r, fine[r["index"]]) for r in coarse_rows
+             if r["index"] in fine and r.get("status") == "ok" and r.get("failed") is not None]
+    if not pairs:
+        return None
+    n = len(pairs)
+    out: dict = {"n": n, "agree": sum(1 for a, b in pairs if bool(a["failed"]) == bool(b["failed"]))}
+    for side, i in (("coarse", 0), ("fine", 1)):
+        k = sum(1 for p in pairs if p[i]["failed"])
+        area = np.array([p[i]["sliding_area"] for p in pairs if p[i]["failed"]], float)
+        out[side] = {"failed": k, "p_failure": k / n, "wilson95": list(wilson_interval(k, n)),
+                     "sliding_area_given_failure": _describe(area)}
+    both = [(a["sliding_area"], b["sliding_area"]) for a, b in pairs if a["failed"] and b["failed"]]
+    out["both_failed"] = len(both)
+    out["area_abs_difference_mean"] = (float(np.mean([abs(a - b) for a, b in both]))
+                                       if both else None)
+    return out
+
+
 def _by_case(rows: list[dict]) -> dict[str, list[dict]]:
     out: dict[str, list[dict]] = {}
     for r in rows:
@@ -239,15 +268,20 @@ def markdown_table(summary: dict[str, dict], fs: dict[str, dict | None]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def study(campaign: Path, fs_dir: Path | None = None, report: bool = True) -> dict:
-    """Read the campaign (and the FS campaign), write the study's files, return its dict."""
+def study(campaign: Path, fs_dir: Path | None = None, report: bool = True,
+          mesh_dir: Path | None = None) -> dict:
+    """Read the campaign (and the FS and finer-mesh campaigns), write the study's files,
+    return its dict."""
     rows = read_results(campaign / "results.csv")
     cases = _by_case(rows)
     summary = {c: case_summary(r) for c, r in cases.items()}
     fs_cases = _by_case(read_results(fs_dir / "results.csv")) if fs_dir else {}
     fs = {c: fs_summary(cases[c], fs_cases.get(c, [])) for c in cases}
+    mesh_cases = _by_case(read_results(mesh_dir / "results.csv")) if mesh_dir else {}
+    mesh = {c: mesh_summary(cases[c], r) for c, r in mesh_cases.items() if c in cases}
     camp = json.loads((campaign / "summary.json").read_text())
     out = {"campaign": str(campaign), "fs_campaign": str(fs_dir) if fs_dir else None,
+           "mesh_campaign": str(mesh_dir) if mesh_dir else None, "mesh_check": mesh,
            "rules": {"toe_slump_retrogression_m": TOE_SLUMP_RETROGRESSION,
                      "translational_early_fraction": TRANSLATIONAL_EARLY_FRACTION,
                      "above_base_height_m": ABOVE_BASE_HEIGHT},
@@ -267,6 +301,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("campaign", type=Path, help="campaign directory (fem-rmpm mc --out)")
     ap.add_argument("--fs", type=Path, default=None, help="FS campaign directory (--fs-only)")
+    ap.add_argument("--mesh", type=Path, default=None,
+                    help="the same realizations on a finer mesh (fem-rmpm mc ... -n 20 --case "
+                         "xi=48 --set grid.cell=0.25 --out DIR): the mesh check")
     ap.add_argument("--run", type=int, default=None, metavar="N",
                     help="run or resume the campaign first with N realizations per case")
     ap.add_argument("--scene", default="meshes/slope_risk.toml")
@@ -274,8 +311,15 @@ def main(argv: list[str] | None = None) -> int:
     if a.run is not None:
         subprocess.run([sys.executable, "-m", "fem_rmpm.cli", "mc", a.scene, "-n", str(a.run),
                         "--out", str(a.campaign)], check=True)
-    out = study(a.campaign, a.fs)
+    out = study(a.campaign, a.fs, mesh_dir=a.mesh)
     print((a.campaign / "risk_study.md").read_text())
+    for c, m in (out["mesh_check"] or {}).items():
+        if m:
+            ca, fa = (m[k]["sliding_area_given_failure"] for k in ("coarse", "fine"))
+            print(f"mesh check {c}: N = {m['n']} pairs; P(failure) {m['coarse']['p_failure']:.2f}"
+                  f" vs {m['fine']['p_failure']:.2f} (agree {m['agree']}); area given failure"
+                  f" {_pct(ca)} vs {_pct(fa)} m2; |difference| where both failed"
+                  f" {m['area_abs_difference_mean'] or float('nan'):.1f} m2 ({m['both_failed']})")
     cpu = out["cpu_time_total_s"]
     if cpu:
         print(f"CPU of the MPM realizations: {cpu:.0f} s = {cpu / 3600:.2f} core-hours")
