@@ -259,7 +259,30 @@ def _risk_study(campaign: Path) -> str:
                       "sliding area given failure: mean (COV)",
                       "run-out given failure: mean (COV)",
                       "toe slump / translational / retrogressive",
-                      "failure-surface height: median m (n above base)"), rows))
+                      "failure-surface height: median m (n above base)"), rows)
+            + _mesh_check(study))
+
+
+def _mesh_check(study: dict) -> str:
+    """The study's mesh check (the same realizations on a finer mesh), when it has one."""
+    rows = []
+    for name, m in (study.get("mesh_check") or {}).items():
+        if not m:
+            continue
+        ca, fa = ((m.get(k) or {}).get("sliding_area_given_failure") or {}
+                  for k in ("coarse", "fine"))
+        rows.append([_esc(name), _num(m.get("n")),
+                     f"{_num((m.get('coarse') or {}).get('p_failure'))} / "
+                     f"{_num((m.get('fine') or {}).get('p_failure'))}",
+                     _num(m.get("agree")), f"{_num(ca.get('mean'))} / {_num(fa.get('mean'))}",
+                     f"{_num(m.get('area_abs_difference_mean'))} ({_num(m.get('both_failed'))})"])
+    if not rows:
+        return ""
+    return ("<h3>Mesh check</h3><p>The same realizations (same random field) on the scene's "
+            "mesh and on a finer one (" + _esc(study.get("mesh_campaign") or "") + ").</p>"
+            + _table(("case", "pairs", "P(failure) scene / finer", "agree",
+                      "sliding area given failure (m2) scene / finer",
+                      "mean |difference| where both failed (m2) (n)"), rows))
 
 
 def _failures(records: list[dict]) -> str:

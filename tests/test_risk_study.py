@@ -74,7 +74,8 @@ def test_homogeneous_risk_slope_stands():
 
 def test_report_shows_the_risk_study(tmp_path):
     """report.html gains a 'Risk study' section from risk_study.json (the study's output:
-    P(failure) with its Wilson interval and the mode split per case); none without it."""
+    P(failure) with its Wilson interval and the mode split per case); none without it; a
+    'Mesh check' table when the study has one."""
     from fem_rmpm.report import report_html
     s = _study()
     rows = [_row(0, False), _row(1, True, 200, 150, 40, 30, 0.2)]
@@ -88,6 +89,13 @@ def test_report_shows_the_risk_study(tmp_path):
     page = report_html(tmp_path)
     assert "<h2>Risk study</h2>" in page and "xi12" in page
     assert "0.5 [" in page and "0 / 1 / 0" in page
+    assert "Mesh check" not in page
+    (tmp_path / "risk_study.json").write_text(json.dumps(
+        {"rules": {}, "cases": summary, "mesh_campaign": "runs/fine",
+         "mesh_check": {"xi12": s.mesh_summary(rows, [_row(1, True, 150)])}}))
+    page = report_html(tmp_path)
+    assert "<h3>Mesh check</h3>" in page and "runs/fine" in page
+    assert "200 / 150" in page and "50 (1)" in page
 
 
 def test_mesh_summary_pairs_by_index():
