@@ -1,0 +1,119 @@
+"""The run guards' exact thresholds and messages (issue 21, mutation testing of
+:mod:`fem_rmpm.run` and :mod:`fem_rmpm.explicit`).  The expected values follow from the
+documented rules: at rest when the kinetic energy is at most ``rest_energy_ratio`` x its
+peak (a peak other than 1 tells a product from a quotient); a point moving more than half
+a cell in a step stops the run; a non-finite point or a point outside the grid is named
+with its step, time, position and the option to change."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from fem_rmpm.explicit import _check_jump
+from fem_rmpm.run import RunRecord, SimulationError, at_rest, check_points
+from tests.test_measures_details import _points
+
+
+def test_at_rest_energy_ratio_scales_with_the_peak():
+    """Peak 100 kJ/m, ratio 1e-4: rest below 1e-2 kJ/m (5e-3 rests, 2e-2 does not)."""
+    assert at_rest(2.0, 0.5, 1e-6, 5e-3, 100.0, 1e-5, 1e-4)
+    assert not at_rest(2.0, 0.5, 1e-6, 2e-2, 100.0, 1e-5, 1e-4)
+
+
+def test_half_cell_motion_guard_threshold_and_message():
+    """h_min 0.25 m: a jump of 0.125 m passes (not > half a cell), 0.13 m and 0.3 m stop
+    with the step, the time, the jump and the cfl to reduce."""
+    _check_jump(0.125, 0.25, 7, 1.5, 0.5)
+    for jump in (0.13, 0.3):
+        with pytest.raises(SimulationError) as e:
+            _check_jump(jump, 0.25, 7, 1.5, 0.8)
+        msg = str(e.value)
+        assert msg.startswith("step 7 (t = 1.5 s): a material point moved ")
+        assert f"moved {jump:.3g} m" in msg and "reduce [solver] cfl (now 0.8;" in msg
+
+
+def _grid():
+    return SimpleNamespace(origin=np.array([0.0, 0.0]), upper=np.array([10.0, 5.0]))
+
+
+def test_non_finite_point_message_names_the_point_and_the_fix():
+    """The first active non-finite point (index 2, started at (3, 1)) is named, with the
+    step, the time and the cure, word for word."""
+    pts = _points([[1.0, 1.0], [2.0, 1.0], [3.0, 1.0]])
+    pts.velocity[2, 1] = np.nan
+    with pytest.raises(SimulationError) as e:
+        check_points(_grid(), pts, 12, 0.25, "freeze", RunRecord("explicit"))
+    assert str(e.value) == (
+        "step 12 (t = 0.25 s): non-finite state at material point 2 (started at "
+        "x = 3.000, y = 1.000 m); the explicit scheme went unstable — reduce [solver] cfl "
+        "(default 0.5) or check the material constants")
+
+
+def test_points_leaving_the_grid_stop_or_freeze():
+    """Point 1 at (10.5, 2.25) is beyond x = 10: ``stop`` names it (x and y of its current
+    position); ``freeze`` makes it inactive, still, and listed; a point on the edge stays."""
+    x0 = [[1.0, 1.0], [9.0, 2.0], [5.0, 4.0]]
+    pts = _points(x0, [[1.0, 1.0], [10.5, 2.25], [5.0, 5.0]])
+    pts.velocity[:] = 1.0
+    with pytest.raises(SimulationError) as e:
+        check_points(_grid(), pts, 3, 2.0, "stop", RunRecord("explicit"))
+    assert str(e.value) == (
+        "step 3 (t = 2 s): 1 material point(s) left the grid, first point 1 at x = 10.500, "
+        "y = 2.250 m; enlarge [grid] size or set [solver] edge_policy = \"freeze\"")
+    rec = RunRecord("explicit")
+    check_points(_grid(), pts, 3, 2.0, "freeze", rec)
+    assert pts.active.tolist() == [True, False, True] and pts.active.dtype == bool
+    assert rec.frozen_points == [1]
+    assert np.array_equal(pts.velocity, [[1.0, 1.0], [0.0, 0.0], [1.0, 1.0]])
+
+
+@pytest.mark.parametrize("pool, load, expected", [
+    (4, 0.4, 4),      # 4 - 0.4 + 0.5 = 4.1 -> 4
+    (4, 1.4, 3),      # 3.1 -> 3
+    (4, 1.6, 2),      # 2.9 -> 2 (rounded, not ceiled)
+    (4, 9.0, 1),      # busier than the pool: at least 1
+    (4, None, 4),     # no load average (OSError): the whole pool
+    (1, 0.0, 1),      # a one-thread pool
+])
+def test_auto_threads_is_the_pool_less_the_busy_cores(monkeypatch, pool, load, expected):
+    """``[solver] threads = 0``: numba's pool size (read from the config while the pool
+    has not started, from numba once it has) less the rounded 1-minute load average."""
+    import fem_rmpm.explicit as ex
+
+    def loadavg():
+        if load is None:
+            raise OSError("no load average")
+        return (load, 99.0, 99.0)
+    monkeypatch.setattr(ex.os, "getloadavg", loadavg)
+    monkeypatch.setattr(ex.numba_parallel, "_is_initialized", False, raising=False)
+    monkeypatch.setattr(ex.numba.config, "NUMBA_NUM_THREADS", pool)
+    monkeypatch.setattr(ex.numba, "get_num_threads", lambda: 99)
+    assert ex.auto_threads() == expected
+    monkeypatch.setattr(ex.numba_parallel, "_is_initialized", True, raising=False)
+    monkeypatch.setattr(ex.numba, "get_num_threads", lambda: pool)
+    monkeypatch.setattr(ex.numba.config, "NUMBA_NUM_THREADS", 99)
+    assert ex.auto_threads() == expected
+
+
+def test_run_record_threads_and_times():
+    """A short column run (t_end 0.01 s) with ``threads = 1``: the record holds the thread
+    count and a wall time between 0 and the time the call took."""
+    import time
+    from pathlib import Path
+
+    from fem_rmpm.explicit import run_explicit
+    from fem_rmpm.grid import make_grid
+    from fem_rmpm.particles import seed_particles
+    from fem_rmpm.scene import load_scene, with_values
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "meshes" / "column.toml")
+    sc = with_values(scene, {"solver.t_end": 0.01, "solver.threads": 1})
+    grid = make_grid(sc)
+    pts = seed_particles(sc, grid)
+    t0 = time.perf_counter()
+    rec = run_explicit(sc, grid, pts)
+    took = time.perf_counter() - t0
+    assert rec.solver["threads"] == 1
+    assert 0.0 < rec.wall_time <= took
