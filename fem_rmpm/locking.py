@@ -57,7 +57,8 @@ import numpy as np
 import scipy.sparse as sp
 
 __all__ = ["host_cells", "cell_mean", "fbar_increment", "bbar_gradient", "fbar_weights",
-           "fbar_q", "fbar_tangent_correction", "mean_pressure", "checkerboard_index"]
+           "fbar_q", "fbar_tangent_correction", "bbar_force_stress", "bbar_tangent_correction",
+           "mean_pressure", "checkerboard_index"]
 
 
 def host_cells(grid, x: np.ndarray) -> np.ndarray:
@@ -139,6 +140,60 @@ def fbar_tangent_correction(point_rows: np.ndarray, V0: np.ndarray, g: np.ndarra
     Pw = sp.csr_matrix((w, (np.arange(n), cell.ravel())), shape=P.shape)
     return ((U @ P) @ (Gm @ Pw).T - U @ Gm.T).tocsr()
 
+
+
+def bbar_force_stress(tau4: np.ndarray, V0: np.ndarray, volume: np.ndarray, host: np.ndarray,
+                      n_cells: int) -> np.ndarray:
+    """The stress whose standard internal force ``sum_p V0_p tau~_p g_p`` is the B-bar force
+    ``sum_p V0_p Bbar_p^T tau_p`` (small strain): the in-plane mean
+    ``s_p = (tau_xx + tau_yy) / 2`` of each point is replaced by ``w_p S_c / V0_p`` with
+    ``S_c = sum_{q in c} V0_q s_q`` and ``w_p = V_p / sum_{q in c} V_q`` (the weights of
+    :func:`bbar_gradient`); equal volumes: the cell's volume-weighted mean of ``s``.
+    Without it the force is not the derivative of the B-bar work, which is harmless
+    while ``s`` is uniform in a cell (elastic or isochoric von Mises flow) but makes
+    dilatant plastic flow (Mohr-Coulomb with psi > 0) soften spuriously: a rough footing
+    on phi = psi = 5 deg soil peaks and then loses half its load (B/8 cells)."""
+    s = 0.5 * (tau4[:, 0] + tau4[:, 1])
+    S = np.bincount(host, V0 * s, minlength=n_cells)
+    den = np.bincount(host, volume, minlength=n_cells)
+    d = volume / den[host] * S[host] / V0 - s
+    out = np.array(tau4, dtype=float, copy=True)
+    out[:, 0] += d
+    out[:, 1] += d
+    return out
+
+
+def bbar_tangent_correction(point_rows: np.ndarray, V0: np.ndarray, g: np.ndarray,
+                            D: np.ndarray, w: np.ndarray, host: np.ndarray,
+                            n_free: int) -> sp.csr_matrix:
+    """The B-bar terms of the small-strain tangent ``sum_p V0_p Bbar^T D Bbar`` beyond the
+    standard one, with ``Bbar_p = B_p + 1/2 I (bbar_c - b_p)`` (``b_p`` the trace row of
+    point p, ``bbar_c = sum_{q in c} w_q b_q``)::
+
+        sum_p V0_p [u_p d_p^T + d_p v_p^T + kappa_p d_p d_p^T],   d_p = bbar_c(p) - b_p
+
+    with ``u = g Q^T``, ``Q_ij = 1/2 (D_ij00 + D_ij11)``, ``v = g P^T``,
+    ``P_lm = 1/2 (D_00lm + D_11lm)``, ``kappa = 1/2 (P_00 + P_11)``; D (n, 2, 2, 2, 2).
+    The first term is :func:`fbar_tangent_correction`; the whole is symmetric when D
+    is.  Arguments as there."""
+    n, k = g.shape[:2]
+    Q = 0.5 * (D[:, :, :, 0, 0] + D[:, :, :, 1, 1])
+    Pm = 0.5 * (D[:, 0, 0] + D[:, 1, 1])
+    kappa = 0.5 * (Pm[:, 0, 0] + Pm[:, 1, 1])
+    rows = point_rows.ravel()
+    keep = rows >= 0
+    cols = np.repeat(np.arange(n), 2 * k)[keep]
+
+    def per_point(vals):
+        return sp.csr_matrix((vals.reshape(-1)[keep], (rows[keep], cols)), shape=(n_free, n))
+    U = per_point(np.matmul(g, np.swapaxes(Q, 1, 2)) * V0[:, None, None])
+    Vv = per_point(np.matmul(g, np.swapaxes(Pm, 1, 2)) * V0[:, None, None])
+    Gm = per_point(g)
+    _, cell = np.unique(host, return_inverse=True)
+    P = sp.csr_matrix((np.ones(n), (np.arange(n), cell.ravel())), shape=(n, int(cell.max()) + 1))
+    Pw = sp.csr_matrix((w, (np.arange(n), cell.ravel())), shape=P.shape)
+    Dm = ((Gm @ Pw) @ P.T - Gm).tocsr()                     # column p: bbar_c(p) - b_p
+    return (U @ Dm.T + Dm @ Vv.T + (Dm @ sp.diags(V0 * kappa)) @ Dm.T).tocsr()
 
 # ----------------------------------------------------------------------- measures
 def mean_pressure(stress: np.ndarray) -> np.ndarray:

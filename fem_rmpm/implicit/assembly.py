@@ -7,7 +7,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..grid import Grid
-from ..locking import fbar_tangent_correction, host_cells
+from ..locking import bbar_tangent_correction, fbar_tangent_correction, host_cells
 from ..shape import shape_at_points
 from . import point_kernels as pk
 
@@ -115,6 +115,13 @@ class StepSystem:
         """The F-bar coupling term of the tangent on the free DOFs
         (:func:`fem_rmpm.locking.fbar_tangent_correction`)."""
         return fbar_tangent_correction(self.fnum[self.point_dofs], V0, g, Q, w, self.host,
+                                       self.n_free)
+
+    def bbar_tangent(self, V0: np.ndarray, g: np.ndarray, D: np.ndarray,
+                     w: np.ndarray) -> sp.csr_matrix:
+        """The B-bar terms of the small-strain tangent on the free DOFs
+        (:func:`fem_rmpm.locking.bbar_tangent_correction`)."""
+        return bbar_tangent_correction(self.fnum[self.point_dofs], V0, g, D, w, self.host,
                                        self.n_free)
 
     def body_force(self, mass: np.ndarray, gravity) -> np.ndarray:

@@ -24,7 +24,8 @@ import numpy as np
 
 from .. import kernels
 from ..grid import Grid, points_in_polygon
-from ..locking import bbar_gradient, fbar_increment, fbar_q, fbar_weights
+from ..locking import (bbar_force_stress, bbar_gradient, fbar_increment, fbar_q,
+                       fbar_weights)
 from ..materials import MaterialPoints, small_strain_update, stress_update
 from ..particles import Particles
 from ..run import SimulationError
@@ -151,6 +152,15 @@ class StepKind:
     def inertia(self, st: StepData, du: np.ndarray, R: np.ndarray) -> np.ndarray:
         return R
 
+    def force_stress(self, st: StepData, tau: np.ndarray) -> np.ndarray:
+        """The stress the internal force and the reactions are integrated from (the
+        points' stress; geostatic B-bar: see :class:`Geostatic`)."""
+        return tau
+
+    def coupling_tangent(self, st: StepData, g, A, Q, w):
+        """The locking remedy's term of the tangent (F-bar: rank one per point)."""
+        return st.S.fbar_tangent(st.V0, g, Q, w)
+
     # -- the Newton pieces
     def residual(self, st: StepData, du: np.ndarray):
         """``(R, ref, state)``: ``R = f_ext - f_int`` (minus inertia) on the free DOFs,
@@ -160,11 +170,12 @@ class StepKind:
         H = S.gradient(S.to_nodes(du, st.presc))
         t_mat = st.clock["material"]
         ls, q, tau, g, dFm = self.material(st, H)
-        f_int = S.internal_force(st.V0, tau, g)
+        tf = self.force_stress(st, tau)
+        f_int = S.internal_force(st.V0, tf, g)
         R = st.f_ext - f_int
         ref = float(np.linalg.norm(st.f_ext))
         if st.presc is not None:      # the prescribed motion drives the step
-            ref = max(ref, float(np.linalg.norm(S.internal_force(st.V0, tau, g, full=True))))
+            ref = max(ref, float(np.linalg.norm(S.internal_force(st.V0, tf, g, full=True))))
         R = self.inertia(st, du, R)
         st.clock["assembly"] += time.perf_counter() - t0 - (st.clock["material"] - t_mat)
         return R, ref, (ls, q, tau, dFm)
@@ -193,7 +204,7 @@ class StepKind:
             Q = None if Q is None else f * Q
         K = S.tangent(st.V0, g, A, diagonal=self.diagonal(st))
         if self.sys.fbar:
-            K = K + S.fbar_tangent(st.V0, g, Q, w)
+            K = K + self.coupling_tangent(st, g, A, Q, w)
         st.clock["material"] += t1 - t0
         st.clock["assembly"] += time.perf_counter() - t1
         return K
@@ -227,8 +238,20 @@ class StepKind:
 
 class Geostatic(StepKind):
     """Gravity on the fixed in-situ geometry, small strain: the points do not move (the
-    displacement goes to ``pts.u_geostatic``); B-bar with F-bar on."""
+    displacement goes to ``pts.u_geostatic``); B-bar with F-bar on: the points' strain
+    takes the cell-mean trace (:func:`fem_rmpm.locking.bbar_gradient`) and the internal
+    force is its work conjugate, ``sum_p V0_p Bbar_p^T tau_p``
+    (:func:`fem_rmpm.locking.bbar_force_stress`), with the symmetric tangent
+    ``sum_p V0_p Bbar^T D Bbar`` (:func:`fem_rmpm.locking.bbar_tangent_correction`)."""
     name = "geostatic"
+
+    def force_stress(self, st, tau):
+        if not self.sys.fbar:
+            return tau
+        return bbar_force_stress(tau, st.V0, st.Vn, st.S.host, self.sys.grid.n_cells)
+
+    def coupling_tangent(self, st, g, A, Q, w):
+        return st.S.bbar_tangent(st.V0, g, A, w)
 
     def material(self, st, H):
         sys_ = self.sys
@@ -249,7 +272,7 @@ class Geostatic(StepKind):
 
     def commit(self, st, res):
         ls, q, tau, _ = res.state
-        info = self.sys.reactions(st, res.du, tau, st.S.dN)
+        info = self.sys.reactions(st, res.du, self.force_stress(st, tau), st.S.dN)
         pts, act = self.sys.pts, st.act
         pts.log_strain[act], pts.state[act] = ls, q
         pts.u_geostatic[act] += st.S.interpolate(st.S.to_nodes(res.du, st.presc))
