@@ -101,7 +101,8 @@ def test_fbar_tangent_is_the_derivative_of_the_fbar_internal_force(meshes_dir_fx
     """The analytic F-bar tangent (locking module docstring: K + sum_p V0 (g Q)_p
     (gbar_c - g_p)^T) is the directional derivative of the assembled F-bar internal force
     f(du) = sum_p V0 tau(dF_bar) dF^-T grad N: central differences agree to 1e-6, for
-    finite strain (F-bar) and for the geostatic small-strain step (B-bar), Q4 and uGIMP
+    finite strain (F-bar) and for the geostatic small-strain step (B-bar: force
+    sum_p V0 Bbar^T tau, tangent sum_p V0 Bbar^T D Bbar, symmetric), Q4 and uGIMP
     (whose cells couple up to 16 nodes); without the coupling term the error is O(1)."""
     grid = meshes_dir_fx
     rng = np.random.default_rng(2)
@@ -125,7 +126,8 @@ def test_fbar_tangent_is_the_derivative_of_the_fbar_internal_force(meshes_dir_fx
 
     def f_geo(u):
         H = locking.bbar_gradient(S.gradient(S.to_nodes(u)), Vn, S.host, nc)
-        return S.internal_force(V0, small_strain_update(H, ls, gp, soil)[2], S.dN)
+        tau = small_strain_update(H, ls, gp, soil)[2]
+        return S.internal_force(V0, locking.bbar_force_stress(tau, V0, Vn, S.host, nc), S.dN)
 
     dF = np.eye(2) + S.gradient(S.to_nodes(du))
     dFb, J, _ = locking.fbar_increment(dF, Vn, S.host, nc)
@@ -136,12 +138,15 @@ def test_fbar_tangent_is_the_derivative_of_the_fbar_internal_force(meshes_dir_fx
     H = locking.bbar_gradient(S.gradient(S.to_nodes(du)), Vn, S.host, nc)
     _, D = imp.small_strain_tangent(H, ls, gp, soil)
     w = Vn / np.bincount(S.host, Vn, minlength=nc)[S.host]
-    Kg = S.tangent(V0, S.dN, D) + S.fbar_tangent(V0, S.dN, locking.fbar_q(D, None), w)
+    Kg = S.tangent(V0, S.dN, D) + S.bbar_tangent(V0, S.dN, D, w)
     for KK, f in ((K, f_fin), (Kg, f_geo)):
         fd = (f(du + eps * v) - f(du - eps * v)) / (2 * eps)
         assert np.linalg.norm(KK @ v - fd) < 1e-6 * np.linalg.norm(fd)
     fd = (f_fin(du + eps * v) - f_fin(du - eps * v)) / (2 * eps)
     assert np.linalg.norm(K0 @ v - fd) > 1e-2 * np.linalg.norm(fd)
+    # B-bar: the force is the derivative of the work sum_p V0 W(eps_bar_p), so its tangent
+    # is symmetric for a symmetric D (von Mises is associated)
+    assert abs(Kg - Kg.T).max() < 1e-10 * abs(Kg).max()
 
 
 def _rough_box(**kw):
