@@ -125,6 +125,23 @@ def test_edge_return_lies_on_both_planes():
     assert abs(_yield(tau, c, phi)[0]) <= 1e-10 * abs(s).max()
 
 
+def test_dilation_angle_is_capped_at_the_friction_angle_of_a_point():
+    """A point whose (drawn) friction angle is below the soil's dilation angle flows with
+    psi = phi: the update with psi = 25 > phi = 15 deg (peak and residual, softening on)
+    equals the associated one to round-off (achieves 0; asserts 1e-12 relative) on the main
+    plane and an edge, and such a point is valid (invalid_points); psi <= phi is left
+    as it was (psi = 5 differs from psi = 15)."""
+    for trial in ([0.01, -0.03, -0.005, 0.002], [0.005, -0.03, 0.005, 0.0]):
+        e = np.array([trial])
+        assoc = mc.update(e, np.zeros((1, 1)), _params(20.0, 15.0, 15.0, 4.0, 10.0, 10.0))
+        capped = mc.update(e, np.zeros((1, 1)), _params(20.0, 15.0, 25.0, 4.0, 10.0, 25.0))
+        lower = mc.update(e, np.zeros((1, 1)), _params(20.0, 15.0, 5.0, 4.0, 10.0, 5.0))
+        for a, b in zip(assoc, capped):
+            np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * np.abs(a).max())
+        assert np.abs(lower[2] - assoc[2]).max() > 1e-3 * np.abs(assoc[2]).max()
+    assert not mc.invalid_points(_params(20.0, 15.0, 25.0, 4.0, 10.0, 25.0))[0].any()
+
+
 CASES = {  # name: (trial log strain [xx, yy, zz, xy], parameter row, branch)
     "elastic": ([-0.001, -0.0012, -0.001, 0.0001], _params(), "elastic"),
     "main plane": ([0.01, -0.03, -0.005, 0.002], _params(psi=10.0), "main"),

@@ -27,6 +27,11 @@
   (``phi > 0``; all trial deviatoric strain becomes plastic).  With softening, each
   branch is a Newton iteration on its plastic multipliers with ``c, phi`` at the new
   ``gamma_p``; the flow direction uses ``psi`` at the start of the step.
+* **psi <= phi at every point**: a scene's ``[[soil]]`` must have psi <= phi (peak and
+  residual, :func:`check`), but a random field may draw a friction angle below the soil's
+  dilation angle; there the flow uses ``psi = phi`` (the dilation angle is capped at the
+  current friction angle, as the strength reduction caps it at the reduced one), so such
+  a point is valid and associated.
 * **Tangent**: the implicit scheme differentiates :func:`update` by the complex step;
   the update is one numba function for real and complex numbers (branch tests on real
   parts), so the numpy reference and the explicit kernels run the same arithmetic.
@@ -65,9 +70,13 @@ PARAMETERS = (
                           "(linear) or the e-folding strain (exponential)"),
     Parameter("softening", "-", default="linear", choices=("linear", "exponential"),
               description="softening law"),
+    Parameter("tension_cutoff", "kPa", 0.0, math.inf, True, True, math.inf, allow_inf=True,
+              absent=math.nan,
+              description="tension cut-off t_c: no principal stress above it (Rankine "
+                          "planes); inf: none, the apex c cot(phi) is the tensile limit"),
 )
 STATE = ("plastic_shear_strain",)
-_CP, _CR, _PHP, _PHR, _PSP, _PSR, _GS, _EXP = 2, 3, 4, 5, 6, 7, 8, 9
+_CP, _CR, _PHP, _PHR, _PSP, _PSR, _GS, _EXP, _TC = 2, 3, 4, 5, 6, 7, 8, 9, 10
 _DEG = math.pi / 180.0
 _REL = 1e-12          # relative tolerance of the yield test and of the branch checks
 
@@ -247,9 +256,10 @@ def _edge(t1, t2, t3, upper, gn, sps, lam, G, cp, cr, php, phr, gs, expo):
 
 
 @njit(cache=True)
-def _principal_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo):
-    """Return of ordered principal trial log strains e1 >= e2 >= e3: new principal
-    elastic log strains and gamma_p.  Elastic: the inputs unchanged."""
+def _mc_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo):
+    """Mohr-Coulomb return of ordered principal trial log strains e1 >= e2 >= e3 (no
+    tension cut-off): new principal elastic log strains and gamma_p.  Elastic: the inputs
+    unchanged."""
     lam = K - 2.0 / 3.0 * G
     vol = e1 + e2 + e3
     t1, t2, t3 = lam * vol + 2 * G * e1, lam * vol + 2 * G * e2, lam * vol + 2 * G * e3
@@ -259,6 +269,8 @@ def _principal_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo
     if not f_tr.real > _REL * scale:
         return e1, e2, e3, gn
     _, sps, _, _, _, _ = _strengths(gn, 0.0, 0.0, psp, psr, gs, expo)  # sin(psi) at the start
+    if sps.real > sph.real:                         # psi capped at phi (a drawn phi < psi)
+        sps = sph
     dg, gam = _main_plane(t1, t3, gn, sps, lam, G, cp, cr, php, phr, gs, expo)
     p1, p2, p3 = dg * (1 + sps), 0.0 * dg, -dg * (1 - sps)
     s1 = t1 - lam * 2 * sps * dg - 2 * G * p1
@@ -283,6 +295,169 @@ def _principal_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo
     return ev / 3.0, ev / 3.0, ev / 3.0, gam
 
 
+# --------------------------------------------------------------- tension cut-off
+# Planes of the cut-off returns, by code: 0, 1, 2 the tension planes tau_i = t_c; 3, 4, 5
+# the Mohr-Coulomb planes (i, j) = (1, 3), (1, 2), (2, 3) of the ordered principal stresses.
+# The active sets tried, in order (codes, -1 unused; last: how many are active).
+_SETS = ((0, -1, -1, 1), (0, 3, -1, 2), (0, 1, -1, 2), (0, 3, 4, 3), (0, 1, 3, 3),
+         (0, 1, 5, 3), (0, 3, 5, 3), (0, 1, 2, 3))
+
+
+@njit(inline="always")
+def _ij(code):
+    if code == 3:
+        return 0, 2
+    if code == 4:
+        return 0, 1
+    if code == 5:
+        return 1, 2
+    return code, code
+
+
+@njit(inline="always")
+def _plane_vec(code, sa, z):
+    """Gradient (sa = sin phi) or flow direction (sa = sin psi) of plane ``code``; zero
+    for an unused code (-1).  ``z``: a zero of the working type."""
+    if code < 0:
+        return z, z, z
+    i, j = _ij(code)
+    if code < 3:
+        return (z + (1.0 if i == 0 else 0.0), z + (1.0 if i == 1 else 0.0),
+                z + (1.0 if i == 2 else 0.0))
+    a, b = 1.0 + sa, -(1.0 - sa)
+    return ((a if i == 0 else z) + (b if j == 0 else z), (a if i == 1 else z) + (b if j == 1 else z),
+            (a if i == 2 else z) + (b if j == 2 else z))
+
+
+@njit(inline="always")
+def _plane_f(code, s, sph, ccp, dsph, dccp, tc):
+    """Value of plane ``code`` at the principal stresses s and its derivative with
+    respect to gamma_p (zero for the tension planes and an unused code)."""
+    z = 0.0 * s[0]
+    if code < 0:
+        return z, z
+    i, j = _ij(code)
+    if code < 3:
+        return s[i] - tc, z
+    return s[i] - s[j] + (s[i] + s[j]) * sph - 2 * ccp, (s[i] + s[j]) * dsph - 2 * dccp
+
+
+@njit(inline="always")
+def _dot3(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(inline="always")
+def _c_times(n, lam, G):
+    """Elastic stiffness times a principal strain (lam tr(n) + 2 G n_i)."""
+    tr = lam * (n[0] + n[1] + n[2])
+    return tr + 2 * G * n[0], tr + 2 * G * n[1], tr + 2 * G * n[2]
+
+
+@njit(inline="always")
+def _dgam(p, n, dg):
+    """d dev_norm(p) / d multiplier of flow n (0 at p = 0)."""
+    if not dg.real > 0:
+        return 0.0 * dg
+    mp, mn = (p[0] + p[1] + p[2]) / 3, (n[0] + n[1] + n[2]) / 3
+    return 2 * ((p[0] - mp) * (n[0] - mn) + (p[1] - mp) * (n[1] - mn)
+                + (p[2] - mp) * (n[2] - mn)) / dg
+
+
+@njit(cache=True)
+def _corner(t, codes, gn, sps, lam, G, tc, cp, cr, php, phr, gs, expo):
+    """Return onto the active planes ``codes`` (up to three, see ``_SETS``) of the
+    ordered principal trial stresses t: Newton on the multipliers with c, phi at the new
+    gamma_p.  Returns the multipliers, the plastic strain p, the stresses and gamma_p."""
+    z = 0.0 * t[0]
+    k0, k1, k2 = codes[0], codes[1], codes[2]
+    n0, n1, n2 = _plane_vec(k0, sps, z), _plane_vec(k1, sps, z), _plane_vec(k2, sps, z)
+    c0, c1, c2 = _c_times(n0, lam, G), _c_times(n1, lam, G), _c_times(n2, lam, G)
+    l0, l1, l2 = z, z, z
+    for it in range(60):
+        p = (l0 * n0[0] + l1 * n1[0] + l2 * n2[0], l0 * n0[1] + l1 * n1[1] + l2 * n2[1],
+             l0 * n0[2] + l1 * n1[2] + l2 * n2[2])
+        cp_ = _c_times(p, lam, G)
+        s = (t[0] - cp_[0], t[1] - cp_[1], t[2] - cp_[2])
+        dg = _dev_norm(p[0], p[1], p[2])
+        c, sph, ccp, dc, dsph, dccp = _strengths(gn + dg, cp, cr, php, phr, gs, expo)
+        f0, h0 = _plane_f(k0, s, sph, ccp, dsph, dccp, tc)
+        f1, h1 = _plane_f(k1, s, sph, ccp, dsph, dccp, tc)
+        f2, h2 = _plane_f(k2, s, sph, ccp, dsph, dccp, tc)
+        a0, a1, a2 = _plane_vec(k0, sph, z), _plane_vec(k1, sph, z), _plane_vec(k2, sph, z)
+        q0, q1, q2 = _dgam(p, n0, dg), _dgam(p, n1, dg), _dgam(p, n2, dg)
+        # J_kl = d f_k / d l_l; rows of unused codes: the identity (their l stays 0)
+        j00, j01, j02 = h0 * q0 - _dot3(a0, c0), h0 * q1 - _dot3(a0, c1), h0 * q2 - _dot3(a0, c2)
+        j10, j11, j12 = h1 * q0 - _dot3(a1, c0), h1 * q1 - _dot3(a1, c1), h1 * q2 - _dot3(a1, c2)
+        j20, j21, j22 = h2 * q0 - _dot3(a2, c0), h2 * q1 - _dot3(a2, c1), h2 * q2 - _dot3(a2, c2)
+        if k1 < 0:
+            j10, j11, j12, j01, j21 = z, z + 1.0, z, z, z
+        if k2 < 0:
+            j20, j21, j22, j02, j12 = z, z, z + 1.0, z, z
+        det = j00 * (j11 * j22 - j12 * j21) - j01 * (j10 * j22 - j12 * j20) \
+            + j02 * (j10 * j21 - j11 * j20)
+        d0 = (f0 * (j11 * j22 - j12 * j21) - j01 * (f1 * j22 - j12 * f2)
+              + j02 * (f1 * j21 - j11 * f2)) / det
+        d1 = (j00 * (f1 * j22 - j12 * f2) - f0 * (j10 * j22 - j12 * j20)
+              + j02 * (j10 * f2 - f1 * j20)) / det
+        d2 = (j00 * (j11 * f2 - f1 * j21) - j01 * (j10 * f2 - f1 * j20)
+              + f0 * (j10 * j21 - j11 * j20)) / det
+        l0, l1, l2 = l0 - d0, l1 - d1, l2 - d2
+        if it > 0 and abs(d0.real) + abs(d1.real) + abs(d2.real) <= 1e-15 * (
+                abs(l0.real) + abs(l1.real) + abs(l2.real)):
+            break
+    p = (l0 * n0[0] + l1 * n1[0] + l2 * n2[0], l0 * n0[1] + l1 * n1[1] + l2 * n2[1],
+         l0 * n0[2] + l1 * n1[2] + l2 * n2[2])
+    cp_ = _c_times(p, lam, G)
+    s = (t[0] - cp_[0], t[1] - cp_[1], t[2] - cp_[2])
+    return (l0, l1, l2), p, s, gn + _dev_norm(p[0], p[1], p[2])
+
+
+@njit(cache=True)
+def _cutoff_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo, tc):
+    """Return with the tension cut-off active (the Mohr-Coulomb return left tau_1 > t_c):
+    the first active set of ``_SETS`` whose multipliers are >= 0 and whose stress
+    satisfies every plane (all three tension planes and Mohr-Coulomb at the new
+    gamma_p)."""
+    lam = K - 2.0 / 3.0 * G
+    vol = e1 + e2 + e3
+    t = (lam * vol + 2 * G * e1, lam * vol + 2 * G * e2, lam * vol + 2 * G * e3)
+    c, sph, ccp, _, _, _ = _strengths(gn, cp, cr, php, phr, gs, expo)
+    _, sps, _, _, _, _ = _strengths(gn, 0.0, 0.0, psp, psr, gs, expo)
+    if sps.real > sph.real:
+        sps = sph
+    tol = _REL * (abs(t[0].real) + abs(t[2].real) + abs(ccp.real) + abs(tc) + 1e-300)
+    for k in range(len(_SETS)):
+        codes = _SETS[k]
+        lm, p, s, gam = _corner(t, codes, gn, sps, lam, G, tc, cp, cr, php, phr, gs, expo)
+        ok = lm[0].real >= -tol / G and lm[1].real >= -tol / G and lm[2].real >= -tol / G
+        hi = max(s[0].real, s[1].real, s[2].real)
+        lo = min(s[0].real, s[1].real, s[2].real)
+        c, sph, ccp, _, _, _ = _strengths(gam, cp, cr, php, phr, gs, expo)
+        ok = ok and hi <= tc + tol and hi - lo + (hi + lo) * sph.real - 2 * ccp.real <= tol
+        if ok:
+            break
+    return e1 - p[0], e2 - p[1], e3 - p[2], gam
+
+
+@njit(cache=True)
+def _principal_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo, tc):
+    """Return of ordered principal trial log strains e1 >= e2 >= e3: new principal
+    elastic log strains and gamma_p (elastic: the inputs unchanged).  The Mohr-Coulomb
+    return; if it leaves the major principal stress above the tension cut-off ``tc``
+    (kPa; inf: none), the return onto the cut-off and Mohr-Coulomb planes."""
+    n1, n2, n3, gam = _mc_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo)
+    if not tc < math.inf:
+        return n1, n2, n3, gam
+    lam = K - 2.0 / 3.0 * G
+    v = n1 + n2 + n3
+    u1 = max((lam * v + 2 * G * n1).real, (lam * v + 2 * G * n2).real,
+             (lam * v + 2 * G * n3).real)
+    if u1 <= tc + _REL * (abs(u1) + abs(tc) + 1e-300):
+        return n1, n2, n3, gam
+    return _cutoff_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo, tc)
+
+
 @njit(cache=True)
 def _update_point(e0, e1, e2, e3, gn, prm):
     """One point: trial log strain [xx, yy, zz, xy] -> (new strain, gamma_p)."""
@@ -291,7 +466,9 @@ def _update_point(e0, e1, e2, e3, gn, prm):
     r = (d * d + e3 * e3) ** 0.5
     ea, eb = m + r, m - r                        # in-plane principal, ea >= eb; zz is e2
     expo = prm[_EXP] == 1.0
-    args = (G, K, prm[_CP], prm[_CR], prm[_PHP], prm[_PHR], prm[_PSP], prm[_PSR], prm[_GS], expo)
+    tc = prm[_TC] if prm.shape[0] > _TC else math.inf     # a row without the column: none
+    args = (G, K, prm[_CP], prm[_CR], prm[_PHP], prm[_PHR], prm[_PSP], prm[_PSR], prm[_GS], expo,
+            tc)
     if e2.real >= ea.real:
         nz, na, nb, gam = _principal_return(e2, ea, eb, gn, *args)
     elif e2.real >= eb.real:
