@@ -161,7 +161,7 @@ def main() -> None:
         for r, col in zip([r for r in runs if r["mode"] == m], ("C0", "C1", "C2")):
             lab = f"{r['cell']} m cells" + (" (Newton failed)" if r["error"] else "")
             ax.plot(r["u"], r["force"], "-", color=col, label=lab)
-        ax.set_title("local softening" if m == "local" else f"non-local softening, l = {LENGTH} m")
+        ax.set_title("local softening" if m == "local" else f"non-local softening, l = {LENGTH} m, m = 2")
         ax.set_xlabel("top displacement (m)")
         ax.grid(alpha=0.3)
         ax.legend()
