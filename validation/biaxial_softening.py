@@ -12,6 +12,9 @@ quasi-static gravity steps) made of von Mises clay that yields and softens at it
 Writes validation/out/biaxial_softening.png (force against displacement) and .json;
 prints the post-peak differences between meshes and the iterations per step.
 Run: ``nice python validation/biaxial_softening.py`` (a few minutes on a shared machine).
+``--staggered`` (acceptance 3): the staggered update's error - the non-local biaxial at
+0.05 m with 20 / 40 / 80 / 160 load steps, and case (i) (0.25 m, non-local) to 4 s
+implicit dynamic against explicit - written to validation/out/staggered_error.json.
 """
 from __future__ import annotations
 
