@@ -75,6 +75,7 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
     "explicit": (["fem_rmpm/explicit.py", "fem_rmpm/run.py"],
                  ["tests/test_explicit.py", "tests/test_kernels.py", "tests/test_documented.py",
                   "tests/test_explicit_details.py", "tests/test_run_guards.py",
+                  "tests/test_locking.py",
                   "-k", "not grid_file and not line_search and not exit_130 and not refuses_nan"]),
     "random_field": (["fem_rmpm/random_field/embedding.py", "fem_rmpm/random_field/model.py",
                       "fem_rmpm/random_field/points.py"],
