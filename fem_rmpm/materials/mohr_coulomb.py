@@ -79,6 +79,7 @@ STATE = ("plastic_shear_strain",)
 _CP, _CR, _PHP, _PHR, _PSP, _PSR, _GS, _EXP, _TC = 2, 3, 4, 5, 6, 7, 8, 9, 10
 _DEG = math.pi / 180.0
 _REL = 1e-12          # relative tolerance of the yield test and of the branch checks
+_NEWTON = 1e-13       # a return's Newton stops after the step taken at |f| <= this x |stress|
 
 
 def check(values: dict):
@@ -180,6 +181,20 @@ def _strengths(gam, cp, cr, php, phr, gs, expo):
 
 
 @njit(inline="always")
+def _sin_angle(gam, pk, rs, gs, expo):
+    """sin of an angle (deg) softening from pk to rs with gamma_p, as in _strengths."""
+    if pk == rs:
+        return np.sin(pk * _DEG) + 0.0 * gam
+    if expo:
+        w = np.exp(-gam / gs)
+    elif gam.real < gs:
+        w = 1.0 - gam / gs
+    else:
+        w = 0.0 * gam
+    return np.sin((rs + (pk - rs) * w) * _DEG)
+
+
+@njit(inline="always")
 def _dev_norm(a, b, c):
     """sqrt(2 dev(x) : dev(x)) of a diagonal (principal) increment x = (a, b, c)."""
     m = (a + b + c) / 3.0
@@ -188,13 +203,15 @@ def _dev_norm(a, b, c):
 
 # --------------------------------------------------------------- the three returns
 @njit(cache=True)
-def _main_plane(t1, t3, gn, sps, lam, G, cp, cr, php, phr, gs, expo):
-    """Multiplier of the main-plane return (plane 1-3), Newton on f(dg) = 0."""
+def _main_plane(t1, t3, gn, sps, sph, ccp, lam, G, cp, cr, php, phr, gs, expo):
+    """Multiplier of the main-plane return (plane 1-3), Newton on f(dg) = 0; ``sph``,
+    ``ccp``: sin(phi) and c cos(phi) at the start of the step."""
     dn1 = lam * 2 * sps + 2 * G * (1 + sps)
     dn3 = lam * 2 * sps - 2 * G * (1 - sps)
     k = 2.0 * (1.0 + sps * sps / 3.0) ** 0.5          # d gamma_p / d dg on this plane
-    c, sph, ccp, _, _, _ = _strengths(gn, cp, cr, php, phr, gs, expo)
     dg = (t1 - t3 + (t1 + t3) * sph - 2 * ccp) / (4 * G + 4 * sps * sph * (lam + G))
+    if cp == cr and php == phr:                     # no softening: f is linear in dg
+        return dg, gn + k * dg
     for it in range(60):
         c, sph, ccp, dc, dsph, dccp = _strengths(gn + k * dg, cp, cr, php, phr, gs, expo)
         s1, s3 = t1 - dg * dn1, t3 - dg * dn3
@@ -202,7 +219,9 @@ def _main_plane(t1, t3, gn, sps, lam, G, cp, cr, php, phr, gs, expo):
         df = -(dn1 - dn3) - (dn1 + dn3) * sph + ((s1 + s3) * dsph - 2 * dccp) * k
         step = f / df
         dg = dg - step
-        if it > 0 and abs(step.real) <= 1e-15 * abs(dg.real):
+        # converged: the residual was at round-off before this (last, complex-exact) step
+        if abs(f.real) <= _NEWTON * (abs(s1.real) + abs(s3.real) + abs(ccp.real)) or (
+                it > 0 and abs(step.real) <= 1e-15 * abs(dg.real)):
             break
     return dg, gn + k * dg
 
@@ -249,7 +268,11 @@ def _edge(t1, t2, t3, upper, gn, sps, lam, G, cp, cr, php, phr, gs, expo):
         sa = (fa * a22 - fb * a12) / det
         sb = (a11 * fb - a21 * fa) / det
         ga, gb = ga - sa, gb - sb
-        if it > 0 and abs(sa.real) + abs(sb.real) <= 1e-15 * (abs(ga.real) + abs(gb.real)):
+        if cp == cr and php == phr:                 # no softening: linear, exact at once
+            break
+        sc = abs(s[0].real) + abs(s[1].real) + abs(s[2].real) + abs(ccp.real)
+        if abs(fa.real) + abs(fb.real) <= _NEWTON * sc or (
+                it > 0 and abs(sa.real) + abs(sb.real) <= 1e-15 * (abs(ga.real) + abs(gb.real))):
             break
     x = (ga * na[0] + gb * nb[0], ga * na[1] + gb * nb[1], ga * na[2] + gb * nb[2])
     return ga, gb, x, gn + _dev_norm(x[0], x[1], x[2])
@@ -268,10 +291,10 @@ def _mc_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo):
     scale = abs(t1.real) + abs(t3.real) + abs(ccp.real) + 1e-300
     if not f_tr.real > _REL * scale:
         return e1, e2, e3, gn
-    _, sps, _, _, _, _ = _strengths(gn, 0.0, 0.0, psp, psr, gs, expo)  # sin(psi) at the start
+    sps = _sin_angle(gn, psp, psr, gs, expo)       # sin(psi) at the start of the step
     if sps.real > sph.real:                         # psi capped at phi (a drawn phi < psi)
         sps = sph
-    dg, gam = _main_plane(t1, t3, gn, sps, lam, G, cp, cr, php, phr, gs, expo)
+    dg, gam = _main_plane(t1, t3, gn, sps, sph, ccp, lam, G, cp, cr, php, phr, gs, expo)
     p1, p2, p3 = dg * (1 + sps), 0.0 * dg, -dg * (1 - sps)
     s1 = t1 - lam * 2 * sps * dg - 2 * G * p1
     s2 = t2 - lam * 2 * sps * dg
@@ -403,8 +426,10 @@ def _corner(t, codes, gn, sps, lam, G, tc, cp, cr, php, phr, gs, expo):
         d2 = (j00 * (j11 * f2 - f1 * j21) - j01 * (j10 * f2 - f1 * j20)
               + f0 * (j10 * j21 - j11 * j20)) / det
         l0, l1, l2 = l0 - d0, l1 - d1, l2 - d2
-        if it > 0 and abs(d0.real) + abs(d1.real) + abs(d2.real) <= 1e-15 * (
-                abs(l0.real) + abs(l1.real) + abs(l2.real)):
+        sc = abs(s[0].real) + abs(s[1].real) + abs(s[2].real) + abs(ccp.real) + abs(tc)
+        if abs(f0.real) + abs(f1.real) + abs(f2.real) <= _NEWTON * sc or (
+                it > 0 and abs(d0.real) + abs(d1.real) + abs(d2.real) <= 1e-15 * (
+                abs(l0.real) + abs(l1.real) + abs(l2.real))):
             break
     p = (l0 * n0[0] + l1 * n1[0] + l2 * n2[0], l0 * n0[1] + l1 * n1[1] + l2 * n2[1],
          l0 * n0[2] + l1 * n1[2] + l2 * n2[2])
@@ -423,7 +448,7 @@ def _cutoff_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo, t
     vol = e1 + e2 + e3
     t = (lam * vol + 2 * G * e1, lam * vol + 2 * G * e2, lam * vol + 2 * G * e3)
     c, sph, ccp, _, _, _ = _strengths(gn, cp, cr, php, phr, gs, expo)
-    _, sps, _, _, _, _ = _strengths(gn, 0.0, 0.0, psp, psr, gs, expo)
+    sps = _sin_angle(gn, psp, psr, gs, expo)
     if sps.real > sph.real:
         sps = sph
     tol = _REL * (abs(t[0].real) + abs(t[2].real) + abs(ccp.real) + abs(tc) + 1e-300)
