@@ -210,13 +210,10 @@ def test_tresca_equals_von_mises_in_plane_strain_pure_shear():
     assert st_v[0, 0] > 0.5 and abs(tv[0, 3] - 4.0) < 1e-9    # reached the residual
 
 
-def test_explicit_kernel_equals_numpy_update():
-    """The numba point function through the kernels' dispatch equals the numpy update on
-    random trial states of every branch (achieves ~1e-16 relative; asserts 1e-12)."""
-    rng = np.random.default_rng(3)
-    n = 3000
-    prm = np.repeat(_params(10.0, 30.0, 10.0, 2.0, 20.0, 0.0, gs=0.3), n, axis=0)
-    prm[:, 2] *= rng.uniform(0.5, 2.0, n)
+def kernel_equals_numpy(prm, rng):
+    """The kernels' stress update of random states equals the numpy update (asserts 1e-12
+    relative); returns the numpy stress, plastic shear strain and its start value."""
+    n = len(prm)
     soil = MaterialPoints(np.full(n, materials.model_id(mc.NAME)), prm)
     dF = np.eye(2) + 0.01 * rng.normal(size=(n, 2, 2))
     eps = 0.004 * rng.normal(size=(n, 4))
@@ -225,6 +222,17 @@ def test_explicit_kernel_equals_numpy_update():
     e, g, t = K.stress_update_points(dF, eps, gam, soil)
     for a, b in ((e, e_ref), (g, g_ref), (t, t_ref)):
         assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max()
+    return t_ref, g_ref, gam
+
+
+def test_explicit_kernel_equals_numpy_update():
+    """The numba point function through the kernels' dispatch equals the numpy update on
+    random trial states of every branch (achieves ~1e-16 relative; asserts 1e-12)."""
+    rng = np.random.default_rng(3)
+    n = 3000
+    prm = np.repeat(_params(10.0, 30.0, 10.0, 2.0, 20.0, 0.0, gs=0.3), n, axis=0)
+    prm[:, 2] *= rng.uniform(0.5, 2.0, n)
+    _, g_ref, gam = kernel_equals_numpy(prm, rng)
     assert 0.1 * n < (g_ref > gam).sum() < 0.9 * n
 
 
