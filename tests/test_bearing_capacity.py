@@ -52,7 +52,7 @@ def test_footing_on_c_phi_soil_converges_at_b8():
     step converges without a cut in <= 15 Newton iterations (the standard-B force stalled
     at a residual of ~1e-5 from q/c ~ 10 at B/16), and the load-settlement curve rises
     monotonically.  At B/8 q/c is 18.59, +25 % above N_c = 14.83: the coarse mesh is stiff
-    (it falls to 17.03 at B/16 and 16.11 at B/32, Richardson 14.8: the slow test).  Pinned
+    (it falls to 17.03 at B/16 and 16.11 at B/32, Richardson 14.78: the slow test).  Pinned
     to 0.05 (achieves 18.592) so a change of the discretisation shows."""
     q, its = _footing()
     print("q/c", np.round(q, 3), "iterations", its)
@@ -79,7 +79,7 @@ def test_dilatant_flow_does_not_soften_spuriously():
 def test_footing_on_c_phi_soil_converges_to_prandtl_under_refinement():
     """Issue 16 acceptance 2: q/c at 2.5 % of B on B/8, B/16, B/32 (2048, 8192, 32 768
     points) decreases monotonically (18.59, 17.03, 16.11) and its Richardson extrapolation
-    is within 5 % of Prandtl's N_c = 14.83 (achieves 14.79, -0.3 %; observed order 0.76).
+    is within 5 % of Prandtl's N_c = 14.83 (achieves 14.78, -0.35 %; observed order 0.76).
     The finest mesh alone is +8.6 %: it is not within 5 % (see README)."""
     nc = _nc(20.0)
     q = [_footing(2.0 / k)[0][-1] for k in (8, 16, 32)]
