@@ -6,13 +6,19 @@ a cell in a step stops the run; a non-finite point or a point outside the grid i
 with its step, time, position and the option to change."""
 from __future__ import annotations
 
+import time
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from fem_rmpm.explicit import _check_jump
+import fem_rmpm.explicit as ex
+from fem_rmpm.explicit import _check_jump, run_explicit
+from fem_rmpm.grid import make_grid
+from fem_rmpm.particles import seed_particles
 from fem_rmpm.run import RunRecord, SimulationError, at_rest, check_points
+from fem_rmpm.scene import load_scene, with_values
 from tests.test_measures_details import _points
 
 
@@ -80,8 +86,6 @@ def test_points_leaving_the_grid_stop_or_freeze():
 def test_auto_threads_is_the_pool_less_the_busy_cores(monkeypatch, pool, load, expected):
     """``[solver] threads = 0``: numba's pool size (read from the config while the pool
     has not started, from numba once it has) less the rounded 1-minute load average."""
-    import fem_rmpm.explicit as ex
-
     def loadavg():
         if load is None:
             raise OSError("no load average")
@@ -100,14 +104,6 @@ def test_auto_threads_is_the_pool_less_the_busy_cores(monkeypatch, pool, load, e
 def test_run_record_threads_and_times():
     """A short column run (t_end 0.01 s) with ``threads = 1``: the record holds the thread
     count and a wall time between 0 and the time the call took."""
-    import time
-    from pathlib import Path
-
-    from fem_rmpm.explicit import run_explicit
-    from fem_rmpm.grid import make_grid
-    from fem_rmpm.particles import seed_particles
-    from fem_rmpm.scene import load_scene, with_values
-
     scene = load_scene(Path(__file__).resolve().parents[1] / "meshes" / "column.toml")
     sc = with_values(scene, {"solver.t_end": 0.01, "solver.threads": 1})
     grid = make_grid(sc)
