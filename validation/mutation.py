@@ -75,8 +75,15 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
     "explicit": (["fem_rmpm/explicit.py", "fem_rmpm/run.py"],
                  ["tests/test_explicit.py", "tests/test_kernels.py", "tests/test_documented.py",
                   "tests/test_explicit_details.py", "tests/test_run_guards.py",
-                  "tests/test_locking.py",
+                  "tests/test_locking.py", "tests/test_explicit_wiring.py",
                   "-k", "not grid_file and not line_search and not exit_130 and not refuses_nan"]),
+    # the numba dispatcher and the CFL step of explicit.py against the fast tests that reach
+    # them (one or a few steps, numba = numpy): the "explicit" selection runs slope columns
+    # for every mutant of these two functions, about a minute each on 2 cores
+    "explicit_step": (["fem_rmpm/explicit.py"],
+                      ["tests/test_kernels.py", "tests/test_locking.py", "tests/test_threads.py",
+                       "tests/test_explicit_details.py", "tests/test_stability.py",
+                       "tests/test_explicit_wiring.py"]),
     "random_field": (["fem_rmpm/random_field/embedding.py", "fem_rmpm/random_field/model.py",
                       "fem_rmpm/random_field/points.py"],
                      ["tests/test_random_field.py", "tests/test_random_field_model.py", "-k",
@@ -115,7 +122,7 @@ def _status(listing: str, status: str) -> list[str]:
 
 
 def run_target(name: str, work: Path, max_children: int, show: bool,
-               only: list[str] | None = None) -> dict:
+               only: list[str] | None = None, niceness: int = 19) -> dict:
     """Mutate ``name``'s files and run its tests (``only``: these mutant names alone)."""
     mutate, tests = TARGETS[name]
     work.mkdir(parents=True, exist_ok=True)
@@ -125,7 +132,7 @@ def run_target(name: str, work: Path, max_children: int, show: bool,
     env["NUMBA_CACHE_DIR"] = str(work / ".numba_cache")
     log = work / "mutmut.log"
     with open(log, "w") as fh:
-        subprocess.run(["nice", "-n", "19", "mutmut", "run", "--max-children", str(max_children),
+        subprocess.run(["nice", "-n", str(niceness), "mutmut", "run", "--max-children", str(max_children),
                         *(only or [])],
                        cwd=work, env=env, stdout=fh, stderr=subprocess.STDOUT, check=False)
     subprocess.run(["mutmut", "export-cicd-stats"], cwd=work, env=env, capture_output=True)
@@ -171,6 +178,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workdir", default=None, help="scratch directory (default: a temp dir)")
     p.add_argument("--max-children", type=int, default=1, help="parallel mutant runs")
     p.add_argument("--survivors", action="store_true", help="print each surviving mutant")
+    p.add_argument("--nice", type=int, default=19, help="niceness of the mutant runs")
+    p.add_argument("--only", nargs="*", default=None, metavar="NAME",
+                   help="mutant names (as mutmut lists them, e.g. 'fem_rmpm.explicit.x_stable_time_step"
+                        "__mutmut_3') to run instead of all")
     p.add_argument("--rerun", default=None, metavar="JSON",
                    help="an earlier result of this target: run only its survivors and "
                         "untested mutants (with the current tests) and report the combined "
@@ -183,9 +194,11 @@ def main(argv: list[str] | None = None) -> int:
         if a.rerun:
             before = json.loads(Path(a.rerun).read_text())
             only = before["survivors"] + before.get("no_tests", [])
-            res = combine(before, run_target(name, base / name, a.max_children, True, only))
+            res = combine(before, run_target(name, base / name, a.max_children, True, only,
+                                                    a.nice))
         else:
-            res = run_target(name, base / name, a.max_children, show=True)
+            res = run_target(name, base / name, a.max_children, show=True, only=a.only,
+                             niceness=a.nice)
         (out / f"mutation_{name}.json").write_text(json.dumps(res, indent=1))
         s = res["stats"]
         print(f"{name}: mutation score {res['score']:.1%} ({s['killed']} killed, "
