@@ -7,10 +7,15 @@ inactive (frozen) points take no part in a step and keep their state; the gravit
 ``g(t) = min(1, t / gravity_ramp_time) g`` applied at the end of the step, so that
 after the first step of a body at rest with zero stress every point whose nodes are
 all free has ``v = dt * (dt / T) * g`` exactly (lumped mass, ``a = f / m`` at the nodes,
-``v = v0 + dt sum_a N_a a_a`` with ``sum_a N_a = 1``).
+``v = v0 + dt sum_a N_a a_a`` with ``sum_a N_a = 1``); the loop's documented rules: the
+run ends when every point has left the grid (edge_policy "freeze") or at the first point
+that leaves ("stop", the step named); progress and the energy record every 20 steps; the
+at-rest test against the running peak of the kinetic energy; a non-finite position names
+its point; a point on the grid's edge is inside.
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +24,7 @@ import pytest
 from fem_rmpm.explicit import Workspace, explicit_step, run_explicit, stable_time_step
 from fem_rmpm.grid import make_grid
 from fem_rmpm.particles import seed_particles
+from fem_rmpm.run import RunRecord, SimulationError, at_rest, check_points
 from fem_rmpm.scene import load_scene, with_values
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
@@ -95,3 +101,77 @@ def test_gravity_ramp_on_the_first_step():
     assert np.allclose(pts.velocity[top, 1], expected, rtol=1e-12, atol=0)
     assert np.all(pts.velocity[:, 0] == 0.0)
     assert np.all(pts.velocity[pts.x0[:, 1] < 0.25, 1] > expected)
+
+
+def _flying_column(policy):
+    """The column thrown upwards at 50 m/s through its free top (dynamic, undamped)."""
+    scene, grid, pts = _column(**{"solver.gravity_phase": "dynamic", "solver.damping": 0.0,
+                                  "solver.edge_policy": policy, "solver.t_end": 2.0})
+    pts.velocity[:, 1] = 50.0
+    return scene, grid, pts
+
+
+def test_all_points_leaving_the_grid_end_the_run_with_its_reason():
+    """edge_policy "freeze": every point leaves through the free top within ~0.16 s; the run
+    returns its record with that stop reason, every point frozen and listed once."""
+    scene, grid, pts = _flying_column("freeze")
+    rec = run_explicit(scene, grid, pts)
+    assert rec is not None and rec.stop_reason == "all points left the grid"
+    assert not pts.active.any() and sorted(rec.frozen_points) == list(range(pts.n))
+    assert 0.05 < rec.time < 1.0 and rec.steps > 10
+
+
+def test_point_leaving_with_stop_policy_names_the_step():
+    """edge_policy "stop": the run ends with the step number, not at t_end."""
+    scene, grid, pts = _flying_column("stop")
+    with pytest.raises(SimulationError) as e:
+        run_explicit(scene, grid, pts)
+    assert re.match(r"step [1-9][0-9]* \(t = 0\.0[0-9]+ s\): [0-9]+ material point\(s\) left "
+                    r"the grid, first point [0-9]+ at x = ", str(e.value))
+
+
+def test_progress_and_energy_record_every_20_steps():
+    """The column to rest: ``progress(t, step)`` and the energy record at steps 20, 40, ...
+    (same times), none in between."""
+    scene, grid, pts = _column()
+    calls = []
+    rec = run_explicit(scene, grid, pts, progress=lambda t, s: calls.append((t, s)))
+    assert rec.stop_reason == "at rest" and rec.steps > 400
+    assert [s for _, s in calls] == list(range(20, rec.steps + 1, 20))
+    assert [t for t, _ in calls] == [t for t, _ in rec.energy]
+    assert all(0.0 < t <= rec.time for t, _ in calls)
+
+
+def test_rest_test_gets_the_running_peak_of_the_kinetic_energy(monkeypatch):
+    """The at-rest test compares the kinetic energy with its peak so far: the peak passed
+    is the running maximum of the energies passed (the column's peak is 0.25 kJ/m, so a
+    peak that starts at 1 would stop the run early)."""
+    import fem_rmpm.explicit as ex
+    seen = []
+
+    def spy(t, ramp, speed, ke, ke_peak, v_rest, ratio):
+        seen.append((ke, ke_peak))
+        return at_rest(t, ramp, speed, ke, ke_peak, v_rest, ratio)
+
+    monkeypatch.setattr(ex, "at_rest", spy)
+    scene, grid, pts = _column()
+    run_explicit(scene, grid, pts)
+    running = np.maximum.accumulate([ke for ke, _ in seen])
+    assert np.array_equal([p for _, p in seen], running)
+    assert 0.05 < running[-1] < 1.0
+
+
+def test_check_points_nan_position_and_lower_edge():
+    """A NaN position at point 2 names point 2; a point exactly on the lower-left corner
+    of the grid (x = 0, y = 0) is inside, not frozen."""
+    from types import SimpleNamespace
+    from tests.test_measures_details import _points
+    grid = SimpleNamespace(origin=np.array([0.0, 0.0]), upper=np.array([10.0, 5.0]))
+    pts = _points([[1.0, 1.0], [2.0, 1.0], [3.0, 1.0]])
+    pts.x[2, 0] = np.nan
+    with pytest.raises(SimulationError, match="non-finite state at material point 2 "):
+        check_points(grid, pts, 4, 0.1, "freeze", RunRecord("explicit"))
+    pts = _points([[0.0, 0.0], [2.0, 1.0]])
+    rec = RunRecord("explicit")
+    check_points(grid, pts, 4, 0.1, "stop", rec)
+    assert pts.active.all() and rec.frozen_points == []
