@@ -75,8 +75,10 @@ def test_numpy_step_with_frozen_points_equals_numba_and_leaves_them_alone():
     dt = stable_time_step(a, grid.cell, 0.5)
     work = Workspace.for_grid(grid, b.n)
     for _ in range(3):
-        explicit_step(grid, a, dt, g, 0.3, kernel="numpy")
-        explicit_step(grid, b, dt, g, 0.3, kernel="numba", work=work)
+        sa = explicit_step(grid, a, dt, g, 0.3, kernel="numpy")
+        sb = explicit_step(grid, b, dt, g, 0.3, kernel="numba", work=work)
+        assert sa.max_speed == pytest.approx(sb.max_speed, rel=1e-12)     # ~0.1 m/s
+        assert sa.kinetic_energy == pytest.approx(sb.kinetic_energy, rel=1e-12)
     for f in FIELDS:
         ref, got = getattr(a, f), getattr(b, f)
         assert np.abs(got - ref).max() <= 1e-12 * max(np.abs(ref).max(), 1e-30), f
@@ -175,3 +177,41 @@ def test_check_points_nan_position_and_lower_edge():
     rec = RunRecord("explicit")
     check_points(grid, pts, 4, 0.1, "stop", rec)
     assert pts.active.all() and rec.frozen_points == []
+
+
+@pytest.mark.parametrize("options", [
+    {"solver.kernel": "numpy", "solver.shape": "gimp", "solver.fbar": True,
+     "solver.flip": 0.9, "solver.threads": 1},
+    {"solver.kernel": "numba", "solver.shape": "standard", "solver.fbar": False,
+     "solver.flip": 1.0, "solver.threads": 2},
+])
+def test_solver_options_reach_every_step(monkeypatch, options):
+    """``[solver] kernel, shape, fbar, flip, threads`` are what each explicit step gets;
+    the numba kernel reuses one workspace for the whole run, the numpy one needs none;
+    the record states the thread count."""
+    import inspect
+
+    import fem_rmpm.explicit as ex
+    calls = []
+    real = ex.explicit_step
+    sig = inspect.signature(real)
+
+    def spy(*args, **kwargs):
+        calls.append(sig.bind(*args, **kwargs).arguments)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ex, "explicit_step", spy)
+    scene, grid, pts = _column(**options, **{"solver.t_end": 0.02})
+    rec = run_explicit(scene, grid, pts)
+    assert len(calls) == rec.steps > 3
+    for c in calls:
+        assert c["kernel"] == options["solver.kernel"]
+        assert c["shape"] == options["solver.shape"] and c["fbar"] is options["solver.fbar"]
+        assert c["flip"] == options["solver.flip"]
+        assert c["threads"] == options["solver.threads"]
+    works = {id(c["work"]) for c in calls}
+    if options["solver.kernel"] == "numba":
+        assert len(works) == 1 and isinstance(calls[0]["work"], Workspace)
+    else:
+        assert all(c["work"] is None for c in calls)
+    assert rec.solver["threads"] == options["solver.threads"]

@@ -82,6 +82,7 @@ def test_points_leaving_the_grid_stop_or_freeze():
     (4, 9.0, 1),      # busier than the pool: at least 1
     (4, None, 4),     # no load average (OSError): the whole pool
     (1, 0.0, 1),      # a one-thread pool
+    (2, 0.0, 2),      # the 2-core machine, idle: both threads
 ])
 def test_auto_threads_is_the_pool_less_the_busy_cores(monkeypatch, pool, load, expected):
     """``[solver] threads = 0``: numba's pool size (read from the config while the pool
