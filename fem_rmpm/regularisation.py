@@ -83,6 +83,7 @@ CUTOFF = 2.0                       # the weight is truncated at CUTOFF * l
 MODES = ("local", "nonlocal", "displacement")
 _EXP_FULL = 14.0                   # exponential law: c - c_r < 1e-6 (c_p - c_r) past 14 e-folds
 _PLANS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_BUFFERS: dict = {}                # id(grid) -> (weakref to the grid, work arrays)
 
 
 def galavi_weight(r: np.ndarray, length: float) -> np.ndarray:
@@ -160,8 +161,25 @@ def average_softening(grid, pts, method: str = "cells") -> None:
         rec = length == ell
         da, db, w = stencil(float(ell), hx, hy)
         cell_average(pts.x, pts.volume, pts.active, pts.state, sel, rec, full, factor, origin,
-                     hx, hy, nx, ny, da, db, w)
+                     hx, hy, nx, ny, da, db, w, _buffers_of(grid, nx * ny))
     pts.state[sel, 2] = pts.state[sel, 0]
+
+
+def _buffers_of(grid, nc: int) -> tuple:
+    """The zeroed work arrays of :func:`cell_average` for ``grid``, made once per grid
+    (a run's grid lives for the run) and reused every step; entries of grids that no
+    longer exist are dropped."""
+    ref_buf = _BUFFERS.get(id(grid))
+    if ref_buf is not None and ref_buf[0]() is grid and len(ref_buf[1][0]) == nc:
+        return ref_buf[1]
+    for key in [k for k, (ref, _) in _BUFFERS.items() if ref() is None]:
+        _BUFFERS.pop(key, None)
+    buf = _cell_buffers(nc)
+    try:
+        _BUFFERS[id(grid)] = (weakref.ref(grid), buf)
+    except TypeError:                       # not weak-referenceable: not kept
+        pass
+    return buf
 
 
 def stencil(length: float, hx: float, hy: float):
@@ -174,41 +192,60 @@ def stencil(length: float, hx: float, hy: float):
     return a[keep].astype(np.int64), b[keep].astype(np.int64), w[keep]
 
 
-@njit(cache=True)
 def cell_average(x, volume, active, state, sel, rec, full, factor, origin, hx, hy, nx, ny,
-                 da, db, w):
+                 da, db, w, buffers=None) -> None:
     """The non-local mean on the background cells: each cell sums the volume and the
     volume-weighted plastic increment of its points; at every cell centre a receiver
     needs, numerator and denominator of the mean are the stencil sums ``sum w I`` and
     ``sum w V`` over the cells within ``CUTOFF * l``; a receiver point (``rec``, not
     fully softened) adds the ratio of their bilinear interpolations to its softening
     variable (its own increment if no neighbour is within reach).  Column 2 is left
-    to the caller.  O(points + needed cells x stencil)."""
-    nc = nx * ny
-    inc_sum = np.zeros(nc)
-    vol_sum = np.zeros(nc)
+    to the caller.  ``buffers`` (:func:`_cell_buffers`, zero on entry and left zero):
+    work arrays over the grid's cells, kept between steps, so a step costs
+    O(points + needed cells x stencil) whatever the size of the grid (allocating and
+    clearing arrays over every cell of a long run-out floor cost more than the step).
+    """
+    if buffers is None:
+        buffers = _cell_buffers(nx * ny)
+    _cell_average(x, volume, active, state, sel, rec, full, factor, origin, hx, hy, nx, ny,
+                  da, db, w, *buffers)
+
+
+def _cell_buffers(nc: int) -> tuple:
+    """Zeroed work arrays of :func:`cell_average` over ``nc`` cells."""
+    return (np.zeros(nc), np.zeros(nc), np.zeros(nc), np.zeros(nc), np.zeros(nc, dtype=np.bool_))
+
+
+@njit(cache=True)
+def _cell_average(x, volume, active, state, sel, rec, full, factor, origin, hx, hy, nx, ny,
+                  da, db, w, inc_sum, vol_sum, num, den, need):
+    """Kernel of :func:`cell_average`; the five work arrays are zero on entry and on exit
+    (only the entries touched are cleared)."""
     m = len(sel)
+    home = np.full(m, -1, dtype=np.int64)
     for k in range(m):
         i = sel[k]
         if not active[i]:
             continue
         cx = min(max(int((x[i, 0] - origin[0]) / hx), 0), nx - 1)
         cy = min(max(int((x[i, 1] - origin[1]) / hy), 0), ny - 1)
-        inc_sum[cy * nx + cx] += volume[i] * (state[i, 0] - state[i, 2])
-        vol_sum[cy * nx + cx] += volume[i]
-    need = np.zeros(nc, dtype=np.bool_)
+        home[k] = cy * nx + cx
+        inc_sum[home[k]] += volume[i] * (state[i, 0] - state[i, 2])
+        vol_sum[home[k]] += volume[i]
+    needed = np.empty(4 * m, dtype=np.int64)
+    nn = 0
     for k in range(m):
         i = sel[k]
         if not (rec[k] and active[i]) or state[i, 1] >= full[k]:
             continue
         ax, ay, _, _ = _corner(x[i, 0], x[i, 1], origin, hx, hy, nx, ny)
-        need[ay * nx + ax] = need[ay * nx + ax + 1] = True
-        need[(ay + 1) * nx + ax] = need[(ay + 1) * nx + ax + 1] = True
-    num = np.zeros(nc)
-    den = np.zeros(nc)
-    for c in range(nc):
-        if not need[c]:
-            continue
+        for c in (ay * nx + ax, ay * nx + ax + 1, (ay + 1) * nx + ax, (ay + 1) * nx + ax + 1):
+            if not need[c]:
+                need[c] = True
+                needed[nn] = c
+                nn += 1
+    for q in range(nn):
+        c = needed[q]
         ca, cb = c % nx, c // nx
         sn, sd = 0.0, 0.0
         for e in range(len(w)):
@@ -231,6 +268,14 @@ def cell_average(x, volume, active, state, sel, rec, full, factor, origin, hx, h
                + (1 - tx) * ty * den[c01] + tx * ty * den[c11])
         own = state[i, 0] - state[i, 2]
         state[i, 1] += _increment(n_i / d_i if d_i > 0.0 else own, own, factor[k])
+    for k in range(m):                    # leave the work arrays zero for the next call
+        if home[k] >= 0:
+            inc_sum[home[k]] = 0.0
+            vol_sum[home[k]] = 0.0
+    for q in range(nn):
+        c = needed[q]
+        num[c] = den[c] = 0.0
+        need[c] = False
 
 
 @njit(inline="always")
