@@ -155,7 +155,8 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
                                 scene.montecarlo.failure_displacement, grid.cell,
                                 rec.time if rec.stop_reason == "at rest" else None,
                                 snapshots=snapshots, grid=grid,
-                                mechanism_time=MECHANISM_TIME + rec.solver.get("geostatic_end_time", 0.0))
+                                mechanism_time=MECHANISM_TIME + rec.solver.get("geostatic_end_time", 0.0),
+                                intact_block_area=scene.montecarlo.intact_block_area)
     summary = {**_summary(scene, seed, pts, rec, measures), "estimate": estimate.to_dict()}
     if out is not None:
         if figures and snapshots and error is None:

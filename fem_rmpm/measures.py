@@ -47,14 +47,24 @@ and ``d_p > threshold``):
 * ``intact_blocks``: at ``mechanism_time`` (default 3 s; runs take it 3 s after the end
   of a geostatic phase, when the points start to move), the number of intact
   blocks the sliding mass has broken into: connected groups (4-neighbour cells of
-  the grid) of at least 4 cells holding sliding points with ``gamma_p < 0.1``
-  (the literature's "sub-blocks"; most for mid-range anisotropy).
+  the grid) of cells holding sliding points with ``gamma_p < 0.1`` (the literature's
+  "sub-blocks"; most for mid-range anisotropy) whose area (cells x cell area) is at
+  least ``intact_block_area`` (m2, ``[montecarlo] intact_block_area``, default
+  :data:`INTACT_BLOCK_AREA` = 1 m2; reported as the measure ``intact_block_area``).  The
+  least block is a physical area, so counts compare across meshes: 1 m2 is 4 cells of
+  0.5 m (the coarsest mesh that resolves it with a few cells; the risk study's mesh),
+  16 of 0.25 m and 64 of 0.125 m.  (Earlier versions counted groups of at least 4
+  cells whatever their size: 1 m2 at 0.5 m but 0.25 m2 at 0.25 m and 0.06 m2 at
+  0.125 m, so finer meshes counted smaller fragments; a record without the
+  ``intact_block_area`` key holds a count of that definition.)
 * ``sliding_area_early`` (m2): the initial volume of the points moved more than the
   threshold at ``mechanism_time`` (points frozen by the end excluded): how fast it fails.
 * ``final_profile``: the surface (max Y per X bin of one cell width) of the counted
   points now; ``initial_profile`` that of all points at the start.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from scipy import ndimage
@@ -63,12 +73,12 @@ from .output import to_true_frame
 from .particles import Particles
 
 __all__ = ["compute_measures", "surface_profile", "deposit_points", "excluded_summary", "UNITS",
-           "MIN_BODY_FRACTION"]
+           "MIN_BODY_FRACTION", "INTACT_BLOCK_AREA", "intact_blocks", "least_cells"]
 
 #: Units of the scalar measures (and of the other ``results.csv`` columns).
 UNITS = {"failed": "0/1", "sliding_area": "m2 per m", "runout_distance": "m",
          "retrogression_distance": "m", "max_displacement": "m", "time_to_rest": "s",
-         "slip_surface_height": "m", "intact_blocks": "count", "sliding_area_early": "m2 per m",
+         "slip_surface_height": "m", "intact_blocks": "count", "intact_block_area": "m2", "sliding_area_early": "m2 per m",
          "mechanism_time": "s", "failure_displacement": "m",
          "excluded_frozen_points": "count", "excluded_frozen_volume": "m2 per m (initial)",
          "excluded_stray_points": "count", "excluded_stray_volume": "m2 per m (initial)",
@@ -76,6 +86,7 @@ UNITS = {"failed": "0/1", "sliding_area": "m2 per m", "runout_distance": "m",
          "steps": "count", "simulated_time": "s", "particles": "count",
          "frozen_points": "count", "scheme": "-", "error": "-"}
 MIN_BODY_FRACTION = 0.01   #: a body holds at least this fraction of the active volume
+INTACT_BLOCK_AREA = 1.0    #: m2: least area of an intact block (4 cells of 0.5 m)
 
 
 def surface_profile(X: np.ndarray, bin_width: float) -> list[tuple[float, float]]:
@@ -111,8 +122,13 @@ def slip_surface_height(x0: np.ndarray, sliding: np.ndarray, cell_width: float) 
 
 def intact_blocks(x: np.ndarray, x0: np.ndarray, gamma_p: np.ndarray, threshold: float,
                   origin: np.ndarray, cell: np.ndarray, shape: tuple[int, int],
-                  intact_strain: float = 0.1, min_cells: int = 4) -> int:
-    """Connected groups (>= ``min_cells`` grid cells, 4-neighbour) of sliding, intact points."""
+                  intact_strain: float = 0.1, min_cells: int | None = None,
+                  min_area: float = INTACT_BLOCK_AREA) -> int:
+    """Connected groups (4-neighbour grid cells) of sliding, intact points whose area is at
+    least ``min_area`` (m2; a group of k cells has the area k x cell area).  ``min_cells``,
+    if given, replaces the area by a least number of cells (earlier versions: 4 cells)."""
+    if min_cells is None:
+        min_cells = least_cells(min_area, cell)
     sel = (np.linalg.norm(x - x0, axis=1) > threshold) & (gamma_p < intact_strain)
     if not sel.any():
         return 0
@@ -124,6 +140,13 @@ def intact_blocks(x: np.ndarray, x0: np.ndarray, gamma_p: np.ndarray, threshold:
     labels, n = ndimage.label(img)
     sizes = np.bincount(labels.ravel())[1:]
     return int((sizes >= min_cells).sum())
+
+
+def least_cells(area: float, cell) -> int:
+    """Fewest grid cells of size ``cell`` (m, (2,)) whose area reaches ``area`` (m2), >= 1
+    (a relative 1e-9 absorbs rounding: 1 m2 is exactly 16 cells of 0.25 m)."""
+    cell_area = float(np.prod(np.asarray(cell, dtype=float)))
+    return max(1, int(math.ceil(area / cell_area * (1.0 - 1e-9))))
 
 
 def deposit_points(x: np.ndarray, volume: np.ndarray, active: np.ndarray, origin,
@@ -175,11 +198,13 @@ def _excluded(pts: Particles, stray: np.ndarray) -> dict:
 
 def compute_measures(pts: Particles, frame_angle_deg: float, threshold: float,
                      cell: np.ndarray, time_to_rest: float | None, snapshots=None,
-                     grid=None, mechanism_time: float = 3.0) -> dict:
+                     grid=None, mechanism_time: float = 3.0,
+                     intact_block_area: float = INTACT_BLOCK_AREA) -> dict:
     """All measures of a realization as a plain dict (see the module docstring).
 
     ``snapshots`` [(t, x, gamma_p)] and ``grid`` give the mechanism measures at
     ``mechanism_time`` (s; the snapshot nearest to it); without them they are None.
+    ``intact_block_area`` (m2): the least intact block.
     The deposit is binned on ``grid`` (or on cells of size ``cell`` from the origin).
     """
     origin = grid.origin if grid is not None else np.zeros(2)
@@ -197,7 +222,8 @@ def compute_measures(pts: Particles, frame_angle_deg: float, threshold: float,
         _, xs, gs = snapshots[int(np.argmin(np.abs(t_snap - mechanism_time)))]
         early = (np.linalg.norm(xs - pts.x0, axis=1) > threshold) & pts.active
         early_area = float(pts.volume0[early].sum())
-        blocks = intact_blocks(xs, pts.x0, gs, threshold, grid.origin, grid.cell, grid.shape)
+        blocks = intact_blocks(xs, pts.x0, gs, threshold, grid.origin, grid.cell, grid.shape,
+                               min_area=intact_block_area)
     excluded = _excluded(pts, stray)
     front = float(X[:, 0].max()) if len(X) else float(X0[:, 0].max())
     return {
@@ -205,6 +231,7 @@ def compute_measures(pts: Particles, frame_angle_deg: float, threshold: float,
         "slip_surface_height": slip_surface_height(pts.x0[counted], sliding[counted],
                                                    float(cell[0])),
         "intact_blocks": blocks,
+        "intact_block_area": intact_block_area,
         "sliding_area_early": early_area,
         "mechanism_time": mechanism_time,
         "sliding_area": float(pts.volume0[sliding].sum()),

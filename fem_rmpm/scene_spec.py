@@ -218,6 +218,7 @@ class MonteCarloSpec:
     realizations: int = 8
     seed: int = 2017
     failure_displacement: float = 0.5    # m; a point with |u| above this counts as sliding
+    intact_block_area: float = 1.0       # m2; least area of an intact block (measures)
     keep_vtk: int = 2                    # keep VTK output of the first k realizations
     factor_of_safety: bool = False       # strength-reduction FS of every realization first
     cases: tuple[str, ...] = ()          # variants run side by side: "homogeneous", "xi=12",

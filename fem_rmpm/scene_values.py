@@ -53,6 +53,7 @@ _RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "montecarlo.realizations": (1, 1e9, True, True),
     "montecarlo.seed": (0, 2**63 - 1, True, True),
     "montecarlo.failure_displacement": (0, math.inf, False, False),
+    "montecarlo.intact_block_area": (0, math.inf, False, False),
     "montecarlo.keep_vtk": (0, 1e9, True, True),
 }
 _CHOICES: dict[str, tuple[str, ...]] = {

@@ -70,7 +70,8 @@ def test_slip_surface_height_per_column():
 
 
 def test_intact_blocks_counts_4_neighbour_groups_of_4_cells():
-    """Grid 10 x 10 of 1 m cells: a 2 x 2 group (1 block); an L of 3 cells (too small);
+    """Least block 4 m2 = 4 cells of 1 m (the default 1 m2 would be one cell here).
+    Grid 10 x 10 of 1 m cells: a 2 x 2 group (1 block); an L of 3 cells (too small);
     two 2-cell groups touching only at a corner (not connected: 0); points with gamma_p
     = 0.1 or a displacement equal to the threshold do not count; a point below the grid
     is clipped into its bottom row (one beyond the right edge into the last column),
@@ -85,8 +86,10 @@ def test_intact_blocks_counts_4_neighbour_groups_of_4_cells():
     x0 = np.array(x0, float) + 0.5
     moved = np.array([[0.0, 0.6]] * len(x0))
     gam = np.zeros(len(x0))
-    args = (np.zeros(2), np.ones(2), (10, 10))
+    args = (np.zeros(2), np.ones(2), (10, 10), 0.1, None, 4.0)
     assert intact_blocks(x0 + moved, x0, gam, 0.5, *args) == 1
+    assert intact_blocks(x0 + moved, x0, gam, 0.5, *args[:3], min_cells=4) == 1
+    assert intact_blocks(x0 + moved, x0, gam, 0.5, *args[:3], min_cells=3) == 2   # + the L
     line0 = np.array([[6.5, 5.0], [7.5, 5.0], [8.5, 5.0], [9.5, 5.0]])
     line = np.array([[6.5, 0.5], [7.5, 0.5], [8.5, -3.0], [12.0, 0.5]])   # cells (6..9, 0)
     assert intact_blocks(line, line0, np.zeros(4), 0.5, *args) == 1
@@ -96,6 +99,32 @@ def test_intact_blocks_counts_4_neighbour_groups_of_4_cells():
     assert intact_blocks(x0 + moved, x0, g, 0.5, *args) == 0
     assert intact_blocks(x0 + [[0.0, 0.5]], x0, gam, 0.5, *args) == 0   # not > threshold
     assert intact_blocks(x0, x0, gam, 0.5, *args) == 0
+
+
+def test_least_intact_block_is_an_area_the_same_on_every_mesh():
+    """One sliding, intact 2 x 1.5 m slab (3 m2) and one 1 x 0.5 m fragment (0.5 m2), with
+    4 x 4 points per 0.125 m cell, binned on grids of 0.5, 0.25 and 0.125 m cells: the
+    default least block (1 m2 = 4 / 16 / 64 cells) counts the slab only, on every mesh.
+    The old 4-cell rule counts 1 / 2 / 2 (the fragment is 2 cells at 0.5 m, 8 at
+    0.25 m): finer meshes counted smaller fragments.  Also: 1 m2 is exactly 16 cells of
+    0.25 m (no rounding up to 17); a cell larger than the area still needs one cell."""
+    from fem_rmpm.measures import INTACT_BLOCK_AREA, least_cells
+    assert INTACT_BLOCK_AREA == 1.0
+    assert [least_cells(1.0, [h, h]) for h in (0.5, 0.25, 0.125)] == [4, 16, 64]
+    assert least_cells(1.0, [0.6, 0.4]) == 5 and least_cells(0.1, [0.5, 0.5]) == 1
+    q = (np.arange(4) + 0.5) / 32.0
+    slab = np.array([(a, b) for a in np.arange(0, 2, 0.125) for b in np.arange(0, 1.5, 0.125)])
+    frag = np.array([(a, b) for a in np.arange(4, 5, 0.125) for b in np.arange(0, 0.5, 0.125)])
+    x0 = np.concatenate([c + np.stack(np.meshgrid(q, q), -1).reshape(-1, 2)
+                         for c in np.concatenate([slab, frag])]) + [0.0, 0.25]
+    x = x0 + [0.0, 0.75]                                   # moved more than 0.5 m
+    gam = np.zeros(len(x0))
+    old = []
+    for h in (0.5, 0.25, 0.125):
+        grid = (np.zeros(2), np.array([h, h]), (int(8 / h), int(8 / h)))
+        assert intact_blocks(x, x0, gam, 0.5, *grid) == 1, h
+        old.append(intact_blocks(x, x0, gam, 0.5, *grid, min_cells=4))
+    assert old == [1, 2, 2]
 
 
 def test_deposit_bodies_stray_points_and_the_origin():

@@ -65,14 +65,16 @@ def _reference_deposit(x, volume, active, origin, cell, frac=0.01):
     return counted, stray
 
 
-def _reference_blocks(x, x0, gamma_p, threshold, origin, cell, shape, intact=0.1, min_cells=4):
+def _reference_blocks(x, x0, gamma_p, threshold, origin, cell, shape, intact=0.1, min_area=1.0):
+    """Groups of 4-neighbour cells of sliding intact points whose area (cells x cell area)
+    reaches ``min_area`` (m2)."""
     cells = set()
     for k in range(len(x)):
         if math.dist(x[k], x0[k]) > threshold and gamma_p[k] < intact:
             i = math.floor((x[k, 0] - origin[0]) / cell[0])
             j = math.floor((x[k, 1] - origin[1]) / cell[1])
             cells.add((min(max(i, 0), shape[0] - 1), min(max(j, 0), shape[1] - 1)))
-    return sum(len(c) >= min_cells for c in _components(cells, N4))
+    return sum(len(c) * cell[0] * cell[1] >= min_area - 1e-12 for c in _components(cells, N4))
 
 
 def _random_cloud(rng, n_blobs=4):
@@ -121,7 +123,9 @@ def test_deposit_with_more_than_a_hundred_bodies_counts_only_the_largest():
 def test_intact_blocks_equal_the_brute_force_reference(seed):
     """8 random sets of moved points (N = 8), origin off the lattice, cells 0.6 x 0.4 m on a
     30 x 25 grid, some points exactly on the grid's far edges, in its first row and
-    column and beyond its lower-left corner (clipped into cell (0, 0)): the block count equals the reference's."""
+    column and beyond its lower-left corner (clipped into cell (0, 0)): the block count equals the reference's
+    (least block 1 m2, i.e. 5 cells of 0.24 m2, and 0.24 / 0.5 / 0.96 m2; 4 cells, the
+    old rule, leave at least one block in every set)."""
     rng = np.random.default_rng(100 + seed)
     origin, cell, shape = np.array([-1.13, 0.37]), np.array([0.6, 0.4]), (30, 25)
     far = origin + cell * shape
@@ -133,9 +137,12 @@ def test_intact_blocks_equal_the_brute_force_reference(seed):
     x[80:85] = origin - [0.3, 0.2]                          # beyond the corner: clipped in
     x0 = x - rng.choice([0.0, 1.0], (400, 1)) * [0.8, 0.0]
     gam = rng.choice([0.0, 0.05, 0.5], 400)
-    got = intact_blocks(x, x0, gam, 0.5, origin, cell, shape)
+    got = intact_blocks(x, x0, gam, 0.5, origin, cell, shape)      # least block 1 m2: 5 cells
     assert got == _reference_blocks(x, x0, gam, 0.5, origin, cell, shape)
-    assert got > 0
+    for area in (0.24, 0.5, 0.96):                         # 1, 3 and 4 cells of 0.24 m2
+        got = intact_blocks(x, x0, gam, 0.5, origin, cell, shape, min_area=area)
+        assert got == _reference_blocks(x, x0, gam, 0.5, origin, cell, shape, min_area=area)
+    assert got > 0 and got == intact_blocks(x, x0, gam, 0.5, origin, cell, shape, min_cells=4)
 
 
 def test_slip_surface_height_uses_the_cell_width():

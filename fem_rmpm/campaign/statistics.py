@@ -12,7 +12,8 @@ from .store import MEASURE_KEYS, RESULT_COLUMNS
 __all__ = ["wilson_interval", "case_statistics"]
 
 #: Measures that are settings, not results (left out of the statistics).
-_NOT_STATISTICS = ("failed", "failure_displacement", "mechanism_time", "time_to_rest")
+_NOT_STATISTICS = ("failed", "failure_displacement", "mechanism_time", "time_to_rest",
+                   "intact_block_area")
 
 
 def wilson_interval(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
