@@ -215,3 +215,28 @@ def test_solver_options_reach_every_step(monkeypatch, options):
     else:
         assert all(c["work"] is None for c in calls)
     assert rec.solver["threads"] == options["solver.threads"]
+
+
+def test_numpy_step_defaults_and_map_to_nodes_without_halves():
+    """``explicit_step_numpy`` called with its own defaults is bitwise the dispatcher's
+    numpy call; ``map_to_nodes(second=None)`` (one sum in point order) returns one entry per
+    grid node even when the last nodes (the column's empty top row) get nothing, and equals
+    the two-half sum to round-off."""
+    from fem_rmpm.explicit import explicit_step_numpy, map_to_nodes
+    from fem_rmpm.shape import shape_at_points
+    scene, grid, pts = _column()
+    a, b = _moved(pts), _moved(pts.copy())
+    g = np.array(scene.gravity_vector)
+    dt = stable_time_step(a, grid.cell, 0.5)
+    explicit_step_numpy(grid, a, dt, g, 0.3)
+    explicit_step(grid, b, dt, g, 0.3, kernel="numpy")
+    for f in FIELDS:
+        assert np.array_equal(getattr(a, f), getattr(b, f)), f
+    _, nodes, N, dN, _ = shape_at_points(grid, pts.x, "standard", pts.half_width)
+    args = (nodes, N, dN, pts.mass, pts.velocity, pts.stress, pts.volume, g, grid.n_nodes)
+    one = map_to_nodes(*args)
+    two = map_to_nodes(*args, second=np.arange(pts.n) >= pts.n // 2)
+    assert nodes.max() < grid.n_nodes - 1
+    for x, y in zip(one, two):
+        assert len(x) == grid.n_nodes
+        assert np.allclose(x, y, rtol=1e-13, atol=1e-13 * np.abs(y).max())

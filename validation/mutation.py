@@ -113,7 +113,12 @@ def _configure(work: Path, mutate: list[str], tests: list[str],
                f"{_toml_list(mutate)}\nalso_copy = [\"meshes\", \"validation\", \"README.md\"]\n"
                f"pytest_add_cli_args_test_selection = {_toml_list(tests)}\n"
                "pytest_add_cli_args = [\"-p\", \"no:cacheprovider\", \"-q\", \"-x\"]\n"
-               f"timeout_multiplier = {float(timeout_multiplier)}\n")
+               f"timeout_multiplier = {float(timeout_multiplier)}\n"
+               # each mutant in a process forked from a clean fork server, not from the
+               # process that ran the stats: numba's workqueue threading layer, once its
+               # pool has started there, terminates a forked child that uses it (SIGTERM,
+               # which mutmut reports as "suspicious")
+               "process_isolation = \"forkserver\"\n")
     with open(work / "pyproject.toml", "a") as fh:
         fh.write(section)
 
