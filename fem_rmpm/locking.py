@@ -58,6 +58,7 @@ import scipy.sparse as sp
 
 __all__ = ["host_cells", "cell_mean", "fbar_increment", "bbar_gradient", "fbar_weights",
            "fbar_q", "fbar_tangent_correction", "bbar_force_stress", "bbar_tangent_correction",
+           "cell_pressure_tangent_correction", "uniform_cell_pressure",
            "mean_pressure", "checkerboard_index"]
 
 
@@ -163,6 +164,35 @@ def bbar_force_stress(tau4: np.ndarray, V0: np.ndarray, volume: np.ndarray, host
     return out
 
 
+def _cell_operators(point_rows, g, w, host, n_free):
+    """Sparse pieces shared by the B-bar and cell-pressure tangents: ``per_point(vals)``
+    (vals (n, k, 2) -> free DOFs x points), the trace rows ``Gm`` (column p: ``b_p``),
+    ``Dm`` (column p: ``bbar_c(p) - b_p``, ``bbar_c = sum_{q in c} w_q b_q``) and the
+    point-cell incidence ``P``."""
+    n, k = g.shape[:2]
+    rows = point_rows.ravel()
+    keep = rows >= 0
+    cols = np.repeat(np.arange(n), 2 * k)[keep]
+
+    def per_point(vals):
+        return sp.csr_matrix((vals.reshape(-1)[keep], (rows[keep], cols)), shape=(n_free, n))
+    Gm = per_point(g)
+    _, cell = np.unique(host, return_inverse=True)
+    cell = cell.ravel()
+    P = sp.csr_matrix((np.ones(n), (np.arange(n), cell)), shape=(n, int(cell.max()) + 1))
+    Pw = sp.csr_matrix((w, (np.arange(n), cell)), shape=P.shape)
+    Dm = ((Gm @ Pw) @ P.T - Gm).tocsr()
+    return per_point, Gm, Dm, P, cell
+
+
+def _volumetric_rows(D):
+    """``Q_ij = 1/2 (D_ij00 + D_ij11)``, ``P_lm = 1/2 (D_00lm + D_11lm)`` and
+    ``kappa = 1/2 (P_00 + P_11)`` (the in-plane mean stress per unit in-plane trace)."""
+    Q = 0.5 * (D[:, :, :, 0, 0] + D[:, :, :, 1, 1])
+    Pm = 0.5 * (D[:, 0, 0] + D[:, 1, 1])
+    return Q, Pm, 0.5 * (Pm[:, 0, 0] + Pm[:, 1, 1])
+
+
 def bbar_tangent_correction(point_rows: np.ndarray, V0: np.ndarray, g: np.ndarray,
                             D: np.ndarray, w: np.ndarray, host: np.ndarray,
                             n_free: int) -> sp.csr_matrix:
@@ -176,24 +206,98 @@ def bbar_tangent_correction(point_rows: np.ndarray, V0: np.ndarray, g: np.ndarra
     ``P_lm = 1/2 (D_00lm + D_11lm)``, ``kappa = 1/2 (P_00 + P_11)``; D (n, 2, 2, 2, 2).
     The first term is :func:`fbar_tangent_correction`; the whole is symmetric when D
     is.  Arguments as there."""
-    n, k = g.shape[:2]
-    Q = 0.5 * (D[:, :, :, 0, 0] + D[:, :, :, 1, 1])
-    Pm = 0.5 * (D[:, 0, 0] + D[:, 1, 1])
-    kappa = 0.5 * (Pm[:, 0, 0] + Pm[:, 1, 1])
-    rows = point_rows.ravel()
-    keep = rows >= 0
-    cols = np.repeat(np.arange(n), 2 * k)[keep]
-
-    def per_point(vals):
-        return sp.csr_matrix((vals.reshape(-1)[keep], (rows[keep], cols)), shape=(n_free, n))
+    Q, Pm, kappa = _volumetric_rows(D)
+    per_point, _, Dm, _, _ = _cell_operators(point_rows, g, w, host, n_free)
     U = per_point(np.matmul(g, np.swapaxes(Q, 1, 2)) * V0[:, None, None])
     Vv = per_point(np.matmul(g, np.swapaxes(Pm, 1, 2)) * V0[:, None, None])
-    Gm = per_point(g)
-    _, cell = np.unique(host, return_inverse=True)
-    P = sp.csr_matrix((np.ones(n), (np.arange(n), cell.ravel())), shape=(n, int(cell.max()) + 1))
-    Pw = sp.csr_matrix((w, (np.arange(n), cell.ravel())), shape=P.shape)
-    Dm = ((Gm @ Pw) @ P.T - Gm).tocsr()                     # column p: bbar_c(p) - b_p
     return (U @ Dm.T + Dm @ Vv.T + (Dm @ sp.diags(V0 * kappa)) @ Dm.T).tocsr()
+
+
+# ------------------------------------------------------- cell-constant pressure
+def cell_pressure_tangent_correction(point_rows: np.ndarray, V0: np.ndarray, g: np.ndarray,
+                                     D: np.ndarray, w: np.ndarray, host: np.ndarray,
+                                     n_free: int, kappa_floor: float = 1e-9) -> sp.csr_matrix:
+    """The term the cell-pressure condensation adds to the B-bar tangent
+    (:func:`uniform_cell_pressure`).  Each point's strain is ``Bbar_p u + delta_p / 2 I``
+    with ``delta_p`` set so that the in-plane mean stress ``s`` is one value per cell and
+    ``sum_{q in c} w_q delta_q = 0``; linearised, ``s_p = P_p : dH_p``, ``kappa_p =
+    ds_p / d delta_p``::
+
+        d delta_p = (vbar_c - v_p)^T du / kappa_p,   v_p = Bbar_p^T P_p,
+        vbar_c = sum_{q in c} a_q v_q,   a_q = (w_q / kappa_q) / sum_{r in c} (w_r / kappa_r)
+
+    and the force ``sum_p V0_p Bbar_p^T tau_p`` gains ``sum_p V0_p / kappa_p u_p
+    (vbar_c - v_p)^T`` with ``u_p = Bbar_p^T Q_p`` (symmetric when D is and V0 is
+    proportional to w in a cell).  ``kappa`` is floored at ``kappa_floor`` x its
+    largest value (a point at the apex of a cohesive-frictional surface has none).
+    Arguments as :func:`bbar_tangent_correction`."""
+    Q, Pm, kappa = _volumetric_rows(D)
+    kappa = np.maximum(kappa, kappa_floor * max(float(np.max(np.abs(kappa))), 1e-300))
+    per_point, _, Dm, P, cell = _cell_operators(point_rows, g, w, host, n_free)
+    Ub = per_point(np.matmul(g, np.swapaxes(Q, 1, 2))) + Dm @ sp.diags(kappa)
+    Vb = per_point(np.matmul(g, np.swapaxes(Pm, 1, 2))) + Dm @ sp.diags(kappa)
+    a = w / kappa
+    a = a / np.bincount(cell, a)[cell]
+    Aw = sp.csr_matrix((a, (np.arange(len(a)), cell)), shape=P.shape)
+    Vdiff = (Vb @ Aw) @ P.T - Vb
+    return ((Ub @ sp.diags(V0 / kappa)) @ Vdiff.T).tocsr()
+
+
+def uniform_cell_pressure(update, Hm: np.ndarray, volume: np.ndarray, host: np.ndarray,
+                          n_cells: int, delta: np.ndarray | None = None, tol: float = 1e-12,
+                          max_iter: int = 40, step: float = 1e-8):
+    """Cell-constant in-plane mean stress (small strain): the points of a cell share one
+    ``s = (tau_xx + tau_yy) / 2`` and each takes its own volume change, the cell's
+    volume-weighted mean trace staying the B-bar one.
+
+    Why: B-bar gives every point of a cell the same volume change.  Dilatant plastic
+    flow (Mohr-Coulomb, psi > 0) ties the volume change of a point to its own plastic
+    shear, ``d eps_v = sin(psi) d gamma`` at the limit state, so with one volume change
+    per cell all points of a cell must shear at the same rate: constraints the Q4 field
+    cannot meet, and the load of a footing keeps rising (locking).  With one pressure
+    per cell (the mixed u-p element Q1/P0 with the constitutive volume change) the cell
+    carries one volume constraint, the mean of ``d eps_v - sin(psi) d gamma``.  For a
+    point law whose pressure stiffness is uniform in a cell (elastic, isotropic) it is
+    B-bar exactly.
+
+    ``update(H)`` -> ``(log_strain, state, tau)`` is the points' small-strain update at
+    displacement-increment gradients ``H`` (n, 2, 2); ``Hm`` the B-bar gradients;
+    ``volume`` the weights of the cell mean.  Solves, per cell, ``s_p(delta_p) = s_c``,
+    ``sum_p V_p delta_p = 0`` by Newton (``kappa_p = ds_p / d delta_p`` by a forward
+    difference of ``step``), from ``delta`` (warm start) to ``|s_p - s_c| <= tol x
+    max |tau|``.  Returns ``(H, delta, (log_strain, state, tau), iterations)``; raises
+    ``ArithmeticError`` if the iteration does not converge."""
+    n = len(Hm)
+    d = np.zeros(n) if delta is None else np.array(delta, dtype=float)
+
+    def at(dv):
+        H = np.array(Hm, dtype=float, copy=True)
+        H[:, 0, 0] += 0.5 * dv
+        H[:, 1, 1] += 0.5 * dv
+        return H, update(H)
+    den = np.bincount(host, volume, minlength=n_cells)
+    den = np.where(den > 0, den, 1.0)
+    H, out = at(d)
+    for it in range(max_iter + 1):
+        tau = out[2]
+        s = 0.5 * (tau[:, 0] + tau[:, 1])
+        r = s - (np.bincount(host, volume * s, minlength=n_cells) / den)[host]
+        scale = max(float(np.max(np.abs(tau))), 1e-300)
+        if float(np.max(np.abs(r), initial=0.0)) <= tol * scale:
+            return H, d, out, it
+        if it == max_iter:
+            break
+        tau_h = at(d + step)[1][2]
+        kappa = (0.5 * (tau_h[:, 0] + tau_h[:, 1]) - s) / step
+        kappa = np.maximum(kappa, 1e-9 * max(float(np.max(np.abs(kappa))), 1e-300))
+        a = volume / kappa
+        lam = (np.bincount(host, a * s, minlength=n_cells)[host]
+               / np.bincount(host, a, minlength=n_cells)[host])
+        d = d + (lam - s) / kappa
+        d -= (np.bincount(host, volume * d, minlength=n_cells) / den)[host]   # round-off
+        H, out = at(d)
+    raise ArithmeticError(f"cell-constant pressure: no convergence in {max_iter} iterations "
+                          f"(largest |s_p - s_c| {np.max(np.abs(r)):.3g} kPa)")
 
 # ----------------------------------------------------------------------- measures
 def mean_pressure(stress: np.ndarray) -> np.ndarray:

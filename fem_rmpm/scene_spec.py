@@ -206,6 +206,8 @@ class SolverSpec:
     max_cuts: int = 4                    # step cuts before giving up
     linear_solver: str = "cholmod"       # "cholmod" | "superlu" | "pyamg" (implicit)
     fbar: bool = False                   # F-bar locking remedy (cell-averaged volume change)
+    locking_constraint: str = "volume"   # geostatic steps with fbar: "volume" (B-bar: one volume
+    #                                      change per cell) | "pressure" (one in-plane mean stress)
     adaptive: bool = True                # implicit: step size follows Newton and kinematic limits
     dt_max: float = 0.1                  # implicit dynamic: largest adaptive time step (s)
     max_displacement_fraction: float = 0.5   # implicit dynamic: point displacement per step (cells)

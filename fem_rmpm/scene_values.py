@@ -67,6 +67,7 @@ _CHOICES: dict[str, tuple[str, ...]] = {
     "solver.linear_solver": ("cholmod", "superlu", "pyamg"),
     "solver.gravity_phase": ("dynamic", "geostatic"),
     "solver.kernel": ("numba", "numpy"),
+    "solver.locking_constraint": ("volume", "pressure"),
     "prescribed.components": ("xy", "x", "y"),
 }
 

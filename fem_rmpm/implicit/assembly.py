@@ -7,7 +7,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..grid import Grid
-from ..locking import bbar_tangent_correction, fbar_tangent_correction, host_cells
+from ..locking import (bbar_tangent_correction, cell_pressure_tangent_correction,
+                       fbar_tangent_correction, host_cells)
 from ..shape import shape_at_points
 from . import point_kernels as pk
 
@@ -123,6 +124,13 @@ class StepSystem:
         (:func:`fem_rmpm.locking.bbar_tangent_correction`)."""
         return bbar_tangent_correction(self.fnum[self.point_dofs], V0, g, D, w, self.host,
                                        self.n_free)
+
+    def cell_pressure_tangent(self, V0: np.ndarray, g: np.ndarray, D: np.ndarray,
+                              w: np.ndarray) -> sp.csr_matrix:
+        """The cell-pressure condensation term of the small-strain tangent
+        (:func:`fem_rmpm.locking.cell_pressure_tangent_correction`)."""
+        return cell_pressure_tangent_correction(self.fnum[self.point_dofs], V0, g, D, w,
+                                                self.host, self.n_free)
 
     def body_force(self, mass: np.ndarray, gravity) -> np.ndarray:
         """``f_ai = sum_p m_p g_i N_a`` on the free DOFs (kN per m)."""

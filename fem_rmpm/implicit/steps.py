@@ -25,7 +25,7 @@ import numpy as np
 from .. import kernels
 from ..grid import Grid, points_in_polygon
 from ..locking import (bbar_force_stress, bbar_gradient, fbar_increment, fbar_q,
-                       fbar_weights)
+                       fbar_weights, uniform_cell_pressure)
 from ..materials import MaterialPoints, small_strain_update, stress_update
 from ..particles import Particles
 from ..run import SimulationError
@@ -77,6 +77,8 @@ class ImplicitSystem:
         self.scene, self.grid, self.pts, self.solver = scene, grid, pts, solver
         self.sv = scene.solver
         self.fbar = bool(self.sv.fbar)
+        self.cell_pressure = self.fbar and getattr(self.sv, "locking_constraint",
+                                                   "volume") == "pressure"
         self.g_full = np.array(scene.gravity_vector, dtype=float)
         self.acc = np.zeros((pts.n, 2))          # point accelerations (dynamic)
         self.regions = prescribed_nodes(scene, grid)
@@ -251,13 +253,25 @@ class Geostatic(StepKind):
         return bbar_force_stress(tau, st.V0, st.Vn, st.S.host, self.sys.grid.n_cells)
 
     def coupling_tangent(self, st, g, A, Q, w):
-        return st.S.bbar_tangent(st.V0, g, A, w)
+        K = st.S.bbar_tangent(st.V0, g, A, w)
+        if self.sys.cell_pressure:
+            K = K + st.S.cell_pressure_tangent(st.V0, g, A, w)
+        return K
 
     def material(self, st, H):
         sys_ = self.sys
         Hm = bbar_gradient(H, st.Vn, st.S.host, sys_.grid.n_cells) if sys_.fbar else H
         t1 = time.perf_counter()
-        ls, q, tau = sys_.small_strain_update(Hm, st.ls0, st.state0, st.soil)
+        if sys_.cell_pressure:       # one in-plane mean stress per cell (locking_constraint)
+            try:
+                Hm, delta, (ls, q, tau), _ = uniform_cell_pressure(
+                    lambda Hx: sys_.small_strain_update(Hx, st.ls0, st.state0, st.soil), Hm,
+                    st.Vn, st.S.host, sys_.grid.n_cells, st.cache.get("delta"))
+            except ArithmeticError as exc:
+                raise NewtonFailure(str(exc), []) from None
+            st.cache["delta"] = delta
+        else:
+            ls, q, tau = sys_.small_strain_update(Hm, st.ls0, st.state0, st.soil)
         st.clock["material"] += time.perf_counter() - t1
         st.cache.update(H=Hm, g=st.S.dN, tau=tau)
         return ls, q, tau, st.S.dN, None
