@@ -59,6 +59,7 @@ import scipy.sparse as sp
 __all__ = ["host_cells", "cell_mean", "fbar_increment", "bbar_gradient", "fbar_weights",
            "fbar_q", "fbar_tangent_correction", "bbar_force_stress", "bbar_tangent_correction",
            "cell_pressure_tangent_correction", "uniform_cell_pressure",
+           "fbar_work_stress", "fbar_work_tangent_correction",
            "mean_pressure", "checkerboard_index"]
 
 
@@ -211,6 +212,46 @@ def bbar_tangent_correction(point_rows: np.ndarray, V0: np.ndarray, g: np.ndarra
     U = per_point(np.matmul(g, np.swapaxes(Q, 1, 2)) * V0[:, None, None])
     Vv = per_point(np.matmul(g, np.swapaxes(Pm, 1, 2)) * V0[:, None, None])
     return (U @ Dm.T + Dm @ Vv.T + (Dm @ sp.diags(V0 * kappa)) @ Dm.T).tocsr()
+
+
+def fbar_work_tangent_correction(point_rows: np.ndarray, V0: np.ndarray, g: np.ndarray,
+                                 A: np.ndarray, tau4: np.ndarray, w: np.ndarray,
+                                 host: np.ndarray, n_free: int) -> sp.csr_matrix:
+    """Finite strain: the tangent of the work-conjugate F-bar force beyond the standard
+    F-bar tangent and the geometric term of ``e`` (see :func:`fbar_work_stress`).
+
+    The force ``sum_p V0_p (tau_p + e_p I) : g_p`` with ``e_p = w_p S_c / V0_p - s_p``,
+    ``s = (tau_xx + tau_yy) / 2``, ``S_c = sum_{q in c} V0_q s_q``, ``w`` the F-bar
+    weights (:func:`fbar_weights`).  Linearised, ``ds_p = y_p . du`` with
+    ``y_p = (g P^T)_p + kappa_p d_p``, ``P_lm = 1/2 (A_00lm + A_11lm + tau_lm)``,
+    ``kappa = 1/2 (P_00 + P_11)``, ``d_p = bbar_c - b_p``; ``dw_p = -w_p d_p . du``; so
+    ``V0_p de_p = [-w_p S_c d_p + w_p sum_{q in c} V0_q y_q - V0_p y_p] . du`` and the
+    term is ``sum_p b_p (...)^T`` (``b_p`` the trace row of point p).  Arguments as
+    :func:`fbar_tangent_correction`; ``A`` (n, 2, 2, 2, 2) the spatial tangent."""
+    T = np.empty((len(tau4), 2, 2))
+    T[:, 0, 0], T[:, 1, 1], T[:, 0, 1], T[:, 1, 0] = tau4[:, 0], tau4[:, 1], tau4[:, 3], tau4[:, 3]
+    Pm = 0.5 * (A[:, 0, 0] + A[:, 1, 1] + T)
+    kappa = 0.5 * (Pm[:, 0, 0] + Pm[:, 1, 1])
+    per_point, Gm, Dm, P, cell = _cell_operators(point_rows, g, w, host, n_free)
+    Y = per_point(np.matmul(g, np.swapaxes(Pm, 1, 2))) + Dm @ sp.diags(kappa)
+    s = 0.5 * (tau4[:, 0] + tau4[:, 1])
+    S = np.bincount(cell, V0 * s)[cell]
+    Yc = ((Y @ sp.diags(V0)) @ P) @ P.T
+    R = Yc @ sp.diags(w) - Dm @ sp.diags(w * S) - Y @ sp.diags(V0)
+    return (Gm @ R.T).tocsr()
+
+
+def fbar_work_stress(tau4: np.ndarray, V0: np.ndarray, volume: np.ndarray, J: np.ndarray,
+                     host: np.ndarray, n_cells: int) -> np.ndarray:
+    """Finite strain: the stress whose standard force ``sum_p V0_p tau~_p grad_x N`` is the
+    derivative of the F-bar work ``sum_p V0_p W(F_bar_p)``: ``delta F_bar F_bar^-1 = G_p +
+    1/2 (sum_q w_q tr G_q - tr G_p) I`` gives ``tau~_p = tau_p + e_p I``,
+    ``e_p = w_p S_c / V0_p - s_p`` (:func:`bbar_force_stress` with the weights
+    ``w_q = V_q dJ_q / sum_r V_r dJ_r``).  ``volume`` the step-start volumes, ``J`` the
+    points' ``det dF``.  With ``sum_p V0_p tau_p grad_x N`` (de Souza Neto et al.'s F-bar
+    force) the two differ as soon as ``s`` varies inside a cell, which dilatant plastic
+    flow does, and the force softens spuriously as the small-strain B-bar did."""
+    return bbar_force_stress(tau4, V0, volume * J, host, n_cells)
 
 
 # ------------------------------------------------------- cell-constant pressure

@@ -8,7 +8,7 @@ import scipy.sparse as sp
 
 from ..grid import Grid
 from ..locking import (bbar_tangent_correction, cell_pressure_tangent_correction,
-                       fbar_tangent_correction, host_cells)
+                       fbar_tangent_correction, fbar_work_tangent_correction, host_cells)
 from ..shape import shape_at_points
 from . import point_kernels as pk
 
@@ -124,6 +124,13 @@ class StepSystem:
         (:func:`fem_rmpm.locking.bbar_tangent_correction`)."""
         return bbar_tangent_correction(self.fnum[self.point_dofs], V0, g, D, w, self.host,
                                        self.n_free)
+
+    def fbar_work_tangent(self, V0: np.ndarray, g: np.ndarray, A: np.ndarray,
+                          tau4: np.ndarray, w: np.ndarray) -> sp.csr_matrix:
+        """The work-conjugate F-bar force's extra tangent term on the free DOFs
+        (:func:`fem_rmpm.locking.fbar_work_tangent_correction`)."""
+        return fbar_work_tangent_correction(self.fnum[self.point_dofs], V0, g, A, tau4, w,
+                                            self.host, self.n_free)
 
     def cell_pressure_tangent(self, V0: np.ndarray, g: np.ndarray, D: np.ndarray,
                               w: np.ndarray) -> sp.csr_matrix:

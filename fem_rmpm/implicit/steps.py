@@ -25,7 +25,7 @@ import numpy as np
 from .. import kernels
 from ..grid import Grid, points_in_polygon
 from ..locking import (bbar_force_stress, bbar_gradient, fbar_increment, fbar_q,
-                       fbar_weights, uniform_cell_pressure)
+                       fbar_weights, fbar_work_stress, uniform_cell_pressure)
 from ..materials import MaterialPoints, small_strain_update, stress_update
 from ..particles import Particles
 from ..run import SimulationError
@@ -296,8 +296,29 @@ class Geostatic(StepKind):
 
 class QuasiStatic(StepKind):
     """A large-deformation load step (updated Lagrangian, Hencky/Kirchhoff): the points
-    move by the converged increment, ``F <- dF F``, ``V = det(F) V0``."""
+    move by the converged increment, ``F <- dF F``, ``V = det(F) V0``.  With F-bar the
+    internal force is the work conjugate of the F-bar deformation
+    (:func:`fem_rmpm.locking.fbar_work_stress`, ``tau + e I``), with its tangent: the
+    standard F-bar tangent, the geometric term of ``e`` and
+    :func:`fem_rmpm.locking.fbar_work_tangent_correction`."""
     name = "static"
+
+    def force_stress(self, st, tau):
+        if not self.sys.fbar:
+            return tau
+        return fbar_work_stress(tau, st.V0, st.Vn, st.cache["J"], st.S.host,
+                                self.sys.grid.n_cells)
+
+    def coupling_tangent(self, st, g, A, Q, w):
+        f = self.stiffness_factor(st)
+        tau = st.cache["tau"]
+        e = f * (self.force_stress(st, tau)[:, 0] - tau[:, 0])
+        Ag = np.zeros_like(A)
+        for i in range(2):
+            for j in range(2):
+                Ag[:, i, j, j, i] = -e
+        K = st.S.fbar_tangent(st.V0, g, Q, w) + st.S.tangent(st.V0, g, Ag)
+        return K + st.S.fbar_work_tangent(st.V0, g, A, f * tau, w)
 
     def material(self, st, H):
         sys_ = self.sys
@@ -310,6 +331,7 @@ class QuasiStatic(StepKind):
         if sys_.fbar:
             dFm, J, _ = fbar_increment(dF, st.Vn, st.S.host, sys_.grid.n_cells)
             st.cache["w"] = fbar_weights(st.Vn, J, st.S.host, sys_.grid.n_cells)
+            st.cache["J"] = J
         else:
             dFm = dF
         t1 = time.perf_counter()
@@ -333,8 +355,10 @@ class QuasiStatic(StepKind):
         du_nodes = S.to_nodes(res.du, st.presc)
         info = {}
         if st.presc is not None:
-            info = self.sys.reactions(st, res.du, tau,
-                                      np.matmul(S.dN, inv2(_EYE + S.gradient(du_nodes))[0]))
+            Finv, J = inv2(_EYE + S.gradient(du_nodes))
+            st.cache["J"] = J
+            info = self.sys.reactions(st, res.du, self.force_stress(st, tau),
+                                      np.matmul(S.dN, Finv))
         pts.log_strain[act], pts.state[act] = ls, q
         pts.x[act] = pts.x[act] + S.interpolate(du_nodes)
         pts.F[act] = dFm @ pts.F[act]
@@ -399,6 +423,9 @@ class NewmarkDynamic(QuasiStatic):
                         n_floor=int(np.count_nonzero(m_nodes[S.used] < m_min)))
         if alpha > 0:
             tau_n = pts.stress[act] * (st.Vn / st.V0)[:, None]
+            if self.sys.fbar:        # the work-conjugate F-bar force at dF = I
+                tau_n = fbar_work_stress(tau_n, st.V0, st.Vn, np.ones(len(act)), S.host,
+                                         self.sys.grid.n_cells)
             st.cache["f_n"] = (S.body_force(mass, st.lf_old * self.sys.g_full)
                                - S.internal_force(st.V0, tau_n, S.dN))
         return dt * v_n + 0.5 * dt * dt * a_n
