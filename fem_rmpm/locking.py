@@ -20,8 +20,16 @@ of the step of the points ``q`` of the same host cell ``c``, ``dJ = det dF``).  
 cell then carries one volume constraint, as the mean-dilatation (Q1/P0) element.
 The point's F, volume and Cauchy stress follow the F-bar increment
 (``F <- dF_bar F``, ``V = det(F) V0``, ``sigma = tau(F_bar) / det F``): the cell
-volume is unchanged (volume-weighted average), and ``V sigma = V0 tau`` keeps the
-internal force ``sum_p V0 tau_p grad_x N`` of both schemes.
+volume is unchanged (volume-weighted average).  The explicit scheme's internal force is
+``sum_p V sigma_p grad_x N``; the implicit scheme's is the work conjugate of the F-bar
+deformation (:func:`fbar_work_stress`, geostatic :func:`bbar_force_stress`): the two
+differ where the in-plane mean stress varies inside a cell (dilatant plastic flow), and
+there the former is not the derivative of any stored work.
+
+**One pressure per cell** (:func:`uniform_cell_pressure`, implicit geostatic steps,
+``[solver] locking_constraint = "pressure"``): B-bar's one volume change per cell
+still locks under dilatant flow, which ties each point's volume change to its own
+plastic shear; the mixed alternative gives each cell one in-plane mean stress instead.
 
 **Why F-bar and not B-bar.**  B-bar (Hughes 1980) replaces the volumetric part of
 the *linear* strain-displacement operator; it is exact for small strain only, and

@@ -93,10 +93,15 @@ which keeps the outer convergence quadratic.
 (:mod:`fem_rmpm.locking`, de Souza Neto et al. 1996): the material sees
 ``dF_bar = (dJ_bar / dJ)^(1/2) dF``, ``dJ_bar`` the volume-weighted mean over the
 points of the host cell (geostatic steps: B-bar, its small-strain linearisation).
-The internal force keeps ``sum_p V0 tau(dF_bar) g`` with the true spatial gradients
-``g``; the consistent tangent gains the analytic cell-coupling term
-:meth:`StepSystem.fbar_tangent` (rank one per point), so Newton stays quadratic
-(``tests/test_locking.py``).  Points store ``F <- dF_bar F`` and ``V = det(F) V0``.
+The internal force is the work conjugate of the F-bar deformation,
+``sum_p V0 (tau + e I) g`` with the true spatial gradients ``g`` and the in-plane mean of
+``tau`` replaced by its cell's (:func:`fem_rmpm.locking.fbar_work_stress`; geostatic:
+``sum V0 Bbar^T tau``); the consistent tangent gains the analytic cell-coupling terms
+(:meth:`StepSystem.fbar_tangent`, ``fbar_work_tangent``, ``bbar_tangent``), so Newton
+stays quadratic (``tests/test_locking.py``).  Points store ``F <- dF_bar F`` and
+``V = det(F) V0``.  ``[solver] locking_constraint = "pressure"`` (geostatic steps): one
+in-plane mean stress per cell instead of one volume change, for dilatant plastic flow
+(:func:`fem_rmpm.locking.uniform_cell_pressure`).
 
 **Prescribed displacements** (``[[prescribed]]`` regions, quasi-static or geostatic
 load steps only): the grid nodes in a region's polygon are removed from the free
