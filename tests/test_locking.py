@@ -253,6 +253,25 @@ def _mc_soil(n, rng):
     return MaterialPoints(np.full(n, model_id(mc.NAME)), params)
 
 
+def _mc_cells(grid, seed):
+    """800 Mohr-Coulomb points, 4 in each of 200 random cells of ``grid``, compressed
+    (log strain -0.01 +- 0.004), step-start volumes 0.01 x U(0.8, 1.2); the step system,
+    a displacement increment (0.002 N(0, 1) per DOF) and a direction.  Returns
+    ``(S, soil, ls, gp, V0, Vn, n_cells, du, v)``."""
+    rng = np.random.default_rng(seed)
+    n = 800
+    cells = rng.choice(grid.n_cells, 200, replace=False)
+    x = grid.nodes[grid.cells[np.repeat(cells, 4), 0]] + rng.random((n, 2)) * grid.cell
+    soil = _mc_soil(n, rng)
+    ls = -0.01 + 0.004 * rng.normal(size=(n, 4))
+    ls[:, 3] *= 0.5
+    V0 = np.full(n, 0.01)
+    Vn = V0 * rng.uniform(0.8, 1.2, n)
+    S = imp.StepSystem(grid, x, "standard", None)
+    du = 0.002 * rng.normal(size=S.n_free)
+    return S, soil, ls, np.zeros(n), V0, Vn, grid.n_cells, du, rng.normal(size=S.n_free)
+
+
 def test_cell_pressure_tangent_is_the_derivative_of_its_force(meshes_dir_fx):
     """``[solver] locking_constraint = "pressure"`` (geostatic): each point's strain is
     ``Bbar u + delta / 2 I`` with ``delta`` solved per cell for one in-plane mean stress
@@ -262,21 +281,7 @@ def test_cell_pressure_tangent_is_the_derivative_of_its_force(meshes_dir_fx):
     dilatant, partly softening Mohr-Coulomb points agree to 1e-6 (achieves 7e-11); without
     ``K_p`` they do not (achieves 2.2e-2; asserts > 5e-3).  The converged points of a cell share one
     ``s`` to 1e-12 of max |tau|, and the cell-mean trace is B-bar's."""
-    grid = meshes_dir_fx
-    rng = np.random.default_rng(5)
-    n = 800
-    cells = rng.choice(grid.n_cells, 200, replace=False)
-    x = grid.nodes[grid.cells[np.repeat(cells, 4), 0]] + rng.random((n, 2)) * grid.cell
-    soil = _mc_soil(n, rng)
-    ls = -0.01 + 0.004 * rng.normal(size=(n, 4))
-    ls[:, 3] *= 0.5
-    gp = np.zeros(n)
-    V0 = np.full(n, 0.01)
-    Vn = V0 * rng.uniform(0.8, 1.2, n)
-    nc = grid.n_cells
-    S = imp.StepSystem(grid, x, "standard", None)
-    du = 0.002 * rng.normal(size=S.n_free)
-    v = rng.normal(size=S.n_free)
+    S, soil, ls, gp, V0, Vn, nc, du, v = _mc_cells(meshes_dir_fx, 5)
 
     def solve(u):
         Hb = locking.bbar_gradient(S.gradient(S.to_nodes(u)), Vn, S.host, nc)
@@ -346,21 +351,7 @@ def test_fbar_work_conjugate_force_and_its_tangent(meshes_dir_fx):
     central differences of the force to 1e-6 (achieves 2e-10)."""
     from fem_rmpm.implicit.tangent import inv2
     from fem_rmpm.kernels import stress_update_points
-    grid = meshes_dir_fx
-    rng = np.random.default_rng(11)
-    n = 800
-    cells = rng.choice(grid.n_cells, 200, replace=False)
-    x = grid.nodes[grid.cells[np.repeat(cells, 4), 0]] + rng.random((n, 2)) * grid.cell
-    soil = _mc_soil(n, rng)
-    ls = -0.01 + 0.004 * rng.normal(size=(n, 4))
-    ls[:, 3] *= 0.5
-    gp = np.zeros(n)
-    V0 = np.full(n, 0.01)
-    Vn = V0 * rng.uniform(0.8, 1.2, n)
-    nc = grid.n_cells
-    S = imp.StepSystem(grid, x, "standard", None)
-    du = 0.002 * rng.normal(size=S.n_free)
-    v = rng.normal(size=S.n_free)
+    S, soil, ls, gp, V0, Vn, nc, du, v = _mc_cells(meshes_dir_fx, 11)
 
     def state(u):
         dF = np.eye(2) + S.gradient(S.to_nodes(u))
