@@ -182,7 +182,7 @@ COMPILE_SECONDS = 10.0
 
 
 #: Explicit kernels every numba run calls (others, e.g. uGIMP or F-bar passes, only some).
-_ALWAYS_COMPILED = ("map_to_nodes", "solve_on_mesh", "nodal_velocity", "g2p")
+_ALWAYS_COMPILED = ("map_to_nodes", "solve_on_mesh", "g2p")
 
 
 def kernels_cold() -> bool:

@@ -35,7 +35,8 @@ def nodes(half=None):
                         np.zeros((9, 2)), np.zeros((9, 2)), np.zeros(9, np.uint8),
                         np.zeros(9, np.int64), np.zeros(1, np.int64), half)
 N = nodes(nodes())
-T.map_to_nodes(P, M, N, A.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False, False))
+T.map_to_nodes(P, M, N, A.scratch_for(1, 4),
+               A.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False, False))
 print(N.m[0])
 """
 

@@ -198,7 +198,7 @@ def stages_numba(scene, grid, pts, geostatic, steps):
     w = Workspace.for_grid(grid, pts.n)
     g = np.array(scene.gravity_vector)
     sv = scene.solver
-    names = ("1 map_to_nodes", "2 solve_on_mesh", "3a g2p (+ exp args)", "3b nodal_velocity",
+    names = ("1 map_to_nodes", "2 solve_on_mesh", "3a g2p (+ exp args, nodal velocity)",
              "3c stress: exp/expm1 ufuncs", "3c stress: L, dF, F, V, trial b",
              "3c stress: log/atanh ufuncs", "3c stress: material model + stress")
     T = {k: [] for k in names}
@@ -211,13 +211,11 @@ def stages_numba(scene, grid, pts, geostatic, steps):
         o = K.StepOptions(dt, float(g[0]), float(g[1]), sv.damping, sv.flip, geostatic, False,
                           False)
         t = [clk()]
-        call(K.map_to_nodes, P, M, N, o)
+        call(K.map_to_nodes, P, M, N, S, o)
         t.append(clk())
         call(K.solve_on_mesh, M, N, o)
         t.append(clk())
         call(K.g2p, P, M, N, S, o)
-        t.append(clk())
-        call(K.nodal_velocity, M, N)
         t.append(clk())
         if not geostatic:     # the exp arguments: written by g2p
             with np.errstate(all="ignore"):
@@ -381,7 +379,7 @@ def main(argv=None):
                                                     phase == "geostatic", 10)
             w = Workspace.for_grid(grid, pts.n)
             P, M = w.bind(grid, pts)
-            K.map_to_nodes(P, M, w.nodes, K.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False,
+            K.map_to_nodes(P, M, w.nodes, w.scratch, K.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False,
                                                          False))
             r["active_nodes_of_grid"] = [int(w.nodes.n_touched[0]), grid.n_nodes]
             entry[phase] = r

@@ -14,8 +14,8 @@ and the step's options ``o``.  The three stages of the method:
 2. **solve on the mesh** — :func:`solve_on_mesh`: per active node, lumped-mass momentum
    balance, local (Cundall) damping, fixed components, grid kinetic energy.
 3. **update the points** — :func:`update_points`: FLIP/PIC velocity, position (or the
-   geostatic displacement) and the MUSL re-map of the new point momenta (:func:`g2p`,
-   :func:`nodal_velocity`), then the stress update (:func:`update_stress`): velocity
+   geostatic displacement) and the MUSL re-map of the new point momenta and the nodal
+   velocities from them (:func:`g2p`), then the stress update (:func:`update_stress`): velocity
    gradient, Hughes-Winget increment, F, volume and the trial Hencky state
    (:mod:`.strain`), the material model of each point through one dispatch on its
    model id, Cauchy stress and the maxima the time loop needs (:mod:`.stress`).
@@ -37,12 +37,12 @@ from .arrays import (Mesh, NodeArrays, PointArrays, Scratch, StepOptions, Worksp
 from .basis import gimp_shape, q4_shape
 from .stress import (_direct, material_kernels, small_strain_update_points, stress_update_points,
                      update_stress)
-from .transfer import (g2p, g2p_parallel, map_to_nodes, map_to_nodes_parallel, nodal_velocity,
-                       solve_on_mesh)
+from .transfer import g2p, g2p_parallel, map_to_nodes, map_to_nodes_parallel, solve_on_mesh
 
 __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Workspace",
            "mesh_of", "point_arrays", "map_to_nodes", "map_to_nodes_parallel", "solve_on_mesh",
-           "update_points", "g2p", "g2p_parallel", "nodal_velocity", "update_stress", "material_kernels", "q4_shape", "gimp_shape",
+           "update_points", "g2p", "g2p_parallel", "update_stress", "material_kernels", "q4_shape",
+           "gimp_shape",
            "stress_update_points", "small_strain_update_points"]
 
 
@@ -51,7 +51,6 @@ def update_points(P: PointArrays, M: Mesh, N: NodeArrays, S: Scratch, o: StepOpt
     """Stage 3: move the points, MUSL re-map, then the stress update.  Returns the largest
     |v_pic| (m/s), the motion as the grid sees it.  ``call(kernel, *args)`` runs a kernel
     (e.g. :meth:`.Workspace.call`)."""
-    vmax = call(g2p_parallel if o.threads > 1 else g2p, P, M, N, S, o)
-    call(nodal_velocity, M, N)
+    vmax = call(g2p_parallel if o.threads > 1 else g2p, P, M, N, S, o)   # + nodal velocity
     update_stress(P, M, N, S, o, call)
     return vmax

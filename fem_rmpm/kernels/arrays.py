@@ -23,7 +23,7 @@ import numpy as np
 from numba import typeof
 
 __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Workspace",
-           "mesh_of", "point_arrays"]
+           "mesh_of", "point_arrays", "scratch_for"]
 
 Mesh = namedtuple("Mesh", "o0 o1 h0 h1 ih0 ih1 nx ny lo hi fixed")
 Mesh.__doc__ = """Structured grid: origin (m), cell size h and 1/h, cells nx x ny, the grid
@@ -44,12 +44,14 @@ acceleration and the MUSL re-mapped momentum then velocity ``v_remap`` (nn, 2); 
 same arrays (without velocities and accelerations) for the sums of the second half of
 the points, added to these in a fixed order (:mod:`.transfer`)."""
 
-Scratch = namedtuple("Scratch", "x_old W ta tb tc host D cell_v cell_vdj out parts")
+Scratch = namedtuple("Scratch", "x_old W ta tb tc host D cell_v cell_vdj out parts q4_ll q4_st")
 Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the trial state W (n, 4)
 and the arguments / values of the vectorised exp, expm1, log, arctanh ta, tb, tc (n,);
 F-bar host cells (n,), increments D (n, 4) and per-cell sums of V and V dJ (n_cells,);
 ``out`` (4,) = largest P-wave speed, largest point speed, non-finite and outside points,
-and ``parts`` (64, 4) the same per chunk of points (threads)."""
+``parts`` (64, 4) the same per chunk of points (threads); ``q4_ll`` (n,) int64 and ``q4_st``
+(n, 2): each point's Q4 cell (lower-left node) and local coordinates, found by the map to
+nodes and reused by the later passes of the step (the points have not moved in between)."""
 
 StepOptions = namedtuple("StepOptions",
                          "dt gx gy damping flip geostatic gimp fbar threads model",
@@ -128,8 +130,11 @@ class Workspace:
         nodes = NodeArrays(np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((nn, 2)),
                            np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros(nn, np.uint8),
                            np.zeros(nn, np.int64), np.zeros(1, np.int64), half)
-        scratch = Scratch(np.zeros((n, 2)), np.zeros((n, 4)), np.zeros(n), np.zeros(n),
-                          np.zeros(n), np.zeros(n, np.int64), np.zeros((n, 4)),
-                          np.zeros(grid.n_cells), np.zeros(grid.n_cells), np.zeros(4),
-                          np.zeros((64, 4)))
-        return cls(nodes, scratch)
+        return cls(nodes, scratch_for(n, grid.n_cells))
+
+
+def scratch_for(n: int, n_cells: int) -> Scratch:
+    """The :class:`Scratch` of ``n`` points on a grid of ``n_cells`` cells (zeros)."""
+    return Scratch(np.zeros((n, 2)), np.zeros((n, 4)), np.zeros(n), np.zeros(n), np.zeros(n),
+                   np.zeros(n, np.int64), np.zeros((n, 4)), np.zeros(n_cells), np.zeros(n_cells),
+                   np.zeros(4), np.zeros((64, 4)), np.zeros(n, np.int64), np.zeros((n, 2)))

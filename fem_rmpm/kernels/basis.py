@@ -8,7 +8,32 @@ import numpy as np
 from .arrays import Mesh
 from .common import inline, jit
 
-__all__ = ["q4", "gimp", "q4_shape", "gimp_shape"]
+__all__ = ["q4", "q4_cell", "q4_at", "gimp", "q4_shape", "gimp_shape"]
+
+
+@inline
+def q4_cell(x0, x1, M):
+    """Host cell of a point for the Q4 basis: ``(ll, s, t)`` = the cell's lower-left node
+    and the local coordinates in [0, 1] (see :func:`q4`)."""
+    nx, ny = M.nx, M.ny
+    s0 = (x0 - M.o0) * M.ih0
+    s1 = (x1 - M.o1) * M.ih1
+    i = min(max(int(math.floor(s0)), 0), nx - 1)
+    j = min(max(int(math.floor(s1)), 0), ny - 1)
+    return j * (nx + 1) + i, s0 - i, s1 - j
+
+
+@inline
+def q4_at(ll, s, t, M):
+    """Q4 basis (nodes, N, dN/dx, dN/dy) of the cell ``ll`` at local coordinates ``s, t``
+    (:func:`q4_cell`): the step computes the cell once per point and reuses it."""
+    nx, ih0, ih1 = M.nx, M.ih0, M.ih1
+    fs = 1.0 - s
+    ft = 1.0 - t
+    return ((ll, ll + 1, ll + nx + 2, ll + nx + 1),
+            (fs * ft, s * ft, s * t, fs * t),
+            (-ft * ih0, ft * ih0, t * ih0, -t * ih0),
+            (-fs * ih1, -s * ih1, s * ih1, fs * ih1))
 
 
 @inline
@@ -20,20 +45,8 @@ def q4(x0, x1, M):
     from the lower left), except that ``ih = 1 / h`` is multiplied, not divided by
     (a point within one rounding of a cell edge may so be placed in the neighbour
     cell: Q4 is continuous there, only its gradient jumps)."""
-    nx, ny, ih0, ih1 = M.nx, M.ny, M.ih0, M.ih1
-    s0 = (x0 - M.o0) * ih0
-    s1 = (x1 - M.o1) * ih1
-    i = min(max(int(math.floor(s0)), 0), nx - 1)
-    j = min(max(int(math.floor(s1)), 0), ny - 1)
-    s = s0 - i
-    t = s1 - j
-    ll = j * (nx + 1) + i
-    fs = 1.0 - s
-    ft = 1.0 - t
-    return ((ll, ll + 1, ll + nx + 2, ll + nx + 1),
-            (fs * ft, s * ft, s * t, fs * t),
-            (-ft * ih0, ft * ih0, t * ih0, -t * ih0),
-            (-fs * ih1, -s * ih1, s * ih1, fs * ih1))
+    ll, s, t = q4_cell(x0, x1, M)
+    return q4_at(ll, s, t, M)
 
 
 @inline

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 
-from .basis import gimp, q4
+from .basis import gimp, q4, q4_at
 from numba import prange
 
 from .common import inline, kernel, serial_and_parallel
@@ -207,7 +207,11 @@ def _kinematics_loop(P, M, N, S, o):
             S.ta[i] = 1.0
             S.tb[i] = 0.0
             continue
-        L00, L01, L10, L11 = _point_velocity_gradient(i, S.x_old, P.half_width, M, vn, o.gimp)
+        if o.gimp:
+            L00, L01, L10, L11 = _point_velocity_gradient(i, S.x_old, P.half_width, M, vn, True)
+        else:                        # the Q4 cell of the map to nodes (at x_old)
+            L00, L01, L10, L11 = _velocity_gradient(
+                q4_at(S.q4_ll[i], S.q4_st[i, 0], S.q4_st[i, 1], M), vn)
         e0, e1, e2, e3 = ls[i, 0], ls[i, 1], ls[i, 2], ls[i, 3]
         if o.geostatic:
             _small_strain_trial(i, L00 * dt, L01 * dt, L10 * dt, L11 * dt, e0, e1, e2, e3, S.W)

@@ -21,12 +21,11 @@ import math
 
 from numba import prange
 
-from .basis import gimp, q4
+from .basis import gimp, q4_at, q4_cell
 from .common import MASS_TOL, inline, kernel, serial_and_parallel
 from .strain import exp_args_into
 
-__all__ = ["map_to_nodes", "solve_on_mesh", "g2p", "nodal_velocity", "map_to_nodes_parallel",
-           "g2p_parallel"]
+__all__ = ["map_to_nodes", "solve_on_mesh", "g2p", "map_to_nodes_parallel", "g2p_parallel"]
 
 
 # --------------------------------------------------------------------- 1. map to nodes
@@ -71,10 +70,11 @@ def _scatter(sh, i, P, N, gx, gy, nt):
 
 
 @inline
-def _scatter_points(P, M, N, o, start, stop):
-    """Points ``start:stop`` (active ones) into the arrays of ``N``, from cleared ones."""
+def _scatter_points(P, M, N, S, o, start, stop):
+    """Points ``start:stop`` (active ones) into the arrays of ``N``, from cleared ones;
+    Q4: each point's cell and local coordinates into ``S.q4_ll``, ``S.q4_st``."""
     nt = 0
-    x, lp = P.x, P.half_width
+    x, lp, cell, st = P.x, P.half_width, S.q4_ll, S.q4_st
     for i in range(start, stop):
         if not P.active[i]:
             continue
@@ -82,8 +82,11 @@ def _scatter_points(P, M, N, o, start, stop):
             sg = gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M)
             nt = _scatter(sg, i, P, N, o.gx, o.gy, nt)
         else:
-            sq = q4(x[i, 0], x[i, 1], M)
-            nt = _scatter(sq, i, P, N, o.gx, o.gy, nt)
+            ll, s, t = q4_cell(x[i, 0], x[i, 1], M)
+            cell[i] = ll
+            st[i, 0] = s
+            st[i, 1] = t
+            nt = _scatter(q4_at(ll, s, t, M), i, P, N, o.gx, o.gy, nt)
     N.n_touched[0] = nt
 
 
@@ -106,19 +109,20 @@ def _add_half(N):
     N.n_touched[0] = nt
 
 
-def _map_to_nodes_loop(P, M, N, o):
+def _map_to_nodes_loop(P, M, N, S, o):
     """Stage 1: nodal mass, momentum and force (gravity + stress divergence) from the
     active points; the touched nodes are listed in ``N.touched[:N.n_touched[0]]`` (flag 1).
     The nodes of the previous step are cleared first.  Two halves of the points, summed
-    in a fixed order (module docstring)."""
+    in a fixed order (module docstring).  Q4: the points' cells into ``S`` (reused by
+    :func:`g2p` and the kinematics pass, which so skip locating the points again)."""
     _clear(N)
     _clear(N.half)
     n = P.x.shape[0]
     for c in prange(2):
         if c == 0:
-            _scatter_points(P, M, N, o, 0, n // 2)
+            _scatter_points(P, M, N, S, o, 0, n // 2)
         else:
-            _scatter_points(P, M, N.half, o, n // 2, n)
+            _scatter_points(P, M, N.half, S, o, n // 2, n)
     _add_half(N)
 
 
@@ -205,8 +209,8 @@ def _g2p_points(P, M, N, v_remap, S, o, start, stop):
         if o.gimp:
             sg = gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M)
             s2 = _g2p_point(sg, i, P, N, v_remap, S, o)
-        else:
-            sq = q4(x[i, 0], x[i, 1], M)
+        else:                        # the cell of the map to nodes (same position)
+            sq = q4_at(S.q4_ll[i], S.q4_st[i, 0], S.q4_st[i, 1], M)
             s2 = _g2p_point(sq, i, P, N, v_remap, S, o)
         vmax2 = max(vmax2, s2)
     return vmax2
@@ -223,7 +227,8 @@ def _clear_remap(N):
 def _g2p_loop(P, M, N, S, o):
     """Stage 3a: FLIP/PIC point velocities, positions (geostatic: ``P.u_geo`` instead),
     and the MUSL re-map of the new point momenta into ``N.v_remap`` (active nodes; the
-    two halves of the points summed as in :func:`map_to_nodes`).  The positions before
+    two halves of the points summed as in :func:`map_to_nodes`), then (3b) the re-mapped
+    nodal velocities ``v_remap / m`` in the same kernel (one pass over the nodes).  The positions before
     the move are kept in ``S.x_old`` for the stress update; finite strain: ``S.ta``,
     ``S.tb``, ``S.tc`` = the exp / expm1 arguments of the log strain (as
     :func:`fem_rmpm.kernels.strain.exp_args_pass`; here, not in a pass of their own, to
@@ -239,22 +244,23 @@ def _g2p_loop(P, M, N, S, o):
             parts[0, 1] = _g2p_points(P, M, N, N.v_remap, S, o, 0, n // 2)
         else:
             parts[1, 1] = _g2p_points(P, M, N, H.v_remap, S, o, n // 2, n)
-    for k in range(H.n_touched[0]):      # all of them are in N's touched list already
-        a = H.touched[k]
-        N.v_remap[a, 0] += H.v_remap[a, 0]
-        N.v_remap[a, 1] += H.v_remap[a, 1]
+    _nodal_velocity(M, N)
     return math.sqrt(max(parts[0, 1], parts[1, 1]))
 
 
-g2p, g2p_parallel = serial_and_parallel(_g2p_loop)
-
-
-@kernel
-def nodal_velocity(M, N):
-    """Stage 3b on the active nodes: re-mapped velocities ``v_remap / m`` in place (fixed: 0)."""
-    m, p2, fixed = N.m, N.v_remap, M.fixed
+@inline
+def _nodal_velocity(M, N):
+    """Stage 3b on the active nodes: the second half's re-mapped momenta added (at the
+    nodes it touched, ``N.half.flag``), then velocities ``v_remap / m`` in place (fixed: 0)."""
+    m, p2, fixed, H = N.m, N.v_remap, M.fixed, N.half
     for k in range(N.n_touched[0]):
         a = N.touched[k]
+        if H.flag[a]:
+            p2[a, 0] += H.v_remap[a, 0]
+            p2[a, 1] += H.v_remap[a, 1]
         ma = m[a] if m[a] > MASS_TOL else 1.0
         for c in range(2):
             p2[a, c] = 0.0 if fixed[a, c] else p2[a, c] / ma
+
+
+g2p, g2p_parallel = serial_and_parallel(_g2p_loop)
