@@ -36,13 +36,15 @@ m3/m; Cauchy stress (n, 4) kPa; active (n,) bool; uGIMP half widths (n, 2) m; F 
 elastic log strain (n, 4); model state (n, S); geostatic displacement u_geo (n, 2) m;
 model id (n,) and parameter rows (n, P) (:mod:`fem_rmpm.materials`)."""
 
-NodeArrays = namedtuple("NodeArrays", "m p f v_new acc v_remap flag touched n_touched half",
-                        defaults=(None,))
+NodeArrays = namedtuple("NodeArrays", "m p f v_new acc v_remap flag touched n_touched half ke",
+                        defaults=(None, None))
 NodeArrays.__doc__ = """Nodes: mass (nn,), momentum, force, end-of-step velocity,
 acceleration and the MUSL re-mapped momentum then velocity ``v_remap`` (nn, 2); ``flag``
 (nn,) uint8 touched this step, ``touched[:n_touched[0]]`` the active nodes; ``half``: the
 same arrays (without velocities and accelerations) for the sums of the second half of
-the points, added to these in a fixed order (:mod:`.transfer`)."""
+the points, added to these in a fixed order (:mod:`.transfer`); ``ke`` (nn,): each active
+node's ``m |v|^2`` by its place in the touched list (summed in that order: the grid
+kinetic energy is the same on any number of threads)."""
 
 Scratch = namedtuple("Scratch", "x_old W ta tb tc host D cell_v cell_vdj out parts q4_ll q4_st")
 Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the trial state W (n, 4)
@@ -129,7 +131,7 @@ class Workspace:
                           np.zeros(nn, np.int64), np.zeros(1, np.int64))
         nodes = NodeArrays(np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((nn, 2)),
                            np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros(nn, np.uint8),
-                           np.zeros(nn, np.int64), np.zeros(1, np.int64), half)
+                           np.zeros(nn, np.int64), np.zeros(1, np.int64), half, np.zeros(nn))
         return cls(nodes, scratch_for(n, grid.n_cells))
 
 
