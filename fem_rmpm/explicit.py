@@ -163,7 +163,7 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     # 1. map to nodes: mass, momentum and force (locate + shape + scatter, one pass)
     call(K.map_to_nodes_parallel if threads > 1 else K.map_to_nodes, P, M, N, S, o)
     # 2. solve on the mesh: momentum balance on the active nodes
-    ke = call(K.solve_on_mesh_parallel if threads > 1 else K.solve_on_mesh, M, N, o)
+    ke = call(K.solve_on_mesh, M, N, o)
     # 3. update the points: move, (MUSL) re-map momentum, update stress
     vmax = K.update_points(P, M, N, S, o, call)
     out = S.out

@@ -69,7 +69,10 @@ def run_realization(task: dict) -> dict:
     ``noise``: the random field's standard-normal noise array, in place of the seed
     (``seed`` None; subset simulation)."""
     _raise_malloc_thresholds()
-    numba.set_num_threads(1)   # one thread per realization: the campaign runs them in parallel
+    # one thread per realization (the campaign runs them in parallel), unless the scene asks
+    # for more ([solver] threads; any count gives bitwise the same realization)
+    numba.set_num_threads(max(1, min(int(getattr(task["scene"].solver, "threads", 0)) or 1,
+                                     numba.config.NUMBA_NUM_THREADS)))
     rec: dict[str, Any] = {
         "format": FORMAT, "case": task["case"], "index": int(task["index"]),
         "seed": None if task["seed"] is None else int(task["seed"]), "scheme": task["scene"].solver.scheme, "status": "ok",

@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import typeof
 
+from .common import SERIAL_TWIN
+
 __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Workspace",
            "mesh_of", "point_arrays", "scratch_for"]
 
@@ -36,15 +38,13 @@ m3/m; Cauchy stress (n, 4) kPa; active (n,) bool; uGIMP half widths (n, 2) m; F 
 elastic log strain (n, 4); model state (n, S); geostatic displacement u_geo (n, 2) m;
 model id (n,) and parameter rows (n, P) (:mod:`fem_rmpm.materials`)."""
 
-NodeArrays = namedtuple("NodeArrays", "m p f v_new acc v_remap flag touched n_touched half ke",
-                        defaults=(None, None))
+NodeArrays = namedtuple("NodeArrays", "m p f v_new acc v_remap flag touched n_touched half",
+                        defaults=(None,))
 NodeArrays.__doc__ = """Nodes: mass (nn,), momentum, force, end-of-step velocity,
 acceleration and the MUSL re-mapped momentum then velocity ``v_remap`` (nn, 2); ``flag``
 (nn,) uint8 touched this step, ``touched[:n_touched[0]]`` the active nodes; ``half``: the
 same arrays (without velocities and accelerations) for the sums of the second half of
-the points, added to these in a fixed order (:mod:`.transfer`); ``ke`` (nn,): each active
-node's ``m |v|^2`` by its place in the touched list (summed in that order: the grid
-kinetic energy is the same on any number of threads)."""
+the points, added to these in a fixed order (:mod:`.transfer`)."""
 
 Scratch = namedtuple("Scratch", "x_old W ta tb tc host D cell_v cell_vdj out parts q4_ll q4_st")
 Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the trial state W (n, 4)
@@ -116,8 +116,11 @@ class Workspace:
         entry = self.calls.get(kernel)
         if entry is not None:
             return entry(*args)
-        result = kernel(*args)
         sig = tuple(typeof(a) for a in args)
+        twin = SERIAL_TWIN.get(kernel)
+        if twin is not None:         # load (or compile) the serial twin first (common.py)
+            twin.compile(sig)
+        result = kernel(*args)
         cres = kernel.overloads.get(sig)
         if cres is not None:
             self.calls[kernel] = cres.entry_point
@@ -131,7 +134,7 @@ class Workspace:
                           np.zeros(nn, np.int64), np.zeros(1, np.int64))
         nodes = NodeArrays(np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((nn, 2)),
                            np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros(nn, np.uint8),
-                           np.zeros(nn, np.int64), np.zeros(1, np.int64), half, np.zeros(nn))
+                           np.zeros(nn, np.int64), np.zeros(1, np.int64), half)
         return cls(nodes, scratch_for(n, grid.n_cells))
 
 

@@ -18,6 +18,16 @@ kernel_parallel = njit(cache=True, fastmath=False, nogil=True, error_model="nump
                        parallel=True)
 
 
+#: parallel dispatcher -> its serial twin (same loop).  numba's parfor array analysis
+#: crashed (IndexError in array_analysis._gen_shape_call) when a parallel twin was compiled
+#: in a process that had not yet compiled or loaded its serial twin (a fresh cache with
+#: ``threads > 1`` from the first step); with the serial twin loaded first it compiles.
+#: :meth:`fem_rmpm.kernels.arrays.Workspace.call` loads the twin first.
+SERIAL_TWIN: dict = {}
+
+
 def serial_and_parallel(py_func):
     """``(serial, parallel)`` compiled versions of one per-point loop."""
-    return kernel(py_func), kernel_parallel(py_func)
+    serial, parallel = kernel(py_func), kernel_parallel(py_func)
+    SERIAL_TWIN[parallel] = serial
+    return serial, parallel

@@ -18,7 +18,7 @@ from numba import prange
 
 from ..materials import registry
 from ..materials.dispatch import point_dispatch
-from .common import inline, jit, kernel, kernel_parallel
+from .common import SERIAL_TWIN, inline, jit, kernel, kernel_parallel
 from .strain import (fbar_apply_pass, fbar_apply_pass_parallel, fbar_gradient_pass,
                      kinematics_pass, kinematics_pass_parallel, log_sym2_from, trial_pass)
 
@@ -68,6 +68,7 @@ def _make_finish_pass(version, only):
         for c in prange(nch):
             finish_chunk(P, M, S, o, c * n // nch, (c + 1) * n // nch, parts[c])
         _combine(S, nch)
+    SERIAL_TWIN[finish_pass_parallel] = finish_pass
     return finish_pass, finish_pass_parallel
 
 

@@ -22,11 +22,10 @@ import math
 from numba import prange
 
 from .basis import gimp, q4_at, q4_cell
-from .common import MASS_TOL, inline, serial_and_parallel
+from .common import MASS_TOL, inline, kernel, serial_and_parallel
 from .strain import exp_args_into
 
-__all__ = ["map_to_nodes", "solve_on_mesh", "g2p", "map_to_nodes_parallel", "solve_on_mesh_parallel",
-           "g2p_parallel"]
+__all__ = ["map_to_nodes", "solve_on_mesh", "g2p", "map_to_nodes_parallel", "g2p_parallel"]
 
 
 # --------------------------------------------------------------------- 1. map to nodes
@@ -116,13 +115,13 @@ def _map_to_nodes_loop(P, M, N, S, o):
     The nodes of the previous step are cleared first.  Two halves of the points, summed
     in a fixed order (module docstring).  Q4: the points' cells into ``S`` (reused by
     :func:`g2p` and the kinematics pass, which so skip locating the points again)."""
+    _clear(N)
+    _clear(N.half)
     n = P.x.shape[0]
-    for c in prange(2):             # each half clears its own nodes of the last step
+    for c in prange(2):
         if c == 0:
-            _clear(N)
             _scatter_points(P, M, N, S, o, 0, n // 2)
         else:
-            _clear(N.half)
             _scatter_points(P, M, N.half, S, o, n // 2, n)
     _add_half(N)
 
@@ -131,14 +130,14 @@ map_to_nodes, map_to_nodes_parallel = serial_and_parallel(_map_to_nodes_loop)
 
 
 # --------------------------------------------------------------------- 2. solve on the mesh
-def _solve_loop(M, N, o):
+@kernel
+def solve_on_mesh(M, N, o):
     """Stage 2 on the active nodes: ``N.v_new`` and ``N.acc`` (lumped mass, Cundall damping
-    ``f - damping |f| sign(v)``, fixed components zero).  Returns the grid kinetic energy
-    (the nodes' terms summed in touched-list order, after the parallel loop)."""
-    m, p, f, v_new, acc, fixed, ke_k = N.m, N.p, N.f, N.v_new, N.acc, M.fixed, N.ke
+    ``f - damping |f| sign(v)``, fixed components zero).  Returns the grid kinetic energy."""
+    m, p, f, v_new, acc, fixed = N.m, N.p, N.f, N.v_new, N.acc, M.fixed
     dt, damping = o.dt, o.damping
-    nt = N.n_touched[0]
-    for k in prange(nt):
+    ke = 0.0
+    for k in range(N.n_touched[0]):
         a = N.touched[k]
         has = m[a] > MASS_TOL
         inv_m = 1.0 / m[a] if has else 0.0
@@ -154,14 +153,8 @@ def _solve_loop(M, N, o):
             ac = fc * inv_m
             acc[a, c] = ac
             v_new[a, c] = vo + ac * dt
-        ke_k[k] = m[a] * (v_new[a, 0] * v_new[a, 0] + v_new[a, 1] * v_new[a, 1])
-    ke = 0.0
-    for k in range(nt):
-        ke += ke_k[k]
+        ke += m[a] * (v_new[a, 0] * v_new[a, 0] + v_new[a, 1] * v_new[a, 1])
     return 0.5 * ke
-
-
-solve_on_mesh, solve_on_mesh_parallel = serial_and_parallel(_solve_loop)
 
 
 # --------------------------------------------------------------------- 3. update the points
@@ -242,14 +235,14 @@ def _g2p_loop(P, M, N, S, o):
     save a pass over the points: ~2 ns per point-step).  Returns the largest |v_pic|
     (the motion as the grid sees it)."""
     H = N.half
+    _clear_remap(N)
+    _clear_remap(H)
     n = P.x.shape[0]
     parts = S.parts
     for c in prange(2):
         if c == 0:
-            _clear_remap(N)
             parts[0, 1] = _g2p_points(P, M, N, N.v_remap, S, o, 0, n // 2)
         else:
-            _clear_remap(H)
             parts[1, 1] = _g2p_points(P, M, N, H.v_remap, S, o, n // 2, n)
     _nodal_velocity(M, N)
     return math.sqrt(max(parts[0, 1], parts[1, 1]))
@@ -260,7 +253,7 @@ def _nodal_velocity(M, N):
     """Stage 3b on the active nodes: the second half's re-mapped momenta added (at the
     nodes it touched, ``N.half.flag``), then velocities ``v_remap / m`` in place (fixed: 0)."""
     m, p2, fixed, H = N.m, N.v_remap, M.fixed, N.half
-    for k in prange(N.n_touched[0]):
+    for k in range(N.n_touched[0]):
         a = N.touched[k]
         if H.flag[a]:
             p2[a, 0] += H.v_remap[a, 0]
