@@ -13,9 +13,11 @@ Each run is the campaign's explicit run of the realization (same scene, seed
 ``realization_seed(campaign seed, i)``, same gravity phase), stopped early once decided:
 
 * **fails** as soon as at least ``--fail-area`` m2 (default 1 m2, four points of a 0.5 m
-  mesh) of points have moved more than the campaign's ``failure_displacement`` (0.5 m;
-  the displacement of the geostatic phase on the fixed geometry included) -- checked at
-  every output (1 s);
+  mesh) of points have moved more than the campaign's ``failure_displacement`` (0.5 m)
+  -- checked at every output (1 s).  As in the campaign's ``failed`` measure, the
+  displacement is ``x - x0``: the geostatic phase (fixed geometry) moves no point;
+* **fails** also when it stands at the end with a point moved more than
+  ``failure_displacement`` (the campaign's rule, stray points included here);
 * **stands** when it comes to rest (the run's own stop), or at ``--t-cap`` (default 30 s)
   if then no point moved more than ``failure_displacement`` (standing slopes of the
   campaign came to rest by 14 s, failing ones had moved metres by 10 s).
@@ -42,6 +44,7 @@ import numpy as np
 from fem_rmpm import api
 from fem_rmpm.campaign.cases import parse_case, realization_seed
 from fem_rmpm.explicit import run_explicit
+from fem_rmpm.scene import scene_from_dict, scene_to_dict, with_values
 
 
 class _Decided(Exception):
@@ -49,12 +52,23 @@ class _Decided(Exception):
 
 
 def scaled_scene(scene_path: str, case: str, cell: float, sets: dict):
-    """The case's scene on cells of ``cell`` m, with the extra ``--set`` values."""
+    """The case's scene on cells of ``cell`` m, with the extra ``--set`` values; a value
+    ``"-"`` removes a ``soil.`` key (e.g. ``softening_displacement`` when switching to
+    ``regularisation = "nonlocal"``)."""
     scene = parse_case(case, api.load_scene(scene_path)).scene
-    changes = {"grid.cell": cell, **sets}
-    for k, v in changes.items():
-        scene = api.with_value(scene, k, v)
-    return scene
+    drop = [k.split(".", 1)[1] for k, v in sets.items() if v == "-" and k.startswith("soil.")]
+    changes = {"grid.cell": cell, **{k: v for k, v in sets.items() if v != "-"}}
+    if drop:
+        data = scene_to_dict(scene)
+        for so in data["soil"]:
+            for k in drop:
+                so.pop(k, None)
+        for k, v in changes.items():
+            sec, _, name = k.partition(".")
+            for d in (data[sec] if isinstance(data[sec], list) else [data[sec]]):
+                d[name] = v
+        return scene_from_dict(data, scene.source)
+    return with_values(scene, changes)
 
 
 def block_mean(x0: np.ndarray, values: np.ndarray, size: float) -> np.ndarray:
@@ -85,7 +99,7 @@ def run_one(scene, seed, lam: float, fail_area: float, t_cap: float,
     history = []
 
     def check(t, p):
-        moved = (np.linalg.norm(p.x - p.x0 + p.u_geostatic, axis=1) > thr) & p.active
+        moved = (np.linalg.norm(p.x - p.x0, axis=1) > thr) & p.active
         area = float(p.volume0[moved].sum())
         ke = 0.5 * float((p.mass[:, None] * p.velocity ** 2).sum())
         history.append((round(t, 3), ke, area))
@@ -107,15 +121,17 @@ def run_one(scene, seed, lam: float, fail_area: float, t_cap: float,
     return out
 
 
-def critical_factor(runs: dict, do_run, step: float, tol: float) -> tuple[float, float]:
+def critical_factor(runs: dict, do_run, step: float, tol: float,
+                    start: float = 1.0) -> tuple[float, float]:
     """Bracket [lo, hi] of lambda_crit (fails at lo, stands at hi), from runs cached in
-    ``runs`` {lambda: failed} and ``do_run(lam) -> failed`` for the missing ones."""
+    ``runs`` {lambda: failed} and ``do_run(lam) -> failed`` for the missing ones; the
+    search steps out from ``start`` by ``step``, then bisects to ``tol``."""
     def failed(lam):
         lam = round(lam, 4)
         if lam not in runs:
             runs[lam] = do_run(lam)
         return runs[lam]
-    lam = 1.0
+    lam = start
     if failed(lam):
         lo, hi = lam, None
         while hi is None:
@@ -170,6 +186,34 @@ def summary(out: Path) -> list[dict]:
     return rows
 
 
+def markdown(rows: list[dict]) -> str:
+    """The lambda_crit table: one line per (case, realization, scene change), one column
+    per cell size (bracket mid point and half width), the shift of each finer mesh against
+    the coarsest, and whether the realization fails at lambda = 1 on each mesh."""
+    cells = sorted({r["cell"] for r in rows}, reverse=True)
+    by: dict[tuple, dict] = {}
+    for r in rows:
+        by.setdefault((r["case"], r["index"], r["sets"]), {})[r["cell"]] = r
+    head = ("| case | realization | change | " + " | ".join(f"lambda_crit at {c:g} m" for c in cells)
+            + " | shift finer vs coarsest | fails at lambda = 1 | CPU s |")
+    lines = [head, "|" + "---|" * (6 + len(cells))]
+    for (case, index, sets), per in by.items():
+        vals = []
+        for c in cells:
+            r = per.get(c)
+            if r is None or r["mid"] is None:
+                vals.append("-" if r is None else f"[{r['lo']}, {r['hi']}]")
+            else:
+                vals.append(f"{r['mid']:.3f} ± {0.5 * (r['hi'] - r['lo']):.3f}")
+        mids = [(c, per[c]["mid"]) for c in cells if c in per and per[c]["mid"] is not None]
+        shift = ", ".join(f"{(m / mids[0][1] - 1) * 100:+.1f} % ({c:g} m)" for c, m in mids[1:])
+        fails = " / ".join("yes" if per[c]["fails_at_1"] else "no" for c in cells if c in per)
+        cpu = sum(per[c]["cpu"] for c in per)
+        lines.append(f"| {case} | {index} | {sets or '-'} | " + " | ".join(vals)
+                     + f" | {shift or '-'} | {fails} | {cpu:.0f} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", default="meshes/slope_risk.toml")
@@ -181,6 +225,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--average-field", type=float, default=None, metavar="H",
                     help="replace each point's strength by its mean over H-m blocks (diagnostic)")
     ap.add_argument("--step", type=float, default=0.1)
+    ap.add_argument("--start", type=float, default=1.0,
+                    help="first lambda (e.g. the coarser mesh's lambda_crit)")
     ap.add_argument("--tol", type=float, default=0.01)
     ap.add_argument("--fail-area", type=float, default=1.0)
     ap.add_argument("--t-cap", type=float, default=30.0)
@@ -188,8 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--summary", type=Path, default=None)
     a = ap.parse_args(argv)
     if a.summary is not None:
-        for r in summary(a.summary):
-            print(json.dumps(r))
+        print(markdown(summary(a.summary)))
         return 0
     import tomllib
     sets = {k: tomllib.loads(f"v = {v}")["v"] for k, _, v in (s.partition("=") for s in a.set)}
@@ -211,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
                     f.write(json.dumps(r) + "\n")
                 print(json.dumps(r), flush=True)
                 return r["failed"]
-            lo, hi = critical_factor(cache, do_run, a.step, a.tol)
+            lo, hi = critical_factor(cache, do_run, a.step, a.tol, a.start)
             print(f"# {a.case} #{index} cell {cell} {set_key}: lambda_crit in [{lo}, {hi}]",
                   flush=True)
     return 0
