@@ -100,6 +100,8 @@ def random_field_to_dict(rf: RandomFieldSpec) -> dict:
         del out["properties"]
     if not rf.cross_correlation:
         del out["cross_correlation"]
+    if rf.box is None:       # written only when given: older campaigns keep their identity
+        del out["box"]
     return out
 
 
@@ -151,6 +153,14 @@ def check_random_field(s: Scene) -> None:
     """Cross checks of the field against the soils and their material models."""
     rf = s.random_field
     names = [so.name for so in s.soils]
+    if rf.box is not None:
+        x0, y0, x1, y1 = rf.box
+        if rf.cell_size is None:
+            raise _fail(s.source, "random_field.box", "needs random_field.cell_size (the "
+                        "field's own cells); allowed: give cell_size, or leave box out")
+        if not (x1 > x0 and y1 > y0):
+            raise _fail(s.source, "random_field.box", f"{list(rf.box)}: allowed: [x0, y0, x1, "
+                        "y1] with x1 > x0 and y1 > y0 (m)")
     if rf.soil is not None and rf.soil not in names:
         raise _fail(s.source, "random_field.soil", f"{rf.soil!r} is not a soil; allowed: {names}")
     fields = rf.fields()

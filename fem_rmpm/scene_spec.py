@@ -159,6 +159,9 @@ class RandomFieldSpec:
     correlation: str = "markov_elliptic"  # "markov_elliptic" | "markov_separable"
     layering_angle_deg: float = 0.0      # angle of the layering to the grid x axis (deg)
     cell_size: float | None = None       # field cell size (m); default: the grid cell
+    box: tuple[float, float, float, float] | None = None  # [x0, y0, x1, y1] m, with cell_size:
+    # the field's rectangle, fixed (default: the soil cells' bounding box, which moves with
+    # the grid cell, so each mesh draws another field from the same seed)
     local_averaging: bool = True
     soil: str | None = None              # name of the soil the field applies to (default: all)
     data: str | None = None              # CSV of x, y, value to condition on (kriging)

@@ -132,6 +132,14 @@ def _coerce(source: str, key: str, value: Any, default: Any, annotation: str,
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
             raise _fail(source, key, f"expected two numbers [x, y], got {value!r}")
         return (float(value[0]), float(value[1]))
+    if ann == "tuple[float,float,float,float]|None":
+        if value is None:
+            return None
+        if (not isinstance(value, list) or len(value) != 4
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                           and math.isfinite(v) for v in value)):
+            raise _fail(source, key, f"expected four numbers [x0, y0, x1, y1] in m, got {value!r}")
+        return tuple(float(v) for v in value)
     if ann == "tuple[tuple[float,float],...]":
         ok = isinstance(value, list) and len(value) >= 3 and all(
             isinstance(p, list) and len(p) == 2 and all(

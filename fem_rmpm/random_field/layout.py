@@ -63,7 +63,10 @@ def _field_soils(scene: Scene) -> tuple[int, ...]:
 
 
 def field_layout(scene: Scene, grid) -> FieldLayout:
-    """Field cells over the bounding box of the cells of the soils the field applies to."""
+    """Field cells over the bounding box of the cells of the soils the field applies to,
+    or, with ``[random_field] box`` (and ``cell_size``), over that fixed rectangle: the
+    layout, hence the circulant embedding and the field of a seed, then do not depend on
+    the grid cell (points outside the box take the nearest edge cell's value)."""
     soils = _field_soils(scene)
     owner = soil_cells(scene, grid)
     cells = np.nonzero(np.isin(owner, soils))[0]
@@ -80,6 +83,8 @@ def field_layout(scene: Scene, grid) -> FieldLayout:
                            soils=soils, grid_offset=(int(i0), int(j0)))
     lo = grid.origin + grid.cell * np.array([i0, j0])
     size = grid.cell * np.array([i1 - i0, j1 - j0])
+    if rf.box is not None:           # a fixed rectangle: the same field on every grid
+        lo, size = np.array(rf.box[:2]), np.array(rf.box[2:]) - np.array(rf.box[:2])
     h = float(rf.cell_size)
     n = np.maximum(np.ceil(size / h - 1e-9).astype(int), 1)
     return FieldLayout(origin=lo, cell=np.array([h, h]), shape=(int(n[0]), int(n[1])),
