@@ -11,8 +11,11 @@ it stopped), then this script on its directory::
 ``--run N`` runs (or resumes) the campaign first with ``N`` realizations per random case.
 ``--mesh DIR``: the mesh check, a campaign of the first realizations of a case on a finer
 mesh (``fem-rmpm mc meshes/slope_risk.toml -n 20 --case xi=48 --set grid.cell=0.25 --out
-DIR``); realization i has the same random field on both meshes (the field's own cells,
-``cell_size``, do not change): P(failure) and sliding area on each, pair by pair.
+DIR``); realization i has the same random field on both meshes because the scene fixes
+the field's rectangle (``[random_field] box``; without it the rectangle follows the soil
+cells of each mesh and a seed draws an unrelated field): P(failure) and sliding area on
+each, pair by pair.  ``validation/risk_mesh.py`` measures the mesh dependence as a number,
+the shift of each realization's critical strength factor.
 ``--fs DIR``: a factor-of-safety campaign of the same scene and seed
 (``fem-rmpm mc meshes/slope_risk.toml --fs-only -n M --out DIR``; realization i has the same
 random field in both, the seeds being ``SeedSequence([campaign_seed, i])``): P(FS < 1) per
@@ -142,8 +145,8 @@ def fs_summary(mpm_rows: list[dict], fs_rows: list[dict]) -> dict | None:
 
 
 def mesh_summary(coarse_rows: list[dict], fine_rows: list[dict]) -> dict | None:
-    """The same realizations (same index, hence the same random field: the field's cells do
-    not change with the MPM cell) on the scene's mesh and on a finer one: P(failure) on
+    """The same realizations (same index, hence the same random field when the scene fixes
+    ``[random_field] box``) on the scene's mesh and on a finer one: P(failure) on
     each over the pairs, how many agree on failed / stood, and the sliding area given
     failure (mean on each; mean absolute difference where both failed)."""
     fine = {r["index"]: r for r in fine_rows
