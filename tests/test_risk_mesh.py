@@ -51,3 +51,24 @@ def test_block_mean():
     x0 = np.array([[0.1, 0.1], [0.4, 0.3], [0.6, 0.1], [0.2, 0.7]])
     v = np.array([10.0, 20.0, 30.0, 40.0])
     np.testing.assert_allclose(m.block_mean(x0, v, 0.5), [15.0, 15.0, 30.0, 40.0])
+
+
+def test_paired_decisions_counts_discordant_pairs(tmp_path):
+    """Four realizations on two meshes at lambda = 1: one fails on both, one on the fine
+    mesh only, two stand on both; a run at another lambda or with a scene change and a
+    realization on one mesh only are not pairs."""
+    import json
+    m = _mesh()
+    rows = [(0, 0.5, True), (0, 0.25, True), (1, 0.5, False), (1, 0.25, True),
+            (2, 0.5, False), (2, 0.25, False), (3, 0.5, False), (3, 0.25, False), (4, 0.5, True)]
+    lines = [{"case": "xi=48", "index": i, "cell": c, "sets": "", "lambda": 1.0, "failed": f}
+             for i, c, f in rows]
+    lines += [{"case": "xi=48", "index": 2, "cell": 0.25, "sets": "", "lambda": 0.9, "failed": True},
+              {"case": "xi=48", "index": 3, "cell": 0.25, "sets": "x=1", "lambda": 1.0, "failed": True}]
+    (tmp_path / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    res = m.paired_decisions(tmp_path, "xi=48", 0.5, 0.25)
+    assert res["pairs"] == 4
+    assert (res["fail_coarse"]["k"], res["fail_fine"]["k"]) == (1, 2)
+    assert (res["fine_only"]["k"], res["coarse_only"]["k"]) == (1, 0)
+    lo, hi = res["fine_only"]["wilson95"]
+    assert lo < 0.25 < hi

@@ -214,6 +214,25 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def paired_decisions(out: Path, case: str, coarse: float, fine: float, lam: float = 1.0) -> dict:
+    """Stand / fail at ``lam`` of the realizations run on both meshes (no scene change):
+    the count failing on each, the discordant pairs each way, with Wilson 95 % intervals."""
+    from fem_rmpm.campaign import wilson_interval
+    got: dict[int, dict[float, bool]] = {}
+    for r in load_runs(out / "runs.jsonl"):
+        if r["case"] == case and not r["sets"] and abs(r["lambda"] - lam) < 1e-9:
+            got.setdefault(r["index"], {})[r["cell"]] = bool(r["failed"])
+    pairs = [(v[coarse], v[fine]) for v in got.values() if coarse in v and fine in v]
+    n = len(pairs)
+    res = {"case": case, "lambda": lam, "pairs": n}
+    for name, k in (("fail_coarse", sum(a for a, _ in pairs)), ("fail_fine", sum(b for _, b in pairs)),
+                    ("fine_only", sum(b and not a for a, b in pairs)),
+                    ("coarse_only", sum(a and not b for a, b in pairs))):
+        res[name] = {"k": k, "p": k / n if n else None,
+                     "wilson95": list(wilson_interval(k, n)) if n else None}
+    return res
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", default="meshes/slope_risk.toml")
@@ -228,6 +247,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start", type=float, default=1.0,
                     help="first lambda (e.g. the coarser mesh's lambda_crit)")
     ap.add_argument("--tol", type=float, default=0.01)
+    ap.add_argument("--decide-only", action="store_true",
+                    help="one run per realization and mesh, at lambda = --start (the paired check)")
     ap.add_argument("--fail-area", type=float, default=1.0)
     ap.add_argument("--t-cap", type=float, default=30.0)
     ap.add_argument("--out", type=Path, required=False)
@@ -235,6 +256,10 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.summary is not None:
         print(markdown(summary(a.summary)))
+        cells = sorted({r["cell"] for r in summary(a.summary)}, reverse=True)
+        for case in sorted({r["case"] for r in summary(a.summary)} - {"homogeneous"}):
+            if len(cells) >= 2:
+                print(json.dumps(paired_decisions(a.summary, case, cells[0], cells[1])))
         return 0
     import tomllib
     sets = {k: tomllib.loads(f"v = {v}")["v"] for k, _, v in (s.partition("=") for s in a.set)}
@@ -256,6 +281,12 @@ def main(argv: list[str] | None = None) -> int:
                     f.write(json.dumps(r) + "\n")
                 print(json.dumps(r), flush=True)
                 return r["failed"]
+            if a.decide_only:          # stand or fail at lambda = --start, no search
+                lam = round(a.start, 4)
+                failed = cache[lam] if lam in cache else do_run(lam)
+                print(f"# {a.case} #{index} cell {cell} {set_key}: lambda {lam} "
+                      f"{'fails' if failed else 'stands'}", flush=True)
+                continue
             lo, hi = critical_factor(cache, do_run, a.step, a.tol, a.start)
             print(f"# {a.case} #{index} cell {cell} {set_key}: lambda_crit in [{lo}, {hi}]",
                   flush=True)
