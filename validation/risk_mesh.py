@@ -181,7 +181,7 @@ def summary(out: Path) -> list[dict]:
         rows.append({"case": key[0], "index": key[1], "cell": key[2], "sets": key[3],
                      "lo": lo, "hi": hi, "runs": len(rs),
                      "mid": None if lo is None or hi is None else 0.5 * (lo + hi),
-                     "fails_at_1": any(r["failed"] for r in rs if abs(r["lambda"] - 1) < 1e-9),
+                     "fails_at_1": next((r["failed"] for r in rs if abs(r["lambda"] - 1) < 1e-9), None),
                      "cpu": sum(r["cpu"] for r in rs)})
     return rows
 
@@ -198,6 +198,8 @@ def markdown(rows: list[dict]) -> str:
             + " | shift finer vs coarsest | fails at lambda = 1 | CPU s |")
     lines = [head, "|" + "---|" * (6 + len(cells))]
     for (case, index, sets), per in by.items():
+        if all(r["lo"] is None or r["hi"] is None for r in per.values()):
+            continue               # stand / fail runs only (--decide-only): see paired_decisions
         vals = []
         for c in cells:
             r = per.get(c)
@@ -207,7 +209,8 @@ def markdown(rows: list[dict]) -> str:
                 vals.append(f"{r['mid']:.3f} ± {0.5 * (r['hi'] - r['lo']):.3f}")
         mids = [(c, per[c]["mid"]) for c in cells if c in per and per[c]["mid"] is not None]
         shift = ", ".join(f"{(m / mids[0][1] - 1) * 100:+.1f} % ({c:g} m)" for c, m in mids[1:])
-        fails = " / ".join("yes" if per[c]["fails_at_1"] else "no" for c in cells if c in per)
+        fails = " / ".join({True: "yes", False: "no", None: "-"}[per[c]["fails_at_1"]]
+                           for c in cells if c in per)
         cpu = sum(per[c]["cpu"] for c in per)
         lines.append(f"| {case} | {index} | {sets or '-'} | " + " | ".join(vals)
                      + f" | {shift or '-'} | {fails} | {cpu:.0f} |")
@@ -233,6 +236,44 @@ def paired_decisions(out: Path, case: str, coarse: float, fine: float, lam: floa
     return res
 
 
+def plot_pairs(rows: list[dict], path: Path, coarse: float = 0.5, fine: float = 0.25) -> Path:
+    """lambda_crit on the finer mesh against the coarser, one point per realization (and
+    the homogeneous slope), with the averaged-field runs; the lines lambda = 1 split the
+    plane into stands / fails on each mesh."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    mid = {(r["case"], r["index"], r["sets"], r["cell"]): r["mid"] for r in rows}
+    fig, ax = plt.subplots(figsize=(6.4, 5.6))
+    styles = {"": ("o", "C0", "paired field, as drawn"),
+              "average_field=0.5": ("s", "C1", "fine mesh, field averaged over 0.5 m cells")}
+    for sets, (mk, col, lab) in styles.items():
+        pts = [(mid.get((c, i, "", coarse)), m) for (c, i, st, cell), m in mid.items()
+               if st == sets and cell == fine and c != "homogeneous"]
+        pts = [(x, y) for x, y in pts if x is not None and y is not None]
+        if pts:
+            x, y = np.array(pts).T
+            ax.plot(x, y, mk, color=col, label=f"xi = 48, {lab} ({len(pts)})")
+    h = (mid.get(("homogeneous", 0, "", coarse)), mid.get(("homogeneous", 0, "", fine)))
+    if None not in h:
+        ax.plot(*h, "k^", ms=9, label="homogeneous")
+    lo, hi = 0.75, 1.2
+    ax.plot([lo, hi], [lo, hi], "k-", lw=0.8, label="same on both meshes")
+    ax.axhline(1.0, color="grey", ls="--", lw=0.8)
+    ax.axvline(1.0, color="grey", ls="--", lw=0.8)
+    ax.set_xlim(lo, hi)
+    ax.set_ylim(lo, hi)
+    ax.set_xlabel(f"lambda_crit on {coarse:g} m cells")
+    ax.set_ylabel(f"lambda_crit on {fine:g} m cells")
+    ax.set_title("Critical strength factor, same field on both meshes\n"
+                 "(fails in the campaign when lambda_crit > 1)", fontsize=10)
+    ax.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", default="meshes/slope_risk.toml")
@@ -253,9 +294,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--t-cap", type=float, default=30.0)
     ap.add_argument("--out", type=Path, required=False)
     ap.add_argument("--summary", type=Path, default=None)
+    ap.add_argument("--figure", type=Path, default=None,
+                    help="with --summary: write the lambda_crit scatter (PNG) here")
     a = ap.parse_args(argv)
     if a.summary is not None:
         print(markdown(summary(a.summary)))
+        if a.figure is not None:
+            plot_pairs(summary(a.summary), a.figure)
         cells = sorted({r["cell"] for r in summary(a.summary)}, reverse=True)
         for case in sorted({r["case"] for r in summary(a.summary)} - {"homogeneous"}):
             if len(cells) >= 2:
