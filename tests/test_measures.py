@@ -236,3 +236,25 @@ def test_summary_reports_excluded_points(meshes, tmp_path):
     assert ex["frozen"]["points"] == s["frozen_points"]["count"] > 0
     assert s["measures"]["excluded_frozen_points"] == ex["frozen"]["points"]
     assert ex["frozen"]["volume"] > 0 and ex["stray"]["points"] >= 0
+
+
+def test_least_block_area_reaches_the_block_count_and_the_record(meshes):
+    """``compute_measures(intact_block_area=A)`` counts the blocks of at least A m2 that
+    :func:`intact_blocks` finds with ``min_area=A`` on the snapshot, and records A; the
+    default is 1 m2.  The slide: the soil down-slope of x = 30 m moved 2 m, sheared in 1 m bands every 3 m,
+    leaving 10 blocks of at least 1 m2 and 9 of at least 4 m2."""
+    from fem_rmpm.measures import intact_blocks
+    scene, grid, pts = _slope(meshes)
+    pts.x[:, 0] += 2.0 * (pts.x0[:, 0] > 30.0)
+    gamma = np.where((np.floor(pts.x0[:, 0]) % 3) == 0, 0.5, 0.0)
+    snaps = [(3.0, pts.x.copy(), gamma)]
+    counts = {}
+    for area in (None, 4.0):
+        kw = {} if area is None else {"intact_block_area": area}
+        m = compute_measures(pts, 20.0, 0.5, grid.cell, None, snapshots=snaps, grid=grid, **kw)
+        a = 1.0 if area is None else area
+        assert m["intact_blocks"] == intact_blocks(pts.x, pts.x0, gamma, 0.5, grid.origin,
+                                                   grid.cell, grid.shape, min_area=a)
+        assert m["intact_block_area"] == a
+        counts[a] = m["intact_blocks"]
+    assert counts == {1.0: 10, 4.0: 9}
