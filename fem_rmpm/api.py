@@ -175,10 +175,10 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
 MECHANISM_TIME = 3.0
 
 
-#: CPU time numba takes to compile the explicit kernels on a cold cache (s): 7 s measured on
-#: the 2-core AMD EPYC VM of the budget constants (cold 8.9 s vs warm 1.9 s user time of the
-#: column run); 11-25 s of wall time on a loaded machine.
-COMPILE_SECONDS = 10.0
+#: Time numba takes to compile the explicit kernels on a cold cache (s), announced before
+#: the first run: 18-21 s on the idle 2-core AMD EPYC VM (case (i): cold 24.0 s against warm
+#: 2.4 s for the whole process; the benchmark's first step 18.4 s), more on a loaded machine.
+COMPILE_SECONDS = 20.0
 
 
 #: Explicit kernels every numba run calls (others, e.g. uGIMP or F-bar passes, only some).
