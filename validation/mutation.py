@@ -66,7 +66,15 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
                    "fem_rmpm/materials/mohr_coulomb.py"],
                   ["tests/test_material.py", "tests/test_mohr_coulomb.py",
                    "tests/test_material_details.py", "tests/test_kernels.py",
-                   "tests/test_implicit.py", "-k",
+                   "tests/test_implicit.py",
+                   "tests/test_strength_reduction.py::test_strength_parameters_are_declared_per_model",
+                   "tests/test_strength_reduction.py::test_reduce_strength_peak_and_softening",
+                   "tests/test_strength_reduction.py::test_mohr_coulomb_reduces_c_and_tan_phi",
+                   "tests/test_regularisation.py::test_bad_regularisation_input",
+                   "tests/test_regularisation.py::test_displacement_scaled_softening_strain_is_u_over_h",
+                   "tests/test_regularisation.py::"
+                   "test_local_points_keep_both_columns_equal_and_numba_equals_numpy",
+                   "-k",
                    "not explicit_scheme and not drained_infinite and not implicit_scheme and "
                    "not block_in_simple_shear and not step_ and not run_ and not slope and "
                    "not column and not newton and not nonconvergence and not summary and "
