@@ -10,22 +10,25 @@ all free has ``v = dt * (dt / T) * g`` exactly (lumped mass, ``a = f / m`` at th
 ``v = v0 + dt sum_a N_a a_a`` with ``sum_a N_a = 1``); the loop's documented rules: the
 run ends when every point has left the grid (edge_policy "freeze") or at the first point
 that leaves ("stop", the step named); progress and the energy record every 20 steps; the
-at-rest test against the running peak of the kinetic energy; a non-finite position names
-its point; a point on the grid's edge is inside.
+at-rest test against the running peak of the kinetic energy.
 """
 from __future__ import annotations
 
+import inspect
 import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fem_rmpm.explicit import Workspace, explicit_step, run_explicit, stable_time_step
+import fem_rmpm.explicit as ex
+from fem_rmpm.explicit import (Workspace, explicit_step, explicit_step_numpy, map_to_nodes,
+                               run_explicit, stable_time_step)
 from fem_rmpm.grid import make_grid
 from fem_rmpm.particles import seed_particles
-from fem_rmpm.run import RunRecord, SimulationError, at_rest, check_points
+from fem_rmpm.run import SimulationError, at_rest
 from fem_rmpm.scene import load_scene, with_values
+from fem_rmpm.shape import shape_at_points
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 FIELDS = ("x", "velocity", "stress", "log_strain", "state", "volume", "F")
@@ -148,7 +151,6 @@ def test_rest_test_gets_the_running_peak_of_the_kinetic_energy(monkeypatch):
     """The at-rest test compares the kinetic energy with its peak so far: the peak passed
     is the running maximum of the energies passed (the column's peak is 0.25 kJ/m, so a
     peak that starts at 1 would stop the run early)."""
-    import fem_rmpm.explicit as ex
     seen = []
 
     def spy(t, ramp, speed, ke, ke_peak, v_rest, ratio):
@@ -163,22 +165,6 @@ def test_rest_test_gets_the_running_peak_of_the_kinetic_energy(monkeypatch):
     assert 0.05 < running[-1] < 1.0
 
 
-def test_check_points_nan_position_and_lower_edge():
-    """A NaN position at point 2 names point 2; a point exactly on the lower-left corner
-    of the grid (x = 0, y = 0) is inside, not frozen."""
-    from types import SimpleNamespace
-    from tests.test_measures_details import _points
-    grid = SimpleNamespace(origin=np.array([0.0, 0.0]), upper=np.array([10.0, 5.0]))
-    pts = _points([[1.0, 1.0], [2.0, 1.0], [3.0, 1.0]])
-    pts.x[2, 0] = np.nan
-    with pytest.raises(SimulationError, match="non-finite state at material point 2 "):
-        check_points(grid, pts, 4, 0.1, "freeze", RunRecord("explicit"))
-    pts = _points([[0.0, 0.0], [2.0, 1.0]])
-    rec = RunRecord("explicit")
-    check_points(grid, pts, 4, 0.1, "stop", rec)
-    assert pts.active.all() and rec.frozen_points == []
-
-
 @pytest.mark.parametrize("options", [
     {"solver.kernel": "numpy", "solver.shape": "gimp", "solver.fbar": True,
      "solver.flip": 0.9, "solver.threads": 1},
@@ -189,9 +175,6 @@ def test_solver_options_reach_every_step(monkeypatch, options):
     """``[solver] kernel, shape, fbar, flip, threads`` are what each explicit step gets;
     the numba kernel reuses one workspace for the whole run, the numpy one needs none;
     the record states the thread count."""
-    import inspect
-
-    import fem_rmpm.explicit as ex
     calls = []
     real = ex.explicit_step
     sig = inspect.signature(real)
@@ -222,8 +205,6 @@ def test_numpy_step_defaults_and_map_to_nodes_without_halves():
     numpy call; ``map_to_nodes(second=None)`` (one sum in point order) returns one entry per
     grid node even when the last nodes (the column's empty top row) get nothing, and equals
     the two-half sum to round-off."""
-    from fem_rmpm.explicit import explicit_step_numpy, map_to_nodes
-    from fem_rmpm.shape import shape_at_points
     scene, grid, pts = _column()
     a, b = _moved(pts), _moved(pts.copy())
     g = np.array(scene.gravity_vector)

@@ -10,7 +10,7 @@ import pytest
 from fem_rmpm import api
 from fem_rmpm.cli import main
 from fem_rmpm.grid import make_grid
-from fem_rmpm.measures import compute_measures, surface_profile
+from fem_rmpm.measures import compute_measures, intact_blocks, surface_profile
 from fem_rmpm.particles import seed_particles
 from fem_rmpm.scene import load_scene, with_values
 
@@ -243,7 +243,6 @@ def test_least_block_area_reaches_the_block_count_and_the_record(meshes):
     :func:`intact_blocks` finds with ``min_area=A`` on the snapshot, and records A; the
     default is 1 m2.  The slide: the soil down-slope of x = 30 m moved 2 m, sheared in 1 m bands every 3 m,
     leaving 10 blocks of at least 1 m2 and 9 of at least 4 m2."""
-    from fem_rmpm.measures import intact_blocks
     scene, grid, pts = _slope(meshes)
     pts.x[:, 0] += 2.0 * (pts.x0[:, 0] > 30.0)
     gamma = np.where((np.floor(pts.x0[:, 0]) % 3) == 0, 0.5, 0.0)

@@ -75,6 +75,20 @@ def test_points_leaving_the_grid_stop_or_freeze():
     assert np.array_equal(pts.velocity, [[1.0, 1.0], [0.0, 0.0], [1.0, 1.0]])
 
 
+def test_check_points_nan_position_and_lower_edge():
+    """A NaN position at point 2 names point 2; a point exactly on the lower-left corner
+    of the grid (x = 0, y = 0) is inside, not frozen."""
+    grid = _grid()
+    pts = _points([[1.0, 1.0], [2.0, 1.0], [3.0, 1.0]])
+    pts.x[2, 0] = np.nan
+    with pytest.raises(SimulationError, match="non-finite state at material point 2 "):
+        check_points(grid, pts, 4, 0.1, "freeze", RunRecord("explicit"))
+    pts = _points([[0.0, 0.0], [2.0, 1.0]])
+    rec = RunRecord("explicit")
+    check_points(grid, pts, 4, 0.1, "stop", rec)
+    assert pts.active.all() and rec.frozen_points == []
+
+
 @pytest.mark.parametrize("pool, load, expected", [
     (4, 0.4, 4),      # 4 - 0.4 + 0.5 = 4.1 -> 4
     (4, 1.4, 3),      # 3.1 -> 3

@@ -85,9 +85,9 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
                   "tests/test_explicit_details.py", "tests/test_run_guards.py",
                   "tests/test_locking.py", "tests/test_explicit_wiring.py",
                   "-k", "not grid_file and not line_search and not exit_130 and not refuses_nan"]),
-    # the numba dispatcher and the CFL step of explicit.py against the fast tests that reach
-    # them (one or a few steps, numba = numpy): the "explicit" selection runs slope columns
-    # for every mutant of these two functions, about a minute each on 2 cores
+    # the same files against the fast tests only (one or a few steps, numba = numpy, the
+    # run guards, short column runs): the "explicit" selection runs slope columns for every
+    # mutant of the step and the CFL step, about a minute each on 2 cores
     "explicit_step": (["fem_rmpm/explicit.py", "fem_rmpm/run.py"],
                       ["tests/test_kernels.py", "tests/test_locking.py", "tests/test_threads.py",
                        "tests/test_explicit_details.py", "tests/test_stability.py",
