@@ -2,19 +2,13 @@
 from lambda = 1 and bisection, on a stand/fail rule given in closed form."""
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from validation_module import load
 
 
 def _mesh():
-    spec = importlib.util.spec_from_file_location("risk_mesh", ROOT / "validation" / "risk_mesh.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load("risk_mesh")
 
 
 @pytest.mark.parametrize("crit", [0.6234, 0.937, 1.0, 1.2871])

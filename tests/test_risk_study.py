@@ -1,20 +1,18 @@
 """The risk scene (meshes/slope_risk.toml) and the study's rules (validation/risk_study.py)."""
 from __future__ import annotations
 
-import importlib.util
 import math
 from pathlib import Path
 
 import pytest
 
+from validation_module import load
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _study():
-    spec = importlib.util.spec_from_file_location("risk_study", ROOT / "validation" / "risk_study.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load("risk_study")
 
 
 def _row(index, failed, area=0.0, early=0.0, retro=0.0, runout=0.0, h=0.0):
