@@ -165,6 +165,23 @@ def test_rest_test_gets_the_running_peak_of_the_kinetic_energy(monkeypatch):
     assert 0.05 < running[-1] < 1.0
 
 
+def test_nonlocal_averaging_follows_every_step_with_the_runs_grid(monkeypatch):
+    """The loop calls the non-local averaging once after each step with the run's own
+    grid and points (it needs the grid's cells for its stencil; a no-op for local soils)."""
+    calls = []
+    real = ex.average_softening
+
+    def spy(grid, pts, *args, **kwargs):
+        calls.append((grid, pts))
+        return real(grid, pts, *args, **kwargs)
+
+    monkeypatch.setattr(ex, "average_softening", spy)
+    scene, grid, pts = _column(**{"solver.t_end": 0.02})
+    rec = run_explicit(scene, grid, pts)
+    assert len(calls) == rec.steps > 3
+    assert all(g is grid and p is pts for g, p in calls)
+
+
 @pytest.mark.parametrize("options", [
     {"solver.kernel": "numpy", "solver.shape": "gimp", "solver.fbar": True,
      "solver.flip": 0.9, "solver.threads": 1},

@@ -77,14 +77,17 @@ def test_log_and_exp_of_symmetric_2x2_match_scipy_on_both_branches():
 def test_series_branches_equal_the_functions(x2):
     """atanh(x)/x and sinh(y)/y (as functions of x^2, y^2) on both sides of the switch
     at 1e-6: equal to numpy's arctanh/sinh to 1e-15 relative (the series' truncation is
-    below 1e-25 there), also for a negative y^2 (sinh(iy)/(iy) = sin(y)/y)."""
+    below 1e-25 there), also for a negative y^2 (sinh(iy)/(iy) = sin(y)/y).  ``abs=0``:
+    pytest.approx's default abs of 1e-12 would otherwise be the bound on these O(1)
+    values."""
     x = math.sqrt(x2)
     assert hencky._atanh_x_over_x(np.array([x2]))[0] == pytest.approx(math.atanh(x) / x,
-                                                                      rel=1e-15)
+                                                                      rel=1e-15, abs=0)
     assert hencky._sinh_y_over_y(np.array([x2]))[0] == pytest.approx(math.sinh(x) / x,
-                                                                     rel=1e-15)
+                                                                     rel=1e-15, abs=0)
     neg = hencky._sinh_y_over_y(np.array([-x2], dtype=complex))[0]
-    assert neg.real == pytest.approx(math.sin(x) / x, rel=1e-15) and abs(neg.imag) < 1e-16
+    assert neg.real == pytest.approx(math.sin(x) / x, rel=1e-15, abs=0)
+    assert abs(neg.imag) < 1e-16
 
 
 def test_hencky_stress_and_sqrt_j2_closed_form():
