@@ -33,6 +33,13 @@ test_material_extension.py, test_mohr_coulomb.py), so a mutant of the numpy refe
 that those tests catch also stands for the same change in the kernel; Mohr–Coulomb's
 return mapping has no numpy twin and is tested by its closed forms, not by mutation.
 
+One mutant by hand (after a run, in its work directory): run pytest from the ``mutants/``
+tree, where the trampolines are — ``cd WORKDIR/TARGET/mutants && MUTANT_UNDER_TEST=
+fem_rmpm.materials.hencky.x__atanh_x_over_x__mutmut_18 python -m pytest -q tests/...``.
+From ``WORKDIR/TARGET`` itself the working directory comes first on ``sys.path`` and the
+unmutated copy is imported, so every mutant seems to survive.  The trampoline reads
+``MUTANT_UNDER_TEST`` at every call, so one process may set it in turn for many mutants.
+
 Cost on the shared 2-core machine (load 8-16): see the notes of each run in
 validation/out/mutation_<target>.json (``--rerun`` reruns only the survivors and the
 mutants no test reached, after tests were added).
