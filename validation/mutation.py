@@ -102,7 +102,8 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
                        "tests/test_explicit_wiring.py", "tests/test_run_guards.py"]),
     "random_field": (["fem_rmpm/random_field/embedding.py", "fem_rmpm/random_field/model.py",
                       "fem_rmpm/random_field/points.py"],
-                     ["tests/test_random_field.py", "tests/test_random_field_model.py", "-k",
+                     ["tests/test_random_field.py", "tests/test_random_field_model.py",
+                      "tests/test_random_field_exact.py", "-k",
                       "not cli and not subprocess"]),
 }
 
