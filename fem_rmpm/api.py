@@ -101,11 +101,24 @@ def _run_scheme(scene, grid, pts, on_output, progress):
     return run_explicit(scene, grid, pts, on_output=on_output, progress=progress)
 
 
+class _Stopped(Exception):
+    """Raised from the output callback of :func:`run` when ``stop_when`` gives a reason."""
+
+    def __init__(self, t: float, reason: str):
+        super().__init__(reason)
+        self.t, self.reason = t, reason
+
+
 def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
         progress: bool = False, vtk: bool | None = None, figures: bool | None = None,
-        force: bool = False, noise=None, label: str | None = None) -> RunResult:
+        force: bool = False, noise=None, label: str | None = None,
+        stop_when=None) -> RunResult:
     """Run one realization; write VTK, PNG and ``summary.json`` to ``out`` if given.
     ``noise``: the random field's standard-normal noise array instead of ``seed``.
+    ``stop_when(t, pts) -> str | None``: called at every output (t = 0, every
+    ``output_interval`` s, the end); a non-empty string stops the run there, becomes its
+    ``stop_reason`` and the measures are those of the state at that time (``steps`` 0:
+    not counted; e.g. a campaign's runs stopped once decided, :mod:`fem_rmpm.campaign`).
 
     ``out`` must be a new or empty directory, or ``force=True`` replaces the run in it
     (:mod:`fem_rmpm.rundir`: ``summary.json`` says ``"running"`` until the run's
@@ -132,6 +145,9 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
         snapshots.append((t, p.x.copy(), p.plastic_shear_strain.copy()))
         if series is not None:
             series.add(t, p)
+        reason = stop_when(t, p) if stop_when is not None else None
+        if reason:
+            raise _Stopped(t, reason)
 
     if out is not None:
         start_run_dir(out, {"scene": scene_to_dict(scene), "scene_file": scene.source,
@@ -143,6 +159,9 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     error = None
     try:
         rec = _run_scheme(scene, grid, pts, on_output, bar.update_to if bar else None)
+    except _Stopped as stop:
+        rec = RunRecord(scheme=scene.solver.scheme, time=stop.t, stop_reason=stop.reason,
+                        frozen_points=np.nonzero(~pts.active)[0].tolist())
     except SimulationError as exc:
         error = exc
         rec = getattr(exc, "record", None) or RunRecord(scheme=scene.solver.scheme)

@@ -170,12 +170,14 @@ def summary_text(res: CampaignResult) -> str:
         lo, hi = s["wilson95"]
         txt = (f"P(failure) = {s['p_failure']:.3f} +- {s['se']:.3f} (SE sqrt(p(1-p)/N); "
                f"Wilson 95 % [{lo:.2f}, {hi:.2f}])")
-        for key, lab, unit in (("runout_distance", "run-out", "m"),
-                               ("retrogression_distance", "retrogression", "m"),
-                               ("sliding_area", "sliding area", "m2")):
+        if s.get("measure_runs", s["ok"]) < s["mpm_runs"]:    # [montecarlo] runs_to_rest
+            txt += f"; measures over the {s['measure_runs']} run(s) to rest"
+        for key, lab, unit in (("runout_distance", "run-out", "m"), ("retrogression_distance",
+                               "retrogression", "m"), ("sliding_area", "sliding area", "m2")):
             d = s[key]
-            txt += (f"; {lab} mean {d['mean']:.2f} +- {d['se']:.2f} {unit} "
-                    f"(5/50/95 %: {d['q05']:.2f}/{d['q50']:.2f}/{d['q95']:.2f})")
+            txt += "" if d["mean"] is None else (
+                f"; {lab} mean {d['mean']:.2f} +- {d['se']:.2f} {unit} "
+                f"(5/50/95 %: {d['q05']:.2f}/{d['q50']:.2f}/{d['q95']:.2f})")
         mech = [(k, lab, unit) for k, lab, unit in _MECHANISM_TEXT if k in s]
         if mech:
             txt += "; mean " + ", ".join(f"{lab} {s[k]['mean']:.2f}{unit}"
@@ -185,8 +187,8 @@ def summary_text(res: CampaignResult) -> str:
             idx = sorted({s["ok"] // 4 - 1, s["ok"] // 2 - 1, s["ok"] - 1})
             txt += ("; with N = " + ", ".join(str(conv["n"][i]) for i in idx)
                     + ": P(failure) " + ", ".join(f"{conv['p_failure'][i]:.2f}" for i in idx)
-                    + ", mean run-out " + ", ".join(f"{conv['mean_runout'][i]:.1f}" for i in idx)
-                    + " m")
+                    + ("" if len(conv["mean_runout"]) < len(conv["n"]) else ", mean run-out "
+                       + ", ".join(f"{conv['mean_runout'][i]:.1f}" for i in idx) + " m"))
         lines.append(head + txt + (f"; {fs_text(s['fs'])}" if s.get("fs") else ""))
         if s["numerical_failures"]:
             e = s["errors"][0]

@@ -181,9 +181,15 @@ def _results(summary: dict) -> str:
         rows.append([_label(c), _num(c.get("ok")), _num(c.get("numerical_failures")),
                      _num(c.get("slope_failures")),
                      f"{_num(c.get('p_failure'))} ± {_num(c.get('se'))}",
-                     f"[{_num(w[0])}, {_num(w[1])}]"])
+                     f"[{_num(w[0])}, {_num(w[1])}]",
+                     _num(c.get("measure_runs", c.get("mpm_runs", c.get("ok"))))])
     head = ("case", "N finished", "numerical failures", "slope failures",
-            "P(failure) ± SE", "Wilson 95 %")
+            "P(failure) ± SE", "Wilson 95 %", "run to rest (measures)")
+    k_rest = summary.get("runs_to_rest")
+    decided = ("" if k_rest is None else
+               f" Realizations with index ≥ {_num(k_rest)} stopped once their failure was "
+               "decided (1 m² of points moved more than the failure displacement); they count "
+               "in P(failure) only.")
     mrows = []
     for key in _measure_keys(cases):
         row = [f"{_esc(key.replace('_', ' '))} <small>({_esc(UNITS.get(key, '?'))})</small>"]
@@ -196,10 +202,24 @@ def _results(summary: dict) -> str:
         mrows.append(row)
     return ("<h2>Results per case</h2><p>P(failure): fraction of finished realizations in "
             "which a point moved more than the failure displacement; SE = sqrt(p (1 - p) / N); "
-            "Wilson 95 % score interval.</p>" + _table(head, rows, "cases")
+            "Wilson 95 % score interval." + _esc(decided) + "</p>" + _table(head, rows, "cases")
+            + _decision_check(summary)
             + "<p>Measures: mean ± standard error of the mean, [5 %, 50 %, 95 %] "
-            "quantiles, over the finished realizations of each case.</p>"
+            "quantiles, over the realizations of each case run to rest.</p>"
             + _table(["measure"] + [_label(c) for c in cases], mrows, "measures"))
+
+
+def _decision_check(summary: dict) -> str:
+    """The stopping rule checked on the runs to rest that recorded their decision time."""
+    rows = [[_esc(name), _num(d.get("checked")), _num(d.get("agree")),
+             _esc(", ".join(map(str, d.get("failed_never_decided") or [])) or "none"),
+             _esc(", ".join(map(str, d.get("decided_but_stood") or [])) or "none")]
+            for name, d in (summary.get("decision_check") or {}).items() if d.get("checked")]
+    if not rows:
+        return ""
+    return ("<p>Stopping rule on the runs to rest (decided as failed exactly when failed):</p>"
+            + _table(("case", "runs to rest checked", "agree", "failed, never decided",
+                      "decided, stood"), rows))
 
 
 def _subset(summary: dict) -> str:
@@ -242,6 +262,7 @@ def _risk_study(campaign: Path) -> str:
         m = c.get("modes") or {}
         h = c.get("slip_surface_height") or {}
         rows.append([_esc(name), _num(c.get("n")),
+                     f"{_num(c.get('n_measure', c.get('n')))} ({_num(c.get('failed_measure'))})",
                      f"{_num(c.get('p_failure'))} [{_num(w[0])}, {_num(w[1])}]",
                      f"{_num(f.get('p_fs_below_1'))} (N {_num(f.get('n'))})" if f else "-",
                      f"{_num(a.get('mean'))} ({_num(a.get('cov'), 2)})",
@@ -255,7 +276,8 @@ def _risk_study(campaign: Path) -> str:
             "moved by the mechanism time, else retrogressive. Above the base: failure-surface "
             f"height over {_num(rules.get('above_base_height_m'))} m.")
     return ("<h2>Risk study</h2><p>" + _esc(rule) + "</p>"
-            + _table(("case", "N", "P(failure) [Wilson 95 %]", "P(FS < 1)",
+            + _table(("case", "N", "run to rest: n (failed)", "P(failure) [Wilson 95 %]",
+                      "P(FS < 1)",
                       "sliding area given failure: mean (COV)",
                       "run-out given failure: mean (COV)",
                       "toe slump / translational / retrogressive",

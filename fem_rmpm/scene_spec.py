@@ -226,6 +226,9 @@ class MonteCarloSpec:
     intact_block_area: float = 1.0       # m2; least area of an intact block (measures)
     keep_vtk: int = 2                    # keep VTK output of the first k realizations
     factor_of_safety: bool = False       # strength-reduction FS of every realization first
+    runs_to_rest: int | None = None      # realizations with index >= this stop once decided
+    #                                      (fem_rmpm.campaign: "Runs stopped once decided");
+    #                                      None: every realization runs to rest
     cases: tuple[str, ...] = ()          # variants run side by side: "homogeneous", "xi=12",
     #                                      "<section.key>=<value>" (fem_rmpm.campaign.parse_case)
 

@@ -55,6 +55,7 @@ _RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "montecarlo.failure_displacement": (0, math.inf, False, False),
     "montecarlo.intact_block_area": (0, math.inf, False, False),
     "montecarlo.keep_vtk": (0, 1e9, True, True),
+    "montecarlo.runs_to_rest": (0, 1e9, True, True),
 }
 _CHOICES: dict[str, tuple[str, ...]] = {
     "boundary.left": BOUNDARY_KINDS, "boundary.right": BOUNDARY_KINDS,
@@ -109,7 +110,9 @@ def _coerce(source: str, key: str, value: Any, default: Any, annotation: str,
         if not math.isfinite(value) and lookup not in _INFINITE_OK:
             raise _fail(source, key, f"expected a finite number, got {value!r}")
         return value
-    if ann == "int":
+    if ann in ("int", "int|None"):
+        if value is None and "None" in ann:
+            return None
         if isinstance(value, bool) or not isinstance(value, int):
             raise _fail(source, key, f"expected an integer, got {value!r}")
         return value

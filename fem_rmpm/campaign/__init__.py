@@ -60,6 +60,13 @@ What a campaign is
   summary counts the failed ones.  A realization whose *worker* died is retried
   by Dask on another worker (up to ``distributed.scheduler.allowed-failures``
   times); if it is still lost, it has no record and the next run computes it.
+* **Runs stopped once decided** (:mod:`.decide`): with ``[montecarlo] runs_to_rest = K``
+  realization ``i >= K`` stops at the first output at which 1 m2 of points has moved more
+  than ``failure_displacement`` (its record: ``stop_reason = "failure decided"``, only
+  ``failed``, ``decided_time``, ``decided_area``); a run never decided so runs to rest.
+  P(failure) is over all realizations, the measures over the runs to rest with ``i < K``
+  (``measure_runs`` in the statistics).  ``runs_to_rest`` is not part of the identity:
+  a larger K reruns the decided records below it to rest.
 * **VTK** is written only for kept realizations (``--keep-vtk K``: the first K
   of each case; ``--keep-vtk 0,5,9``: those indices; default ``[montecarlo]
   keep_vtk``), to ``vtk/<case>/realization_00003/`` (``particles.pvd``,

@@ -18,6 +18,7 @@ from ..output import write_json
 from ..report import write_report
 from ..scene import Scene
 from .cases import CampaignError, Case, parse_case, realization_seed
+from .decide import decision_check, in_measure_sample, is_decided
 from .backends import ClusterSpec, campaign_backend
 from .keep_vtk import kept, parse_keep_vtk
 from .factor_of_safety import fs_statistics, plot_factor_of_safety
@@ -201,19 +202,21 @@ def _plan(scene: Scene, lay: Layout, counts: dict[str, int], keep, force: bool,
     another factor-of-safety mode is recomputed)."""
     out = lay.out
     tasks, finished = [], {}
+    k_rest = scene.montecarlo.runs_to_rest
     for i in range(max(counts.values())):
+        decide = k_rest is not None and i >= k_rest and fs_mode != "only"
         for c in lay.cases:
             if i >= counts[c.name]:
                 continue
             seed = realization_seed(scene.montecarlo.seed, i)
             rec = None if force else read_record(lay.record(c.name, i))
             if (rec is not None and rec.get("seed") == seed and rec.get("case") == c.name
-                    and rec.get("fs_mode", "off") == fs_mode):
-                finished[(c.name, i)] = rec
+                    and rec.get("fs_mode", "off") == fs_mode and (decide or not is_decided(rec))):
+                finished[(c.name, i)] = rec      # a decided record serves i >= runs_to_rest
                 continue
-            vtk = lay.vtk(c.name, i) if kept(keep, i) else None
+            vtk = lay.vtk(c.name, i) if kept(keep, i) and not decide else None
             tasks.append({"case": c.name, "index": i, "seed": seed, "scene": c.scene,
-                          "fs": fs_mode,
+                          "fs": fs_mode, "decide": decide,
                           "vtk_dir": str(vtk.resolve()) if vtk is not None else None,
                           "vtk_rel": str(vtk.relative_to(out)) if vtk is not None else None})
     return tasks, finished
@@ -275,8 +278,9 @@ def _finish(out, scene, cases, counts, lay, finished, computed, skipped, lost, d
     order = [c.name for c in cases]
     records = [r for (c, i), r in finished.items() if i < counts[c]]
     write_results(out / "results.csv", records, order)
+    k_rest = scene.montecarlo.runs_to_rest
     stats = {c.name: case_statistics([r for r in records if r["case"] == c.name],
-                                     counts[c.name]) for c in cases}
+                                     counts[c.name], k_rest) for c in cases}
     for c in cases:
         fs = fs_statistics([r for r in records if r["case"] == c.name])
         if fs is not None:
@@ -302,9 +306,13 @@ def _finish(out, scene, cases, counts, lay, finished, computed, skipped, lost, d
         "realization_cpu_time": {"mean": float(np.mean(cpus)) if cpus else None,
                                  "total": float(np.sum(cpus)) if cpus else None},
         "records_beyond_n": extra,
+        "runs_to_rest": k_rest,
+        "decision_check": {c.name: decision_check(r for r in records if r["case"] == c.name)
+                           for c in cases},
     }
     write_json(out / "summary.json", summary)
-    mpm = [r for r in records if r.get("fs_mode", "off") != "only"]   # with an MPM run
+    mpm = [r for r in records if r.get("fs_mode", "off") != "only"   # with an MPM run,
+           and in_measure_sample(r, k_rest)]                           # run to rest
     if figures and records:
         res.figures = campaign_figures(out, cases, stats, mpm, lay, scene) if mpm else []
         if any("fs" in stats[c.name] for c in cases):

@@ -7,13 +7,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .decide import in_measure_sample
 from .store import MEASURE_KEYS, RESULT_COLUMNS
 
 __all__ = ["wilson_interval", "case_statistics"]
 
 #: Measures that are settings, not results (left out of the statistics).
 _NOT_STATISTICS = ("failed", "failure_displacement", "mechanism_time", "time_to_rest",
-                   "intact_block_area")
+                   "intact_block_area", "decided_time", "decided_area")
 
 
 def wilson_interval(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
@@ -36,17 +37,21 @@ def _describe(x: np.ndarray) -> dict:
             "q05": float(q[0]), "q50": float(q[1]), "q95": float(q[2])}
 
 
-def case_statistics(rows: Sequence[dict], requested: int | None = None) -> dict:
+def case_statistics(rows: Sequence[dict], requested: int | None = None,
+                    runs_to_rest: int | None = None) -> dict:
     """Statistics of one case from its rows (``read_results`` or records), in index order.
 
     ``p_failure`` = k/N over the ``ok`` rows, ``se`` = sqrt(p (1 - p) / N) (binomial
     standard error), ``wilson95`` its Wilson score interval; for each of
     ``runout_distance``, ``retrogression_distance``, ``sliding_area``: mean, std
-    (ddof 1), se = std/sqrt(N), quantiles 5/50/95 %; ``convergence``: running
-    N, P(failure), its se and the running mean run-out, in index order."""
+    (ddof 1), se = std/sqrt(n), quantiles 5/50/95 % over the *measure sample*, the ``ok``
+    runs to rest with index < ``runs_to_rest`` (None: all; :mod:`fem_rmpm.campaign.decide`),
+    ``measure_runs`` = n of them; ``convergence``: running N, P(failure), its se, and the
+    running mean run-out over the measure sample against ``n_measure``, in index order."""
     rows = sorted(rows, key=lambda r: r["index"])
     done = [r for r in rows if r["status"] == "ok"]
     ok = [r for r in done if _measure(r, "failed") is not None]   # with an MPM run (not --fs-only)
+    sample = [r for r in ok if in_measure_sample(r, runs_to_rest)]
     n = len(ok)
     fails = np.array([bool(_measure(r, "failed")) for r in ok], dtype=float)
     k = int(fails.sum())
@@ -60,15 +65,17 @@ def case_statistics(rows: Sequence[dict], requested: int | None = None) -> dict:
         "se": math.sqrt(p * (1 - p) / n) if n else None,
         "wilson95": list(wilson_interval(k, n)) if n else None,
     }
-    for key in _statistic_names(ok):
-        out[key] = _describe(np.array([float(_measure(r, key)) for r in ok]))
+    out["runs_to_rest"], out["measure_runs"] = runs_to_rest, len(sample)
+    for key in _statistic_names(sample):
+        out[key] = _describe(np.array([float(_measure(r, key)) for r in sample]))
     if n:
         nn = np.arange(1, n + 1)
         pr = np.cumsum(fails) / nn
-        ro = np.array([float(_measure(r, "runout_distance")) for r in ok])
+        ro = np.array([float(_measure(r, "runout_distance")) for r in sample])
         out["convergence"] = {"n": nn.tolist(), "p_failure": pr.tolist(),
                               "se": np.sqrt(pr * (1 - pr) / nn).tolist(),
-                              "mean_runout": (np.cumsum(ro) / nn).tolist()}
+                              "n_measure": list(range(1, len(ro) + 1)),
+                              "mean_runout": (np.cumsum(ro) / np.arange(1, len(ro) + 1)).tolist()}
     return out
 
 

@@ -9,6 +9,7 @@ import json
 import math
 import os
 import re
+import shutil
 import socket
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,12 +17,12 @@ from typing import Any, Iterable, Sequence
 
 from .. import scene as S
 from ..measures import UNITS
-from ..output import _atomic_write_bytes
+from ..output import _atomic_write_bytes, write_json
 from ..scene import Scene, scene_to_dict
-from .cases import CampaignError, Case
+from .cases import CampaignError, Case, realization_seed
 
 __all__ = ["FORMAT", "MEASURE_KEYS", "RESULT_COLUMNS", "result_columns", "write_results",
-           "read_results"]
+           "read_results", "import_records"]
 
 FORMAT = "fem_rmpm campaign 1"
 #: The first measure columns of ``results.csv``; every other scalar measure of
@@ -33,7 +34,8 @@ MEASURE_KEYS = ("failed", "sliding_area", "runout_distance", "retrogression_dist
 RESULT_COLUMNS = ("case", "index", "seed", "status", *MEASURE_KEYS, "stop_reason", "steps",
                   "simulated_time", "particles", "frozen_points", "scheme", "error")
 #: Keys that do not change a realization (left out of the campaign identity).
-_NOT_IDENTITY = {"montecarlo": ("realizations", "keep_vtk", "cases"), "output": None,
+_NOT_IDENTITY = {"montecarlo": ("realizations", "keep_vtk", "cases", "runs_to_rest"),
+                 "output": None,
                  "scene": ("description",)}
 
 
@@ -319,3 +321,72 @@ def read_results(path: str | Path) -> list[dict]:
             rows.append(out)
     return rows
 
+
+
+# --------------------------------------------------------------------------- importing records
+
+def _src_record_path(src: Path, names: list[str], case: str, index: int) -> Path:
+    return _case_dir(src / "records", case, len(names) == 1) / _record_name(index)
+
+
+def import_records(src: Path, dst: Path, doc: dict, cases: list[Case]) -> dict[str, int]:
+    """Copy the finished records of campaign ``src`` (with their profiles and kept VTK)
+    into campaign ``dst`` of identity ``doc`` (:func:`campaign_doc` of ``cases``;
+    ``campaign.json`` is written if ``dst`` holds none), for the cases both campaigns have.
+
+    Checked first, nothing copied otherwise (:class:`CampaignError`): ``dst`` is free or
+    holds this campaign; ``src`` is a campaign of the same format and campaign seed, and
+    each common case has the same scene in both (the identity test of resuming:
+    :func:`check_directory`); neither directory is being run (locks).  Each record must
+    have the case's name, status ``ok`` and the seed of its index
+    (:func:`fem_rmpm.campaign.realization_seed`), else it is skipped.  A record ``dst``
+    already holds is kept.  Returns ``{case: records copied}``.  A realization is a pure
+    function of scene and seed, so an imported record is the one ``dst`` would compute."""
+    src, dst = Path(src), Path(dst)
+    try:
+        old = json.loads((src / "campaign.json").read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise CampaignError(f"{src}: not a readable campaign ({exc})") from None
+    if old.get("format") != FORMAT or old.get("campaign_seed") != doc["campaign_seed"]:
+        raise CampaignError(f"{src}: not a {FORMAT!r} campaign with campaign seed "
+                            f"{doc['campaign_seed']}; nothing was imported")
+    src_names = [c["name"] for c in old.get("cases", [])]
+    common = [(c, n) for c, n in zip(cases, doc["cases"]) if c.name in src_names]
+    for c, n in common:
+        diff = _first_difference(n["scene"], _strip_identity(
+            old["cases"][src_names.index(c.name)].get("scene", {})))
+        if diff:
+            raise CampaignError(f"{src}: case {c.name} has a different scene ([{diff}]); "
+                                "nothing was imported")
+    lay, copied = Layout(dst, cases), {}
+    with Lock(src), Lock(dst):
+        check_directory(dst, doc)
+        if not (dst / "campaign.json").exists():
+            write_json(dst / "campaign.json", doc)
+        for c, _ in common:
+            copied[c.name] = 0
+            for p in sorted(_case_dir(src / "records", c.name,
+                                      len(src_names) == 1).glob("realization_*.json")):
+                rec = read_record(p)
+                if (rec is None or rec.get("case") != c.name or rec.get("status") != "ok"
+                        or rec.get("seed") != realization_seed(doc["campaign_seed"],
+                                                               int(rec["index"]))
+                        or lay.record(c.name, rec["index"]).exists()):
+                    continue
+                _copy_realization(src, len(src_names) == 1, lay, rec)
+                copied[c.name] += 1
+    return copied
+
+
+def _copy_realization(src: Path, src_single: bool, lay: Layout, rec: dict) -> None:
+    """Profile and kept VTK first, the record last (a record is what marks it finished)."""
+    case, i = rec["case"], int(rec["index"])
+    prof = _case_dir(src / "profiles", case, src_single) / _record_name(i)
+    if prof.exists():
+        _atomic_write_bytes(lay.profile(case, i), prof.read_bytes())
+    if rec.get("vtk") and (src / rec["vtk"]).is_dir():
+        rel = lay.vtk(case, i).relative_to(lay.out)
+        if not lay.vtk(case, i).exists():
+            shutil.copytree(src / rec["vtk"], lay.vtk(case, i))
+        rec = {**rec, "vtk": str(rel)}
+    write_json(lay.record(case, i), rec)

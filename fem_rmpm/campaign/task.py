@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import api
 from ..run import SimulationError
+from .decide import DECIDED, FailureWatch
 from .factor_of_safety import fs_measures
 from .store import FORMAT
 
@@ -66,6 +67,8 @@ def run_realization(task: dict) -> dict:
 
     ``task``: ``case``, ``index``, ``seed``, ``scene`` (a :class:`Scene`), ``vtk_dir``
     (str or None: write VTK, ``summary.json`` and the plastic strain PNG there); optional
+    ``decide`` (True: stop once decided, :mod:`fem_rmpm.campaign.decide`; every run records
+    ``decided_time``, the first output at which that rule holds, None if never) and
     ``noise``: the random field's standard-normal noise array, in place of the seed
     (``seed`` None; subset simulation)."""
     _raise_malloc_thresholds()
@@ -92,11 +95,13 @@ def run_realization(task: dict) -> dict:
         rec["wall_time"] = time.perf_counter() - t0
         rec["cpu_time"] = time.process_time() - c0
         return rec
+    watch = FailureWatch(task["scene"].montecarlo.failure_displacement,
+                         stop=bool(task.get("decide")))
     try:
         vtk_dir = task.get("vtk_dir")
         res = api.run(task["scene"], out=vtk_dir, seed=rec["seed"], progress=False,
                       vtk=vtk_dir is not None, figures=vtk_dir is not None, force=True,
-                      noise=task.get("noise"),
+                      noise=task.get("noise"), stop_when=watch,
                       label=f"case {task['case']}, realization {task['index']} (seed {rec['seed']})")
     except Exception as exc:       # noqa: BLE001 - every failure is data, recorded
         msg = str(exc) if isinstance(exc, SimulationError) else f"{type(exc).__name__}: {exc}"
@@ -107,8 +112,12 @@ def run_realization(task: dict) -> dict:
         rec.update(steps=s["steps"], simulated_time=s["simulated_time"],
                    stop_reason=s["stop_reason"], particles=s["particles"],
                    frozen_points=s["frozen_points"]["count"],
-                   measures={**_scalar_measures(m), **fs_m},
+                   measures={**_scalar_measures(m), **fs_m, "decided_time": watch.time},
                    final_profile=m.get("final_profile"))
+        if s["stop_reason"] == DECIDED:    # stopped once decided: the outcome only
+            rec.update(steps=None, final_profile=None, measures={
+                "failed": True, "decided_time": watch.time, "decided_area": watch.moved_area,
+                "failure_displacement": m["failure_displacement"], **fs_m})
     rec["wall_time"] = time.perf_counter() - t0
     rec["cpu_time"] = time.process_time() - c0     # of the worker process (s)
     return rec
