@@ -110,3 +110,28 @@ def test_mesh_summary_pairs_by_index():
     assert m["fine"]["sliding_area_given_failure"]["mean"] == pytest.approx(130.0)
     assert m["both_failed"] == 2 and m["area_abs_difference_mean"] == pytest.approx(25.0)
     assert s.mesh_summary(coarse, []) is None
+
+
+def test_case_summary_with_runs_stopped_once_decided():
+    """With runs_to_rest = K: P(failure) over all N rows (decided ones count as failed),
+    the measures over the runs to rest with index < K only (a run to rest above K, e.g. a
+    stander of a decided campaign, is left out, so the sample stays iid); n stated; a
+    decided-only campaign is compared with the runs to rest pair by pair."""
+    s = _study()
+    decided = {"case": "xi12", "index": 3, "status": "ok", "failed": True,
+               "stop_reason": "failure decided", "decided_time": 9.0, "sliding_area": None,
+               "runout_distance": None, "retrogression_distance": None}
+    rows = [_row(0, False), _row(1, True, 200, 150, 40, 30, 0.2),
+            _row(2, True, 100, 10, 30, 10, 1.0), decided, _row(4, False)]
+    out = s.case_summary(rows, runs_to_rest=3)
+    assert out["n"] == 5 and out["failed"] == 3 and out["p_failure"] == pytest.approx(0.6)
+    assert out["decided"] == 1 and out["n_measure"] == 3 and out["failed_measure"] == 2
+    assert out["sliding_area"]["given_failure"]["mean"] == pytest.approx(150.0)
+    assert out["sliding_area"]["unconditional"]["n"] == 3
+    assert sum(out["modes"].values()) == 2
+    table = s.markdown_table({"xi12": out}, {})
+    assert "| 3 (2) |" in table
+    check = s.decided_check(rows, [{**decided, "index": 1}, {**decided, "index": 0},
+                                   {**_row(2, True), "stop_reason": "at rest"}])
+    assert check["pairs"] == 3 and check["agree"] == 2 and check["disagree"] == [0]
+    assert check["decided"] == 2

@@ -60,6 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from fem_rmpm.campaign import read_results, wilson_interval
+from fem_rmpm.campaign.decide import in_measure_sample, is_decided
 
 LAYER_THICKNESS = 5.0                   # m, normal to the bedrock
 TOE_SLUMP_RETROGRESSION = 2 * LAYER_THICKNESS   # m
@@ -96,20 +97,26 @@ def _describe(x: np.ndarray) -> dict:
             "q05": float(q[0]), "q50": float(q[1]), "q95": float(q[2])}
 
 
-def case_summary(rows: list[dict]) -> dict:
-    """Everything the study states about one case, from its ``ok`` rows."""
+def case_summary(rows: list[dict], runs_to_rest: int | None = None) -> dict:
+    """Everything the study states about one case, from its ``ok`` rows: P(failure) over
+    all of them (runs stopped once decided included), the measures over the *measure
+    sample*, the runs to rest with index < ``runs_to_rest`` (None: all;
+    ``fem_rmpm.campaign.decide``): ``n_measure`` runs, ``failed_measure`` failures."""
     ok = [r for r in rows if r.get("status") == "ok" and r.get("failed") is not None]
-    failed = [r for r in ok if r["failed"]]
-    n, k = len(ok), len(failed)
+    n, k = len(ok), sum(1 for r in ok if r["failed"])
+    sample = [r for r in ok if in_measure_sample(r, runs_to_rest)]
+    failed = [r for r in sample if r["failed"]]
     p = k / n if n else float("nan")
     out = {"n": n, "numerical_failures": len(rows) - n, "failed": k, "p_failure": p,
            "se": math.sqrt(p * (1 - p) / n) if n else None,
            "wilson95": list(wilson_interval(k, n)) if n else None,
-           "frozen_points": int(sum(r.get("excluded_frozen_points") or 0 for r in ok)),
-           "stray_points_max": int(max((r.get("excluded_stray_points") or 0 for r in ok),
+           "decided": sum(1 for r in ok if is_decided(r)), "runs_to_rest": runs_to_rest,
+           "n_measure": len(sample), "failed_measure": len(failed),
+           "frozen_points": int(sum(r.get("frozen_points") or 0 for r in ok)),
+           "stray_points_max": int(max((r.get("excluded_stray_points") or 0 for r in sample),
                                        default=0))}
     for key, _ in MEASURES:
-        out[key] = {"unconditional": _describe(np.array([r[key] for r in ok], float)),
+        out[key] = {"unconditional": _describe(np.array([r[key] for r in sample], float)),
                     "given_failure": _describe(np.array([r[key] for r in failed], float))}
     modes = [failure_mode(r) for r in failed]
     out["modes"] = {m: modes.count(m) for m in MODES}
@@ -117,10 +124,26 @@ def case_summary(rows: list[dict]) -> dict:
     out["slip_surface_height"] = _describe(h)
     out["above_base"] = int((h > ABOVE_BASE_HEIGHT).sum())
     out["intact_blocks"] = _describe(np.array([r.get("intact_blocks") or 0 for r in failed], float))
-    rest = [r.get("time_to_rest") for r in ok]
+    rest = [r.get("time_to_rest") for r in sample]
     out["not_at_rest"] = sum(1 for t in rest if t is None)
     out["time_to_rest_max"] = max((t for t in rest if t is not None), default=None)
     return out
+
+
+def decided_check(rows: list[dict], decided_rows: list[dict]) -> dict | None:
+    """A campaign of runs stopped once decided (``runs_to_rest = 0``) against the runs to
+    rest of this one, realization by realization (same index = same field): how many
+    pairs, how many agree on ``failed``, and the indices that do not."""
+    dec = {r["index"]: r for r in decided_rows
+           if r.get("status") == "ok" and r.get("failed") is not None}
+    pairs = [(r, dec[r["index"]]) for r in rows if r["index"] in dec and not is_decided(r)
+             and r.get("status") == "ok" and r.get("failed") is not None]
+    if not pairs:
+        return None
+    bad = [a["index"] for a, b in pairs if bool(a["failed"]) != bool(b["failed"])]
+    times = [b["decided_time"] for a, b in pairs if is_decided(b)]
+    return {"pairs": len(pairs), "agree": len(pairs) - len(bad), "disagree": bad,
+            "decided": len(times), "decided_time_max": max(times, default=None)}
 
 
 def fs_summary(mpm_rows: list[dict], fs_rows: list[dict]) -> dict | None:
@@ -181,24 +204,35 @@ def _label(case: str) -> str:
     return "xi = " + case[2:].lstrip("=") if case.startswith("xi") else case
 
 
-def plot_exceedance(path: Path, cases: dict[str, list[dict]]) -> Path:
-    """P(X > x) of the three measures, unconditional (top) and given failure (bottom)."""
+def _exceedance(x: np.ndarray, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Step curve (x, P(X > x)) of a sample, scaled by ``scale`` (from x = 0)."""
+    x = np.sort(x)
+    p = 1.0 - np.arange(1, len(x) + 1) / len(x)
+    return np.r_[0.0, x], scale * np.r_[1.0, p]
+
+
+def plot_exceedance(path: Path, sample: dict[str, list[dict]], summary: dict[str, dict]) -> Path:
+    """P(X > x) of the three measures, given failure (bottom: over the failures of the
+    measure sample ``sample``, the runs to rest per case) and over all realizations (top:
+    P(failure) of the case's summary, from all N, x the curve given failure; exact for x
+    above every standing realization's value)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(2, 3, figsize=(14, 8), constrained_layout=True)
     styles = ["-", "--", "-.", ":"]
     for j, (key, unit) in enumerate(MEASURES):
-        for ci, (case, rows) in enumerate(cases.items()):
-            ok = [r for r in rows if r.get("status") == "ok" and r.get("failed") is not None]
-            for i, sel in enumerate((ok, [r for r in ok if r["failed"]])):
-                x = np.sort(np.array([r[key] for r in sel], float))
-                if len(x) == 0:
-                    continue
-                p = 1.0 - np.arange(1, len(x) + 1) / len(x)
-                axes[i, j].step(np.r_[0.0, x], np.r_[1.0, p], where="post",
-                                ls=styles[ci % 4], lw=1.6, color=f"C{ci}",
-                                label=f"{_label(case)} (N = {len(x)})")
+        for ci, (case, rows) in enumerate(sample.items()):
+            s = summary[case]
+            failed = np.array([r[key] for r in rows if r.get("status") == "ok"
+                               and r.get("failed")], float)
+            if len(failed) == 0:
+                continue
+            kw = dict(where="post", ls=styles[ci % 4], lw=1.6, color=f"C{ci}")
+            axes[0, j].step(*_exceedance(failed, s["p_failure"]), **kw,
+                            label=f"{_label(case)} (P = {s['p_failure']:.3f}, N = {s['n']})")
+            axes[1, j].step(*_exceedance(failed), **kw,
+                            label=f"{_label(case)} (n = {len(failed)} failures run to rest)")
         for i, cond in enumerate(("all realizations", "given failure")):
             ax = axes[i, j]
             ax.set_xlabel(unit)
@@ -206,15 +240,15 @@ def plot_exceedance(path: Path, cases: dict[str, list[dict]]) -> Path:
             ax.set_ylim(-0.02, 1.02)
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8)
-    fig.suptitle("slope_risk: exceedance curves per case")
+    fig.suptitle("slope_risk: exceedance curves per case (top: P(failure) x bottom)")
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
 
 
 def plot_modes(path: Path, summary: dict[str, dict], cases: dict[str, list[dict]]) -> Path:
-    """Failure modes per case (stacked fractions of all realizations) and the
-    failure-surface height above the base given failure."""
+    """Failure modes per case (stacked fractions of the measure sample ``cases``, the runs
+    to rest) and the failure-surface height above the base given failure."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -222,10 +256,10 @@ def plot_modes(path: Path, summary: dict[str, dict], cases: dict[str, list[dict]
     names = list(summary)
     bottom = np.zeros(len(names))
     for m, colour in zip(MODES, ("tab:orange", "tab:blue", "tab:red")):
-        frac = np.array([summary[c]["modes"][m] / max(1, summary[c]["n"]) for c in names])
+        frac = np.array([summary[c]["modes"][m] / max(1, summary[c]["n_measure"]) for c in names])
         a1.bar([_label(c) for c in names], frac, bottom=bottom, color=colour, label=m)
         bottom += frac
-    a1.set_ylabel("fraction of realizations")
+    a1.set_ylabel("fraction of the realizations run to rest")
     a1.set_ylim(0, 1)
     a1.set_title("failure mode (rule in validation/risk_study.py); white: stands")
     a1.legend(fontsize=8)
@@ -250,12 +284,13 @@ def _pct(x: dict | None, key: str = "mean", fmt: str = "{:.1f}") -> str:
 
 
 def markdown_table(summary: dict[str, dict], fs: dict[str, dict | None]) -> str:
-    """The README's per-case table."""
-    head = ("| case | N | P(failure) | SE | Wilson 95 % | P(FS < 1) (N) | sliding area given "
-            "failure: mean (COV) | run-out given failure: mean (COV) | retrogression given "
-            "failure: mean | toe slump / translational / retrogressive | failure surface "
-            "above base: median m (n > H/6) | intact blocks |")
-    lines = [head, "|" + "---|" * 12]
+    """The README's per-case table: P(failure) over all N realizations; the measures over
+    the n realizations run to rest (the failures among them: the sample given failure)."""
+    head = ("| case | N | P(failure) | SE | Wilson 95 % | P(FS < 1) (N) | run to rest: n "
+            "(failed) | sliding area given failure: mean (COV) | run-out given failure: mean "
+            "(COV) | retrogression given failure: mean | toe slump / translational / "
+            "retrogressive | failure surface above base: median m (n > H/6) | intact blocks |")
+    lines = [head, "|" + "---|" * 13]
     for c, s in summary.items():
         a, ro, re_ = (s[k]["given_failure"] for k, _ in MEASURES)
         f = fs.get(c)
@@ -263,7 +298,8 @@ def markdown_table(summary: dict[str, dict], fs: dict[str, dict | None]) -> str:
         w = s["wilson95"] or [float("nan")] * 2
         lines.append(
             f"| {_label(c)} | {s['n']} | {s['p_failure']:.3f} | {s['se']:.3f} | "
-            f"[{w[0]:.3f}, {w[1]:.3f}] | {pfs} | {_pct(a)} m2 ({_pct(a, 'cov', '{:.2f}')}) | "
+            f"[{w[0]:.3f}, {w[1]:.3f}] | {pfs} | {s['n_measure']} ({s['failed_measure']}) | "
+            f"{_pct(a)} m2 ({_pct(a, 'cov', '{:.2f}')}) | "
             f"{_pct(ro)} m ({_pct(ro, 'cov', '{:.2f}')}) | {_pct(re_)} m | "
             f"{' / '.join(str(s['modes'][m]) for m in MODES)} | "
             f"{_pct(s['slip_surface_height'], 'q50', '{:.2f}')} ({s['above_base']}) | "
@@ -271,33 +307,68 @@ def markdown_table(summary: dict[str, dict], fs: dict[str, dict | None]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def cpu_by_run(campaign: Path) -> dict:
+    """CPU seconds of the records, split into runs to rest and runs stopped once decided,
+    with their counts (from ``records/``: ``results.csv`` holds no times)."""
+    out = {"to_rest": {"runs": 0, "cpu_s": 0.0}, "decided": {"runs": 0, "cpu_s": 0.0}}
+    for p in (campaign / "records").rglob("realization_*.json"):
+        r = json.loads(p.read_text())
+        d = out["decided" if is_decided(r) else "to_rest"]
+        d["runs"] += 1
+        d["cpu_s"] += float(r.get("cpu_time") or 0.0)
+    return out
+
+
 def study(campaign: Path, fs_dir: Path | None = None, report: bool = True,
-          mesh_dir: Path | None = None) -> dict:
-    """Read the campaign (and the FS and finer-mesh campaigns), write the study's files,
-    return its dict."""
+          mesh_dir: Path | None = None, decided_dir: Path | None = None) -> dict:
+    """Read the campaign (and the FS, finer-mesh and decided-only campaigns), write the
+    study's files, return its dict."""
     rows = read_results(campaign / "results.csv")
+    camp = json.loads((campaign / "summary.json").read_text())
+    k_rest = camp.get("runs_to_rest")
     cases = _by_case(rows)
-    summary = {c: case_summary(r) for c, r in cases.items()}
+    sample = {c: [r for r in rs if in_measure_sample(r, k_rest)] for c, rs in cases.items()}
+    summary = {c: case_summary(r, k_rest) for c, r in cases.items()}
     fs_cases = _by_case(read_results(fs_dir / "results.csv")) if fs_dir else {}
     fs = {c: fs_summary(cases[c], fs_cases.get(c, [])) for c in cases}
     mesh_cases = _by_case(read_results(mesh_dir / "results.csv")) if mesh_dir else {}
-    mesh = {c: mesh_summary(cases[c], r) for c, r in mesh_cases.items() if c in cases}
-    camp = json.loads((campaign / "summary.json").read_text())
+    mesh = {c: mesh_summary(sample[c], r) for c, r in mesh_cases.items() if c in cases}
+    dec_cases = _by_case(read_results(decided_dir / "results.csv")) if decided_dir else {}
     out = {"campaign": str(campaign), "fs_campaign": str(fs_dir) if fs_dir else None,
            "mesh_campaign": str(mesh_dir) if mesh_dir else None, "mesh_check": mesh,
+           "decided_campaign": str(decided_dir) if decided_dir else None,
+           "decided_check": {c: decided_check(cases[c], r) for c, r in dec_cases.items()
+                             if c in cases},
+           "decision_check": camp.get("decision_check"), "runs_to_rest": k_rest,
            "rules": {"toe_slump_retrogression_m": TOE_SLUMP_RETROGRESSION,
                      "translational_early_fraction": TRANSLATIONAL_EARLY_FRACTION,
                      "above_base_height_m": ABOVE_BASE_HEIGHT},
            "cpu_time_total_s": (camp.get("realization_cpu_time") or {}).get("total"),
+           "cpu_by_run": cpu_by_run(campaign),
            "cases": summary, "factor_of_safety": fs}
     (campaign / "risk_study.json").write_text(json.dumps(out, indent=1))
     (campaign / "risk_study.md").write_text(markdown_table(summary, fs))
-    plot_exceedance(campaign / "risk_exceedance.png", cases)
-    plot_modes(campaign / "risk_modes.png", summary, cases)
+    plot_exceedance(campaign / "risk_exceedance.png", sample, summary)
+    plot_modes(campaign / "risk_modes.png", summary, sample)
     if report:
         from fem_rmpm.report import write_report
         write_report(campaign)
     return out
+
+
+def import_from(src: Path, campaign: Path, scene_path: str) -> dict[str, int]:
+    """Copy the records of campaign ``src`` into ``campaign``, the directory of
+    ``fem-rmpm mc SCENE --out campaign`` (its cases from the scene's ``[montecarlo]
+    cases``), for the cases both have: ``fem_rmpm.campaign.store.import_records`` checks
+    that each has the same scene (the identity of resuming) and campaign seed and each
+    record the seed of its index.  Then the ``mc`` command computes only the rest."""
+    from fem_rmpm.campaign import parse_case
+    from fem_rmpm.campaign.store import campaign_doc, import_records
+    from fem_rmpm.cli import campaign_cases
+    from fem_rmpm.scene import load_scene
+    scene = load_scene(scene_path)
+    cases = [parse_case(c, scene) for c in campaign_cases(scene, scene_path)]
+    return import_records(src, campaign, campaign_doc(cases, scene.montecarlo.seed), cases)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -309,13 +380,28 @@ def main(argv: list[str] | None = None) -> int:
                          "xi=48 --set grid.cell=0.25 --out DIR): the mesh check")
     ap.add_argument("--run", type=int, default=None, metavar="N",
                     help="run or resume the campaign first with N realizations per case")
+    ap.add_argument("--decided", type=Path, default=None,
+                    help="a campaign of the same scene with runs_to_rest = 0 (every run "
+                         "stopped once decided): its failed against this one's runs to rest")
+    ap.add_argument("--import-from", type=Path, default=None, metavar="SRC",
+                    help="first copy the records of campaign SRC (same scene per case, "
+                         "checked) into the campaign directory (see import_from)")
     ap.add_argument("--scene", default="meshes/slope_risk.toml")
     a = ap.parse_args(argv)
+    if a.import_from is not None:
+        print(f"imported from {a.import_from}: {import_from(a.import_from, a.campaign, a.scene)}")
+        if a.run is None:
+            return 0
     if a.run is not None:
         subprocess.run([sys.executable, "-m", "fem_rmpm.cli", "mc", a.scene, "-n", str(a.run),
                         "--out", str(a.campaign)], check=True)
-    out = study(a.campaign, a.fs, mesh_dir=a.mesh)
+    out = study(a.campaign, a.fs, mesh_dir=a.mesh, decided_dir=a.decided)
     print((a.campaign / "risk_study.md").read_text())
+    print(f"measures from the runs to rest with index < {out['runs_to_rest']}; "
+          f"decision rule on the runs to rest: {out['decision_check']}")
+    for c, d in out["decided_check"].items():
+        print(f"decided-only campaign {c}: {d}")
+    print(f"CPU by run: {out['cpu_by_run']}")
     for c, m in (out["mesh_check"] or {}).items():
         if m:
             ca, fa = (m[k]["sliding_area_given_failure"] for k in ("coarse", "fine"))
