@@ -6,9 +6,23 @@ Run the campaign (resumable: re-run the same command after a kill and it goes on
 it stopped), then this script on its directory::
 
     fem-rmpm mc meshes/slope_risk.toml -n 280 --out runs/risk
-    python validation/risk_study.py runs/risk [--fs runs/risk_fs]
+    python validation/risk_study.py runs/risk [--fs runs/risk_fs] [--decided DIR]
+
+The scene sets ``[montecarlo] runs_to_rest = 60``: realizations 0..59 of each case run to
+rest, the others stop once their failure is decided (``fem_rmpm.campaign.decide``).
+P(failure) is over all N; every measure (sliding area, run-out, retrogression, modes,
+failure-surface height, blocks) is over the runs to rest with index < 60, whose failures
+are a random subsample of all failures (the realizations are iid); the unconditional
+exceedance is P(failure) x the exceedance given failure.  Each n is stated.
 
 ``--run N`` runs (or resumes) the campaign first with ``N`` realizations per random case.
+``--import-from SRC`` first copies the records of another campaign directory of the same
+scene (checked case by case as for resuming; e.g. runs made with ``--set grid.cell=0.25``
+before the file had that cell, or a decided-only campaign) into the campaign directory,
+so that ``fem-rmpm mc`` then computes only the rest.
+``--decided DIR``: a campaign of the same scene with ``--set montecarlo.runs_to_rest=0``
+(every run stopped once decided): its ``failed`` against this campaign's runs to rest,
+realization by realization (the check that stopping once decided changes no outcome).
 ``--mesh DIR``: the mesh check, a campaign of the first realizations of a case on a finer
 mesh (``fem-rmpm mc meshes/slope_risk.toml -n 20 --case xi=48 --set grid.cell=0.25 --out
 DIR``); realization i has the same random field on both meshes because the scene fixes
