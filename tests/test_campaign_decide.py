@@ -72,6 +72,7 @@ def test_measure_sample_is_the_runs_to_rest_below_k():
     rows[4].update(stop_reason=DECIDED, sliding_area=None, runout_distance=None)
     st = mc.case_statistics(rows, 6, runs_to_rest=3)
     assert st["p_failure"] == pytest.approx(3 / 6) and st["mpm_runs"] == 6
+    assert st["runs_to_rest"] == 3
     assert st["measure_runs"] == 3 and st["sliding_area"]["mean"] == pytest.approx(1.0)
     assert st["convergence"]["n_measure"] == [1, 2, 3] and len(st["convergence"]["n"]) == 6
 

@@ -63,7 +63,8 @@ ROOT = Path(__file__).resolve().parents[1]
 TARGETS: dict[str, tuple[list[str], list[str]]] = {
     "statistics": (["fem_rmpm/campaign/statistics.py"],
                    ["tests/test_montecarlo.py::test_statistics_standard_error_and_wilson_interval",
-                    "tests/test_statistics.py"]),
+                    "tests/test_statistics.py",
+                    "tests/test_campaign_decide.py::test_measure_sample_is_the_runs_to_rest_below_k"]),
     "measures": (["fem_rmpm/measures.py"],
                  ["tests/test_measures.py", "tests/test_measures_details.py",
                   "tests/test_measures_reference.py", "-k",
