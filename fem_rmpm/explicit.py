@@ -161,7 +161,10 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                       float(flip), bool(geostatic), shape == "gimp", bool(fbar), int(threads),
                       w.model)
     # 1. map to nodes: mass, momentum and force (locate + shape + scatter, one pass)
-    call(K.map_to_nodes_parallel if threads > 1 else K.map_to_nodes, P, M, N, S, o)
+    if threads > 1:     # (the threaded loop takes the nodes' half apart: kernels.transfer)
+        call(K.map_to_nodes_parallel, P, M, N._replace(half=None), N.half, S, o)
+    else:
+        call(K.map_to_nodes, P, M, N, S, o)
     # 2. solve on the mesh: momentum balance on the active nodes
     ke = call(K.solve_on_mesh, M, N, o)
     # 3. update the points: move, (MUSL) re-map momentum, update stress

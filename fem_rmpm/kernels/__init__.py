@@ -51,6 +51,9 @@ def update_points(P: PointArrays, M: Mesh, N: NodeArrays, S: Scratch, o: StepOpt
     """Stage 3: move the points, MUSL re-map, then the stress update.  Returns the largest
     |v_pic| (m/s), the motion as the grid sees it.  ``call(kernel, *args)`` runs a kernel
     (e.g. :meth:`.Workspace.call`)."""
-    vmax = call(g2p_parallel if o.threads > 1 else g2p, P, M, N, S, o)   # + nodal velocity
+    if o.threads > 1:                # + nodal velocity
+        vmax = call(g2p_parallel, P, M, N._replace(half=None), N.half, S, o)
+    else:
+        vmax = call(g2p, P, M, N, S, o)
     update_stress(P, M, N, S, o, call)
     return vmax

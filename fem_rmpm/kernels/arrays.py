@@ -22,8 +22,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import typeof
 
-from .common import SERIAL_TWIN
-
 __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Workspace",
            "mesh_of", "point_arrays", "scratch_for"]
 
@@ -117,9 +115,6 @@ class Workspace:
         if entry is not None:
             return entry(*args)
         sig = tuple(typeof(a) for a in args)
-        twin = SERIAL_TWIN.get(kernel)
-        if twin is not None:         # load (or compile) the serial twin first (common.py)
-            twin.compile(sig)
         result = kernel(*args)
         cres = kernel.overloads.get(sig)
         if cres is not None:

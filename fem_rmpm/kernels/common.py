@@ -11,23 +11,15 @@ jit = njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
 # ns per point, measured).  A kernel that allocated would fail to compile, not misbehave.
 kernel = njit(cache=True, fastmath=False, nogil=True, error_model="numpy", _nrt=False)
 inline = njit(inline="always", fastmath=False, error_model="numpy")
-# The same loops compiled for several threads: per-point loops written with ``prange``
-# (plain ``range`` in the serial compile), so the parallel version computes every point
-# with the same arithmetic and gives bitwise the serial result.
+# The threaded drivers: a ``prange`` loop over chunks of the points whose body calls a
+# compiled (``kernel``) chunk function, the same one the serial kernel runs, so every point
+# is computed with the same arithmetic and the result is bitwise the serial one.  The loop
+# body is a call, not the per-point code itself: numba 0.68's parfor array analysis
+# crashed on those bodies inline (IndexError in array_analysis._gen_shape_call), and the
+# threaded loop takes no nested named tuple (pass ``N._replace(half=None)`` and ``N.half``).
+# A threaded driver must be a Python function of its own: numba names its cache files
+# after the function's qualified name and its cache key does not contain the ``parallel``
+# flag, so a serial and a parallel compile of ONE function share one cache entry and
+# whichever compiled first is loaded by both (the threaded kernels had run serial that way).
 kernel_parallel = njit(cache=True, fastmath=False, nogil=True, error_model="numpy", _nrt=False,
                        parallel=True)
-
-
-#: parallel dispatcher -> its serial twin (same loop).  numba's parfor array analysis
-#: crashed (IndexError in array_analysis._gen_shape_call) when a parallel twin was compiled
-#: in a process that had not yet compiled or loaded its serial twin (a fresh cache with
-#: ``threads > 1`` from the first step); with the serial twin loaded first it compiles.
-#: :meth:`fem_rmpm.kernels.arrays.Workspace.call` loads the twin first.
-SERIAL_TWIN: dict = {}
-
-
-def serial_and_parallel(py_func):
-    """``(serial, parallel)`` compiled versions of one per-point loop."""
-    serial, parallel = kernel(py_func), kernel_parallel(py_func)
-    SERIAL_TWIN[parallel] = serial
-    return serial, parallel

@@ -18,9 +18,9 @@ from __future__ import annotations
 import math
 
 from .basis import gimp, q4, q4_at
-from numba import prange
+from numba import get_num_threads, prange
 
-from .common import inline, kernel, serial_and_parallel
+from .common import inline, kernel, kernel_parallel
 
 __all__ = ["exp_args_pass", "trial_pass", "kinematics_pass", "fbar_gradient_pass",
            "fbar_apply_pass", "log_sym2_from", "exp_args_pass_parallel",
@@ -168,12 +168,14 @@ def exp_args_into(i, ls, S):
     S.tc[i] = b
 
 
-def _exp_args_loop(P, S):
-    """Pass 0: ``ta``, ``tb`` = 2 m, y of the current log strains (for exp, expm1); tc = y.
-    The step computes them in :func:`fem_rmpm.kernels.transfer.g2p` instead (the same
-    values for the active points); this pass is the stage alone (benchmark, tests)."""
+@inline
+def _exp_args_points(P, S, start, stop):
+    """Pass 0 over points ``start:stop``: ``ta``, ``tb`` = 2 m, y of the current log
+    strains (for exp, expm1); tc = y.  The step computes them in
+    :func:`fem_rmpm.kernels.transfer.g2p` instead (the same values for the active points);
+    this pass is the stage alone (benchmark, tests)."""
     ls, ta, tb = P.log_strain, S.ta, S.tb
-    for i in prange(ls.shape[0]):
+    for i in range(start, stop):
         if P.active[i]:
             exp_args_into(i, ls, S)
         else:
@@ -196,13 +198,15 @@ def trial_pass(dF, log_strain, active, ta, tb, tc, W):
             log_strain[i, 3], ta[i], tb[i], tc[i])
 
 
-def _kinematics_loop(P, M, N, S, o):
-    """Pass 1: velocity gradient at the positions before the move.  Geostatic: ``W[i]`` =
-    the small-strain trial strain.  Finite strain: Hughes-Winget increment dF, F <- dF F,
-    V <- det(dF) V, and b_tr from ``ta``, ``tb`` = exp(2 m), expm1(y) of the current
-    log strain (``W``, ``ta``, ``tb`` then hold the log / arctanh arguments)."""
+@inline
+def _kinematics_points(P, M, N, S, o, start, stop):
+    """Pass 1 over points ``start:stop``: velocity gradient at the positions before the
+    move.  Geostatic: ``W[i]`` = the small-strain trial strain.  Finite strain:
+    Hughes-Winget increment dF, F <- dF F, V <- det(dF) V, and b_tr from ``ta``, ``tb`` =
+    exp(2 m), expm1(y) of the current log strain (``W``, ``ta``, ``tb`` then hold the log /
+    arctanh arguments)."""
     dt, ls, vn = o.dt, P.log_strain, N.v_remap
-    for i in prange(ls.shape[0]):
+    for i in range(start, stop):
         if not P.active[i]:
             S.ta[i] = 1.0
             S.tb[i] = 0.0
@@ -256,12 +260,14 @@ def fbar_gradient_pass(P, M, N, S, o):
         cvj[c] += vol[i] * j
 
 
-def _fbar_apply_loop(P, S, o):
-    """F-bar pass 2: the cell mean replaces each point's volume change.  Finite strain:
-    dF_bar = (dJ_bar / dJ)^(1/2) dF, then F, V and b_tr as :func:`kinematics_pass`;
-    geostatic (B-bar): grad(du) + 1/2 (mean tr - tr) I, the trial strain into ``W``."""
+@inline
+def _fbar_apply_points(P, S, o, start, stop):
+    """F-bar pass 2 over points ``start:stop``: the cell mean replaces each point's volume
+    change.  Finite strain: dF_bar = (dJ_bar / dJ)^(1/2) dF, then F, V and b_tr as
+    :func:`kinematics_pass`; geostatic (B-bar): grad(du) + 1/2 (mean tr - tr) I, the trial
+    strain into ``W``."""
     ls, D = P.log_strain, S.D
-    for i in prange(D.shape[0]):
+    for i in range(start, stop):
         if not P.active[i]:
             S.ta[i] = 1.0
             S.tb[i] = 0.0
@@ -279,7 +285,58 @@ def _fbar_apply_loop(P, S, o):
         _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, P, S)
 
 
-# serial and multi-threaded compiles of the per-point passes (bitwise the same result)
-exp_args_pass, exp_args_pass_parallel = serial_and_parallel(_exp_args_loop)
-kinematics_pass, kinematics_pass_parallel = serial_and_parallel(_kinematics_loop)
-fbar_apply_pass, fbar_apply_pass_parallel = serial_and_parallel(_fbar_apply_loop)
+# --------------------------------------------------------------------- serial and threaded passes
+# Each pass: a serial kernel over all points (the loop starts at the constant 0: LLVM then
+# drops the negative-index checks), a compiled chunk ``start:stop`` and a threaded driver
+# calling that chunk from a ``prange`` loop (numba's parfor analysis crashed on these loop
+# bodies written inline in the ``prange`` loop).  Every point is computed with the same
+# arithmetic in all three, so any thread count gives bitwise the serial result.
+@kernel
+def exp_args_pass(P, S):
+    _exp_args_points(P, S, 0, P.log_strain.shape[0])
+
+
+@kernel
+def _exp_args_chunk(P, S, start, stop):
+    _exp_args_points(P, S, start, stop)
+
+
+@kernel_parallel
+def exp_args_pass_parallel(P, S):
+    n, nch = P.log_strain.shape[0], max(1, min(get_num_threads(), 64))
+    for c in prange(nch):
+        _exp_args_chunk(P, S, c * n // nch, (c + 1) * n // nch)
+
+
+@kernel
+def kinematics_pass(P, M, N, S, o):
+    _kinematics_points(P, M, N, S, o, 0, P.log_strain.shape[0])
+
+
+@kernel
+def _kinematics_chunk(P, M, N, S, o, start, stop):
+    _kinematics_points(P, M, N, S, o, start, stop)
+
+
+@kernel_parallel
+def kinematics_pass_parallel(P, M, N, S, o):
+    n, nch = P.log_strain.shape[0], max(1, min(o.threads, 64))
+    for c in prange(nch):
+        _kinematics_chunk(P, M, N, S, o, c * n // nch, (c + 1) * n // nch)
+
+
+@kernel
+def fbar_apply_pass(P, S, o):
+    _fbar_apply_points(P, S, o, 0, S.D.shape[0])
+
+
+@kernel
+def _fbar_apply_chunk(P, S, o, start, stop):
+    _fbar_apply_points(P, S, o, start, stop)
+
+
+@kernel_parallel
+def fbar_apply_pass_parallel(P, S, o):
+    n, nch = S.D.shape[0], max(1, min(o.threads, 64))
+    for c in prange(nch):
+        _fbar_apply_chunk(P, S, o, c * n // nch, (c + 1) * n // nch)

@@ -18,7 +18,7 @@ from numba import prange
 
 from ..materials import registry
 from ..materials.dispatch import point_dispatch
-from .common import SERIAL_TWIN, inline, jit, kernel, kernel_parallel
+from .common import inline, jit, kernel, kernel_parallel
 from .strain import (fbar_apply_pass, fbar_apply_pass_parallel, fbar_gradient_pass,
                      kinematics_pass, kinematics_pass_parallel, log_sym2_from, trial_pass)
 
@@ -68,7 +68,6 @@ def _make_finish_pass(version, only):
         for c in prange(nch):
             finish_chunk(P, M, S, o, c * n // nch, (c + 1) * n // nch, parts[c])
         _combine(S, nch)
-    SERIAL_TWIN[finish_pass_parallel] = finish_pass
     return finish_pass, finish_pass_parallel
 
 
@@ -189,7 +188,8 @@ def update_stress(P, M, N, S, o, call=_direct) -> None:
             call(fbar_gradient_pass, P, M, N, S, o)
             call(fbar_apply_pass_parallel if par else fbar_apply_pass, P, S, o)
         else:
-            call(kinematics_pass_parallel if par else kinematics_pass, P, M, N, S, o)
+            call(kinematics_pass_parallel if par else kinematics_pass, P, M,
+                 N._replace(half=None) if par else N, S, o)
         if not o.geostatic:
             np.log(S.ta, out=S.ta)
             np.arctanh(S.tb, out=S.tb)

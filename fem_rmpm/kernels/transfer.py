@@ -21,8 +21,9 @@ import math
 
 from numba import prange
 
+from .arrays import NodeArrays
 from .basis import gimp, q4_at, q4_cell
-from .common import MASS_TOL, inline, kernel, serial_and_parallel
+from .common import MASS_TOL, inline, kernel, kernel_parallel
 from .strain import exp_args_into
 
 __all__ = ["map_to_nodes", "solve_on_mesh", "g2p", "map_to_nodes_parallel", "g2p_parallel"]
@@ -91,9 +92,9 @@ def _scatter_points(P, M, N, S, o, start, stop):
 
 
 @inline
-def _add_half(N):
-    """``N += N.half`` at the nodes the second half touched (they join the touched list)."""
-    H = N.half
+def _add_half(N, H):
+    """``N += H`` (the second half's sums) at the nodes ``H`` touched (they join the
+    touched list of ``N``)."""
     nt = N.n_touched[0]
     for k in range(H.n_touched[0]):
         a = H.touched[k]
@@ -109,24 +110,54 @@ def _add_half(N):
     N.n_touched[0] = nt
 
 
-def _map_to_nodes_loop(P, M, N, S, o):
+@inline
+def _top(N):
+    """``N`` without its ``half`` (the threads' loop takes no nested groups)."""
+    return NodeArrays(N.m, N.p, N.f, N.v_new, N.acc, N.v_remap, N.flag, N.touched, N.n_touched,
+                      None)
+
+
+@kernel
+def _map_half(P, M, T, H, S, o, c):
+    """Half ``c`` (0: points ``:n // 2`` into ``T``; 1: the rest into ``H``, the nodes'
+    ``half``), after clearing those arrays at the nodes of the previous step.  The two
+    halves touch disjoint arrays, so they can run at the same time (a compiled function,
+    called from the threads' loop: numba's parfor analysis crashed on this body inline)."""
+    n = P.x.shape[0]
+    if c == 0:
+        _clear(T)
+        _scatter_points(P, M, T, S, o, 0, n // 2)
+    else:
+        _clear(H)
+        _scatter_points(P, M, H, S, o, n // 2, n)
+
+
+@kernel
+def _add_half_pass(N, H):
+    _add_half(N, H)
+
+
+@kernel
+def map_to_nodes(P, M, N, S, o):
     """Stage 1: nodal mass, momentum and force (gravity + stress divergence) from the
     active points; the touched nodes are listed in ``N.touched[:N.n_touched[0]]`` (flag 1).
     The nodes of the previous step are cleared first.  Two halves of the points, summed
     in a fixed order (module docstring).  Q4: the points' cells into ``S`` (reused by
     :func:`g2p` and the kinematics pass, which so skip locating the points again)."""
-    _clear(N)
-    _clear(N.half)
-    n = P.x.shape[0]
+    T = _top(N)
+    _map_half(P, M, T, N.half, S, o, 0)
+    _map_half(P, M, T, N.half, S, o, 1)
+    _add_half(T, N.half)
+
+
+@kernel_parallel
+def map_to_nodes_parallel(P, M, T, H, S, o):
+    """:func:`map_to_nodes` with the two halves on two threads (bitwise the same):
+    ``T`` the nodes' arrays without ``half`` (``N._replace(half=None)``), ``H`` =
+    ``N.half`` (numba's threaded loop does not take a nested group)."""
     for c in prange(2):
-        if c == 0:
-            _scatter_points(P, M, N, S, o, 0, n // 2)
-        else:
-            _scatter_points(P, M, N.half, S, o, n // 2, n)
-    _add_half(N)
-
-
-map_to_nodes, map_to_nodes_parallel = serial_and_parallel(_map_to_nodes_loop)
+        _map_half(P, M, T, H, S, o, c)
+    _add_half_pass(T, H)
 
 
 # --------------------------------------------------------------------- 2. solve on the mesh
@@ -224,35 +255,59 @@ def _clear_remap(N):
         N.v_remap[a, 1] = 0.0
 
 
-def _g2p_loop(P, M, N, S, o):
+@kernel
+def _g2p_half(P, M, T, H, S, o, c):
+    """Half ``c`` of the points (as :func:`_map_half`): the re-mapped momenta into
+    ``T.v_remap`` (c = 0) or ``H.v_remap`` (cleared first); max |v_pic|^2 into
+    ``S.parts[c, 1]``."""
+    n = P.x.shape[0]
+    if c == 0:
+        _clear_remap(T)
+        S.parts[0, 1] = _g2p_points(P, M, T, T.v_remap, S, o, 0, n // 2)
+    else:
+        _clear_remap(H)
+        S.parts[1, 1] = _g2p_points(P, M, T, H.v_remap, S, o, n // 2, n)
+
+
+@kernel
+def _nodal_velocity_pass(M, T, H, S):
+    _nodal_velocity(M, T, H)
+    return math.sqrt(max(S.parts[0, 1], S.parts[1, 1]))
+
+
+@kernel
+def g2p(P, M, N, S, o):
     """Stage 3a: FLIP/PIC point velocities, positions (geostatic: ``P.u_geo`` instead),
     and the MUSL re-map of the new point momenta into ``N.v_remap`` (active nodes; the
     two halves of the points summed as in :func:`map_to_nodes`), then (3b) the re-mapped
-    nodal velocities ``v_remap / m`` in the same kernel (one pass over the nodes).  The positions before
-    the move are kept in ``S.x_old`` for the stress update; finite strain: ``S.ta``,
-    ``S.tb``, ``S.tc`` = the exp / expm1 arguments of the log strain (as
+    nodal velocities ``v_remap / m`` in the same kernel (one pass over the nodes).  The
+    positions before the move are kept in ``S.x_old`` for the stress update; finite
+    strain: ``S.ta``, ``S.tb``, ``S.tc`` = the exp / expm1 arguments of the log strain (as
     :func:`fem_rmpm.kernels.strain.exp_args_pass`; here, not in a pass of their own, to
     save a pass over the points: ~2 ns per point-step).  Returns the largest |v_pic|
     (the motion as the grid sees it)."""
-    H = N.half
-    _clear_remap(N)
-    _clear_remap(H)
-    n = P.x.shape[0]
-    parts = S.parts
+    T = _top(N)
+    _g2p_half(P, M, T, N.half, S, o, 0)
+    _g2p_half(P, M, T, N.half, S, o, 1)
+    _nodal_velocity(M, T, N.half)
+    return math.sqrt(max(S.parts[0, 1], S.parts[1, 1]))
+
+
+@kernel_parallel
+def g2p_parallel(P, M, T, H, S, o):
+    """:func:`g2p` with the two halves on two threads (bitwise the same); ``T``, ``H`` as
+    :func:`map_to_nodes_parallel`."""
     for c in prange(2):
-        if c == 0:
-            parts[0, 1] = _g2p_points(P, M, N, N.v_remap, S, o, 0, n // 2)
-        else:
-            parts[1, 1] = _g2p_points(P, M, N, H.v_remap, S, o, n // 2, n)
-    _nodal_velocity(M, N)
-    return math.sqrt(max(parts[0, 1], parts[1, 1]))
+        _g2p_half(P, M, T, H, S, o, c)
+    return _nodal_velocity_pass(M, T, H, S)
 
 
 @inline
-def _nodal_velocity(M, N):
-    """Stage 3b on the active nodes: the second half's re-mapped momenta added (at the
-    nodes it touched, ``N.half.flag``), then velocities ``v_remap / m`` in place (fixed: 0)."""
-    m, p2, fixed, H = N.m, N.v_remap, M.fixed, N.half
+def _nodal_velocity(M, N, H):
+    """Stage 3b on the active nodes: the second half's re-mapped momenta ``H.v_remap``
+    added (at the nodes it touched, ``H.flag``), then velocities ``v_remap / m`` in place
+    (fixed: 0)."""
+    m, p2, fixed = N.m, N.v_remap, M.fixed
     for k in range(N.n_touched[0]):
         a = N.touched[k]
         if H.flag[a]:
@@ -261,6 +316,3 @@ def _nodal_velocity(M, N):
         ma = m[a] if m[a] > MASS_TOL else 1.0
         for c in range(2):
             p2[a, c] = 0.0 if fixed[a, c] else p2[a, c] / ma
-
-
-g2p, g2p_parallel = serial_and_parallel(_g2p_loop)
