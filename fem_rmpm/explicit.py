@@ -161,12 +161,14 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                       float(flip), bool(geostatic), shape == "gimp", bool(fbar), int(threads),
                       w.model)
     # 1. map to nodes: mass, momentum and force (locate + shape + scatter, one pass)
+    # 2. solve on the mesh: momentum balance on the active nodes
     if threads > 1:     # (the threaded loop takes the nodes' half apart: kernels.transfer)
-        call(K.map_to_nodes_parallel, P, M, N._replace(half=None), N.half, S, o)
+        T = N._replace(half=None)
+        call(K.map_to_nodes_parallel, P, M, T, N.half, S, o)
+        ke = call(K.solve_on_mesh_parallel, M, T, o, S)
     else:
         call(K.map_to_nodes, P, M, N, S, o)
-    # 2. solve on the mesh: momentum balance on the active nodes
-    ke = call(K.solve_on_mesh, M, N, o)
+        ke = call(K.solve_on_mesh, M, N, o)
     # 3. update the points: move, (MUSL) re-map momentum, update stress
     vmax = K.update_points(P, M, N, S, o, call)
     out = S.out

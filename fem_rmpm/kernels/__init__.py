@@ -37,10 +37,12 @@ from .arrays import (Mesh, NodeArrays, PointArrays, Scratch, StepOptions, Worksp
 from .basis import gimp_shape, q4_shape
 from .stress import (_direct, material_kernels, small_strain_update_points, stress_update_points,
                      update_stress)
-from .transfer import g2p, g2p_parallel, map_to_nodes, map_to_nodes_parallel, solve_on_mesh
+from .transfer import (g2p, g2p_parallel, map_to_nodes, map_to_nodes_parallel, solve_on_mesh,
+                       solve_on_mesh_parallel)
 
 __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Workspace",
            "mesh_of", "point_arrays", "map_to_nodes", "map_to_nodes_parallel", "solve_on_mesh",
+           "solve_on_mesh_parallel",
            "update_points", "g2p", "g2p_parallel", "update_stress", "material_kernels", "q4_shape",
            "gimp_shape",
            "stress_update_points", "small_strain_update_points"]

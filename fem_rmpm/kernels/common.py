@@ -21,5 +21,10 @@ inline = njit(inline="always", fastmath=False, error_model="numpy")
 # after the function's qualified name and its cache key does not contain the ``parallel``
 # flag, so a serial and a parallel compile of ONE function share one cache entry and
 # whichever compiled first is loaded by both (the threaded kernels had run serial that way).
+# One ``prange`` loop per threaded function: numba fuses two ``prange`` loops of the same
+# length into one when it sees no dependency between them, and it cannot see into the
+# chunk calls (g2p's nodal velocities ran before the other half's re-map had finished
+# that way).  ``parallel={"fusion": False}`` does not stop it: numba 0.68 pops the key
+# from the options dict that all dispatchers of this decorator share, at the first compile.
 kernel_parallel = njit(cache=True, fastmath=False, nogil=True, error_model="numpy", _nrt=False,
                        parallel=True)

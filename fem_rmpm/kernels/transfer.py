@@ -26,7 +26,8 @@ from .basis import gimp, q4_at, q4_cell
 from .common import MASS_TOL, inline, kernel, kernel_parallel
 from .strain import exp_args_into
 
-__all__ = ["map_to_nodes", "solve_on_mesh", "g2p", "map_to_nodes_parallel", "g2p_parallel"]
+__all__ = ["map_to_nodes", "solve_on_mesh", "g2p", "map_to_nodes_parallel", "solve_on_mesh_parallel",
+           "g2p_parallel"]
 
 
 # --------------------------------------------------------------------- 1. map to nodes
@@ -161,14 +162,13 @@ def map_to_nodes_parallel(P, M, T, H, S, o):
 
 
 # --------------------------------------------------------------------- 2. solve on the mesh
-@kernel
-def solve_on_mesh(M, N, o):
-    """Stage 2 on the active nodes: ``N.v_new`` and ``N.acc`` (lumped mass, Cundall damping
-    ``f - damping |f| sign(v)``, fixed components zero).  Returns the grid kinetic energy."""
+@inline
+def _solve_nodes(M, N, o, k0, k1):
+    """Stage 2 on the active nodes ``N.touched[k0:k1]``; returns their sum of m |v|^2."""
     m, p, f, v_new, acc, fixed = N.m, N.p, N.f, N.v_new, N.acc, M.fixed
     dt, damping = o.dt, o.damping
     ke = 0.0
-    for k in range(N.n_touched[0]):
+    for k in range(k0, k1):
         a = N.touched[k]
         has = m[a] > MASS_TOL
         inv_m = 1.0 / m[a] if has else 0.0
@@ -185,7 +185,34 @@ def solve_on_mesh(M, N, o):
             acc[a, c] = ac
             v_new[a, c] = vo + ac * dt
         ke += m[a] * (v_new[a, 0] * v_new[a, 0] + v_new[a, 1] * v_new[a, 1])
-    return 0.5 * ke
+    return ke
+
+
+@kernel
+def _solve_half(M, T, o, c, part):
+    """Half ``c`` of the active nodes; their sum of m |v|^2 into ``part[2]``."""
+    nt = T.n_touched[0]
+    part[2] = _solve_nodes(M, T, o, c * nt // 2, (c + 1) * nt // 2)
+
+
+@kernel
+def solve_on_mesh(M, N, o):
+    """Stage 2 on the active nodes: ``N.v_new`` and ``N.acc`` (lumped mass, Cundall damping
+    ``f - damping |f| sign(v)``, fixed components zero).  Returns the grid kinetic energy,
+    summed over two halves of the active nodes and added (as the threaded version)."""
+    T = _top(N)
+    nt = T.n_touched[0]
+    return 0.5 * (_solve_nodes(M, T, o, 0, nt // 2) + _solve_nodes(M, T, o, nt // 2, nt))
+
+
+@kernel_parallel
+def solve_on_mesh_parallel(M, T, o, S):
+    """:func:`solve_on_mesh` with the two halves of the active nodes on two threads (their
+    sums in ``S.parts[:2, 2]``; bitwise the same); ``T`` as :func:`map_to_nodes_parallel`."""
+    parts = S.parts
+    for c in prange(2):
+        _solve_half(M, T, o, c, parts[c])
+    return 0.5 * (parts[0, 2] + parts[1, 2])
 
 
 # --------------------------------------------------------------------- 3. update the points
@@ -270,9 +297,16 @@ def _g2p_half(P, M, T, H, S, o, c):
 
 
 @kernel
-def _nodal_velocity_pass(M, T, H, S):
-    _nodal_velocity(M, T, H)
-    return math.sqrt(max(S.parts[0, 1], S.parts[1, 1]))
+def _nodal_velocity_half(M, T, H, c):
+    nt = T.n_touched[0]
+    _nodal_velocity(M, T, H, c * nt // 2, (c + 1) * nt // 2)
+
+
+@kernel_parallel
+def _nodal_velocity_parallel(M, T, H):
+    """The nodal velocities, two halves of the active nodes on two threads."""
+    for c in prange(2):
+        _nodal_velocity_half(M, T, H, c)
 
 
 @kernel
@@ -289,7 +323,7 @@ def g2p(P, M, N, S, o):
     T = _top(N)
     _g2p_half(P, M, T, N.half, S, o, 0)
     _g2p_half(P, M, T, N.half, S, o, 1)
-    _nodal_velocity(M, T, N.half)
+    _nodal_velocity(M, T, N.half, 0, T.n_touched[0])
     return math.sqrt(max(S.parts[0, 1], S.parts[1, 1]))
 
 
@@ -299,16 +333,17 @@ def g2p_parallel(P, M, T, H, S, o):
     :func:`map_to_nodes_parallel`."""
     for c in prange(2):
         _g2p_half(P, M, T, H, S, o, c)
-    return _nodal_velocity_pass(M, T, H, S)
+    _nodal_velocity_parallel(M, T, H)      # (a prange loop here would be fused: common.py)
+    return math.sqrt(max(S.parts[0, 1], S.parts[1, 1]))
 
 
 @inline
-def _nodal_velocity(M, N, H):
-    """Stage 3b on the active nodes: the second half's re-mapped momenta ``H.v_remap``
-    added (at the nodes it touched, ``H.flag``), then velocities ``v_remap / m`` in place
-    (fixed: 0)."""
+def _nodal_velocity(M, N, H, k0, k1):
+    """Stage 3b on the active nodes ``N.touched[k0:k1]``: the second half's re-mapped
+    momenta ``H.v_remap`` added (at the nodes it touched, ``H.flag``), then velocities
+    ``v_remap / m`` in place (fixed: 0)."""
     m, p2, fixed = N.m, N.v_remap, M.fixed
-    for k in range(N.n_touched[0]):
+    for k in range(k0, k1):
         a = N.touched[k]
         if H.flag[a]:
             p2[a, 0] += H.v_remap[a, 0]
