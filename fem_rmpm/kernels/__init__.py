@@ -28,7 +28,10 @@ load; ``validation/bench_explicit.py`` measures it; :mod:`fem_rmpm.numba_cache` 
 every compiled source file).  Threads (``StepOptions.threads`` > 1): the per-point passes
 run with ``prange`` and the two scatters sum two fixed halves of the points
 (:mod:`.transfer`), so any thread count gives bitwise the single-thread result; a Monte
-Carlo campaign runs one thread per realization.
+Carlo campaign runs one thread per realization.  Each threaded kernel is a function of
+its own whose ``prange`` body calls the compiled half or chunk the serial kernel calls
+(:mod:`.common` says why); solve on the mesh and the nodal velocities run as two fixed
+halves of the active nodes.
 """
 from __future__ import annotations
 
