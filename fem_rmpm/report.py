@@ -282,7 +282,22 @@ def _risk_study(campaign: Path) -> str:
                       "run-out given failure: mean (COV)",
                       "toe slump / translational / retrogressive",
                       "failure-surface height: median m (n above base)"), rows)
-            + _mesh_check(study))
+            + _decided_check(study) + _mesh_check(study))
+
+
+def _decided_check(study: dict) -> str:
+    """A decided-only campaign against the runs to rest, pair by pair, when the study has it."""
+    rows = [[_esc(name), _num(d.get("pairs")), _num(d.get("agree")),
+             _esc(", ".join(map(str, d.get("disagree") or [])) or "none"),
+             _num(d.get("decided_time_max"))]
+            for name, d in (study.get("decided_check") or {}).items() if d]
+    if not rows:
+        return ""
+    return ("<h3>Runs stopped once decided against the runs to rest</h3><p>The same "
+            "realizations in a campaign with every run stopped once decided ("
+            + _esc(study.get("decided_campaign") or "") + ").</p>"
+            + _table(("case", "pairs", "same failed", "indices that differ",
+                      "latest decision (s)"), rows))
 
 
 def _mesh_check(study: dict) -> str:

@@ -135,3 +135,17 @@ def test_case_summary_with_runs_stopped_once_decided():
                                    {**_row(2, True), "stop_reason": "at rest"}])
     assert check["pairs"] == 3 and check["agree"] == 2 and check["disagree"] == [0]
     assert check["decided"] == 2
+
+
+def test_report_shows_the_decided_check(tmp_path):
+    """report.html's risk study shows the decided-only campaign against the runs to rest."""
+    import json
+    from fem_rmpm.report import report_html
+    (tmp_path / "summary.json").write_text('{"scene": "slope_risk", "cases": []}')
+    (tmp_path / "risk_study.json").write_text(json.dumps(
+        {"rules": {}, "cases": {}, "decided_campaign": "runs/decided",
+         "decided_check": {"xi12": {"pairs": 60, "agree": 59, "disagree": [7],
+                                    "decided_time_max": 18.0}}}))
+    page = report_html(tmp_path)
+    assert "Runs stopped once decided against the runs to rest" in page
+    assert "runs/decided" in page and "<td>59</td><td>7</td><td>18</td>" in page
