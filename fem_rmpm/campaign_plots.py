@@ -65,7 +65,7 @@ def plot_exceedance(path: Path, cases, records) -> Path:
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle("Exceedance probability (empirical, over finished realizations)")
+    fig.suptitle("Exceedance probability (empirical, over the realizations run to rest)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -40,7 +40,7 @@ __all__ = ["write_report", "report_html", "ReportError"]
 #: Figures written by the campaign, in the order the report shows them, with captions.
 FIGURES = (
     ("exceedance.png", "Exceedance probability P[X > x] of run-out, retrogression and "
-                       "sliding area, per case (empirical, over finished realizations)."),
+                       "sliding area, per case (empirical, over the realizations run to rest)."),
     ("histograms.png", "Histograms of the measures per case."),
     ("convergence.png", "Running P(failure) with its Wilson 95 % band and running mean "
                         "run-out with +- 1.96 standard errors, against N."),

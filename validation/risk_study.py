@@ -146,8 +146,9 @@ def case_summary(rows: list[dict], runs_to_rest: int | None = None) -> dict:
 
 def decided_check(rows: list[dict], decided_rows: list[dict]) -> dict | None:
     """A campaign of runs stopped once decided (``runs_to_rest = 0``) against the runs to
-    rest of this one, realization by realization (same index = same field): how many
-    pairs, how many agree on ``failed``, and the indices that do not."""
+    rest ``rows`` of this one (its measure sample), realization by realization (same index
+    = same field): how many pairs, how many agree on ``failed``, and the indices that do
+    not."""
     dec = {r["index"]: r for r in decided_rows
            if r.get("status") == "ok" and r.get("failed") is not None}
     pairs = [(r, dec[r["index"]]) for r in rows if r["index"] in dec and not is_decided(r)
@@ -351,7 +352,7 @@ def study(campaign: Path, fs_dir: Path | None = None, report: bool = True,
     out = {"campaign": str(campaign), "fs_campaign": str(fs_dir) if fs_dir else None,
            "mesh_campaign": str(mesh_dir) if mesh_dir else None, "mesh_check": mesh,
            "decided_campaign": str(decided_dir) if decided_dir else None,
-           "decided_check": {c: decided_check(cases[c], r) for c, r in dec_cases.items()
+           "decided_check": {c: decided_check(sample[c], r) for c, r in dec_cases.items()
                              if c in cases},
            "decision_check": camp.get("decision_check"), "runs_to_rest": k_rest,
            "rules": {"toe_slump_retrogression_m": TOE_SLUMP_RETROGRESSION,
