@@ -133,8 +133,9 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     if progress:
         print(f"{scene.scene.name}: {estimate.describe()}", file=sys.stderr, flush=True)
         if scene.solver.scheme == "explicit" and scene.solver.kernel == "numba" and kernels_cold():
-            print(f"compiling kernels (first run only, about {COMPILE_SECONDS:.0f} s; cached "
-                  "on disk after)", file=sys.stderr, flush=True)
+            print(f"compiling kernels (first run only, about {COMPILE_SECONDS:.0f} s, the "
+                  f"threaded ones about {COMPILE_SECONDS_THREADED:.0f} s more; cached on disk "
+                  "after)", file=sys.stderr, flush=True)
     grid, pts = prepare(scene, seed, noise)
     vtk = scene.output.vtk if vtk is None else vtk
     figures = scene.output.png if figures is None else figures
@@ -195,9 +196,12 @@ MECHANISM_TIME = 3.0
 
 
 #: Time numba takes to compile the explicit kernels on a cold cache (s), announced before
-#: the first run: 18-21 s on the idle 2-core AMD EPYC VM (case (i): cold 24.0 s against warm
-#: 2.4 s for the whole process; the benchmark's first step 18.4 s), more on a loaded machine.
-COMPILE_SECONDS = 20.0
+#: the first run, measured on the idle 2-core AMD EPYC VM from a fresh venv: a 5-step case
+#: (i) process 60.7 s cold against 2.8 s warm on one thread (the benchmark's first step
+#: 50.6 s); the threaded kernels (``threads = 2``) 94 s more the first time they run
+#: (warm 5.6 s).  More on a loaded machine.
+COMPILE_SECONDS = 60.0
+COMPILE_SECONDS_THREADED = 90.0
 
 
 #: Explicit kernels every numba run calls (others, e.g. uGIMP or F-bar passes, only some).
