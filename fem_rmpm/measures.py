@@ -72,7 +72,8 @@ from scipy import ndimage
 from .output import to_true_frame
 from .particles import Particles
 
-__all__ = ["compute_measures", "surface_profile", "deposit_points", "excluded_summary", "UNITS",
+__all__ = ["compute_measures", "surface_profile", "deposit_points", "excluded_summary",
+           "moved_area", "UNITS",
            "MIN_BODY_FRACTION", "INTACT_BLOCK_AREA", "intact_blocks", "least_cells"]
 
 #: Units of the scalar measures (and of the other ``results.csv`` columns).
@@ -99,6 +100,16 @@ def surface_profile(X: np.ndarray, bin_width: float) -> list[tuple[float, float]
     starts = np.r_[0, np.nonzero(np.diff(k))[0] + 1]
     tops = np.maximum.reduceat(y, starts)
     return [((float(kk) + 0.5) * bin_width, float(t)) for kk, t in zip(k[starts], tops)]
+
+
+def moved_area(x: np.ndarray, x0: np.ndarray, volume0: np.ndarray, active: np.ndarray,
+               threshold: float) -> float:
+    """Initial volume (m2 per m) of the active points that have moved more than
+    ``threshold`` (m) from ``x0``; ``x``, ``x0`` (n, 2) m, ``volume0`` (n,), ``active`` (n,)
+    bool.  The early sliding area at the mechanism time, and the area that decides a
+    failure in a campaign's runs stopped once decided."""
+    moved = (np.linalg.norm(x - x0, axis=1) > threshold) & active
+    return float(volume0[moved].sum())
 
 
 def crest_position(pts: Particles, cell_height: float) -> np.ndarray:
@@ -220,8 +231,7 @@ def compute_measures(pts: Particles, frame_angle_deg: float, threshold: float,
     if snapshots and grid is not None:
         t_snap = np.array([t for t, *_ in snapshots])
         _, xs, gs = snapshots[int(np.argmin(np.abs(t_snap - mechanism_time)))]
-        early = (np.linalg.norm(xs - pts.x0, axis=1) > threshold) & pts.active
-        early_area = float(pts.volume0[early].sum())
+        early_area = moved_area(xs, pts.x0, pts.volume0, pts.active, threshold)
         blocks = intact_blocks(xs, pts.x0, gs, threshold, grid.origin, grid.cell, grid.shape,
                                min_area=intact_block_area)
     excluded = _excluded(pts, stray)

@@ -44,6 +44,7 @@ import numpy as np
 from fem_rmpm import api
 from fem_rmpm.campaign.cases import parse_case, realization_seed
 from fem_rmpm.explicit import run_explicit
+from fem_rmpm.measures import moved_area
 from fem_rmpm.scene import scene_from_dict, scene_to_dict, with_values
 
 
@@ -99,8 +100,7 @@ def run_one(scene, seed, lam: float, fail_area: float, t_cap: float,
     history = []
 
     def check(t, p):
-        moved = (np.linalg.norm(p.x - p.x0, axis=1) > thr) & p.active
-        area = float(p.volume0[moved].sum())
+        area = moved_area(p.x, p.x0, p.volume0, p.active, thr)
         ke = 0.5 * float((p.mass[:, None] * p.velocity ** 2).sum())
         history.append((round(t, 3), ke, area))
         if area >= fail_area:

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from typing import Iterable
 
-import numpy as np
+from ..measures import moved_area
 
 __all__ = ["DECIDED", "DECIDED_FAILURE_AREA", "FailureWatch", "in_measure_sample",
            "is_decided", "decision_check"]
@@ -54,8 +54,7 @@ class FailureWatch:
 
     def __call__(self, t: float, pts) -> str | None:
         if self.time is None:
-            moved = (np.linalg.norm(pts.x - pts.x0, axis=1) > self.threshold) & pts.active
-            area = float(pts.volume0[moved].sum())
+            area = moved_area(pts.x, pts.x0, pts.volume0, pts.active, self.threshold)
             if area >= self.area:
                 self.time, self.moved_area = float(t), area
         return DECIDED if (self.stop and self.time is not None) else None
