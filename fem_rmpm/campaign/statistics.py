@@ -72,10 +72,11 @@ def case_statistics(rows: Sequence[dict], requested: int | None = None,
         nn = np.arange(1, n + 1)
         pr = np.cumsum(fails) / nn
         ro = np.array([float(_measure(r, "runout_distance")) for r in sample])
+        nm = np.arange(1, len(ro) + 1)
         out["convergence"] = {"n": nn.tolist(), "p_failure": pr.tolist(),
                               "se": np.sqrt(pr * (1 - pr) / nn).tolist(),
-                              "n_measure": list(range(1, len(ro) + 1)),
-                              "mean_runout": (np.cumsum(ro) / np.arange(1, len(ro) + 1)).tolist()}
+                              "n_measure": nm.tolist(),
+                              "mean_runout": (np.cumsum(ro) / nm).tolist()}
     return out
 
 
