@@ -51,13 +51,6 @@ def _make_finish_pass(version, only):
         _finish_chunk(version, only, P, M, S, o, 0, P.x.shape[0], S.parts[0])
         _combine(S, 1)
 
-    @kernel
-    def finish_chunk(P, M, S, o, start, stop, part):
-        # a compiled function, not inlined into the prange loop below: numba's parfor
-        # passes, run over the inlined model update, changed the result (1 vs 2 threads
-        # differed in tests/test_threads.py once the dispatch was inlined)
-        _finish_chunk(version, only, P, M, S, o, start, stop, part)
-
     @kernel_parallel
     def finish_pass_parallel(P, M, S, o):
         # the points in ``o.threads`` chunks; maxima and counts combined exactly, so the
@@ -66,9 +59,23 @@ def _make_finish_pass(version, only):
         parts = S.parts
         nch = max(1, min(o.threads, parts.shape[0]))
         for c in prange(nch):
-            finish_chunk(P, M, S, o, c * n // nch, (c + 1) * n // nch, parts[c])
+            _finish_chunk_call(version, only, P, M, S, o, c * n // nch, (c + 1) * n // nch,
+                               parts[c])
         _combine(S, nch)
     return finish_pass, finish_pass_parallel
+
+
+@kernel
+def _finish_chunk_call(version, only, P, M, S, o, start, stop, part):
+    """:func:`_finish_chunk` as a compiled function of its own (``version`` and ``only``
+    literals: one compile and cache entry per pair), called from the threaded loop, not
+    inlined into it: numba's parfor passes, run over the inlined model update, changed the
+    result (1 vs 2 threads differed in tests/test_threads.py once the dispatch was inlined).
+    Module level, not a closure of :func:`_make_finish_pass`: numba's cache key of a closure
+    holds its cell values pickled, and a dispatcher pickles with a random uuid, so the
+    threaded finish pass closing over a chunk dispatcher missed the cache in every new
+    process (1.6 s of compile at every start with threads = 2, measured)."""
+    _finish_chunk(version, only, P, M, S, o, start, stop, part)
 
 
 @inline

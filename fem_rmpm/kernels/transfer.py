@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import prange
 
 from .arrays import NodeArrays
@@ -146,8 +147,8 @@ def map_to_nodes(P, M, N, S, o):
     in a fixed order (module docstring).  Q4: the points' cells into ``S`` (reused by
     :func:`g2p` and the kinematics pass, which so skip locating the points again)."""
     T = _top(N)
-    _map_half(P, M, T, N.half, S, o, 0)
-    _map_half(P, M, T, N.half, S, o, 1)
+    _map_half(P, M, T, N.half, S, o, np.int64(0))
+    _map_half(P, M, T, N.half, S, o, np.int64(1))
     _add_half(T, N.half)
 
 
@@ -157,7 +158,7 @@ def map_to_nodes_parallel(P, M, T, H, S, o):
     ``T`` the nodes' arrays without ``half`` (``N._replace(half=None)``), ``H`` =
     ``N.half`` (numba's threaded loop does not take a nested group)."""
     for c in prange(2):
-        _map_half(P, M, T, H, S, o, c)
+        _map_half(P, M, T, H, S, o, np.int64(c))
     _add_half_pass(T, H)
 
 
@@ -211,7 +212,7 @@ def solve_on_mesh_parallel(M, T, o, S):
     sums in ``S.parts[:2, 2]``; bitwise the same); ``T`` as :func:`map_to_nodes_parallel`."""
     parts = S.parts
     for c in prange(2):
-        _solve_half(M, T, o, c, parts[c])
+        _solve_half(M, T, o, np.int64(c), parts[c])
     return 0.5 * (parts[0, 2] + parts[1, 2])
 
 
@@ -306,7 +307,7 @@ def _nodal_velocity_half(M, T, H, c):
 def _nodal_velocity_parallel(M, T, H):
     """The nodal velocities, two halves of the active nodes on two threads."""
     for c in prange(2):
-        _nodal_velocity_half(M, T, H, c)
+        _nodal_velocity_half(M, T, H, np.int64(c))
 
 
 @kernel
@@ -321,8 +322,8 @@ def g2p(P, M, N, S, o):
     save a pass over the points: ~2 ns per point-step).  Returns the largest |v_pic|
     (the motion as the grid sees it)."""
     T = _top(N)
-    _g2p_half(P, M, T, N.half, S, o, 0)
-    _g2p_half(P, M, T, N.half, S, o, 1)
+    _g2p_half(P, M, T, N.half, S, o, np.int64(0))
+    _g2p_half(P, M, T, N.half, S, o, np.int64(1))
     _nodal_velocity(M, T, N.half, 0, T.n_touched[0])
     return math.sqrt(max(S.parts[0, 1], S.parts[1, 1]))
 
@@ -332,7 +333,7 @@ def g2p_parallel(P, M, T, H, S, o):
     """:func:`g2p` with the two halves on two threads (bitwise the same); ``T``, ``H`` as
     :func:`map_to_nodes_parallel`."""
     for c in prange(2):
-        _g2p_half(P, M, T, H, S, o, c)
+        _g2p_half(P, M, T, H, S, o, np.int64(c))
     _nodal_velocity_parallel(M, T, H)      # (a prange loop here would be fused: common.py)
     return math.sqrt(max(S.parts[0, 1], S.parts[1, 1]))
 
