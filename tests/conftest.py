@@ -32,8 +32,21 @@ def dask_client():
     Tests that run campaigns in this process use it (``client=`` or ``--scheduler`` its
     address) instead of starting their own: each start costs seconds, and a second
     in-process LocalCluster now and then failed in distributed's loop start (once under
-    load, once in CI).  Tests of cluster start-up itself run the CLI in a subprocess."""
+    load, once in CI).  Tests of cluster start-up itself run the CLI in a subprocess.
+
+    Before the workers start, a 2-step run of the campaign tests' scene compiles the
+    explicit kernels here into numba's disk cache: on a cold cache (a fresh clone) the two
+    workers otherwise compiled the same kernels at the same time as each other and as this
+    process (the first campaign test's set-up took 138 s of a 787 s suite at load 3-4)."""
     from fem_rmpm.campaign import start_local_cluster
+    from fem_rmpm.explicit import run_explicit
+    from fem_rmpm.grid import make_grid
+    from fem_rmpm.particles import seed_particles
+    from fem_rmpm.scene import load_scene, with_values
+    scene = with_values(load_scene(ROOT / "tests" / "data" / "mc_tiny.toml"),
+                        {"solver.t_end": 0.01, "solver.threads": 1})
+    grid = make_grid(scene)
+    run_explicit(scene, grid, seed_particles(scene, grid))
     client, cluster = start_local_cluster(2)
     yield client
     client.close(timeout=10)
