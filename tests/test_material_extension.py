@@ -224,9 +224,12 @@ def test_simple_shear_matches_von_mises_where_zz_is_intermediate(tresca):
 def test_explicit_run_numba_equals_numpy(tresca):
     """The tiny slope (152 points) in Tresca clay, 1 s of gravity-driven dynamics (111
     steps), run by the compiled kernels and by the numpy reference step: the same run up
-    to round-off grown by the failing slope (achieves 5e-9 relative on the velocities, as
-    the built-in von Mises model does on the same scene; asserts 1e-7, an error in either
-    implementation shows as 1e-3 or more), and the slope yields (Taylor's stability number
+    to round-off grown by the failing slope (achieves 3.4e-7 relative on the velocities,
+    1.9e-7 on the stresses; 4e-9 before the kernels were compiled with FMA contraction
+    (kernels/common.py): a fused multiply-add rounds once where numpy rounds twice, in
+    every point at every step, and the failing slope grows those differences by ~1e8 over
+    the run; asserts 2e-6, an error in either implementation shows as 1e-3 or more), and
+    the slope yields (Taylor's stability number
     of a 45 degree cut, su / (gamma H) = 4 / 40 = 0.10 < 0.18) with every point on or
     inside the yield surface."""
     scene = _scene()
@@ -238,7 +241,7 @@ def test_explicit_run_numba_equals_numpy(tresca):
     assert ra.steps == rb.steps > 50
     for f in ("x", "velocity", "stress", "log_strain", "state"):
         x, y = getattr(b, f), getattr(a, f)
-        assert np.abs(x - y).max() <= 1e-7 * np.abs(y).max(), f
+        assert np.abs(x - y).max() <= 2e-6 * np.abs(y).max(), f
     assert (a.plastic_shear_strain > 0.01).sum() > 20
     tau = a.stress * (a.volume / a.volume0)[:, None]
     assert _principal_gap(tau).max() <= 4.0 * (1 + 1e-9)
