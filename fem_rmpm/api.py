@@ -196,12 +196,13 @@ MECHANISM_TIME = 3.0
 
 
 #: Time numba takes to compile the explicit kernels on a cold cache (s), announced before
-#: the first run, measured on the idle 2-core AMD EPYC VM from a fresh venv: a 5-step case
-#: (i) process 60.7 s cold against 2.8 s warm on one thread (the benchmark's first step
-#: 50.6 s); the threaded kernels (``threads = 2``) 94 s more the first time they run
-#: (warm 5.6 s).  More on a loaded machine.
-COMPILE_SECONDS = 60.0
-COMPILE_SECONDS_THREADED = 90.0
+#: the first run, measured on the 2-core AMD EPYC VM from a fresh copy (no numba cache,
+#: load 1.8-2.1): a 5-step case (i) process 36.3 s cold (first step done 34.4 s after the
+#: start) against 3.2 s warm (first step at 1.7 s) on one thread; the threaded kernels
+#: (``threads = 2``) 25.0 s more the first time they run (first step at 23.1 s), then 3.5 s
+#: warm (first step at 1.8 s).  More on a loaded machine.
+COMPILE_SECONDS = 35.0
+COMPILE_SECONDS_THREADED = 25.0
 
 
 #: Explicit kernels every numba run calls (others, e.g. uGIMP or F-bar passes, only some).
