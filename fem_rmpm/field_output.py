@@ -2,13 +2,11 @@
 points, the variogram fit (matplotlib, Agg) and the points with the field value."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
-import meshio
 import numpy as np
 
-from .output import particle_fields, to_true_frame
+from .output import particle_fields, to_true_frame, write_points_vtu
 from .plots import _plt, plot_field
 from .random_field import FitResult
 
@@ -58,9 +56,5 @@ def write_field_vtu(path: Path, pts, shown: np.ndarray) -> None:
     -1 where the field does not apply), written atomically."""
     fields = particle_fields(pts)
     fields["random_field"] = shown
-    mesh = meshio.Mesh(np.hstack([pts.x, np.zeros((pts.n, 1))]),
-                       [("vertex", np.arange(pts.n)[:, None])], point_data=fields)
-    tmp = path.with_name(f".{path.name}.tmp.vtu")
-    mesh.write(tmp, binary=True)
-    os.replace(tmp, path)
+    write_points_vtu(path, np.hstack([pts.x, np.zeros((pts.n, 1))]), fields)
 

@@ -6,6 +6,11 @@ xx yy zz xy yz xz, kPa, tension positive), ``plastic_shear_strain`` (-),
 ``cohesion`` (kPa), ``volume`` (m2 per m), ``mass`` (t per m), ``active`` (0/1).
 Coordinates are in the grid frame.  Every file is written to a temporary name
 and renamed, and no array holding NaN or Inf is ever written.
+
+The points' files are VTK XML ``UnstructuredGrid`` with raw appended data (``<AppendedData
+encoding="raw">``, ``header_type="UInt64"``, vertex cells), written by :func:`write_points_vtu`
+straight from the arrays: no base64, no XML per value.  meshio, pyvista (VTK's own reader)
+and ParaView read them (``tests/test_output_vtu.py``: every field bitwise, both readers).
 """
 from __future__ import annotations
 
@@ -20,8 +25,8 @@ import numpy as np
 
 from .particles import Particles
 
-__all__ = ["write_json", "write_particles", "write_grid", "PvdSeries", "to_true_frame",
-           "OutputError"]
+__all__ = ["write_json", "write_particles", "write_points_vtu", "write_grid", "PvdSeries",
+           "to_true_frame", "OutputError"]
 
 
 class OutputError(RuntimeError):
@@ -100,26 +105,86 @@ def particle_fields(pts: Particles) -> dict[str, np.ndarray]:
     }
 
 
-#: Compression of the points' ``.vtu`` (meshio: None, "zlib" or "lzma").  None: the
-#: float64 fields of a running slope (noisy mantissas) shrink only to 0.95 of their size
-#: with zlib, for 22-50 ms of CPU per snapshot of the reference slope's 18 260 points
-#: against 5 ms uncompressed (measured), i.e. up to ~2 s of a 40-snapshot run for 5 % of disk.
+#: Compression of the points' ``.vtu``: None.  The float64 fields of a running slope (noisy
+#: mantissas) shrink only to 0.95 of their size with zlib, for 22-50 ms of CPU per snapshot
+#: of the reference slope's 18 260 points against 5 ms uncompressed (measured with meshio),
+#: i.e. up to ~2 s of a 40-snapshot run for 5 % of disk.  (The raw writer has no compressor.)
 POINTS_COMPRESSION = None
+
+_VTK_VERTEX = 1
+_VTU_TYPES = {np.dtype(np.float64): "Float64", np.dtype(np.float32): "Float32",
+              np.dtype(np.int64): "Int64", np.dtype(np.int32): "Int32",
+              np.dtype(np.int8): "Int8", np.dtype(np.uint8): "UInt8"}
+_vertex_cells: dict = {}       # n -> (connectivity, offsets, types): the same every snapshot
+
+
+def _vertex_cells_of(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    cells = _vertex_cells.get(n)
+    if cells is None:
+        idx = np.arange(n, dtype=np.int64)
+        cells = (idx, idx + 1, np.full(n, _VTK_VERTEX, dtype=np.uint8))
+        _vertex_cells.clear()               # one point count per run: keep one
+        _vertex_cells[n] = cells
+    return cells
+
+
+def write_points_vtu(path: str | Path, points: np.ndarray, point_data: dict) -> None:
+    """Points (n, 3) as vertex cells with ``point_data`` (name -> (n,) or (n, k) array) to a
+    VTK XML ``UnstructuredGrid`` file with raw appended data (little endian, UInt64 block
+    headers), written to a temporary name and renamed.  The arrays are written as they are
+    (their dtype; float64, int8, int32, ...), each preceded by its byte count."""
+    path = Path(path)
+    n = len(points)
+    conn, offs, types = _vertex_cells_of(n)
+    blocks: list[tuple[str, str, np.ndarray]] = [("Points", "Points", points)]
+    blocks += [("Cells", "connectivity", conn), ("Cells", "offsets", offs),
+               ("Cells", "types", types)]
+    blocks += [("PointData", name, a) for name, a in point_data.items()]
+    xml, sections, offset, arrays = [], {}, 0, []
+    for section, name, a in blocks:
+        a = np.ascontiguousarray(a)
+        if a.dtype.byteorder == ">":
+            a = a.astype(a.dtype.newbyteorder("<"))
+        if a.shape[0] != n:
+            raise ValueError(f"point data {name!r} has {a.shape[0]} rows, not {n}")
+        comps = 1 if a.ndim == 1 else int(np.prod(a.shape[1:]))
+        nc = f' NumberOfComponents="{comps}"' if comps > 1 or section == "Points" else ""
+        sections.setdefault(section, []).append(
+            f'<DataArray type="{_VTU_TYPES[a.dtype.newbyteorder("=")]}" Name="{name}"{nc} '
+            f'format="appended" offset="{offset}"/>')
+        arrays.append(a)
+        offset += 8 + a.nbytes
+    xml.append('<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="1.0" '
+               'byte_order="LittleEndian" header_type="UInt64">\n'
+               '<!--fem_rmpm: raw appended data, UInt64 block headers-->\n<UnstructuredGrid>\n'
+               f'<Piece NumberOfPoints="{n}" NumberOfCells="{n}">\n')
+    for section in ("Points", "Cells", "PointData"):
+        xml.append(f"<{section}>\n" + "\n".join(sections.get(section, [])) + f"\n</{section}>\n")
+    xml.append('</Piece>\n</UnstructuredGrid>\n<AppendedData encoding="raw">\n_')
+    tmp = path.with_name(f".{path.name}.tmp.vtu")
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write("".join(xml).encode())
+            for a in arrays:
+                fh.write(np.uint64(a.nbytes).tobytes())
+                fh.write(memoryview(a.reshape(-1)).cast("B"))
+            fh.write(b"\n</AppendedData>\n</VTKFile>\n")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
 
 
 def write_particles(path: str | Path, pts: Particles) -> None:
-    """One ``.vtu`` of the material points (vertex cells) with the fields above, binary,
-    compressed as :data:`POINTS_COMPRESSION`."""
+    """One ``.vtu`` of the material points (vertex cells) with the fields above, raw
+    binary appended data (:func:`write_points_vtu`), uncompressed."""
     path = Path(path)
     fields = particle_fields(pts)
     for k, v in fields.items():
         _check_finite(k, v, str(path))
     _check_finite("points", pts.x, str(path))
-    mesh = meshio.Mesh(np.hstack([pts.x, np.zeros((pts.n, 1))]),
-                       [("vertex", np.arange(pts.n)[:, None])], point_data=fields)
-    tmp = path.with_name(f".{path.name}.tmp.vtu")
-    mesh.write(tmp, binary=True, compression=POINTS_COMPRESSION)
-    os.replace(tmp, path)
+    write_points_vtu(path, np.hstack([pts.x, np.zeros((pts.n, 1))]), fields)
 
 
 def write_grid(path: str | Path, grid, active_cells: np.ndarray | None = None) -> None:

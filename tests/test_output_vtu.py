@@ -1,0 +1,123 @@
+"""The points' VTU (raw appended data, :func:`fem_rmpm.output.write_points_vtu`): every field
+and the positions read back bitwise by meshio and by pyvista (VTK's own XML reader, the one
+ParaView uses), vertex cells, the ``.pvd`` series, and the atomic write."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+
+from fem_rmpm import api, output
+from fem_rmpm.output import PvdSeries, particle_fields, write_particles, write_points_vtu
+
+MESHES = Path(__file__).resolve().parents[1] / "meshes"
+
+
+def _points():
+    """The column's points with awkward values in every field: noisy mantissas, -0.0,
+    subnormals, huge and tiny magnitudes, a frozen point and a second soil index."""
+    _, pts = api.prepare(api.load_scene(MESHES / "column.toml"))
+    rng = np.random.default_rng(7)
+    pts.x[:] += rng.normal(size=pts.x.shape) * 1e-3
+    pts.velocity[:] = rng.normal(size=pts.velocity.shape)
+    pts.stress[:] = rng.normal(size=pts.stress.shape) * 1e3
+    pts.stress[0] = [-0.0, 5e-324, 1.7e308, -2.2e-308]
+    pts.state[:, 0] = np.abs(rng.normal(size=pts.n)) * 1e-2
+    pts.volume[:] *= 1 + rng.normal(size=pts.n) * 1e-6
+    pts.active[1] = False
+    pts.soil_id[2] = 1
+    return pts
+
+
+def _same(a, b) -> bool:
+    """Bitwise equality, dtype and shape included (NaN-free data; -0.0 != 0.0 here)."""
+    a, b = np.asarray(a), np.asarray(b)
+    return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def test_every_field_round_trips_bitwise_in_meshio(tmp_path):
+    pts = _points()
+    write_particles(tmp_path / "p.vtu", pts)
+    m = meshio.read(tmp_path / "p.vtu")
+    expected = particle_fields(pts)
+    assert _same(m.points, np.hstack([pts.x, np.zeros((pts.n, 1))]))
+    assert [c.type for c in m.cells] == ["vertex"]
+    assert np.array_equal(m.cells[0].data.ravel(), np.arange(pts.n))
+    assert list(m.point_data) == list(expected)
+    for name, value in expected.items():
+        assert _same(m.point_data[name], value), name
+    assert m.point_data["stress"][0, 0] == 0.0 and np.signbit(m.point_data["stress"][0, 0])
+    # the same content as meshio's own writer gives (the writer before the raw one)
+    meshio.Mesh(m.points, [("vertex", np.arange(pts.n)[:, None])], point_data=expected).write(
+        tmp_path / "meshio.vtu", binary=True, compression=None)
+    ref = meshio.read(tmp_path / "meshio.vtu")
+    assert _same(ref.points, m.points)
+    for name in expected:
+        assert _same(ref.point_data[name], m.point_data[name]), name
+    assert os.path.getsize(tmp_path / "p.vtu") < os.path.getsize(tmp_path / "meshio.vtu")
+
+
+def test_every_field_round_trips_bitwise_in_pyvista(tmp_path):
+    """pyvista reads with VTK's vtkXMLUnstructuredGridReader, ParaView's reader."""
+    pv = pytest.importorskip("pyvista")
+    pts = _points()
+    write_particles(tmp_path / "p.vtu", pts)
+    g = pv.read(tmp_path / "p.vtu")
+    assert g.n_points == pts.n and g.n_cells == pts.n
+    assert set(np.asarray(g.celltypes).tolist()) == {1}            # VTK_VERTEX
+    assert _same(g.points, np.hstack([pts.x, np.zeros((pts.n, 1))]))
+    expected = particle_fields(pts)
+    assert sorted(g.point_data.keys()) == sorted(expected)
+    for name, value in expected.items():
+        assert _same(np.asarray(g.point_data[name]), value), name
+
+
+def test_the_pvd_series_opens_in_pyvista(tmp_path):
+    pv = pytest.importorskip("pyvista")
+    pts = _points()
+    series = PvdSeries(tmp_path)
+    series.add(0.0, pts)
+    pts.x[:, 1] -= 0.25
+    series.add(1.5, pts)
+    reader = pv.get_reader(tmp_path / "particles.pvd")
+    assert list(reader.time_values) == [0.0, 1.5]
+    reader.set_active_time_value(1.5)
+    block = reader.read()[0]
+    assert _same(block.points[:, :2], pts.x)
+    assert _same(np.asarray(block.point_data["velocity"]), particle_fields(pts)["velocity"])
+
+
+def test_any_dtype_and_shape_the_writer_accepts_round_trips(tmp_path):
+    n = 5
+    data = {"f32": np.arange(n, dtype=np.float32) / 3, "i64": -np.arange(n, dtype=np.int64),
+            "u8": np.arange(n, dtype=np.uint8), "m": np.arange(2 * n, dtype=float).reshape(n, 2),
+            "fortran": np.asfortranarray(np.arange(3 * n, dtype=float).reshape(n, 3))}
+    x = np.arange(3 * n, dtype=float).reshape(n, 3)
+    write_points_vtu(tmp_path / "d.vtu", x, data)
+    m = meshio.read(tmp_path / "d.vtu")
+    for name, value in data.items():
+        assert _same(m.point_data[name], np.ascontiguousarray(value)), name
+    with pytest.raises(ValueError, match="rows"):
+        write_points_vtu(tmp_path / "e.vtu", x, {"short": np.zeros(n - 1)})
+    assert not (tmp_path / "e.vtu").exists()
+
+
+def test_a_failed_write_leaves_no_file_and_no_temporary(tmp_path, monkeypatch):
+    pts = _points()
+    write_particles(tmp_path / "p.vtu", pts)
+    before = (tmp_path / "p.vtu").read_bytes()
+
+    def boom(*_):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(output.os, "replace", boom)
+    pts.x[:] += 1.0
+    with pytest.raises(OSError, match="disk full"):
+        write_particles(tmp_path / "p.vtu", pts)
+    with pytest.raises(OSError, match="disk full"):
+        write_particles(tmp_path / "q.vtu", pts)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.vtu"]
+    assert (tmp_path / "p.vtu").read_bytes() == before           # the old snapshot is intact
