@@ -31,6 +31,7 @@ reference.
 from __future__ import annotations
 
 import os
+import sys
 import time
 from dataclasses import dataclass
 
@@ -50,7 +51,8 @@ from .scene import Scene
 from .shape import shape_at_points
 
 __all__ = ["StepStats", "Workspace", "explicit_step", "explicit_step_numpy",
-           "stable_time_step", "run_explicit", "KERNELS", "DEFAULT_KERNEL", "auto_threads"]
+           "stable_time_step", "run_explicit", "KERNELS", "DEFAULT_KERNEL", "auto_threads",
+           "busy_threads_warning"]
 
 _MASS_TOL = 1e-14
 KERNELS = ("numba", "numpy")
@@ -263,7 +265,10 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     if kernel not in KERNELS:
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
     work = Workspace.for_grid(grid, pts.n) if kernel == "numba" else None
-    threads = int(getattr(sv, "threads", 0)) or auto_threads()
+    threads = int(getattr(sv, "threads", 0))
+    if threads > 1 and kernel == "numba":
+        _warn_busy_threads(threads)           # explicit threads on busy cores: say so
+    threads = threads or auto_threads()
     stats = None
     h_min = float(np.min(grid.cell))
     g_full = np.array(scene.gravity_vector)
@@ -314,3 +319,66 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     if on_output and next_out - sv.output_interval < t - 1e-12:
         on_output(t, pts)
     return rec
+
+
+def _cores() -> int:
+    """Cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _runnable_others(samples: int = 3, pause: float = 0.001) -> int | None:
+    """Other threads running or waiting for a core right now: the kernel's count of runnable
+    threads (4th field of ``/proc/loadavg``) less this one, the least of a few samples a
+    millisecond apart; None where there is no ``/proc/loadavg``."""
+    counts = []
+    try:
+        for i in range(samples):
+            with open("/proc/loadavg") as fh:
+                counts.append(int(fh.read().split()[3].split("/")[0]) - 1)
+            if i + 1 < samples:
+                time.sleep(pause)
+    except (OSError, ValueError, IndexError):
+        return None
+    return max(0, min(counts))
+
+
+def busy_threads_warning(threads: int) -> str | None:
+    """The one-line warning for an explicit ``[solver] threads`` of 2 or more when that many
+    cores are not free (cores less the other processes running right now), else None.  On
+    busy cores every parallel loop waits for its slowest thread: on the 2-core machine one
+    other busy process made a ``threads = 2`` run of case (i) take 184.6 s instead of ~14 s
+    (measured).  ``threads = 0`` (auto) leaves busy cores out by itself."""
+    if threads <= 1:
+        return None
+    cores = _cores()
+    others = _runnable_others()
+    try:
+        load = f"{os.getloadavg()[0]:.2f}"
+    except OSError:
+        load = "unknown"
+    if others is None:
+        others = 0 if load == "unknown" else int(float(load) + 0.5)
+    free = max(cores - others, 0)
+    if threads <= free:
+        return None
+    return (f"fem-rmpm: warning: [solver] threads = {threads}, but {others} other "
+            f"process(es) are running on this machine's {cores} core(s) (1-minute load average "
+            f"{load}): every parallel loop waits for a thread on a busy core, which can make the "
+            f"run many times slower; set [solver] threads = {max(free, 1)} or 0 (auto: the idle "
+            "cores)")
+
+
+_THREADS_WARNED: set = set()      # (threads, message head) already printed by this process
+
+
+def _warn_busy_threads(threads: int) -> None:
+    """Print :func:`busy_threads_warning` to stderr, once per process and thread count."""
+    if threads <= 1 or threads in _THREADS_WARNED:
+        return
+    text = busy_threads_warning(threads)
+    if text:
+        _THREADS_WARNED.add(threads)
+        print(text, file=sys.stderr, flush=True)

@@ -128,3 +128,68 @@ def test_run_record_threads_and_times():
     took = time.perf_counter() - t0
     assert rec.solver["threads"] == 1
     assert 0.0 < rec.wall_time <= took
+
+
+@pytest.mark.parametrize("threads, cores, others, warned", [
+    (2, 2, 1, True),      # the 2-core machine with one other busy process
+    (2, 2, 0, False),     # idle: no warning
+    (4, 2, 0, True),      # more threads than cores
+    (2, 8, 5, False),     # 3 free cores
+    (3, 8, 6, True),
+    (1, 2, 5, False),     # one thread never waits for another
+    (2, 2, None, True),   # no /proc/loadavg: the rounded load average (1.6 -> 2) instead
+])
+def test_explicit_threads_on_busy_cores_warn(monkeypatch, threads, cores, others, warned):
+    """``[solver] threads >= 2`` where fewer cores are free: one line naming the thread
+    count, the busy processes, the cores, the load average and what to set instead."""
+    monkeypatch.setattr(ex, "_cores", lambda: cores)
+    monkeypatch.setattr(ex, "_runnable_others", lambda: others)
+    monkeypatch.setattr(ex.os, "getloadavg", lambda: (1.6, 1.0, 1.0))
+    text = ex.busy_threads_warning(threads)
+    assert (text is not None) == warned
+    if warned:
+        busy = others if others is not None else 2
+        free = max(cores - busy, 0)
+        assert "\n" not in text and text.startswith("fem-rmpm: warning: ")
+        assert f"threads = {threads}," in text and f"{busy} other process(es)" in text
+        assert f"{cores} core(s)" in text and "load average 1.60" in text
+        assert f"set [solver] threads = {max(free, 1)} or 0 (auto" in text
+
+
+def test_runnable_others_reads_proc_loadavg(monkeypatch):
+    """The 4th field of /proc/loadavg ("running/total") less this process, least sample."""
+    import builtins
+    import io
+    lines = iter(["1.00 0.50 0.20 3/120 999", "1.00 0.50 0.20 2/120 999",
+                  "1.00 0.50 0.20 4/120 999"])
+    real_open = builtins.open
+    monkeypatch.setattr(builtins, "open", lambda f, *a, **k: io.StringIO(next(lines))
+                        if f == "/proc/loadavg" else real_open(f, *a, **k))
+    assert ex._runnable_others(pause=0.0) == 1
+    monkeypatch.setattr(builtins, "open", lambda *a, **k: (_ for _ in ()).throw(OSError()))
+    assert ex._runnable_others(pause=0.0) is None
+
+
+def test_run_warns_once_at_the_start_on_busy_cores(monkeypatch, capsys):
+    """run_explicit with ``threads = 2`` on busy cores prints the warning before the first
+    step (not a refusal), once per process; ``threads = 0`` (auto) and 1 print nothing."""
+    scene = load_scene(Path(__file__).resolve().parents[1] / "meshes" / "column.toml")
+    grid = make_grid(scene)
+
+    class FirstStep(Exception):
+        pass
+
+    def first_step(*a, **k):
+        raise FirstStep
+
+    monkeypatch.setattr(ex, "explicit_step", first_step)
+    monkeypatch.setattr(ex, "_runnable_others", lambda: 1)
+    monkeypatch.setattr(ex, "_cores", lambda: 2)
+    monkeypatch.setattr(ex, "_THREADS_WARNED", set())
+    for threads, lines in ((0, 0), (1, 0), (2, 1), (2, 0)):
+        sc = with_values(scene, {"solver.t_end": 0.01, "solver.threads": threads})
+        with pytest.raises(FirstStep):
+            run_explicit(sc, grid, seed_particles(sc, grid))
+        err = capsys.readouterr().err
+        assert len(err.splitlines()) == lines, (threads, err)
+        assert lines == 0 or "[solver] threads = 2," in err
