@@ -227,14 +227,6 @@ def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarr
     return StepStats(ke, float(np.sqrt(speed2.max(initial=0.0))))
 
 
-def _cfl_step(stats: StepStats | None, pts: Particles, grid: Grid, cfl: float,
-              h_min: float) -> float:
-    """CFL step (s): from the maxima the numba step returned, else :func:`stable_time_step`."""
-    if stats is not None and stats.wave_speed is not None:
-        return cfl * h_min / (stats.wave_speed + stats.point_speed)
-    return stable_time_step(pts, grid.cell, cfl)
-
-
 def _check_jump(jump: float, h_min: float, step: int, t: float, cfl: float) -> None:
     """Stop when a point moved more than half a cell in one step (``jump``, m)."""
     if jump > 0.5 * h_min:
@@ -255,38 +247,42 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     At rest: max point speed < ``rest_velocity`` and grid kinetic energy <=
     ``rest_energy_ratio`` x its peak, once gravity is fully on.
     ``on_output(t, pts)`` is called at t = 0, every ``output_interval`` and at the end.
-    ``kernel``: ``"numba"`` | ``"numpy"`` (default: ``[solver] kernel`` if the scene
-    has it, else :data:`DEFAULT_KERNEL`).  With numba the CFL step and the guards use
-    the maxima the stress kernel returns (same values as :func:`stable_time_step`
-    and :func:`check_points`, without another pass over the points).
-    """
+    ``kernel``: ``"numba"`` | ``"numpy"`` (default: ``[solver] kernel``, else
+    :data:`DEFAULT_KERNEL`).  With numba the CFL step and the guards use the maxima the
+    stress kernel returns (the values of :func:`stable_time_step` and :func:`check_points`
+    without another pass over the points).  ``threads``: :func:`_run_threads`."""
     sv = scene.solver
     kernel = kernel or getattr(sv, "kernel", None) or DEFAULT_KERNEL
     if kernel not in KERNELS:
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
     work = Workspace.for_grid(grid, pts.n) if kernel == "numba" else None
-    threads = int(getattr(sv, "threads", 0))
-    if threads > 1 and kernel == "numba":
-        _warn_busy_threads(threads)           # explicit threads on busy cores: say so
-    threads = threads or auto_threads()
-    stats = None
-    h_min = float(np.min(grid.cell))
-    g_full = np.array(scene.gravity_vector)
+    threads = _run_threads(int(getattr(sv, "threads", 0)), kernel)
+    stats, h_min, g_full = None, float(np.min(grid.cell)), np.array(scene.gravity_vector)
     rec = RunRecord(scheme="explicit", solver={"threads": threads})
     t, step, ke_peak, next_out = 0.0, 0, 0.0, sv.output_interval
-    geostatic = sv.gravity_phase == "geostatic"
+    dt_min, dt_max, geostatic = rec.dt_min, rec.dt_max, sv.gravity_phase == "geostatic"
+    # the settings and the step's functions looked up once, not every step
+    cfl, t_end, ramp_time, damping_time = sv.cfl, sv.t_end, sv.gravity_ramp_time, sv.damping_time
+    damping_on, flip, shape, fbar = sv.damping, sv.flip, sv.shape, bool(sv.fbar)
+    rest_v, rest_ratio, interval = sv.rest_velocity, sv.rest_energy_ratio, sv.output_interval
+    step_fn, soften, rest_fn, energy = explicit_step, average_softening, at_rest, rec.energy
     wall0 = time.perf_counter()
     if on_output:
         on_output(t, pts)
-    while t < sv.t_end - 1e-12:
-        dt = min(_cfl_step(stats, pts, grid, sv.cfl, h_min), sv.t_end - t)
-        ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
-        damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
-        stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape, geostatic,
-                              kernel, work, bool(sv.fbar), threads)
-        average_softening(grid, pts)     # non-local softening (no-op for local soils)
+    while t < t_end - 1e-12:
+        # CFL step: from the maxima the numba step returned, else stable_time_step
+        dt = min(cfl * h_min / (stats.wave_speed + stats.point_speed)
+                 if stats is not None and stats.wave_speed is not None
+                 else stable_time_step(pts, grid.cell, cfl), t_end - t)
+        ramp = 1.0 if ramp_time <= 0 else min(1.0, (t + dt) / ramp_time)
+        damping = damping_on if (geostatic or t < damping_time) else 0.0
+        stats = step_fn(grid, pts, dt, g_full if ramp == 1.0 else ramp * g_full, damping, flip,
+                        shape, geostatic, kernel, work, fbar, threads)
+        soften(grid, pts)                # non-local softening (no-op for local soils)
         t, step = t + dt, step + 1
-        rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
+        dt_min, dt_max = (dt if dt < dt_min else dt_min), (dt if dt > dt_max else dt_max)
+        if step == 1:                    # the t = 0 output and the kernels' first calls
+            rec.solver["first_step_time"] = time.perf_counter() - wall0
         if stats.wave_speed is None or stats.n_bad or stats.n_outside:
             check_points(grid, pts, step, t, sv.edge_policy, rec)
             if stats.n_outside:      # points were frozen: next CFL step from the numpy helper
@@ -294,21 +290,21 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
             if not pts.active.any():
                 rec.stop_reason = "all points left the grid"
                 break
-        _check_jump(stats.max_speed * dt, h_min, step, t, sv.cfl)
-        ke_peak = max(ke_peak, stats.kinetic_energy)
+        if stats.max_speed * dt > 0.5 * h_min:         # as in _check_jump
+            _check_jump(stats.max_speed * dt, h_min, step, t, cfl)
+        ke = stats.kinetic_energy
+        ke_peak = ke if ke > ke_peak else ke_peak      # = max(ke_peak, ke)
         if step % 20 == 0:
-            rec.energy.append((t, stats.kinetic_energy))
+            energy.append((t, ke))
             if progress:
                 progress(t, step)
         if on_output and t >= next_out - 1e-12:
             on_output(t, pts)
-            next_out += sv.output_interval
-        rest = at_rest(t, sv.gravity_ramp_time, stats.max_speed, stats.kinetic_energy, ke_peak,
-                       sv.rest_velocity, sv.rest_energy_ratio)
+            next_out += interval
+        rest = rest_fn(t, ramp_time, stats.max_speed, ke, ke_peak, rest_v, rest_ratio)
         if geostatic and (rest or t >= sv.geostatic_time):
             geostatic = False
-            rec.solver["geostatic_end_time"] = t
-            rec.solver["geostatic_at_rest"] = bool(rest)
+            rec.solver.update(geostatic_end_time=t, geostatic_at_rest=bool(rest))
             continue
         if rest:
             rec.stop_reason = "at rest"
@@ -316,9 +312,18 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     else:
         rec.stop_reason = "t_end reached"
     rec.steps, rec.time, rec.wall_time = step, t, time.perf_counter() - wall0
+    rec.dt_min, rec.dt_max = dt_min, dt_max
     if on_output and next_out - sv.output_interval < t - 1e-12:
         on_output(t, pts)
     return rec
+
+
+def _run_threads(threads: int, kernel: str) -> int:
+    """The run's thread count: ``[solver] threads``, or with 0 :func:`auto_threads`; an
+    explicit count of 2 or more on busy cores is warned about (:func:`_warn_busy_threads`)."""
+    if threads > 1 and kernel == "numba":
+        _warn_busy_threads(threads)
+    return threads or auto_threads()
 
 
 def _cores() -> int:
