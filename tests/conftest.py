@@ -1,4 +1,5 @@
 """Shared fixtures: paths to the shipped scenes and a helper to write scene variants."""
+import functools
 from pathlib import Path
 
 import pytest
@@ -59,12 +60,51 @@ def dask_scheduler(dask_client) -> str:
     return dask_client.scheduler.address
 
 
+def _controller_refuses(conf_path: str | None = None) -> str | None:
+    """``host:port`` of the slurmctld that slurm.conf names when that port refuses a TCP
+    connection right now (nothing listens: SLURM is installed but not running), else None
+    (it accepts, or slurm.conf / the host cannot be read: then `sinfo` decides).  Without
+    this, `sinfo` retries the absent controller for ~9 s before it fails."""
+    import os
+    import re
+    import socket
+    path = Path(conf_path or os.environ.get("SLURM_CONF") or "/etc/slurm/slurm.conf")
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError):
+        return None
+    host, port = None, 6817                                  # SLURM's default port
+    for line in lines:
+        key, _, value = line.split("#", 1)[0].partition("=")
+        key, value = key.strip().lower(), value.strip()
+        m = re.match(r"([^()\s,]+)(?:\(([^)\s]+)\))?", value)
+        if key in ("slurmctldhost", "controlmachine") and host is None and m:
+            host = m.group(2) or m.group(1)                  # name(address): the address
+        elif key == "slurmctldport" and re.match(r"\d+", value):
+            port = int(re.match(r"\d+", value).group())     # a range: its first port
+    if host is None:
+        return None
+    try:
+        with socket.create_connection((host, port), timeout=2):
+            return None
+    except ConnectionRefusedError:
+        return f"{host}:{port}"
+    except OSError:                                          # unknown host, time-out, ...
+        return None
+
+
+@functools.lru_cache(maxsize=None)
 def _slurm_missing() -> str | None:
-    """Why SLURM cannot be used here (None: `sinfo` lists a node that takes jobs)."""
+    """Why SLURM cannot be used here (None: `sinfo` lists a node that takes jobs); asked
+    once per test process."""
     import shutil
     import subprocess
     if shutil.which("sbatch") is None or shutil.which("sinfo") is None:
         return "SLURM is not installed (no sbatch/sinfo on PATH; .ci/slurm-start.sh installs it)"
+    refused = _controller_refuses()
+    if refused:
+        return (f"SLURM is not running (no slurmctld listens at {refused}; "
+                ".ci/slurm-start.sh starts one)")
     try:
         res = subprocess.run(["sinfo", "-h", "-N", "-o", "%t"], capture_output=True, text=True,
                              timeout=30)
