@@ -2,8 +2,10 @@
 
 One step has the three stages of the method (Wang et al. 2016, Fig. 1):
 
-1. **map to nodes** — mass, momentum, external (gravity) and internal
-   (stress divergence) forces from the points to the grid nodes;
+1. **map to nodes** — mass, momentum and internal (stress divergence) force from
+   the points to the grid nodes, plus the external force of gravity on the mesh,
+   ``m_I g`` (the nodal mass times g: the scattered ``sum_p N_Ip m_p g`` in exact
+   arithmetic);
 2. **solve on the mesh** — lumped-mass momentum balance ``m a = f`` with local
    (Cundall) damping ``f - alpha |f| sign(v)`` and the boundary conditions;
 3. **update the points** — velocities (FLIP/PIC blend) and positions from the
@@ -109,17 +111,20 @@ def _scatter(nodes: np.ndarray, weights: np.ndarray, n_nodes: int,
 
 def map_to_nodes(nodes, N, dN, mass, velocity, stress, volume, gravity, n_nodes, second=None):
     """Stage 1: nodal mass (nn,), momentum (nn, 2) and force (nn, 2) from the points.
+    The force is the internal one (stress divergence) scattered, plus gravity on the mesh,
+    ``m_I g`` (= the scattered ``sum_p N_Ip m_p g`` in exact arithmetic; the compiled step
+    adds it in its solve on the mesh, which saves two products per node and point).
     ``second`` (bool per point): the points summed apart and added last, as the compiled
     two-part scatter (:mod:`fem_rmpm.kernels.transfer`); None: one sum in point order."""
     m = _scatter(nodes, N * mass[:, None], n_nodes, second)
     p = np.stack([_scatter(nodes, N * (mass * velocity[:, k])[:, None], n_nodes, second)
                   for k in range(2)], axis=1)
     sx, sy, sxy = (stress[:, i][:, None] * volume[:, None] for i in (0, 1, 3))
-    fx = -(sx * dN[..., 0] + sxy * dN[..., 1]) + N * (mass * gravity[0])[:, None]
-    fy = -(sxy * dN[..., 0] + sy * dN[..., 1]) + N * (mass * gravity[1])[:, None]
+    fx = -(sx * dN[..., 0] + sxy * dN[..., 1])
+    fy = -(sxy * dN[..., 0] + sy * dN[..., 1])
     f = np.stack([_scatter(nodes, fx, n_nodes, second), _scatter(nodes, fy, n_nodes, second)],
                  axis=1)
-    return m, p, f
+    return m, p, f + m[:, None] * np.asarray(gravity, float)
 
 
 def solve_on_mesh(m, p, f, fixed, dt, damping):

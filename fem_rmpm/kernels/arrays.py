@@ -38,9 +38,10 @@ model id (n,) and parameter rows (n, P) (:mod:`fem_rmpm.materials`)."""
 
 NodeArrays = namedtuple("NodeArrays", "m p f v_new acc v_remap flag touched n_touched half",
                         defaults=(None,))
-NodeArrays.__doc__ = """Nodes: mass (nn,), momentum, force, end-of-step velocity,
+NodeArrays.__doc__ = """Nodes: mass (nn,), momentum, internal force (gravity is added in the
+solve), end-of-step velocity,
 acceleration and the MUSL re-mapped momentum then velocity ``v_remap`` (nn, 2); ``flag``
-(nn,) uint8 touched this step, ``touched[:n_touched[0]]`` the active nodes; ``half``: the
+(nn,) uint8 touched this step, ``touched[:n_touched[0]]`` (uint64) the active nodes; ``half``: the
 same arrays (without velocities and accelerations) for the sums of the second half of
 the points, added to these in a fixed order (:mod:`.transfer`)."""
 
@@ -126,10 +127,10 @@ class Workspace:
         nn, n = grid.n_nodes, n_points
         half = NodeArrays(np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((0, 2)),
                           np.zeros((0, 2)), np.zeros((nn, 2)), np.zeros(nn, np.uint8),
-                          np.zeros(nn, np.int64), np.zeros(1, np.int64))
+                          np.zeros(nn, np.uint64), np.zeros(1, np.int64))
         nodes = NodeArrays(np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((nn, 2)),
                            np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros(nn, np.uint8),
-                           np.zeros(nn, np.int64), np.zeros(1, np.int64), half)
+                           np.zeros(nn, np.uint64), np.zeros(1, np.int64), half)
         return cls(nodes, scratch_for(n, grid.n_cells))
 
 

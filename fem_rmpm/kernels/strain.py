@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .basis import gimp, q4, q4_at
 from numba import get_num_threads, prange
 
@@ -175,7 +177,7 @@ def _exp_args_points(P, S, start, stop):
     :func:`fem_rmpm.kernels.transfer.g2p` instead (the same values for the active points);
     this pass is the stage alone (benchmark, tests)."""
     ls, ta, tb = P.log_strain, S.ta, S.tb
-    for i in range(start, stop):
+    for i in range(np.uint64(start), np.uint64(stop)):
         if P.active[i]:
             exp_args_into(i, ls, S)
         else:
@@ -206,7 +208,7 @@ def _kinematics_points(P, M, N, S, o, start, stop):
     exp(2 m), expm1(y) of the current log strain (``W``, ``ta``, ``tb`` then hold the log /
     arctanh arguments)."""
     dt, ls, vn = o.dt, P.log_strain, N.v_remap
-    for i in range(start, stop):
+    for i in range(np.uint64(start), np.uint64(stop)):
         if not P.active[i]:
             S.ta[i] = 1.0
             S.tb[i] = 0.0
@@ -267,7 +269,7 @@ def _fbar_apply_points(P, S, o, start, stop):
     :func:`kinematics_pass`; geostatic (B-bar): grad(du) + 1/2 (mean tr - tr) I, the trial
     strain into ``W``."""
     ls, D = P.log_strain, S.D
-    for i in range(start, stop):
+    for i in range(np.uint64(start), np.uint64(stop)):
         if not P.active[i]:
             S.ta[i] = 1.0
             S.tb[i] = 0.0

@@ -45,7 +45,7 @@ def _clear(N):
 
 
 @inline
-def _scatter(sh, i, P, N, gx, gy, nt):
+def _scatter(sh, i, P, N, nt):
     nodes, w, dx, dy = sh
     m, p, f, flag, touched = N.m, N.p, N.f, N.flag, N.touched
     mp = P.mass[i]
@@ -55,8 +55,6 @@ def _scatter(sh, i, P, N, gx, gy, nt):
     sx = P.stress[i, 0] * vol
     sy = P.stress[i, 1] * vol
     sxy = P.stress[i, 3] * vol
-    mg0 = mp * gx
-    mg1 = mp * gy
     for k in range(len(nodes)):
         a = nodes[k]
         if flag[a] == 0:
@@ -67,8 +65,8 @@ def _scatter(sh, i, P, N, gx, gy, nt):
         m[a] += wk * mp
         p[a, 0] += wk * mv0
         p[a, 1] += wk * mv1
-        f[a, 0] += -(sx * dx[k] + sxy * dy[k]) + wk * mg0
-        f[a, 1] += -(sxy * dx[k] + sy * dy[k]) + wk * mg1
+        f[a, 0] -= sx * dx[k] + sxy * dy[k]
+        f[a, 1] -= sxy * dx[k] + sy * dy[k]
     return nt
 
 
@@ -78,18 +76,18 @@ def _scatter_points(P, M, N, S, o, start, stop):
     Q4: each point's cell and local coordinates into ``S.q4_ll``, ``S.q4_st``."""
     nt = 0
     x, lp, cell, st = P.x, P.half_width, S.q4_ll, S.q4_st
-    for i in range(start, stop):
+    for i in range(np.uint64(start), np.uint64(stop)):
         if not P.active[i]:
             continue
         if o.gimp:
             sg = gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M)
-            nt = _scatter(sg, i, P, N, o.gx, o.gy, nt)
+            nt = _scatter(sg, i, P, N, nt)
         else:
             ll, s, t = q4_cell(x[i, 0], x[i, 1], M)
             cell[i] = ll
             st[i, 0] = s
             st[i, 1] = t
-            nt = _scatter(q4_at(ll, s, t, M), i, P, N, o.gx, o.gy, nt)
+            nt = _scatter(q4_at(ll, s, t, M), i, P, N, nt)
     N.n_touched[0] = nt
 
 
@@ -141,8 +139,8 @@ def _add_half_pass(N, H):
 
 @kernel
 def map_to_nodes(P, M, N, S, o):
-    """Stage 1: nodal mass, momentum and force (gravity + stress divergence) from the
-    active points; the touched nodes are listed in ``N.touched[:N.n_touched[0]]`` (flag 1).
+    """Stage 1: nodal mass, momentum and internal force (stress divergence) from the
+    active points (gravity, ``m_I g``, is added on the mesh by :func:`solve_on_mesh`); the touched nodes are listed in ``N.touched[:N.n_touched[0]]`` (flag 1).
     The nodes of the previous step are cleared first.  Two halves of the points, summed
     in a fixed order (module docstring).  Q4: the points' cells into ``S`` (reused by
     :func:`g2p` and the kinematics pass, which so skip locating the points again)."""
@@ -167,7 +165,7 @@ def map_to_nodes_parallel(P, M, T, H, S, o):
 def _solve_nodes(M, N, o, k0, k1):
     """Stage 2 on the active nodes ``N.touched[k0:k1]``; returns their sum of m |v|^2."""
     m, p, f, v_new, acc, fixed = N.m, N.p, N.f, N.v_new, N.acc, M.fixed
-    dt, damping = o.dt, o.damping
+    dt, damping, gx, gy = o.dt, o.damping, o.gx, o.gy
     ke = 0.0
     for k in range(k0, k1):
         a = N.touched[k]
@@ -175,7 +173,7 @@ def _solve_nodes(M, N, o, k0, k1):
         inv_m = 1.0 / m[a] if has else 0.0
         for c in range(2):
             vo = p[a, c] * inv_m
-            fc = f[a, c]
+            fc = f[a, c] + m[a] * (gx if c == 0 else gy)     # + gravity, m_I g
             if damping > 0:
                 sg = 1.0 if vo > 0 else (-1.0 if vo < 0 else 0.0)
                 fc = fc - damping * abs(fc) * sg
@@ -198,8 +196,10 @@ def _solve_half(M, T, o, c, part):
 
 @kernel
 def solve_on_mesh(M, N, o):
-    """Stage 2 on the active nodes: ``N.v_new`` and ``N.acc`` (lumped mass, Cundall damping
-    ``f - damping |f| sign(v)``, fixed components zero).  Returns the grid kinetic energy,
+    """Stage 2 on the active nodes: ``N.v_new`` and ``N.acc`` (lumped mass, force
+    ``f = f_int + m_I g`` — gravity on the mesh, exactly the scattered ``sum_p N_Ip m_p g``
+    in exact arithmetic: two products per node and point fewer in the map, ~1-3 ns per
+    point —, Cundall damping ``f - damping |f| sign(v)``, fixed components zero).  Returns the grid kinetic energy,
     summed over two halves of the active nodes and added (as the threaded version)."""
     T = _top(N)
     nt = T.n_touched[0]
@@ -262,7 +262,7 @@ def _g2p_points(P, M, N, v_remap, S, o, start, stop):
     """Points ``start:stop``; their re-mapped momenta into ``v_remap``; max |v_pic|^2."""
     vmax2 = 0.0
     x, lp = P.x, P.half_width
-    for i in range(start, stop):
+    for i in range(np.uint64(start), np.uint64(stop)):
         if not P.active[i]:
             continue
         if o.gimp:
