@@ -42,16 +42,23 @@ def new_state(soil: MaterialPoints) -> np.ndarray:
 def cohesion(state: np.ndarray, soil: MaterialPoints) -> np.ndarray:
     """Current strength per point (kPa) from the models' ``cohesion`` hook (of the
     ``softening_variable`` state column where the model has one, else of the plastic
-    shear strain); inf where a model has none (linear elastic)."""
+    shear strain); inf where a model has none (linear elastic).  With one model the hook
+    gets the soil's own parameter rows (no copy): hooks read them, never write."""
     state = state[:, None] if state.ndim == 1 else state
     out = np.full(len(soil), math.inf)
-    for k in np.unique(soil.model):
+    models = soil.model
+    one = len(models) > 0 and bool((models == models[0]).all())   # one model: no masks
+    for k in (models[:1] if one else np.unique(models)):
         m = registry.model(int(k))
         if hasattr(m, "cohesion"):
-            idx = soil.model == k
             col = m.STATE.index("softening_variable") if (
                 "softening_variable" in m.STATE and state.shape[1] > 1) else 0
-            out[idx] = m.cohesion(state[idx, col], soil.params[idx])[0]
+            if one:      # the same contiguous arrays as the masked copies, without copying
+                out[:] = m.cohesion(np.ascontiguousarray(state[:, col]),
+                                    np.ascontiguousarray(soil.params))[0]
+            else:
+                idx = models == k
+                out[idx] = m.cohesion(state[idx, col], soil.params[idx])[0]
     return out
 
 

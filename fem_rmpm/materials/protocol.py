@@ -119,11 +119,15 @@ class MaterialPoints:
         """[(mask of the points, column)] of the models that declare ``name``."""
         if name in ELASTIC_COLUMNS:
             return [(slice(None), ELASTIC_COLUMNS.index(name))]
+        m = self.model
+        if len(m) and bool((m == m[0]).all()):                # one model: every point
+            col = registry.column(int(m[0]), name)
+            return [] if col is None else [(slice(None), col)]
         out = []
-        for k in np.unique(self.model):
+        for k in np.unique(m):
             col = registry.column(int(k), name)
             if col is not None:
-                out.append((self.model == k, col))
+                out.append((m == k, col))
         return out
 
     def __getattr__(self, name: str) -> np.ndarray:
