@@ -85,19 +85,23 @@ def _check_finite(name: str, arr: np.ndarray, where: str) -> None:
         raise OutputError(f"refusing to write non-finite '{name}' to {where}")
 
 
+def _padded(a: np.ndarray, width: int) -> np.ndarray:
+    """``a`` (n, k) with zero columns appended to ``width`` (one allocation)."""
+    out = np.zeros((len(a), width))
+    out[:, :a.shape[1]] = a
+    return out
+
+
 def particle_fields(pts: Particles) -> dict[str, np.ndarray]:
-    n = pts.n
-    pad = np.zeros((n, 1))
-    s = pts.stress
-    stress6 = np.stack([s[:, 0], s[:, 1], s[:, 2], s[:, 3], np.zeros(n), np.zeros(n)], axis=1)
     coh = pts.cohesion
+    peak = pts.soil.cohesion_peak
     return {
-        "displacement": np.hstack([pts.displacement, pad]),
-        "velocity": np.hstack([pts.velocity, pad]),
-        "stress": stress6,
+        "displacement": _padded(pts.displacement, 3),
+        "velocity": _padded(pts.velocity, 3),
+        "stress": _padded(pts.stress, 6),            # xx yy zz xy, then yz = xz = 0
         "plastic_shear_strain": pts.plastic_shear_strain.copy(),
         "cohesion": np.where(np.isfinite(coh), coh, -1.0),   # -1: elastic point (no strength)
-        "cohesion_peak": np.where(np.isfinite(pts.soil.cohesion_peak), pts.soil.cohesion_peak, -1.0),
+        "cohesion_peak": np.where(np.isfinite(peak), peak, -1.0),
         "volume": pts.volume.copy(),
         "mass": pts.mass.copy(),
         "active": pts.active.astype(np.int8),
@@ -184,7 +188,7 @@ def write_particles(path: str | Path, pts: Particles) -> None:
     for k, v in fields.items():
         _check_finite(k, v, str(path))
     _check_finite("points", pts.x, str(path))
-    write_points_vtu(path, np.hstack([pts.x, np.zeros((pts.n, 1))]), fields)
+    write_points_vtu(path, _padded(pts.x, 3), fields)
 
 
 def write_grid(path: str | Path, grid, active_cells: np.ndarray | None = None) -> None:

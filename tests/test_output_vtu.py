@@ -50,6 +50,11 @@ def test_every_field_round_trips_bitwise_in_meshio(tmp_path):
     for name, value in expected.items():
         assert _same(m.point_data[name], value), name
     assert m.point_data["stress"][0, 0] == 0.0 and np.signbit(m.point_data["stress"][0, 0])
+    # the README's layout: 2D vectors with a zero z, the stress's yz and xz zero
+    for name, value, k in (("displacement", pts.displacement, 2), ("velocity", pts.velocity, 2),
+                           ("stress", pts.stress, 4)):
+        assert _same(m.point_data[name][:, :k], value) and not m.point_data[name][:, k:].any()
+        assert not np.signbit(m.point_data[name][:, k:]).any()
     # the same content as meshio's own writer gives (the writer before the raw one)
     meshio.Mesh(m.points, [("vertex", np.arange(pts.n)[:, None])], point_data=expected).write(
         tmp_path / "meshio.vtu", binary=True, compression=None)
