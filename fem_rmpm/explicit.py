@@ -170,7 +170,7 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     # 1. map to nodes: mass, momentum and force (locate + shape + scatter, one pass)
     # 2. solve on the mesh: momentum balance on the active nodes
     if threads > 1:     # (the threaded loop takes the nodes' half apart: kernels.transfer)
-        T = N._replace(half=None)
+        T = K.top_of(N)
         call(K.map_to_nodes_parallel, P, M, T, N.half, S, o)
         ke = call(K.solve_on_mesh_parallel, M, T, o, S)
     else:

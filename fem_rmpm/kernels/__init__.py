@@ -36,7 +36,7 @@ halves of the active nodes.
 from __future__ import annotations
 
 from .arrays import (Mesh, NodeArrays, PointArrays, Scratch, StepOptions, Workspace, mesh_of,
-                     point_arrays)
+                     point_arrays, top_of)
 from .basis import gimp_shape, q4_shape
 from .stress import (_direct, material_kernels, small_strain_update_points, stress_update_points,
                      update_stress)
@@ -44,7 +44,7 @@ from .transfer import (g2p, g2p_parallel, map_to_nodes, map_to_nodes_parallel, s
                        solve_on_mesh_parallel)
 
 __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Workspace",
-           "mesh_of", "point_arrays", "map_to_nodes", "map_to_nodes_parallel", "solve_on_mesh",
+           "mesh_of", "point_arrays", "top_of", "map_to_nodes", "map_to_nodes_parallel", "solve_on_mesh",
            "solve_on_mesh_parallel",
            "update_points", "g2p", "g2p_parallel", "update_stress", "material_kernels", "q4_shape",
            "gimp_shape",
@@ -57,7 +57,7 @@ def update_points(P: PointArrays, M: Mesh, N: NodeArrays, S: Scratch, o: StepOpt
     |v_pic| (m/s), the motion as the grid sees it.  ``call(kernel, *args)`` runs a kernel
     (e.g. :meth:`.Workspace.call`)."""
     if o.threads > 1:                # + nodal velocity
-        vmax = call(g2p_parallel, P, M, N._replace(half=None), N.half, S, o)
+        vmax = call(g2p_parallel, P, M, top_of(N), N.half, S, o)
     else:
         vmax = call(g2p, P, M, N, S, o)
     update_stress(P, M, N, S, o, call)

@@ -17,6 +17,7 @@ import numpy as np
 from numba import prange
 
 from ..materials import registry
+from .arrays import top_of
 from ..materials.dispatch import point_dispatch
 from .common import inline, jit, kernel, kernel_parallel
 from .strain import (fbar_apply_pass, fbar_apply_pass_parallel, fbar_gradient_pass,
@@ -195,7 +196,7 @@ def update_stress(P, M, N, S, o, call=_direct) -> None:
             call(fbar_apply_pass_parallel if par else fbar_apply_pass, P, S, o)
         else:
             call(kinematics_pass_parallel if par else kinematics_pass, P, M,
-                 N._replace(half=None) if par else N, S, o)
+                 top_of(N) if par else N, S, o)
         if not o.geostatic:
             np.log(S.ta, out=S.ta)
             np.arctanh(S.tb, out=S.tb)
