@@ -20,9 +20,12 @@ import os
 import tempfile
 from pathlib import Path
 
+from typing import Callable, NamedTuple
+
 import meshio
 import numpy as np
 
+from .materials import cohesion
 from .particles import Particles
 
 __all__ = ["write_json", "write_particles", "write_points_vtu", "write_grid", "PvdSeries",
@@ -132,46 +135,73 @@ def _vertex_cells_of(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return cells
 
 
-def write_points_vtu(path: str | Path, points: np.ndarray, point_data: dict) -> None:
-    """Points (n, 3) as vertex cells with ``point_data`` (name -> (n,) or (n, k) array) to a
-    VTK XML ``UnstructuredGrid`` file with raw appended data (little endian, UInt64 block
-    headers), written to a temporary name and renamed.  The arrays are written as they are
-    (their dtype; float64, int8, int32, ...), each preceded by its byte count."""
+#: Points per block when a field is computed and written a block at a time: the blocks'
+#: temporaries stay in cache and are reused, where whole-array temporaries of 1e6 points
+#: fault in fresh (huge) pages every frame.  A multiple of 64, so a numpy SIMD loop splits
+#: a block as it splits the whole array.
+_BLOCK = 1 << 15
+
+
+class _Blocks(NamedTuple):
+    """A point-data array given block by block: ``block(lo, hi)`` -> rows lo:hi (C order)."""
+    dtype: np.dtype
+    components: int
+    block: Callable[[int, int], np.ndarray]
+
+
+def _blocks_of(a: np.ndarray) -> _Blocks:
+    a = np.ascontiguousarray(a)
+    if a.dtype.byteorder == ">":
+        a = a.astype(a.dtype.newbyteorder("<"))
+    return _Blocks(a.dtype, 1 if a.ndim == 1 else int(np.prod(a.shape[1:])),
+                   lambda lo, hi: a[lo:hi])
+
+
+def write_points_vtu(path: str | Path, points, point_data: dict, check=None,
+                     n: int | None = None) -> None:
+    """Points (n, 3) as vertex cells with ``point_data`` (name -> (n,) or (n, k) array, or
+    :class:`_Blocks`) to a VTK XML ``UnstructuredGrid`` file with raw appended data (little
+    endian, UInt64 block headers), written to a temporary name and renamed.  The arrays
+    are written as they are (their dtype; float64, int8, int32, ...), each preceded by its
+    byte count; in the appended data the point data come first and the points last.
+    ``check(name, rows)``: called on every block before it is written (it may raise);
+    ``n``: the point count when ``points`` is given as :class:`_Blocks`."""
     path = Path(path)
-    n = len(points)
+    pts = points if isinstance(points, _Blocks) else _blocks_of(points)
+    n = int(n) if isinstance(points, _Blocks) else len(points)
     conn, offs, types = _vertex_cells_of(n)
-    blocks: list[tuple[str, str, np.ndarray]] = [("Points", "Points", points)]
-    blocks += [("Cells", "connectivity", conn), ("Cells", "offsets", offs),
-               ("Cells", "types", types)]
-    blocks += [("PointData", name, a) for name, a in point_data.items()]
-    xml, sections, offset, arrays = [], {}, 0, []
-    for section, name, a in blocks:
-        a = np.ascontiguousarray(a)
-        if a.dtype.byteorder == ">":
-            a = a.astype(a.dtype.newbyteorder("<"))
-        if a.shape[0] != n:
-            raise ValueError(f"point data {name!r} has {a.shape[0]} rows, not {n}")
-        comps = 1 if a.ndim == 1 else int(np.prod(a.shape[1:]))
-        nc = f' NumberOfComponents="{comps}"' if comps > 1 or section == "Points" else ""
+    entries = [("PointData", name, a if isinstance(a, _Blocks) else _blocks_of(a))
+               for name, a in point_data.items()]
+    entries += [("Cells", "connectivity", _blocks_of(conn)), ("Cells", "offsets", _blocks_of(offs)),
+                ("Cells", "types", _blocks_of(types)), ("Points", "Points", pts)]
+    for name, a in point_data.items():
+        if not isinstance(a, _Blocks) and len(a) != n:
+            raise ValueError(f"point data {name!r} has {len(a)} rows, not {n}")
+    sections, offset = {}, 0
+    for section, name, a in entries:
+        nc = f' NumberOfComponents="{a.components}"' if a.components > 1 or section == "Points" else ""
         sections.setdefault(section, []).append(
             f'<DataArray type="{_VTU_TYPES[a.dtype.newbyteorder("=")]}" Name="{name}"{nc} '
             f'format="appended" offset="{offset}"/>')
-        arrays.append(a)
-        offset += 8 + a.nbytes
-    xml.append('<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="1.0" '
-               'byte_order="LittleEndian" header_type="UInt64">\n'
-               '<!--fem_rmpm: raw appended data, UInt64 block headers-->\n<UnstructuredGrid>\n'
-               f'<Piece NumberOfPoints="{n}" NumberOfCells="{n}">\n')
+        offset += 8 + n * a.components * a.dtype.itemsize
+    xml = ['<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="1.0" '
+           'byte_order="LittleEndian" header_type="UInt64">\n'
+           '<!--fem_rmpm: raw appended data, UInt64 block headers-->\n<UnstructuredGrid>\n'
+           f'<Piece NumberOfPoints="{n}" NumberOfCells="{n}">\n']
     for section in ("Points", "Cells", "PointData"):
-        xml.append(f"<{section}>\n" + "\n".join(sections.get(section, [])) + f"\n</{section}>\n")
+        xml.append(f"<{section}>\n" + "\n".join(sections[section]) + f"\n</{section}>\n")
     xml.append('</Piece>\n</UnstructuredGrid>\n<AppendedData encoding="raw">\n_')
     tmp = path.with_name(f".{path.name}.tmp.vtu")
     try:
         with open(tmp, "wb") as fh:
             fh.write("".join(xml).encode())
-            for a in arrays:
-                fh.write(np.uint64(a.nbytes).tobytes())
-                fh.write(memoryview(a.reshape(-1)).cast("B"))
+            for _, name, a in entries:
+                fh.write(np.uint64(n * a.components * a.dtype.itemsize).tobytes())
+                for lo in range(0, n, _BLOCK):
+                    rows = a.block(lo, min(lo + _BLOCK, n))
+                    if check is not None:
+                        check(name, rows)
+                    fh.write(memoryview(np.ascontiguousarray(rows, a.dtype).reshape(-1)).cast("B"))
             fh.write(b"\n</AppendedData>\n</VTKFile>\n")
         os.replace(tmp, path)
     except BaseException:
@@ -180,15 +210,48 @@ def write_points_vtu(path: str | Path, points: np.ndarray, point_data: dict) -> 
         raise
 
 
+def _particle_blocks(pts: Particles) -> dict[str, _Blocks]:
+    """:func:`particle_fields` a block of points at a time (the same elementwise arithmetic
+    on the same values: bitwise the same arrays, ``tests/test_output_vtu.py``)."""
+    f8, soil, disp = np.dtype(np.float64), pts.soil, pts.displacement
+
+    def coh(lo, hi):
+        c = cohesion(pts.state[lo:hi], soil.take(slice(lo, hi)))
+        return np.where(np.isfinite(c), c, -1.0)
+
+    def peak(lo, hi):
+        c = soil.take(slice(lo, hi)).cohesion_peak
+        return np.where(np.isfinite(c), c, -1.0)
+
+    return {
+        "displacement": _Blocks(f8, 3, lambda lo, hi: _padded(disp[lo:hi], 3)),
+        "velocity": _Blocks(f8, 3, lambda lo, hi: _padded(pts.velocity[lo:hi], 3)),
+        "stress": _Blocks(f8, 6, lambda lo, hi: _padded(pts.stress[lo:hi], 6)),
+        "plastic_shear_strain": _Blocks(f8, 1, lambda lo, hi: pts.plastic_shear_strain[lo:hi]),
+        "cohesion": _Blocks(f8, 1, coh),
+        "cohesion_peak": _Blocks(f8, 1, peak),
+        "volume": _Blocks(f8, 1, lambda lo, hi: pts.volume[lo:hi]),
+        "mass": _Blocks(f8, 1, lambda lo, hi: pts.mass[lo:hi]),
+        "active": _Blocks(np.dtype(np.int8), 1, lambda lo, hi: pts.active[lo:hi].astype(np.int8)),
+        "soil": _Blocks(np.dtype(np.int32), 1, lambda lo, hi: pts.soil_id[lo:hi].astype(np.int32)),
+    }
+
+
 def write_particles(path: str | Path, pts: Particles) -> None:
     """One ``.vtu`` of the material points (vertex cells) with the fields above, raw
-    binary appended data (:func:`write_points_vtu`), uncompressed."""
+    binary appended data (:func:`write_points_vtu`), uncompressed, computed and written a
+    block of points at a time; a non-finite value in any field (checked in the order
+    above, the positions last) stops the write and leaves no file."""
     path = Path(path)
-    fields = particle_fields(pts)
-    for k, v in fields.items():
-        _check_finite(k, v, str(path))
-    _check_finite("points", pts.x, str(path))
-    write_points_vtu(path, _padded(pts.x, 3), fields)
+    where = str(path)
+
+    def check(name, rows):
+        if rows.dtype.kind == "f":
+            _check_finite("points" if name == "Points" else name, rows, where)
+
+    write_points_vtu(path, _Blocks(np.dtype(np.float64), 3,
+                                   lambda lo, hi: _padded(pts.x[lo:hi], 3)),
+                     _particle_blocks(pts), check, n=pts.n)
 
 
 def write_grid(path: str | Path, grid, active_cells: np.ndarray | None = None) -> None:

@@ -126,3 +126,39 @@ def test_a_failed_write_leaves_no_file_and_no_temporary(tmp_path, monkeypatch):
         write_particles(tmp_path / "q.vtu", pts)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.vtu"]
     assert (tmp_path / "p.vtu").read_bytes() == before           # the old snapshot is intact
+
+
+def test_block_by_block_is_bitwise_the_whole_array_fields(tmp_path, monkeypatch):
+    """write_particles computes the fields a block of points at a time: with blocks of 64
+    (286 blocks of the reference slope, a last short one) and two models mixed block by
+    block, every field read back is bitwise :func:`particle_fields` of the whole arrays."""
+    from fem_rmpm.materials.protocol import MaterialPoints
+    _, pts = api.prepare(api.load_scene(MESHES / "slope_reference.toml"))
+    rng = np.random.default_rng(11)
+    pts.state[:, 0] = rng.random(pts.n) * 0.3                 # softened, some residual
+    pts.stress[:] = rng.normal(size=pts.stress.shape) * 50
+    model = pts.soil.model.copy()
+    model[5000:5100] = 0                                      # linear elastic: no cohesion
+    model[rng.random(pts.n) < 0.01] = 0
+    pts.soil = MaterialPoints(model, pts.soil.params)
+    monkeypatch.setattr(output, "_BLOCK", 64)
+    write_particles(tmp_path / "b.vtu", pts)
+    m = meshio.read(tmp_path / "b.vtu")
+    assert _same(m.points, np.hstack([pts.x, np.zeros((pts.n, 1))]))
+    for name, value in particle_fields(pts).items():
+        assert _same(m.point_data[name], value), name
+    assert (m.point_data["cohesion"][model == 0] == -1.0).all()
+    # a non-finite value stops the write, naming the first bad field in the README's order
+    # (the positions last), whatever block it is in; nothing is left behind
+    pts.stress[-1, 3] = np.nan
+    pts.velocity[9000, 1] = np.inf
+    with pytest.raises(output.OutputError, match="'velocity'"):
+        write_particles(tmp_path / "c.vtu", pts)
+    pts.velocity[9000, 1] = 0.0
+    with pytest.raises(output.OutputError, match="'stress'"):
+        write_particles(tmp_path / "c.vtu", pts)
+    pts.stress[-1, 3] = 0.0
+    pts.x[-1, 0] = np.nan                                     # a position: its displacement
+    with pytest.raises(output.OutputError, match="'displacement'"):
+        write_particles(tmp_path / "c.vtu", pts)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.vtu"]
