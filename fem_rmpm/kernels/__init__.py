@@ -22,13 +22,14 @@ and the step's options ``o``.  The three stages of the method:
 
 Every formula is the one of the numpy path, in the same order where it matters, so the
 two agree to round-off (``tests/test_kernels.py``: 1e-12 relative over several steps,
-measured ~1e-14).  ``cache=True`` keeps the compiled code on disk (the first call in a
-fresh environment compiles for 11-25 s on the shared 2-core machine, then 0.4-0.7 s to
-load; ``validation/bench_explicit.py`` measures it; :mod:`fem_rmpm.numba_cache` keys it on
-every compiled source file).  Threads (``StepOptions.threads`` > 1): the per-point passes
-run with ``prange`` and the two scatters sum two fixed halves of the points
-(:mod:`.transfer`), so any thread count gives bitwise the single-thread result; a Monte
-Carlo campaign runs one thread per realization.  Each threaded kernel is a function of
+measured ~1e-14).  ``cache=True`` keeps the compiled code on disk (a first run of case (i)
+on one thread in a fresh environment compiles: 31.4 s for the whole process, then 2.7 s
+for a warm one, 2026-12-02, load 1.1; ``validation/bench_explicit.py`` measures it;
+:mod:`fem_rmpm.numba_cache` keys it on every compiled source file).  Threads
+(``StepOptions.threads`` > 1): the per-point passes run with ``prange`` and the two
+scatters sum two fixed halves of the points (:mod:`.transfer`), so any thread count
+gives bitwise the single-thread result; a Monte Carlo campaign runs one thread per
+realization.  Each threaded kernel is a function of
 its own whose ``prange`` body calls the compiled half or chunk the serial kernel calls
 (:mod:`.common` says why); solve on the mesh and the nodal velocities run as two fixed
 halves of the active nodes.

@@ -140,7 +140,8 @@ def _add_half_pass(N, H):
 @kernel
 def map_to_nodes(P, M, N, S, o):
     """Stage 1: nodal mass, momentum and internal force (stress divergence) from the
-    active points (gravity, ``m_I g``, is added on the mesh by :func:`solve_on_mesh`); the touched nodes are listed in ``N.touched[:N.n_touched[0]]`` (flag 1).
+    active points (gravity, ``m_I g``, is added on the mesh by :func:`solve_on_mesh`);
+    the touched nodes are listed in ``N.touched[:N.n_touched[0]]`` (flag 1).
     The nodes of the previous step are cleared first.  Two halves of the points, summed
     in a fixed order (module docstring).  Q4: the points' cells into ``S`` (reused by
     :func:`g2p` and the kinematics pass, which so skip locating the points again)."""
@@ -199,8 +200,9 @@ def solve_on_mesh(M, N, o):
     """Stage 2 on the active nodes: ``N.v_new`` and ``N.acc`` (lumped mass, force
     ``f = f_int + m_I g`` — gravity on the mesh, exactly the scattered ``sum_p N_Ip m_p g``
     in exact arithmetic: two products per node and point fewer in the map, ~1-3 ns per
-    point —, Cundall damping ``f - damping |f| sign(v)``, fixed components zero).  Returns the grid kinetic energy,
-    summed over two halves of the active nodes and added (as the threaded version)."""
+    point —, Cundall damping ``f - damping |f| sign(v)``, fixed components zero).
+    Returns the grid kinetic energy, summed over two halves of the active nodes and
+    added (as the threaded version)."""
     T = _top(N)
     nt = T.n_touched[0]
     return 0.5 * (_solve_nodes(M, T, o, 0, nt // 2) + _solve_nodes(M, T, o, nt // 2, nt))
