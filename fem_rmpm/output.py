@@ -19,7 +19,6 @@ import math
 import os
 import tempfile
 from pathlib import Path
-
 from typing import Callable, NamedTuple
 
 import meshio
@@ -189,7 +188,7 @@ def write_points_vtu(path: str | Path, points, point_data: dict, check=None,
            '<!--fem_rmpm: raw appended data, UInt64 block headers-->\n<UnstructuredGrid>\n'
            f'<Piece NumberOfPoints="{n}" NumberOfCells="{n}">\n']
     for section in ("Points", "Cells", "PointData"):
-        xml.append(f"<{section}>\n" + "\n".join(sections[section]) + f"\n</{section}>\n")
+        xml.append(f"<{section}>\n" + "\n".join(sections.get(section, [])) + f"\n</{section}>\n")
     xml.append('</Piece>\n</UnstructuredGrid>\n<AppendedData encoding="raw">\n_')
     tmp = path.with_name(f".{path.name}.tmp.vtu")
     try:

@@ -105,6 +105,8 @@ def test_any_dtype_and_shape_the_writer_accepts_round_trips(tmp_path):
     m = meshio.read(tmp_path / "d.vtu")
     for name, value in data.items():
         assert _same(m.point_data[name], np.ascontiguousarray(value)), name
+    write_points_vtu(tmp_path / "none.vtu", x, {})                 # no point data at all
+    assert len(meshio.read(tmp_path / "none.vtu").points) == n
     with pytest.raises(ValueError, match="rows"):
         write_points_vtu(tmp_path / "e.vtu", x, {"short": np.zeros(n - 1)})
     assert not (tmp_path / "e.vtu").exists()
