@@ -101,7 +101,9 @@ def _slurm_missing() -> str | None:
     import subprocess
     if shutil.which("sbatch") is None or shutil.which("sinfo") is None:
         return "SLURM is not installed (no sbatch/sinfo on PATH; .ci/slurm-start.sh installs it)"
-    refused = _controller_refuses()
+    import os
+    in_ci = os.environ.get("CI", "").lower() in ("1", "true", "yes")
+    refused = None if in_ci else _controller_refuses()        # CI: always ask sinfo
     if refused:
         return (f"SLURM is not running (no slurmctld listens at {refused}; "
                 ".ci/slurm-start.sh starts one)")
