@@ -64,7 +64,10 @@ DEFAULT_KERNEL = "numba"
 def auto_threads() -> int:
     """Threads of ``[solver] threads = 0`` (auto): numba's thread count — all cores for a
     single run (or ``NUMBA_NUM_THREADS``), 1 in a campaign worker (the task sets it) —
-    less the cores already busy (the 1-minute load average, rounded), at least 1.  Any
+    less the cores busy right now (the other runnable threads, :func:`_runnable_others`;
+    where ``/proc/loadavg`` is missing, the rounded 1-minute load average), at least 1.
+    The count "right now", not the 1-minute average: the average still counts one's own
+    run of a moment ago (it decays over a minute), so an idle machine got one thread.  Any
     count gives bitwise the same run; on busy cores a second thread only waits (on the
     shared 2-core machine at load 16: 3.5x the wall time of one thread, measured)."""
     # numba's pool size without starting the pool (get_num_threads would start it)
@@ -72,10 +75,12 @@ def auto_threads() -> int:
     n = numba.get_num_threads() if started else int(numba.config.NUMBA_NUM_THREADS)
     if n <= 1:
         return 1
-    try:
-        busy = os.getloadavg()[0]
-    except OSError:
-        busy = 0.0
+    busy = _runnable_others()
+    if busy is None:
+        try:
+            busy = os.getloadavg()[0]
+        except OSError:
+            busy = 0.0
     return max(1, min(n, int(n - busy + 0.5)))
 
 

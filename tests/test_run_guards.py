@@ -100,7 +100,9 @@ def test_check_points_nan_position_and_lower_edge():
 ])
 def test_auto_threads_is_the_pool_less_the_busy_cores(monkeypatch, pool, load, expected):
     """``[solver] threads = 0``: numba's pool size (read from the config while the pool
-    has not started, from numba once it has) less the rounded 1-minute load average."""
+    has not started, from numba once it has) less the rounded 1-minute load average where
+    the runnable count of ``/proc/loadavg`` is not available."""
+    monkeypatch.setattr(ex, "_runnable_others", lambda *a, **k: None)
     def loadavg():
         if load is None:
             raise OSError("no load average")
@@ -113,6 +115,22 @@ def test_auto_threads_is_the_pool_less_the_busy_cores(monkeypatch, pool, load, e
     monkeypatch.setattr(ex.numba_parallel, "_is_initialized", True, raising=False)
     monkeypatch.setattr(ex.numba, "get_num_threads", lambda: pool)
     monkeypatch.setattr(ex.numba.config, "NUMBA_NUM_THREADS", 99)
+    assert ex.auto_threads() == expected
+
+
+@pytest.mark.parametrize("pool, others, expected", [
+    (2, 0, 2),        # idle now, whatever the 1-minute average still says
+    (2, 1, 1),        # one other process running now
+    (4, 1, 3),
+    (4, 7, 1),        # at least 1
+])
+def test_auto_threads_counts_the_processes_running_now(monkeypatch, pool, others, expected):
+    """With ``/proc/loadavg``'s runnable count, auto takes the pool less the other threads
+    running now, not the 1-minute load average (here 9.0: it would give 1 thread)."""
+    monkeypatch.setattr(ex, "_runnable_others", lambda *a, **k: others)
+    monkeypatch.setattr(ex.os, "getloadavg", lambda: (9.0, 9.0, 9.0))
+    monkeypatch.setattr(ex.numba_parallel, "_is_initialized", True, raising=False)
+    monkeypatch.setattr(ex.numba, "get_num_threads", lambda: pool)
     assert ex.auto_threads() == expected
 
 
