@@ -75,13 +75,7 @@ def auto_threads() -> int:
     n = numba.get_num_threads() if started else int(numba.config.NUMBA_NUM_THREADS)
     if n <= 1:
         return 1
-    busy = _runnable_others()
-    if busy is None:
-        try:
-            busy = os.getloadavg()[0]
-        except OSError:
-            busy = 0.0
-    return max(1, min(n, int(n - busy + 0.5)))
+    return max(1, min(n, int(n - _busy_cores() + 0.5)))
 
 
 @dataclass
@@ -237,6 +231,14 @@ def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarr
     return StepStats(ke, float(np.sqrt(speed2.max(initial=0.0))))
 
 
+def _cfl_step(stats: StepStats | None, pts: Particles, grid: Grid, cfl: float,
+              h_min: float) -> float:
+    """CFL step (s): from the maxima the numba step returned, else :func:`stable_time_step`."""
+    if stats is not None and stats.wave_speed is not None:
+        return cfl * h_min / (stats.wave_speed + stats.point_speed)
+    return stable_time_step(pts, grid.cell, cfl)
+
+
 def _check_jump(jump: float, h_min: float, step: int, t: float, cfl: float) -> None:
     """Stop when a point moved more than half a cell in one step (``jump``, m)."""
     if jump > 0.5 * h_min:
@@ -267,30 +269,24 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
     work = Workspace.for_grid(grid, pts.n) if kernel == "numba" else None
     threads = _run_threads(int(getattr(sv, "threads", 0)), kernel)
-    stats, h_min, g_full = None, float(np.min(grid.cell)), np.array(scene.gravity_vector)
+    stats = None
+    h_min = float(np.min(grid.cell))
+    g_full = np.array(scene.gravity_vector)
     rec = RunRecord(scheme="explicit", solver={"threads": threads})
     t, step, ke_peak, next_out = 0.0, 0, 0.0, sv.output_interval
-    dt_min, dt_max, geostatic = rec.dt_min, rec.dt_max, sv.gravity_phase == "geostatic"
-    # the settings and the step's functions looked up once, not every step
-    cfl, t_end, ramp_time, damping_time = sv.cfl, sv.t_end, sv.gravity_ramp_time, sv.damping_time
-    damping_on, flip, shape, fbar = sv.damping, sv.flip, sv.shape, bool(sv.fbar)
-    rest_v, rest_ratio, interval = sv.rest_velocity, sv.rest_energy_ratio, sv.output_interval
-    step_fn, soften, rest_fn, energy = explicit_step, average_softening, at_rest, rec.energy
+    geostatic = sv.gravity_phase == "geostatic"
     wall0 = time.perf_counter()
     if on_output:
         on_output(t, pts)
-    while t < t_end - 1e-12:
-        # CFL step: from the maxima the numba step returned, else stable_time_step
-        dt = min(cfl * h_min / (stats.wave_speed + stats.point_speed)
-                 if stats is not None and stats.wave_speed is not None
-                 else stable_time_step(pts, grid.cell, cfl), t_end - t)
-        ramp = 1.0 if ramp_time <= 0 else min(1.0, (t + dt) / ramp_time)
-        damping = damping_on if (geostatic or t < damping_time) else 0.0
-        stats = step_fn(grid, pts, dt, g_full if ramp == 1.0 else ramp * g_full, damping, flip,
-                        shape, geostatic, kernel, work, fbar, threads)
-        soften(grid, pts)                # non-local softening (no-op for local soils)
+    while t < sv.t_end - 1e-12:
+        dt = min(_cfl_step(stats, pts, grid, sv.cfl, h_min), sv.t_end - t)
+        ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
+        damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
+        stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape, geostatic,
+                              kernel, work, bool(sv.fbar), threads)
+        average_softening(grid, pts)     # non-local softening (no-op for local soils)
         t, step = t + dt, step + 1
-        dt_min, dt_max = (dt if dt < dt_min else dt_min), (dt if dt > dt_max else dt_max)
+        rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
         if step == 1:                    # the t = 0 output and the kernels' first calls
             rec.solver["first_step_time"] = time.perf_counter() - wall0
         if stats.wave_speed is None or stats.n_bad or stats.n_outside:
@@ -300,21 +296,21 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
             if not pts.active.any():
                 rec.stop_reason = "all points left the grid"
                 break
-        if stats.max_speed * dt > 0.5 * h_min:         # as in _check_jump
-            _check_jump(stats.max_speed * dt, h_min, step, t, cfl)
-        ke = stats.kinetic_energy
-        ke_peak = ke if ke > ke_peak else ke_peak      # = max(ke_peak, ke)
+        _check_jump(stats.max_speed * dt, h_min, step, t, sv.cfl)
+        ke_peak = max(ke_peak, stats.kinetic_energy)
         if step % 20 == 0:
-            energy.append((t, ke))
+            rec.energy.append((t, stats.kinetic_energy))
             if progress:
                 progress(t, step)
         if on_output and t >= next_out - 1e-12:
             on_output(t, pts)
-            next_out += interval
-        rest = rest_fn(t, ramp_time, stats.max_speed, ke, ke_peak, rest_v, rest_ratio)
+            next_out += sv.output_interval
+        rest = at_rest(t, sv.gravity_ramp_time, stats.max_speed, stats.kinetic_energy, ke_peak,
+                       sv.rest_velocity, sv.rest_energy_ratio)
         if geostatic and (rest or t >= sv.geostatic_time):
             geostatic = False
-            rec.solver.update(geostatic_end_time=t, geostatic_at_rest=bool(rest))
+            rec.solver["geostatic_end_time"] = t
+            rec.solver["geostatic_at_rest"] = bool(rest)
             continue
         if rest:
             rec.stop_reason = "at rest"
@@ -322,7 +318,6 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     else:
         rec.stop_reason = "t_end reached"
     rec.steps, rec.time, rec.wall_time = step, t, time.perf_counter() - wall0
-    rec.dt_min, rec.dt_max = dt_min, dt_max
     if on_output and next_out - sv.output_interval < t - 1e-12:
         on_output(t, pts)
     return rec
@@ -360,6 +355,18 @@ def _runnable_others(samples: int = 3, pause: float = 0.001) -> int | None:
     return max(0, min(counts))
 
 
+def _busy_cores() -> float:
+    """Cores busy right now: :func:`_runnable_others`; where ``/proc/loadavg`` is missing,
+    the 1-minute load average; 0 without either."""
+    others = _runnable_others()
+    if others is not None:
+        return float(others)
+    try:
+        return os.getloadavg()[0]
+    except OSError:
+        return 0.0
+
+
 def busy_threads_warning(threads: int) -> str | None:
     """The one-line warning for an explicit ``[solver] threads`` of 2 or more when that many
     cores are not free (cores less the other processes running right now), else None.  On
@@ -369,13 +376,11 @@ def busy_threads_warning(threads: int) -> str | None:
     if threads <= 1:
         return None
     cores = _cores()
-    others = _runnable_others()
+    others = int(_busy_cores() + 0.5)
     try:
         load = f"{os.getloadavg()[0]:.2f}"
     except OSError:
         load = "unknown"
-    if others is None:
-        others = 0 if load == "unknown" else int(float(load) + 0.5)
     free = max(cores - others, 0)
     if threads <= free:
         return None
@@ -386,12 +391,12 @@ def busy_threads_warning(threads: int) -> str | None:
             "cores)")
 
 
-_THREADS_WARNED: set = set()      # (threads, message head) already printed by this process
+_THREADS_WARNED: set = set()      # the thread counts already warned about by this process
 
 
 def _warn_busy_threads(threads: int) -> None:
     """Print :func:`busy_threads_warning` to stderr, once per process and thread count."""
-    if threads <= 1 or threads in _THREADS_WARNED:
+    if threads in _THREADS_WARNED:
         return
     text = busy_threads_warning(threads)
     if text:

@@ -83,7 +83,6 @@ CUTOFF = 2.0                       # the weight is truncated at CUTOFF * l
 MODES = ("local", "nonlocal", "displacement")
 _EXP_FULL = 14.0                   # exponential law: c - c_r < 1e-6 (c_p - c_r) past 14 e-folds
 _PLANS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-_LAST_PLAN: list = [None]       # (weak reference to the last soil, its plan): one check a step
 _BUFFERS: dict = {}                # id(grid) -> (weakref to the grid, work arrays)
 
 
@@ -108,12 +107,8 @@ def _plan(soil):
     """Indices of the non-local points, their internal length (m), the softening
     variable past which they are fully softened and their factor m; cached per
     :class:`MaterialPoints` object (a changed material is a new object: ``replace`` copies)."""
-    last = _LAST_PLAN[0]
-    if last is not None and last[0]() is soil:     # the run's own soil: every step
-        return last[1]
     key = soil
-    if key in _PLANS:           # also a cached None (no non-local soil)
-        _LAST_PLAN[0] = (weakref.ref(soil), _PLANS[key])
+    if key in _PLANS:           # also a cached None (no non-local soil): one look-up a step
         return _PLANS[key]
     sel, length, full, factor = [], [], [], []
     nonlocal_code = float(MODES.index("nonlocal"))
@@ -137,7 +132,6 @@ def _plan(soil):
     else:
         plan = None
     _PLANS[key] = plan
-    _LAST_PLAN[0] = (weakref.ref(soil), plan)
     return plan
 
 
