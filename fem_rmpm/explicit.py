@@ -171,7 +171,7 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     if threads > 1:     # (the threaded loop takes the nodes' half apart: kernels.transfer)
         T = K.top_of(N)
         call(K.map_to_nodes_parallel, P, M, T, N.half, S, o)
-        ke = call(K.solve_on_mesh_parallel, M, T, o, S)
+        ke = call(K.solve_on_mesh_parallel, M, T, N.half, o, S)
     else:
         call(K.map_to_nodes, P, M, N, S, o)
         ke = call(K.solve_on_mesh, M, N, o)

@@ -37,7 +37,7 @@ def nodes(half=None):
 N = nodes(nodes())
 T.map_to_nodes(P, M, N, A.scratch_for(1, 4),
                A.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False, False))
-print(N.m[0])
+print(N.m[0] + N.half.m[0])     # the one point is the second half's (n // 2 = 0)
 """
 
 

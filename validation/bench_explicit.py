@@ -59,7 +59,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fem_rmpm import kernels as K  # noqa: E402
-from fem_rmpm.kernels import strain as KS  # noqa: E402
+from fem_rmpm.kernels import hencky as H, strain as KS  # noqa: E402
+from fem_rmpm.kernels.common import kernel  # noqa: E402
 from fem_rmpm.explicit import (Workspace, explicit_step, map_to_nodes, run_explicit,  # noqa: E402
                                solve_on_mesh, stable_time_step)
 from fem_rmpm.grid import make_grid  # noqa: E402
@@ -193,23 +194,51 @@ def time_runs(scene, grid, pts0, kernel, repeats):
             "mpups_wall": 1e3 / float(np.median(walls)), "mpups_cpu": 1e3 / float(np.median(cpus))}
 
 
+@kernel
+def _exp_stage(P, S):
+    """The stress pass's exp series alone, over all points in its blocks."""
+    n = np.uint64(P.x.shape[0])
+    for b in range(np.uint64(0), n, np.uint64(H.BLOCK)):
+        H.exp_block(P.log_strain, S.tb, S.tc, b, min(b + np.uint64(H.BLOCK), n))
+
+
+@kernel
+def _kinematics_stage(P, M, N, S, o):
+    """The stress pass's kinematics alone (velocity gradient, dF, F, V, B_tr)."""
+    n = np.uint64(P.x.shape[0])
+    for b in range(np.uint64(0), n, np.uint64(H.BLOCK)):
+        KS.kinematics_points(P, M, N, S, o, b, min(b + np.uint64(H.BLOCK), n))
+
+
+@kernel
+def _log_stage(S):
+    """The stress pass's log series alone."""
+    n = np.uint64(S.ta.shape[0])
+    for b in range(np.uint64(0), n, np.uint64(H.BLOCK)):
+        H.log_block(S.W, S.ta, S.tb, S.tc, b, min(b + np.uint64(H.BLOCK), n))
+
+
 def stages_numba(scene, grid, pts, geostatic, steps):
-    """Median ns per particle of each kernel, called in the order of explicit_step."""
+    """Median ns per particle of each kernel, called in the order of explicit_step; the
+    stress pass also as its four parts, each over all points (their sum exceeds the pass:
+    in the pass a block's scratch stays in L1 between them)."""
     w = Workspace.for_grid(grid, pts.n)
     g = np.array(scene.gravity_vector)
     sv = scene.solver
-    names = ("1 map_to_nodes", "2 solve_on_mesh", "3a g2p (+ exp args, nodal velocity)",
-             "3c stress: exp/expm1 ufuncs", "3c stress: L, dF, F, V, trial b",
-             "3c stress: log/atanh ufuncs", "3c stress: material model + stress")
+    names = ("1 map_to_nodes", "2 solve_on_mesh", "3a g2p (+ nodal velocity)",
+             "3c stress pass (all of it)", "3c part: exp series", "3c part: L, dF, F, V, B_tr",
+             "3c part: log series", "3c part: material model + stress")
     T = {k: [] for k in names}
     clk = time.perf_counter
     explicit_step(grid, pts, 1e-4, g, sv.damping, sv.flip, sv.shape, geostatic, "numba", w)
     (P, M), N, S, call = w.bind(grid, pts), w.nodes, w.scratch, w.call
-    finish = K.material_kernels(w.model)[0]
+    stress_pass = K.material_kernels(w.model)[0]
+    finish = _finish_stage(w.model)
+    saved = ("log_strain", "state", "F", "volume", "stress")
     for _ in range(steps):
         dt = stable_time_step(pts, grid.cell, sv.cfl)
         o = K.StepOptions(dt, float(g[0]), float(g[1]), sv.damping, sv.flip, geostatic, False,
-                          False)
+                          False, 1, w.model)
         t = [clk()]
         call(K.map_to_nodes, P, M, N, S, o)
         t.append(clk())
@@ -217,23 +246,47 @@ def stages_numba(scene, grid, pts, geostatic, steps):
         t.append(clk())
         call(K.g2p, P, M, N, S, o)
         t.append(clk())
-        if not geostatic:     # the exp arguments: written by g2p
-            with np.errstate(all="ignore"):
-                np.exp(S.ta, out=S.ta)
-                np.expm1(S.tb, out=S.tb)
+        before = {f: getattr(pts, f).copy() for f in saved}
+        call(stress_pass, P, M, N, S, o)
         t.append(clk())
-        call(KS.kinematics_pass, P, M, N, S, o)
+        after = {f: getattr(pts, f).copy() for f in saved}
+        for f in saved:                # the parts again from the state before the pass
+            getattr(pts, f)[...] = before[f]
         t.append(clk())
         if not geostatic:
-            with np.errstate(all="ignore"):
-                np.log(S.ta, out=S.ta)
-                np.arctanh(S.tb, out=S.tb)
+            call(_exp_stage, P, S)
+        t.append(clk())
+        call(_kinematics_stage, P, M, N, S, o)
+        t.append(clk())
+        if not geostatic:
+            call(_log_stage, S)
         t.append(clk())
         call(finish, P, M, S, o)
         t.append(clk())
+        for f in saved:
+            getattr(pts, f)[...] = after[f]
+        del t[4]                       # the restore is not a stage
         for k, a, b in zip(names, t[:-1], t[1:]):
             T[k].append((b - a) / pts.n * 1e9)
     return {k: float(np.median(v)) for k, v in T.items()}
+
+
+_FINISH = {}
+
+
+def _finish_stage(only):
+    """The stress pass's material model + stress part alone (the model dispatch needs the
+    registry version and the model as literals: a kernel made per pair)."""
+    version = K.stress.registry.version()
+    if (version, only) not in _FINISH:
+        @kernel
+        def finish(P, M, S, o):
+            n = np.uint64(P.x.shape[0])
+            for b in range(np.uint64(0), n, np.uint64(H.BLOCK)):
+                K.stress._finish_points(version, only, P, M, S, o, b,
+                                        min(b + np.uint64(H.BLOCK), n))
+        _FINISH[(version, only)] = finish
+    return _FINISH[(version, only)]
 
 
 def stages_numpy(scene, grid, pts, geostatic, steps):
@@ -381,7 +434,11 @@ def main(argv=None):
             P, M = w.bind(grid, pts)
             K.map_to_nodes(P, M, w.nodes, w.scratch, K.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False,
                                                          False))
-            r["active_nodes_of_grid"] = [int(w.nodes.n_touched[0]), grid.n_nodes]
+            half = w.nodes.half          # the nodes of the second half not in the first's
+            only_second = half.touched[:half.n_touched[0]]
+            r["active_nodes_of_grid"] = [int(w.nodes.n_touched[0])
+                                         + int((w.nodes.flag[only_second] == 0).sum()),
+                                         grid.n_nodes]
             entry[phase] = r
             nb = r["numba"]
             line = (f"{name:>4} {phase:9} {pts.n:>8d} pts {nb['steps']:>4d} steps  numba "

@@ -15,10 +15,12 @@ and the step's options ``o``.  The three stages of the method:
    balance, local (Cundall) damping, fixed components, grid kinetic energy.
 3. **update the points** — :func:`update_points`: FLIP/PIC velocity, position (or the
    geostatic displacement) and the MUSL re-map of the new point momenta and the nodal
-   velocities from them (:func:`g2p`), then the stress update (:func:`update_stress`): velocity
-   gradient, Hughes-Winget increment, F, volume and the trial Hencky state
-   (:mod:`.strain`), the material model of each point through one dispatch on its
-   model id, Cauchy stress and the maxima the time loop needs (:mod:`.stress`).
+   velocities from them (:func:`g2p`), then the stress update (:func:`update_stress`), one
+   pass over the points in blocks: velocity gradient, Hughes-Winget increment, F, volume
+   and the trial Hencky state (:mod:`.strain`, with the exp / log of the 2x2 log strain
+   as vectorised series, :mod:`.hencky`), the material model of each point through one
+   dispatch on its model id, Cauchy stress and the maxima the time loop needs
+   (:mod:`.stress`).
 
 Every formula is the one of the numpy path, in the same order where it matters, so the
 two agree to round-off (``tests/test_kernels.py``: 1e-12 relative over several steps,
@@ -32,7 +34,8 @@ gives bitwise the single-thread result; a Monte Carlo campaign runs one thread p
 realization.  Each threaded kernel is a function of
 its own whose ``prange`` body calls the compiled half or chunk the serial kernel calls
 (:mod:`.common` says why); solve on the mesh and the nodal velocities run as two fixed
-halves of the active nodes.
+halves of the active nodes; the stress pass's chunks are whole blocks of points from
+point 0 (:func:`.hencky.block_bounds`), the same blocks on any number of threads.
 """
 from __future__ import annotations
 

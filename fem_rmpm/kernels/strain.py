@@ -1,17 +1,19 @@
 """Kinematics of the stress update (stage 3c, before the material model): velocity
 gradient at the points, Hughes-Winget increment, F and volume, and the trial state of
-the Hencky update, in passes over the points.
+the Hencky update, per point, for the blocks of the stress pass (:mod:`.stress`).
 
-The transcendental functions of the Hencky update (exp, expm1 before, log, arctanh
-after :func:`kinematics_pass`) are numpy's SIMD ufuncs over all points, between the
-per-point passes: ~4 ns per point against ~35 ns for scalar libm calls inside the loop
-(measured).  Formulas as :mod:`fem_rmpm.materials.hencky` (``exp_sym2``, ``log_sym2``,
+Finite strain: :func:`kinematics_points` reads the exp parts of each point's log strain
+(``exp(2 m)``, ``cosh(y)``, ``sinh(y)/y``, vectorised before it by
+:func:`.hencky.exp_block`), forms ``b_tr = dF exp(2 eps) dF^T`` and writes the arguments
+of its log (``1/m``, ``d``, ``axy``, ``q = det``, ``z = x^2``), whose transcendental parts
+:func:`.hencky.log_block` computes after it; :func:`log_sym2_from` then gives the trial
+log strain.  Formulas as :mod:`fem_rmpm.materials.hencky` (``exp_sym2``, ``log_sym2``,
 ``hughes_winget_increment``) in the same order.
 
-With F-bar (:mod:`fem_rmpm.locking`) :func:`kinematics_pass` is replaced by two passes:
+With F-bar (:mod:`fem_rmpm.locking`) the increments come from two passes:
 :func:`fbar_gradient_pass` (increments and per-cell sums of ``V`` and ``V dJ``, in point
-order) and :func:`fbar_apply_pass` (the cell mean replaces each point's volume change,
-then F, V and b_tr).
+order, over all points) and :func:`fbar_apply_points` (the cell mean replaces each point's
+volume change, then F, V and b_tr), which takes the place of :func:`kinematics_points`.
 """
 from __future__ import annotations
 
@@ -20,66 +22,42 @@ import math
 import numpy as np
 
 from .basis import gimp, q4
-from numba import get_num_threads, prange
+from .common import inline, kernel
+from .hencky import BLOCK, exp_block, log_block
 
-from .common import inline, kernel, kernel_parallel
-
-__all__ = ["exp_args_pass", "trial_pass", "kinematics_pass", "fbar_gradient_pass",
-           "fbar_apply_pass", "log_sym2_from", "exp_args_pass_parallel",
-           "kinematics_pass_parallel", "fbar_apply_pass_parallel", "exp_args_into"]
+__all__ = ["kinematics_points", "fbar_gradient_pass", "fbar_apply_points", "log_args",
+           "log_sym2_from", "hencky_trial_pass"]
 
 
 @inline
-def _exp_args(e0, e1, e3):
-    """Arguments of exp(2 E) (material.exp_sym2): 2 m and y = 2 sqrt(r2)."""
-    m = 0.5 * (e0 + e1)
-    d = 0.5 * (e0 - e1)
-    return 2 * m, 2 * math.sqrt(d * d + e3 * e3)
-
-
-@inline
-def _exp_sym2_from(e0, e1, e3, e2m, em, y):
-    """exp(2 E) (material.exp_sym2) from ``e2m = exp(2 m)``, ``em = expm1(y)`` and
-    ``y = 2 sqrt(r2)``: cosh(y) = (e^y + e^-y) / 2 and sinh(y) / y =
-    expm1(y) (expm1(y) + 2) / (2 e^y y), accurate for every y > 0 (no cancellation,
-    so no series branch is needed; y = 0 gives 1)."""
-    d = 0.5 * (e0 - e1)
-    ey = em + 1.0
-    iey = 1.0 / ey
-    ch = 0.5 * (ey + iey)
-    sy = 0.5 * em * (em + 2.0) * iey / y if y > 0 else 1.0
-    g = 2 * e2m * sy
-    c = e2m * ch
-    return c + g * d, c - g * d, g * e3
-
-
-@inline
-def _log_args(axx, ayy, axy):
-    """For 1/2 ln(A) (material.log_sym2): (1 / m, d, axy, x) with x = r / m, and the
-    ufunc arguments ``m^2 - r^2`` (for log) and ``x`` (for arctanh)."""
+def log_args(axx, ayy, axy):
+    """For 1/2 ln(A) of ``A = mu I + E`` (material.log_sym2): ``(1 / mu, d, axy, z)`` with
+    ``d`` = (axx - ayy) / 2 and ``z = s^2 / mu^2`` (x^2, for atanh(x) / x; :mod:`.hencky`)."""
     m = 0.5 * (axx + ayy)
     d = 0.5 * (axx - ayy)
     r2 = d * d + axy * axy
     im = 1.0 / m
-    x = math.sqrt(r2) * im
-    return im, d, axy, x, m * m - r2, x
+    return im, d, axy, r2 * im * im
 
 
 @inline
-def log_sym2_from(im, d, axy, x, log_det, atanh_x):
-    """1/2 ln(A) from ``im = 1 / m``, ``log_det = ln(m^2 - r^2)`` and ``atanh_x =
-    atanh(x)``, x = r / m (atanh(x) / x is accurate for every x > 0; x = 0 gives 1)."""
-    ax = atanh_x / x if x > 0 else 1.0
-    lp_lm = 0.25 * log_det
-    g = 0.5 * ax * im
-    return lp_lm + g * d, lp_lm - g * d, g * axy
+def log_sym2_from(im, d, axy, iso, atanhc):
+    """The trial log strain (xx, yy, xy): ``iso I + atanh(x)/(2 x mu) E`` from
+    :func:`log_args` of B_tr, its isotropic part ``iso = m + ln(J) / 2`` and ``atanhc =
+    atanh(x) / x`` (:mod:`.hencky`)."""
+    g = 0.5 * atanhc * im
+    return iso + g * d, iso - g * d, g * axy
 
 
 @inline
-def _trial_b(f00, f01, f10, f11, e0, e1, e3, e2m, em, y):
-    """b_tr = dF exp(2 eps) dF^T from ``e2m = exp(2 m)``, ``em = expm1(y)`` of eps;
-    returns the arguments of :func:`log_sym2_from` and of the log / arctanh ufuncs."""
-    bxx, byy, bxy = _exp_sym2_from(e0, e1, e3, e2m, em, y)
+def _trial_b(f00, f01, f10, f11, e0, e1, e3, ch, sh):
+    """B_tr = dF B dF^T, ``B = exp(2 eps) / e^{2m}`` from ``ch, sh = cosh(y), sinh(y) / y``
+    of eps (:func:`.hencky.exp_parts`); returns :func:`log_args` of B_tr."""
+    d = 0.5 * (e0 - e1)                             # B = cosh(y) I + 2 sinh(y)/y D
+    g = 2.0 * sh
+    bxx = ch + g * d
+    byy = ch - g * d
+    bxy = g * e3
     a00 = f00 * bxx + f01 * bxy                     # (dF B) dF^T, as the numpy matmul chain
     a01 = f00 * bxy + f01 * byy
     a10 = f10 * bxx + f11 * bxy
@@ -88,7 +66,7 @@ def _trial_b(f00, f01, f10, f11, e0, e1, e3, e2m, em, y):
     c01 = a00 * f10 + a01 * f11
     c10 = a10 * f00 + a11 * f01
     c11 = a10 * f10 + a11 * f11
-    return _log_args(c00, c11, 0.5 * (c01 + c10))
+    return log_args(c00, c11, 0.5 * (c01 + c10))
 
 
 @inline
@@ -161,16 +139,21 @@ def _small_strain_trial(i, g00, g01, g10, g11, e0, e1, e2, e3, W):
 
 @inline
 def _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, P, S):
-    """Finite strain at point ``i``: F <- dF F, V <- det(dF) V, trial b_tr into W, ta, tb."""
-    F, ta, tb = P.F, S.ta, S.tb
+    """Finite strain at point ``i``: F <- dF F, V <- J V (J = det dF), and B_tr from the
+    exp parts ``S.tb, S.tc`` of its log strain: :func:`log_args` of B_tr into ``W[i, :3]``
+    (1/mu, d, axy) and ``S.tc[i]`` (z), J into ``S.ta[i]`` and ``W[i, 3]``."""
+    F, W = P.F, S.W
     a00, a01, a10, a11 = F[i, 0, 0], F[i, 0, 1], F[i, 1, 0], F[i, 1, 1]
     F[i, 0, 0] = f00 * a00 + f01 * a10
     F[i, 0, 1] = f00 * a01 + f01 * a11
     F[i, 1, 0] = f10 * a00 + f11 * a10
     F[i, 1, 1] = f10 * a01 + f11 * a11
-    P.vol[i] = P.vol[i] * (f00 * f11 - f01 * f10)
-    S.W[i, 0], S.W[i, 1], S.W[i, 2], S.W[i, 3], ta[i], tb[i] = _trial_b(
-        f00, f01, f10, f11, e0, e1, e3, ta[i], tb[i], S.tc[i])
+    J = f00 * f11 - f01 * f10
+    P.vol[i] = P.vol[i] * J
+    W[i, 3] = J
+    S.ta[i] = J
+    W[i, 0], W[i, 1], W[i, 2], S.tc[i] = _trial_b(f00, f01, f10, f11, e0, e1, e3, S.tb[i],
+                                                  S.tc[i])
 
 
 @inline
@@ -183,57 +166,23 @@ def _point_velocity_gradient(i, x, lp, M, vn, gimp_basis):
 
 
 @inline
-def exp_args_into(i, ls, S):
-    """``S.ta[i]``, ``S.tb[i]`` = 2 m, y of the log strain ``ls[i]`` (for exp, expm1);
-    ``S.tc[i]`` = y."""
-    a, b = _exp_args(ls[i, 0], ls[i, 1], ls[i, 3])
-    S.ta[i] = a
-    S.tb[i] = b
-    S.tc[i] = b
+def _inactive(i, S):
+    """Neutral log arguments (J = 1, z = 0) for an inactive point."""
+    S.W[i, 3] = 1.0
+    S.ta[i] = 1.0
+    S.tc[i] = 0.0
 
 
 @inline
-def _exp_args_points(P, S, start, stop):
-    """Pass 0 over points ``start:stop``: ``ta``, ``tb`` = 2 m, y of the current log
-    strains (for exp, expm1); tc = y.  The step computes them in
-    :func:`fem_rmpm.kernels.transfer.g2p` instead (the same values for the active points);
-    this pass is the stage alone (benchmark, tests)."""
-    ls, ta, tb = P.log_strain, S.ta, S.tb
-    for i in range(np.uint64(start), np.uint64(stop)):
-        if P.active[i]:
-            exp_args_into(i, ls, S)
-        else:
-            ta[i] = 0.0
-            tb[i] = 0.0
-            S.tc[i] = 0.0
-
-
-@kernel
-def trial_pass(dF, log_strain, active, ta, tb, tc, W):
-    """b_tr for given increments ``dF`` (n, 4) (the material-only path of
-    :func:`fem_rmpm.kernels.stress.stress_update_points`)."""
-    for i in range(dF.shape[0]):
-        if not active[i]:
-            ta[i] = 1.0
-            tb[i] = 0.0
-            continue
-        W[i, 0], W[i, 1], W[i, 2], W[i, 3], ta[i], tb[i] = _trial_b(
-            dF[i, 0], dF[i, 1], dF[i, 2], dF[i, 3], log_strain[i, 0], log_strain[i, 1],
-            log_strain[i, 3], ta[i], tb[i], tc[i])
-
-
-@inline
-def _kinematics_points(P, M, N, S, o, start, stop):
-    """Pass 1 over points ``start:stop``: velocity gradient at the positions before the
-    move.  Geostatic: ``W[i]`` = the small-strain trial strain.  Finite strain:
-    Hughes-Winget increment dF, F <- dF F, V <- det(dF) V, and b_tr from ``ta``, ``tb`` =
-    exp(2 m), expm1(y) of the current log strain (``W``, ``ta``, ``tb`` then hold the log /
-    arctanh arguments)."""
+def kinematics_points(P, M, N, S, o, start, stop):
+    """Points ``start:stop`` (uint64): velocity gradient at the positions before the move.
+    Geostatic: ``W[i]`` = the small-strain trial strain.  Finite strain: Hughes-Winget
+    increment dF, F <- dF F, V <- det(dF) V, and the log arguments of B_tr
+    (:func:`_apply_increment`) from the exp parts in ``tb, tc``."""
     dt, ls, vn = o.dt, P.log_strain, N.v_remap
-    for i in range(np.uint64(start), np.uint64(stop)):
+    for i in range(start, stop):
         if not P.active[i]:
-            S.ta[i] = 1.0
-            S.tb[i] = 0.0
+            _inactive(i, S)
             continue
         if o.gimp:
             L00, L01, L10, L11 = _point_velocity_gradient(i, S.x_old, P.half_width, M, vn, True)
@@ -285,16 +234,15 @@ def fbar_gradient_pass(P, M, N, S, o):
 
 
 @inline
-def _fbar_apply_points(P, S, o, start, stop):
-    """F-bar pass 2 over points ``start:stop``: the cell mean replaces each point's volume
-    change.  Finite strain: dF_bar = (dJ_bar / dJ)^(1/2) dF, then F, V and b_tr as
-    :func:`kinematics_pass`; geostatic (B-bar): grad(du) + 1/2 (mean tr - tr) I, the trial
-    strain into ``W``."""
+def fbar_apply_points(P, S, o, start, stop):
+    """F-bar pass 2 over points ``start:stop`` (uint64): the cell mean replaces each
+    point's volume change.  Finite strain: dF_bar = (dJ_bar / dJ)^(1/2) dF, then F, V and
+    the log arguments of b_tr as :func:`kinematics_points`; geostatic (B-bar): grad(du) +
+    1/2 (mean tr - tr) I, the trial strain into ``W``."""
     ls, D = P.log_strain, S.D
-    for i in range(np.uint64(start), np.uint64(stop)):
+    for i in range(start, stop):
         if not P.active[i]:
-            S.ta[i] = 1.0
-            S.tb[i] = 0.0
+            _inactive(i, S)
             continue
         c = S.host[i]
         mean = S.cell_vdj[c] / S.cell_v[c]
@@ -309,58 +257,30 @@ def _fbar_apply_points(P, S, o, start, stop):
         _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, P, S)
 
 
-# --------------------------------------------------------------------- serial and threaded passes
-# Each pass: a serial kernel over all points (the loop starts at the constant 0: LLVM then
-# drops the negative-index checks), a compiled chunk ``start:stop`` and a threaded driver
-# calling that chunk from a ``prange`` loop (numba's parfor analysis crashed on these loop
-# bodies written inline in the ``prange`` loop).  Every point is computed with the same
-# arithmetic in all three, so any thread count gives bitwise the serial result.
 @kernel
-def exp_args_pass(P, S):
-    _exp_args_points(P, S, 0, P.log_strain.shape[0])
-
-
-@kernel
-def _exp_args_chunk(P, S, start, stop):
-    _exp_args_points(P, S, start, stop)
-
-
-@kernel_parallel
-def exp_args_pass_parallel(P, S):
-    n, nch = P.log_strain.shape[0], max(1, min(get_num_threads(), 64))
-    for c in prange(nch):
-        _exp_args_chunk(P, S, c * n // nch, (c + 1) * n // nch)
-
-
-@kernel
-def kinematics_pass(P, M, N, S, o):
-    _kinematics_points(P, M, N, S, o, 0, P.log_strain.shape[0])
-
-
-@kernel
-def _kinematics_chunk(P, M, N, S, o, start, stop):
-    _kinematics_points(P, M, N, S, o, start, stop)
-
-
-@kernel_parallel
-def kinematics_pass_parallel(P, M, N, S, o):
-    n, nch = P.log_strain.shape[0], max(1, min(o.threads, 64))
-    for c in prange(nch):
-        _kinematics_chunk(P, M, N, S, o, c * n // nch, (c + 1) * n // nch)
-
-
-@kernel
-def fbar_apply_pass(P, S, o):
-    _fbar_apply_points(P, S, o, 0, S.D.shape[0])
-
-
-@kernel
-def _fbar_apply_chunk(P, S, o, start, stop):
-    _fbar_apply_points(P, S, o, start, stop)
-
-
-@kernel_parallel
-def fbar_apply_pass_parallel(P, S, o):
-    n, nch = S.D.shape[0], max(1, min(o.threads, 64))
-    for c in prange(nch):
-        _fbar_apply_chunk(P, S, o, c * n // nch, (c + 1) * n // nch)
+def hencky_trial_pass(dF, log_strain, active, ta, tb, tc, W, eps_tr):
+    """Trial log strains ``eps_tr`` (n, 4) of given increments ``dF`` (n, 4) (the
+    material-only path of :func:`fem_rmpm.kernels.stress.stress_update_points`), in the
+    blocks of the stress pass; ``ta, tb, tc`` (n,), ``W`` (n, 4) scratch."""
+    n = np.uint64(dF.shape[0])
+    ls = log_strain
+    for b in range(np.uint64(0), n, np.uint64(BLOCK)):
+        e = min(b + np.uint64(BLOCK), n)
+        exp_block(ls, tb, tc, b, e)
+        for i in range(b, e):
+            if not active[i]:
+                W[i, 3] = 1.0
+                ta[i] = 1.0
+                tc[i] = 0.0
+                continue
+            f00, f01, f10, f11 = dF[i, 0], dF[i, 1], dF[i, 2], dF[i, 3]
+            W[i, 3] = f00 * f11 - f01 * f10
+            ta[i] = W[i, 3]
+            W[i, 0], W[i, 1], W[i, 2], tc[i] = _trial_b(f00, f01, f10, f11, ls[i, 0],
+                                                        ls[i, 1], ls[i, 3], tb[i], tc[i])
+        log_block(W, ta, tb, tc, b, e)
+        for i in range(b, e):
+            iso = 0.5 * (ls[i, 0] + ls[i, 1]) + 0.5 * ta[i]
+            eps_tr[i, 0], eps_tr[i, 1], eps_tr[i, 3] = log_sym2_from(
+                W[i, 0], W[i, 1], W[i, 2], iso, tb[i])
+            eps_tr[i, 2] = ls[i, 2] + 0.0

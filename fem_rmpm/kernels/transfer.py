@@ -5,15 +5,17 @@ Every formula is the one of :func:`fem_rmpm.explicit.explicit_step_numpy`.
 
 **Deterministic two-part scatter.**  The points are split at ``n // 2`` (by index, a
 split that does not depend on the number of threads); each half scatters in point
-order into its own nodal arrays (``N`` and ``N.half``), then the second half's sums
-are added node by node (``N + N.half``, in the touched-node order).  The two halves run
-on two threads in the ``*_parallel`` compiles and one after the other in the serial
-ones, with the same arithmetic: a run gives bitwise the same result on 1 or 2 threads
-(``tests/test_threads.py``).  Against the single point-order sum of
+order into its own nodal arrays (``N`` and ``N.half``, each with its own list of touched
+nodes).  The node loops that follow (solve on the mesh, the re-mapped nodal velocities)
+take the two sums where they read them, ``N + N.half`` at a node both halves touched:
+part 0 visits the first half's nodes, part 1 the nodes only the second half touched, so
+the two parts run on two threads with no serial merge of the lists in between.  The
+halves and parts run on two threads in the ``*_parallel`` compiles and one after the
+other in the serial ones, with the same arithmetic: a run gives bitwise the same result
+on 1 or 2 threads (``tests/test_threads.py``).  Against the single point-order sum of
 ``np.bincount`` (the numpy path) this only regroups the sums at nodes both halves touch
-(round-off, ~1e-16 relative per step).  The cost on one thread: the second clear and
-the addition over the second half's nodes, ~1 ns per point-step.  More threads than two
-do not speed the scatter up (the split is fixed so that results do not depend on them).
+(round-off, ~1e-16 relative per step).  More threads than two do not speed the scatter
+up (the split is fixed so that results do not depend on them).
 """
 from __future__ import annotations
 
@@ -25,7 +27,6 @@ from numba import prange
 from .arrays import NodeArrays
 from .basis import gimp, q4_at, q4_cell
 from .common import MASS_TOL, inline, kernel, kernel_parallel
-from .strain import exp_args_into
 
 __all__ = ["map_to_nodes", "solve_on_mesh", "g2p", "map_to_nodes_parallel", "solve_on_mesh_parallel",
            "g2p_parallel"]
@@ -92,25 +93,6 @@ def _scatter_points(P, M, N, S, o, start, stop):
 
 
 @inline
-def _add_half(N, H):
-    """``N += H`` (the second half's sums) at the nodes ``H`` touched (they join the
-    touched list of ``N``)."""
-    nt = N.n_touched[0]
-    for k in range(H.n_touched[0]):
-        a = H.touched[k]
-        if N.flag[a] == 0:
-            N.flag[a] = 1
-            N.touched[nt] = a
-            nt += 1
-        N.m[a] += H.m[a]
-        N.p[a, 0] += H.p[a, 0]
-        N.p[a, 1] += H.p[a, 1]
-        N.f[a, 0] += H.f[a, 0]
-        N.f[a, 1] += H.f[a, 1]
-    N.n_touched[0] = nt
-
-
-@inline
 def _top(N):
     """``N`` without its ``half`` (the threads' loop takes no nested groups)."""
     return NodeArrays(N.m, N.p, N.f, N.v_new, N.acc, N.v_remap, N.flag, N.touched, N.n_touched,
@@ -133,22 +115,16 @@ def _map_half(P, M, T, H, S, o, c):
 
 
 @kernel
-def _add_half_pass(N, H):
-    _add_half(N, H)
-
-
-@kernel
 def map_to_nodes(P, M, N, S, o):
     """Stage 1: nodal mass, momentum and internal force (stress divergence) from the
-    active points (gravity, ``m_I g``, is added on the mesh by :func:`solve_on_mesh`);
-    the touched nodes are listed in ``N.touched[:N.n_touched[0]]`` (flag 1).
-    The nodes of the previous step are cleared first.  Two halves of the points, summed
-    in a fixed order (module docstring).  Q4: the points' cells into ``S`` (reused by
-    :func:`g2p` and the kinematics pass, which so skip locating the points again)."""
+    active points (gravity, ``m_I g``, is added on the mesh by :func:`solve_on_mesh`),
+    the first half of the points into ``N``, the second into ``N.half``; the nodes each
+    half touched are listed in its ``touched[:n_touched[0]]`` (flag 1).  The nodes of the
+    previous step are cleared first.  Q4: the points' cells into ``S`` (reused by
+    :func:`g2p` and the stress pass, which so skip locating the points again)."""
     T = _top(N)
     _map_half(P, M, T, N.half, S, o, np.int64(0))
     _map_half(P, M, T, N.half, S, o, np.int64(1))
-    _add_half(T, N.half)
 
 
 @kernel_parallel
@@ -158,41 +134,63 @@ def map_to_nodes_parallel(P, M, T, H, S, o):
     ``N.half`` (numba's threaded loop does not take a nested group)."""
     for c in prange(2):
         _map_half(P, M, T, H, S, o, np.int64(c))
-    _add_half_pass(T, H)
 
 
 # --------------------------------------------------------------------- 2. solve on the mesh
 @inline
-def _solve_nodes(M, N, o, k0, k1):
-    """Stage 2 on the active nodes ``N.touched[k0:k1]``; returns their sum of m |v|^2."""
-    m, p, f, v_new, acc, fixed = N.m, N.p, N.f, N.v_new, N.acc, M.fixed
+def _part_nodes(T, H, c):
+    """Part ``c`` of the active nodes: ``(list, count, other flags)``; part 0 the nodes the
+    first half touched, part 1 those of the second half, less the ones with ``flag`` set in
+    ``other`` (the first half's: they are part 0's)."""
+    if c == 0:
+        return T.touched, T.n_touched[0], H.flag
+    return H.touched, H.n_touched[0], T.flag
+
+
+@inline
+def _solve_nodes(M, T, H, o, c):
+    """Stage 2 on part ``c`` of the active nodes (:func:`_part_nodes`), the two halves'
+    sums added where both touched a node; ``T.v_new``, ``T.acc``; returns the part's sum of
+    m |v|^2."""
+    v_new, acc, fixed = T.v_new, T.acc, M.fixed
     dt, damping, gx, gy = o.dt, o.damping, o.gx, o.gy
+    nodes, count, other = _part_nodes(T, H, c)
     ke = 0.0
-    for k in range(k0, k1):
-        a = N.touched[k]
-        has = m[a] > MASS_TOL
-        inv_m = 1.0 / m[a] if has else 0.0
-        for c in range(2):
-            vo = p[a, c] * inv_m
-            fc = f[a, c] + m[a] * (gx if c == 0 else gy)     # + gravity, m_I g
+    for k in range(count):
+        a = nodes[k]
+        if c == 0:
+            if other[a]:             # both halves: N + N.half
+                m = T.m[a] + H.m[a]
+                p0, p1 = T.p[a, 0] + H.p[a, 0], T.p[a, 1] + H.p[a, 1]
+                f0, f1 = T.f[a, 0] + H.f[a, 0], T.f[a, 1] + H.f[a, 1]
+            else:
+                m, p0, p1, f0, f1 = T.m[a], T.p[a, 0], T.p[a, 1], T.f[a, 0], T.f[a, 1]
+        elif other[a]:
+            continue                 # part 0's node
+        else:
+            m, p0, p1, f0, f1 = H.m[a], H.p[a, 0], H.p[a, 1], H.f[a, 0], H.f[a, 1]
+        has = m > MASS_TOL
+        inv_m = 1.0 / m if has else 0.0
+        for d in range(2):
+            vo = (p0 if d == 0 else p1) * inv_m
+            fc = (f0 if d == 0 else f1) + m * (gx if d == 0 else gy)     # + gravity, m_I g
             if damping > 0:
                 sg = 1.0 if vo > 0 else (-1.0 if vo < 0 else 0.0)
                 fc = fc - damping * abs(fc) * sg
-            if fixed[a, c]:
+            if fixed[a, d]:
                 fc = 0.0
                 vo = 0.0
             ac = fc * inv_m
-            acc[a, c] = ac
-            v_new[a, c] = vo + ac * dt
-        ke += m[a] * (v_new[a, 0] * v_new[a, 0] + v_new[a, 1] * v_new[a, 1])
+            acc[a, d] = ac
+            v_new[a, d] = vo + ac * dt
+        ke += m * (v_new[a, 0] * v_new[a, 0] + v_new[a, 1] * v_new[a, 1])
     return ke
 
 
 @kernel
-def _solve_half(M, T, o, c, part):
-    """Half ``c`` of the active nodes; their sum of m |v|^2 into ``part[2]``."""
-    nt = T.n_touched[0]
-    part[2] = _solve_nodes(M, T, o, c * nt // 2, (c + 1) * nt // 2)
+def _solve_part(M, T, H, o, c, part):
+    """Part ``c`` of the active nodes; its sum of m |v|^2 into ``part[2]``."""
+    part[2] = _solve_nodes(M, T, H, o, c)
 
 
 @kernel
@@ -201,20 +199,20 @@ def solve_on_mesh(M, N, o):
     ``f = f_int + m_I g`` — gravity on the mesh, exactly the scattered ``sum_p N_Ip m_p g``
     in exact arithmetic: two products per node and point fewer in the map, ~1-3 ns per
     point —, Cundall damping ``f - damping |f| sign(v)``, fixed components zero).
-    Returns the grid kinetic energy, summed over two halves of the active nodes and
+    Returns the grid kinetic energy, summed over the two parts of the active nodes and
     added (as the threaded version)."""
     T = _top(N)
-    nt = T.n_touched[0]
-    return 0.5 * (_solve_nodes(M, T, o, 0, nt // 2) + _solve_nodes(M, T, o, nt // 2, nt))
+    return 0.5 * (_solve_nodes(M, T, N.half, o, 0) + _solve_nodes(M, T, N.half, o, 1))
 
 
 @kernel_parallel
-def solve_on_mesh_parallel(M, T, o, S):
-    """:func:`solve_on_mesh` with the two halves of the active nodes on two threads (their
-    sums in ``S.parts[:2, 2]``; bitwise the same); ``T`` as :func:`map_to_nodes_parallel`."""
+def solve_on_mesh_parallel(M, T, H, o, S):
+    """:func:`solve_on_mesh` with the two parts of the active nodes on two threads (their
+    sums in ``S.parts[:2, 2]``; bitwise the same); ``T``, ``H`` as
+    :func:`map_to_nodes_parallel`."""
     parts = S.parts
     for c in prange(2):
-        _solve_half(M, T, o, np.int64(c), parts[c])
+        _solve_part(M, T, H, o, np.int64(c), parts[c])
     return 0.5 * (parts[0, 2] + parts[1, 2])
 
 
@@ -254,8 +252,6 @@ def _g2p_point(sh, i, P, N, v_remap, S, o):
         a = nodes[k]
         p2[a, 0] += w[k] * mv0
         p2[a, 1] += w[k] * mv1
-    if not o.geostatic:              # the exp / expm1 arguments of the stress update
-        exp_args_into(i, P.log_strain, S)
     return vp0 * vp0 + vp1 * vp1
 
 
@@ -300,16 +296,15 @@ def _g2p_half(P, M, T, H, S, o, c):
 
 
 @kernel
-def _nodal_velocity_half(M, T, H, c):
-    nt = T.n_touched[0]
-    _nodal_velocity(M, T, H, c * nt // 2, (c + 1) * nt // 2)
+def _nodal_velocity_part(M, T, H, c):
+    _nodal_velocity(M, T, H, c)
 
 
 @kernel_parallel
 def _nodal_velocity_parallel(M, T, H):
-    """The nodal velocities, two halves of the active nodes on two threads."""
+    """The nodal velocities, the two parts of the active nodes on two threads."""
     for c in prange(2):
-        _nodal_velocity_half(M, T, H, np.int64(c))
+        _nodal_velocity_part(M, T, H, np.int64(c))
 
 
 @kernel
@@ -318,15 +313,13 @@ def g2p(P, M, N, S, o):
     and the MUSL re-map of the new point momenta into ``N.v_remap`` (active nodes; the
     two halves of the points summed as in :func:`map_to_nodes`), then (3b) the re-mapped
     nodal velocities ``v_remap / m`` in the same kernel (one pass over the nodes).  The
-    positions before the move are kept in ``S.x_old`` for the stress update; finite
-    strain: ``S.ta``, ``S.tb``, ``S.tc`` = the exp / expm1 arguments of the log strain (as
-    :func:`fem_rmpm.kernels.strain.exp_args_pass`; here, not in a pass of their own, to
-    save a pass over the points: ~2 ns per point-step).  Returns the largest |v_pic|
-    (the motion as the grid sees it)."""
+    positions before the move are kept in ``S.x_old`` for the stress update.  Returns the
+    largest |v_pic| (the motion as the grid sees it)."""
     T = _top(N)
     _g2p_half(P, M, T, N.half, S, o, np.int64(0))
     _g2p_half(P, M, T, N.half, S, o, np.int64(1))
-    _nodal_velocity(M, T, N.half, 0, T.n_touched[0])
+    _nodal_velocity(M, T, N.half, np.int64(0))
+    _nodal_velocity(M, T, N.half, np.int64(1))
     return math.sqrt(max(S.parts[0, 1], S.parts[1, 1]))
 
 
@@ -341,16 +334,25 @@ def g2p_parallel(P, M, T, H, S, o):
 
 
 @inline
-def _nodal_velocity(M, N, H, k0, k1):
-    """Stage 3b on the active nodes ``N.touched[k0:k1]``: the second half's re-mapped
-    momenta ``H.v_remap`` added (at the nodes it touched, ``H.flag``), then velocities
-    ``v_remap / m`` in place (fixed: 0)."""
-    m, p2, fixed = N.m, N.v_remap, M.fixed
-    for k in range(k0, k1):
-        a = N.touched[k]
-        if H.flag[a]:
-            p2[a, 0] += H.v_remap[a, 0]
-            p2[a, 1] += H.v_remap[a, 1]
-        ma = m[a] if m[a] > MASS_TOL else 1.0
-        for c in range(2):
-            p2[a, c] = 0.0 if fixed[a, c] else p2[a, c] / ma
+def _nodal_velocity(M, T, H, c):
+    """Stage 3b on part ``c`` of the active nodes (:func:`_part_nodes`): the re-mapped
+    momenta of the two halves added where both touched a node, then the velocities
+    ``v_remap / m`` into ``T.v_remap`` (fixed: 0)."""
+    fixed = M.fixed
+    nodes, count, other = _part_nodes(T, H, c)
+    for k in range(count):
+        a = nodes[k]
+        if c == 0:
+            if other[a]:
+                m = T.m[a] + H.m[a]
+                q0 = T.v_remap[a, 0] + H.v_remap[a, 0]
+                q1 = T.v_remap[a, 1] + H.v_remap[a, 1]
+            else:
+                m, q0, q1 = T.m[a], T.v_remap[a, 0], T.v_remap[a, 1]
+        elif other[a]:
+            continue
+        else:
+            m, q0, q1 = H.m[a], H.v_remap[a, 0], H.v_remap[a, 1]
+        ma = m if m > MASS_TOL else 1.0
+        T.v_remap[a, 0] = 0.0 if fixed[a, 0] else q0 / ma
+        T.v_remap[a, 1] = 0.0 if fixed[a, 1] else q1 / ma
