@@ -85,7 +85,7 @@ class StepStats:
     # numba kernel only (None from the numpy path): for the next CFL step and the guards
     wave_speed: float | None = None   # max P-wave speed sqrt(M / rho) of the active points (m/s)
     point_speed: float | None = None  # max |v| of the active points (m/s)
-    n_bad: int = 0                    # active points with a non-finite x, v or stress
+    n_bad: int = 0                    # non-finite findings (x or v; stress) of active points
     n_outside: int = 0                # active points outside the grid rectangle
 
 
@@ -152,8 +152,8 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     ``work``: nodal arrays reused between steps (numba; made here if not given).
     ``fbar``: the F-bar locking remedy (:mod:`fem_rmpm.locking`): each point's volume
     change is replaced by the volume-weighted mean of its host cell (geostatic: B-bar).
-    ``threads`` (numba): the per-point passes of the stress update run on that many
-    threads (numba's thread pool); the result is bitwise the single-thread one.
+    ``threads`` (numba): 2 or more runs the two halves of the points on two threads (the
+    stress update on up to ``threads``); the result is bitwise the single-thread one.
     """
     kernel = kernel or DEFAULT_KERNEL
     if kernel == "numpy":
@@ -166,17 +166,18 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     o = K.StepOptions(float(dt), float(gravity[0]), float(gravity[1]), float(damping),
                       float(flip), bool(geostatic), shape == "gimp", bool(fbar), int(threads),
                       w.model)
-    # 1. map to nodes: mass, momentum and force (locate + shape + scatter, one pass)
-    # 2. solve on the mesh: momentum balance on the active nodes
-    if threads > 1:     # (the threaded loop takes the nodes' half apart: kernels.transfer)
+    # each stage per half of the points, the halves on two threads (kernels.transfer)
+    if threads > 1:     # (the threaded loops take the nodes' half apart: kernels.arrays.top_of)
         T = K.top_of(N)
+        # 1. map to nodes: mass, momentum and force (locate + shape + scatter, one pass)
         call(K.map_to_nodes_parallel, P, M, T, N.half, S, o)
-        ke = call(K.solve_on_mesh_parallel, M, T, N.half, o, S)
+        # 2. solve on the mesh, 3a. map back: move the points, (MUSL) re-map momentum
+        ke, vmax = call(K.solve_and_move_parallel, P, M, T, N.half, S, o)
     else:
         call(K.map_to_nodes, P, M, N, S, o)
-        ke = call(K.solve_on_mesh, M, N, o)
-    # 3. update the points: move, (MUSL) re-map momentum, update stress
-    vmax = K.update_points(P, M, N, S, o, call)
+        ke, vmax = call(K.solve_and_move, P, M, N, S, o)
+    # 3b, 3c. nodal velocities from the re-mapped momenta, then the stress update
+    K.update_stress(P, M, N, S, o, call)
     out = S.out
     return StepStats(ke, vmax, float(out[0]), float(out[1]), int(out[2]), int(out[3]))
 
@@ -192,7 +193,7 @@ def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarr
     act = np.nonzero(pts.active)[0] if not pts.active.all() else slice(None)
     x, v, mass, vol = pts.x[act], pts.velocity[act], pts.mass[act], pts.volume[act]
     nn = grid.n_nodes
-    second = np.arange(pts.n)[act] >= pts.n // 2      # the kernels' second half of the points
+    second = np.arange(pts.n)[act] >= K.half_split(pts.n)   # the kernels' second half
     # 1. map point state to the nodes
     _, nodes, N, dN, _ = shape_at_points(grid, x, shape, pts.half_width[act])
     m, p, f = map_to_nodes(nodes, N, dN, mass, v, pts.stress[act], vol, gravity, nn, second)

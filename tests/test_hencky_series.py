@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from fem_rmpm.kernels import hencky as H
+from fem_rmpm.kernels.common import BLOCK
 from fem_rmpm.kernels.strain import hencky_trial_pass
 from fem_rmpm.materials.hencky import exp_sym2, log_sym2
 
@@ -113,8 +114,8 @@ def test_a_point_outside_the_ranges_leaves_its_block_bitwise_unchanged():
     """One point of a block with a large shear strain (outside the series) is recomputed
     alone: the block's other points are bitwise those of the block without it."""
     rng = np.random.default_rng(3)
-    ls = rng.normal(0.0, 0.02, (2 * H.BLOCK, 4))
-    dF = np.eye(2).ravel() + rng.normal(0.0, 0.01, (2 * H.BLOCK, 4))
+    ls = rng.normal(0.0, 0.02, (2 * BLOCK, 4))
+    dF = np.eye(2).ravel() + rng.normal(0.0, 0.01, (2 * BLOCK, 4))
     base = _trial_kernel(dF, ls)
     ls2 = ls.copy()
     ls2[5, 3] = 0.4                   # y^2 = 0.64 > Y2_MAX

@@ -30,11 +30,7 @@ P = A.PointArrays(np.array([[0.5, 0.5]]), z.copy(), np.ones(1), np.ones(1), np.o
                   np.zeros((1, 4)), np.ones(1, bool), np.full((1, 2), 0.25),
                   np.zeros((1, 2, 2)), np.zeros((1, 4)), np.zeros((1, 1)), z.copy(),
                   np.zeros(1, np.int64), np.zeros((1, 2)))
-def nodes(half=None):
-    return A.NodeArrays(np.zeros(9), np.zeros((9, 2)), np.zeros((9, 2)), np.zeros((9, 2)),
-                        np.zeros((9, 2)), np.zeros((9, 2)), np.zeros(9, np.uint8),
-                        np.zeros(9, np.int64), np.zeros(1, np.int64), half)
-N = nodes(nodes())
+N = A.node_arrays(9, A.node_arrays(9))
 T.map_to_nodes(P, M, N, A.scratch_for(1, 4),
                A.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False, False))
 print(N.m[0] + N.half.m[0])     # the one point is the second half's (n // 2 = 0)

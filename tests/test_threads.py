@@ -1,10 +1,11 @@
 """Two threads for one realization give bitwise the single-thread result (issue 13).
 
-The per-point passes of the stress update (kinematics, F-bar apply, material update)
-run with ``prange``; each point's arithmetic is the serial one.  The scatters (map to
-nodes, MUSL re-map) sum two fixed halves of the points apart and add them in a fixed
-order, on two threads or one after the other (:mod:`fem_rmpm.kernels.transfer`); the
-step's maxima and counts are combined exactly.  So the state after any number of steps
+The points are taken in two fixed halves, each scattering into its own nodal arrays and
+solving, moving and re-mapping on its own nodes, with both halves' sums added in a fixed
+order where both touched a node (:mod:`fem_rmpm.kernels.transfer`); the halves run on two
+threads or one after the other.  The stress pass runs per half or in chunks of whole
+blocks of points; each point's arithmetic is the serial one, and the step's maxima and
+counts are combined exactly.  So the state after any number of steps
 is equal bit for bit on 1 and 2 threads (asserted: 0 difference).  numba's pool is set
 to 2 threads for the test (the campaign tests pin it to 1 in this process).
 """
@@ -22,8 +23,11 @@ from fem_rmpm.scene import load_scene, with_values
 FIELDS = ("x", "velocity", "stress", "log_strain", "state", "F", "volume", "u_geostatic")
 
 
-@pytest.mark.parametrize("shape,fbar", [("standard", False), ("gimp", True)])
-def test_two_threads_bitwise_equal_one_thread(meshes, shape, fbar):
+@pytest.mark.parametrize("shape,fbar,threads", [("standard", False, 2), ("gimp", True, 2),
+                                               ("standard", False, 4), ("gimp", True, 3)])
+def test_two_threads_bitwise_equal_one_thread(meshes, shape, fbar, threads):
+    """``threads`` 3 and 4: the stress pass in that many chunks of blocks (its ``wide``
+    form, the nodal velocities in a region of their own) on numba's two threads."""
     scene = with_values(load_scene(meshes / "slope_elastic.toml"), {
         "grid.cell": [0.5, 0.5], "solver.shape": shape, "soil.model": "von_mises_softening",
         "soil.cohesion_peak": 3.0, "soil.cohesion_residual": 1.0, "soil.softening_strain": 0.05})
@@ -40,7 +44,7 @@ def test_two_threads_bitwise_equal_one_thread(meshes, shape, fbar):
             sa = explicit_step(grid, a, dt, g, 0.7, 1.0, shape, k < 3, "numba", wa, fbar,
                                threads=1)
             sb = explicit_step(grid, b, dt, g, 0.7, 1.0, shape, k < 3, "numba", wb, fbar,
-                               threads=2)
+                               threads=threads)
             assert (sa.kinetic_energy, sa.max_speed, sa.wave_speed, sa.point_speed) == \
                 (sb.kinetic_energy, sb.max_speed, sb.wave_speed, sb.point_speed)
     finally:

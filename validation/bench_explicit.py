@@ -198,24 +198,26 @@ def time_runs(scene, grid, pts0, kernel, repeats):
 def _exp_stage(P, S):
     """The stress pass's exp series alone, over all points in its blocks."""
     n = np.uint64(P.x.shape[0])
-    for b in range(np.uint64(0), n, np.uint64(H.BLOCK)):
-        H.exp_block(P.log_strain, S.tb, S.tc, b, min(b + np.uint64(H.BLOCK), n))
+    for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
+        H.exp_block(P.log_strain, S.tb, S.tc, b, min(b + np.uint64(K.BLOCK), n))
 
 
 @kernel
 def _kinematics_stage(P, M, N, S, o):
     """The stress pass's kinematics alone (velocity gradient, dF, F, V, B_tr)."""
     n = np.uint64(P.x.shape[0])
-    for b in range(np.uint64(0), n, np.uint64(H.BLOCK)):
-        KS.kinematics_points(P, M, N, S, o, b, min(b + np.uint64(H.BLOCK), n))
+    split = np.uint64(K.half_split(P.x.shape[0]))
+    for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
+        vn = N.v_musl if b < split else N.half.v_musl
+        KS.kinematics_points(P, M, vn, S, o, b, min(b + np.uint64(K.BLOCK), n))
 
 
 @kernel
 def _log_stage(S):
     """The stress pass's log series alone."""
     n = np.uint64(S.ta.shape[0])
-    for b in range(np.uint64(0), n, np.uint64(H.BLOCK)):
-        H.log_block(S.W, S.ta, S.tb, S.tc, b, min(b + np.uint64(H.BLOCK), n))
+    for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
+        H.log_block(S.W, S.ta, S.tb, S.tc, b, min(b + np.uint64(K.BLOCK), n))
 
 
 def stages_numba(scene, grid, pts, geostatic, steps):
@@ -225,9 +227,10 @@ def stages_numba(scene, grid, pts, geostatic, steps):
     w = Workspace.for_grid(grid, pts.n)
     g = np.array(scene.gravity_vector)
     sv = scene.solver
-    names = ("1 map_to_nodes", "2 solve_on_mesh", "3a g2p (+ nodal velocity)",
-             "3c stress pass (all of it)", "3c part: exp series", "3c part: L, dF, F, V, B_tr",
-             "3c part: log series", "3c part: material model + stress")
+    names = ("1 map_to_nodes", "2 + 3a solve on the mesh, map back, move, re-map",
+             "3b + 3c stress pass (nodal velocities + all of it)", "3c part: exp series",
+             "3c part: L, dF, F, V, B_tr", "3c part: log series",
+             "3c part: material model + stress")
     T = {k: [] for k in names}
     clk = time.perf_counter
     explicit_step(grid, pts, 1e-4, g, sv.damping, sv.flip, sv.shape, geostatic, "numba", w)
@@ -239,34 +242,33 @@ def stages_numba(scene, grid, pts, geostatic, steps):
         dt = stable_time_step(pts, grid.cell, sv.cfl)
         o = K.StepOptions(dt, float(g[0]), float(g[1]), sv.damping, sv.flip, geostatic, False,
                           False, 1, w.model)
-        t = [clk()]
+        spans = []                     # (start, end) of each stage, in the order of names
+        t0 = clk()
         call(K.map_to_nodes, P, M, N, S, o)
-        t.append(clk())
-        call(K.solve_on_mesh, M, N, o)
-        t.append(clk())
-        call(K.g2p, P, M, N, S, o)
-        t.append(clk())
+        t1 = clk()
+        call(K.solve_and_move, P, M, N, S, o)
+        spans += [(t0, t1), (t1, clk())]
         before = {f: getattr(pts, f).copy() for f in saved}
+        t0 = clk()
         call(stress_pass, P, M, N, S, o)
-        t.append(clk())
+        spans.append((t0, clk()))
         after = {f: getattr(pts, f).copy() for f in saved}
         for f in saved:                # the parts again from the state before the pass
             getattr(pts, f)[...] = before[f]
-        t.append(clk())
+        t0 = clk()
         if not geostatic:
             call(_exp_stage, P, S)
-        t.append(clk())
+        t1 = clk()
         call(_kinematics_stage, P, M, N, S, o)
-        t.append(clk())
+        t2 = clk()
         if not geostatic:
             call(_log_stage, S)
-        t.append(clk())
+        t3 = clk()
         call(finish, P, M, S, o)
-        t.append(clk())
+        spans += [(t0, t1), (t1, t2), (t2, t3), (t3, clk())]
         for f in saved:
             getattr(pts, f)[...] = after[f]
-        del t[4]                       # the restore is not a stage
-        for k, a, b in zip(names, t[:-1], t[1:]):
+        for k, (a, b) in zip(names, spans):
             T[k].append((b - a) / pts.n * 1e9)
     return {k: float(np.median(v)) for k, v in T.items()}
 
@@ -282,9 +284,9 @@ def _finish_stage(only):
         @kernel
         def finish(P, M, S, o):
             n = np.uint64(P.x.shape[0])
-            for b in range(np.uint64(0), n, np.uint64(H.BLOCK)):
-                K.stress._finish_points(version, only, P, M, S, o, b,
-                                        min(b + np.uint64(H.BLOCK), n))
+            for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
+                K.stress._finish_points(version, only, P, S, o, b,
+                                        min(b + np.uint64(K.BLOCK), n))
         _FINISH[(version, only)] = finish
     return _FINISH[(version, only)]
 

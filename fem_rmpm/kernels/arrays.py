@@ -23,7 +23,7 @@ import numpy as np
 from numba import typeof
 
 __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Workspace",
-           "mesh_of", "point_arrays", "scratch_for", "top_of"]
+           "mesh_of", "point_arrays", "scratch_for", "node_arrays", "top_of"]
 
 Mesh = namedtuple("Mesh", "o0 o1 h0 h1 ih0 ih1 nx ny lo hi fixed")
 Mesh.__doc__ = """Structured grid: origin (m), cell size h and 1/h, cells nx x ny, the grid
@@ -36,21 +36,26 @@ m3/m; Cauchy stress (n, 4) kPa; active (n,) bool; uGIMP half widths (n, 2) m; F 
 elastic log strain (n, 4); model state (n, S); geostatic displacement u_geo (n, 2) m;
 model id (n,) and parameter rows (n, P) (:mod:`fem_rmpm.materials`)."""
 
-NodeArrays = namedtuple("NodeArrays", "m p f v_new acc v_remap flag touched n_touched half",
+NodeArrays = namedtuple("NodeArrays",
+                        "m p f v_new acc v_remap v_musl flag touched n_touched half",
                         defaults=(None,))
-NodeArrays.__doc__ = """Nodes: mass (nn,), momentum, internal force (gravity is added in the
-solve), end-of-step velocity,
-acceleration and the MUSL re-mapped momentum then velocity ``v_remap`` (nn, 2); ``flag``
-(nn,) uint8 touched this step, ``touched[:n_touched[0]]`` (uint64) the active nodes; ``half``: the
-same arrays (without velocities and accelerations) for the sums of the second half of
-the points, added to these in a fixed order (:mod:`.transfer`)."""
+NodeArrays.__doc__ = """The nodal arrays of one half of the points (:mod:`.transfer`): mass
+(nn,), momentum, internal force (gravity is added in the solve), end-of-step velocity and
+acceleration, the MUSL re-mapped momentum ``v_remap`` and the velocity from it ``v_musl``
+(nn, 2); ``flag`` (nn,) uint8 touched by the half this step, ``touched[:n_touched[0]]``
+(uint64) those nodes; ``half``: the same arrays of the second half of the points (in the
+first half's group; None in the second's)."""
 
-Scratch = namedtuple("Scratch", "x_old W ta tb tc host D cell_v cell_vdj out parts q4_ll q4_st")
+Scratch = namedtuple("Scratch",
+                     "x_old W ta tb tc host D cell_v cell_vdj out parts halves q4_ll q4_st")
 Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the trial state W (n, 4)
 and the arguments / values of the vectorised exp, expm1, log, arctanh ta, tb, tc (n,);
 F-bar host cells (n,), increments D (n, 4) and per-cell sums of V and V dJ (n_cells,);
 ``out`` (4,) = largest P-wave speed, largest point speed, non-finite and outside points,
-``parts`` (64, 4) the same per chunk of points (threads); ``q4_ll`` (n,) int64 and ``q4_st``
+``parts`` (64, 2) per chunk of points of the stress pass (threads): the largest squared
+P-wave speed and the points with a non-finite stress; ``halves`` (2, 5) per half of the
+points from the map back: grid kinetic energy (2x), the largest squared |v_pic| and |v|,
+the points with a non-finite x or v and those outside the grid; ``q4_ll`` (n,) int64 and ``q4_st``
 (n, 2): each point's Q4 cell (lower-left node) and local coordinates, found by the map to
 nodes and reused by the later passes of the step (the points have not moved in between)."""
 
@@ -142,17 +147,21 @@ class Workspace:
     @classmethod
     def for_grid(cls, grid, n_points: int) -> "Workspace":
         nn, n = grid.n_nodes, n_points
-        half = NodeArrays(np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((0, 2)),
-                          np.zeros((0, 2)), np.zeros((nn, 2)), np.zeros(nn, np.uint8),
-                          np.zeros(nn, np.uint64), np.zeros(1, np.int64))
-        nodes = NodeArrays(np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((nn, 2)),
-                           np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros(nn, np.uint8),
-                           np.zeros(nn, np.uint64), np.zeros(1, np.int64), half)
+        nodes = node_arrays(nn, node_arrays(nn))
         return cls(nodes, scratch_for(n, grid.n_cells))
+
+
+def node_arrays(nn: int, half: NodeArrays | None = None) -> NodeArrays:
+    """The :class:`NodeArrays` of one half of the points on ``nn`` nodes (zeros)."""
+    return NodeArrays(np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((nn, 2)),
+                      np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((nn, 2)),
+                      np.zeros(nn, np.uint8), np.zeros(nn, np.uint64), np.zeros(1, np.int64),
+                      half)
 
 
 def scratch_for(n: int, n_cells: int) -> Scratch:
     """The :class:`Scratch` of ``n`` points on a grid of ``n_cells`` cells (zeros)."""
     return Scratch(np.zeros((n, 2)), np.zeros((n, 4)), np.zeros(n), np.zeros(n), np.zeros(n),
                    np.zeros(n, np.int64), np.zeros((n, 4)), np.zeros(n_cells), np.zeros(n_cells),
-                   np.zeros(4), np.zeros((64, 4)), np.zeros(n, np.int64), np.zeros((n, 2)))
+                   np.zeros(4), np.zeros((64, 2)), np.zeros((2, 5)), np.zeros(n, np.int64),
+                   np.zeros((n, 2)))

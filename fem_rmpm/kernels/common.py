@@ -28,6 +28,14 @@ jit = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy")
 # ns per point, measured).  A kernel that allocated would fail to compile, not misbehave.
 kernel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy", _nrt=False)
 inline = njit(inline="always", fastmath=FASTMATH, error_model="numpy")
+# The solve on the mesh without "contract": its compiled half is called by the serial kernel
+# (with the half's number a constant) and by the threaded one (a variable); LLVM inlines it
+# into both and, with contraction allowed, fused the kinetic-energy sum differently where
+# the constant folded its branch away (1 ulp between 1 and 2 threads, measured).  Without
+# it every product and sum is rounded on its own, whatever the caller.  A node loop: the
+# FMA it loses costs nothing measurable.
+kernel_exact = njit(cache=True, fastmath={"arcp", "nsz"}, nogil=True, error_model="numpy",
+                    _nrt=False)
 # The threaded drivers: a ``prange`` loop over chunks of the points whose body calls a
 # compiled (``kernel``) chunk function, the same one the serial kernel runs, so every point
 # is computed with the same arithmetic and the result is bitwise the serial one.  The loop
@@ -45,3 +53,23 @@ inline = njit(inline="always", fastmath=FASTMATH, error_model="numpy")
 # from the options dict that all dispatchers of this decorator share, at the first compile.
 kernel_parallel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy", _nrt=False,
                        parallel=True)
+
+# Points are processed in blocks of BLOCK (the stress pass: .stress, .hencky) and in two
+# halves split at a block boundary (the scatters: .transfer); chunks of whole blocks from
+# point 0, so that blocks, halves and every point's code do not depend on the thread count.
+BLOCK = 128
+
+
+@inline
+def block_bounds(n, chunks, c):
+    """Points ``start:stop`` of chunk ``c`` of ``chunks``: whole blocks of :data:`BLOCK`
+    (the last one may be short), so that the blocks do not depend on the thread count."""
+    nb = (n + BLOCK - 1) // BLOCK
+    return min(n, c * nb // chunks * BLOCK), min(n, (c + 1) * nb // chunks * BLOCK)
+
+
+@inline
+def half_split(n):
+    """First point of the second half of ``n`` points: the block boundary nearest below
+    the middle's (:func:`block_bounds` of two chunks)."""
+    return block_bounds(n, 2, 1)[0]

@@ -41,14 +41,14 @@ run's guards).
 per point, measured); numpy's SIMD ufuncs over all points cost ~5 ns per point in the step
 but ran between kernels, on one thread, and split the stress update into three passes.
 A branch-free polynomial loop over uint64 indices is vectorised by LLVM (AVX2 /
-AVX-512): :func:`exp_block` and :func:`log_block` run over a block of :data:`BLOCK`
+AVX-512): :func:`exp_block` and :func:`log_block` run over a block of :data:`.common.BLOCK`
 points inside the one stress pass (:mod:`.stress`), on every thread, with the block's
 scratch in L1.  The range check is a boolean OR over the block (vectorised too); a block
 with a point outside the ranges recomputes that point with the ``math`` functions.
 
-Blocks are aligned to multiples of :data:`BLOCK` from point 0 whatever the thread count
-(:func:`block_bounds`), so every point goes through the same code on 1 or N threads and
-the result is bitwise the same.
+Blocks are aligned to multiples of :data:`.common.BLOCK` (128 points) from point 0 whatever
+the thread count (:func:`.common.block_bounds`), so every point goes through the same code
+on 1 or N threads and the result is bitwise the same.
 """
 from __future__ import annotations
 
@@ -57,10 +57,8 @@ from fractions import Fraction
 
 from .common import inline
 
-__all__ = ["BLOCK", "Y2_MAX", "Z_MAX", "exp_block", "log_block", "exp_parts", "log_parts",
-           "cosh_series", "sinhc_series", "atanhc_series", "block_bounds"]
-
-BLOCK = 128          # points per block of the stress pass (a multiple of the vector width)
+__all__ = ["Y2_MAX", "Z_MAX", "exp_block", "log_block", "exp_parts", "log_parts",
+           "cosh_series", "sinhc_series", "atanhc_series"]
 Y2_MAX = 0.0625      # y^2 of cosh(y), sinh(y)/y by their series
 Z_MAX = 0.0625       # x^2 of atanh(x)/x, and u^2 of ln(J), by the series
 
@@ -155,30 +153,28 @@ def exp_block(ls, tb, tc, b, e):
 
 @inline
 def log_block(W, ta, tb, tc, b, e):
-    """Points ``b:e`` (uint64): ``ta = ln(J)`` of ``J`` in ``ta`` and ``tb = atanh(x)/x`` of
-    ``z = x^2`` in ``tc`` (contiguous: one vectorised loop).  The points outside the ranges
-    are then recomputed by :func:`log_parts` from ``J = W[:, 3]`` (inactive points carry
-    J = 1, z = 0)."""
+    """Points ``b:e`` (uint64): from ``ta, tb, tc`` = J, mu, s^2 of B_tr (contiguous: one
+    vectorised loop, its division by ``mu`` too) ``ta = ln(J)`` and ``tb = atanh(x) /
+    (2 x mu)``, ``x^2 = s^2 / mu^2``.  The points outside the series ranges are then
+    recomputed by :func:`log_parts` from ``W[:, 3]`` = J, ``W[:, 0]`` = mu and ``tc``
+    (inactive points carry J = mu = 1, s = 0)."""
     out = False
     for i in range(b, e):
         J = ta[i]
         u = (J - 1.0) / (J + 1.0)
         u2 = u * u
-        z = tc[i]
+        im = 1.0 / tb[i]
+        z = tc[i] * im * im
         ta[i] = 2.0 * u * atanhc_series(u2)
-        tb[i] = atanhc_series(z)
+        tb[i] = 0.5 * atanhc_series(z) * im
         out |= not ((u2 <= Z_MAX) & (z <= Z_MAX))
     if out:
         for i in range(b, e):
             J = W[i, 3]
             u = (J - 1.0) / (J + 1.0)
-            if not ((u * u <= Z_MAX) & (tc[i] <= Z_MAX)):
-                ta[i], tb[i] = log_parts(J, tc[i])
-
-
-@inline
-def block_bounds(n, chunks, c):
-    """Points ``start:stop`` of chunk ``c`` of ``chunks``: whole blocks of :data:`BLOCK`
-    (the last one may be short), so that the blocks do not depend on the thread count."""
-    nb = (n + BLOCK - 1) // BLOCK
-    return min(n, c * nb // chunks * BLOCK), min(n, (c + 1) * nb // chunks * BLOCK)
+            im = 1.0 / W[i, 0]
+            z = tc[i] * im * im
+            if not ((u * u <= Z_MAX) & (z <= Z_MAX)):
+                lj, at = log_parts(J, z)
+                ta[i] = lj
+                tb[i] = 0.5 * at * im

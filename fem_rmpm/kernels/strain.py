@@ -3,11 +3,11 @@ gradient at the points, Hughes-Winget increment, F and volume, and the trial sta
 the Hencky update, per point, for the blocks of the stress pass (:mod:`.stress`).
 
 Finite strain: :func:`kinematics_points` reads the exp parts of each point's log strain
-(``exp(2 m)``, ``cosh(y)``, ``sinh(y)/y``, vectorised before it by
-:func:`.hencky.exp_block`), forms ``b_tr = dF exp(2 eps) dF^T`` and writes the arguments
-of its log (``1/m``, ``d``, ``axy``, ``q = det``, ``z = x^2``), whose transcendental parts
-:func:`.hencky.log_block` computes after it; :func:`log_sym2_from` then gives the trial
-log strain.  Formulas as :mod:`fem_rmpm.materials.hencky` (``exp_sym2``, ``log_sym2``,
+(``cosh(y)``, ``sinh(y)/y``, vectorised before it by :func:`.hencky.exp_block`), forms
+``B_tr = dF B dF^T`` (``B = exp(2 eps) / e^{2m}``) and writes the arguments of its log
+(``mu``, ``d``, ``axy``, ``s^2``, ``J = det dF``), whose transcendental parts (and the
+division by ``mu``) :func:`.hencky.log_block` computes after it, vectorised;
+:func:`log_sym2_from` then gives the trial log strain.  Formulas as :mod:`fem_rmpm.materials.hencky` (``exp_sym2``, ``log_sym2``,
 ``hughes_winget_increment``) in the same order.
 
 With F-bar (:mod:`fem_rmpm.locking`) the increments come from two passes:
@@ -22,8 +22,8 @@ import math
 import numpy as np
 
 from .basis import gimp, q4
-from .common import inline, kernel
-from .hencky import BLOCK, exp_block, log_block
+from .common import BLOCK, half_split, inline, kernel
+from .hencky import exp_block, log_block
 
 __all__ = ["kinematics_points", "fbar_gradient_pass", "fbar_apply_points", "log_args",
            "log_sym2_from", "hencky_trial_pass"]
@@ -31,21 +31,18 @@ __all__ = ["kinematics_points", "fbar_gradient_pass", "fbar_apply_points", "log_
 
 @inline
 def log_args(axx, ayy, axy):
-    """For 1/2 ln(A) of ``A = mu I + E`` (material.log_sym2): ``(1 / mu, d, axy, z)`` with
-    ``d`` = (axx - ayy) / 2 and ``z = s^2 / mu^2`` (x^2, for atanh(x) / x; :mod:`.hencky`)."""
+    """For 1/2 ln(A) of ``A = mu I + E`` (material.log_sym2): ``(mu, d, axy, s^2)`` with
+    ``d`` = (axx - ayy) / 2 and ``s^2 = d^2 + axy^2`` (``x^2 = s^2 / mu^2``, :mod:`.hencky`)."""
     m = 0.5 * (axx + ayy)
     d = 0.5 * (axx - ayy)
-    r2 = d * d + axy * axy
-    im = 1.0 / m
-    return im, d, axy, r2 * im * im
+    return m, d, axy, d * d + axy * axy
 
 
 @inline
-def log_sym2_from(im, d, axy, iso, atanhc):
-    """The trial log strain (xx, yy, xy): ``iso I + atanh(x)/(2 x mu) E`` from
-    :func:`log_args` of B_tr, its isotropic part ``iso = m + ln(J) / 2`` and ``atanhc =
-    atanh(x) / x`` (:mod:`.hencky`)."""
-    g = 0.5 * atanhc * im
+def log_sym2_from(g, d, axy, iso):
+    """The trial log strain (xx, yy, xy): ``iso I + g E`` from :func:`log_args` of B_tr,
+    its isotropic part ``iso = m + ln(J) / 2`` and ``g = atanh(x) / (2 x mu)``
+    (:func:`.hencky.log_block`)."""
     return iso + g * d, iso - g * d, g * axy
 
 
@@ -140,8 +137,9 @@ def _small_strain_trial(i, g00, g01, g10, g11, e0, e1, e2, e3, W):
 @inline
 def _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, P, S):
     """Finite strain at point ``i``: F <- dF F, V <- J V (J = det dF), and B_tr from the
-    exp parts ``S.tb, S.tc`` of its log strain: :func:`log_args` of B_tr into ``W[i, :3]``
-    (1/mu, d, axy) and ``S.tc[i]`` (z), J into ``S.ta[i]`` and ``W[i, 3]``."""
+    exp parts ``S.tb, S.tc`` of its log strain: :func:`log_args` of B_tr into ``W[i]`` (mu,
+    d, axy, J) and, for :func:`.hencky.log_block`, ``S.ta[i], S.tb[i], S.tc[i]`` = J, mu,
+    s^2."""
     F, W = P.F, S.W
     a00, a01, a10, a11 = F[i, 0, 0], F[i, 0, 1], F[i, 1, 0], F[i, 1, 1]
     F[i, 0, 0] = f00 * a00 + f01 * a10
@@ -152,8 +150,12 @@ def _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, P, S):
     P.vol[i] = P.vol[i] * J
     W[i, 3] = J
     S.ta[i] = J
-    W[i, 0], W[i, 1], W[i, 2], S.tc[i] = _trial_b(f00, f01, f10, f11, e0, e1, e3, S.tb[i],
-                                                  S.tc[i])
+    m, d, axy, s2 = _trial_b(f00, f01, f10, f11, e0, e1, e3, S.tb[i], S.tc[i])
+    W[i, 0] = m
+    W[i, 1] = d
+    W[i, 2] = axy
+    S.tb[i] = m
+    S.tc[i] = s2
 
 
 @inline
@@ -167,19 +169,22 @@ def _point_velocity_gradient(i, x, lp, M, vn, gimp_basis):
 
 @inline
 def _inactive(i, S):
-    """Neutral log arguments (J = 1, z = 0) for an inactive point."""
+    """Neutral log arguments (J = mu = 1, s = 0) for an inactive point."""
+    S.W[i, 0] = 1.0
     S.W[i, 3] = 1.0
     S.ta[i] = 1.0
+    S.tb[i] = 1.0
     S.tc[i] = 0.0
 
 
 @inline
-def kinematics_points(P, M, N, S, o, start, stop):
-    """Points ``start:stop`` (uint64): velocity gradient at the positions before the move.
-    Geostatic: ``W[i]`` = the small-strain trial strain.  Finite strain: Hughes-Winget
-    increment dF, F <- dF F, V <- det(dF) V, and the log arguments of B_tr
-    (:func:`_apply_increment`) from the exp parts in ``tb, tc``."""
-    dt, ls, vn = o.dt, P.log_strain, N.v_remap
+def kinematics_points(P, M, vn, S, o, start, stop):
+    """Points ``start:stop`` (uint64): velocity gradient from the nodal velocities ``vn``
+    (nn, 2) at the positions before the move.  Geostatic: ``W[i]`` = the small-strain
+    trial strain.  Finite strain: Hughes-Winget increment dF, F <- dF F, V <- det(dF) V,
+    and the log arguments of B_tr (:func:`_apply_increment`) from the exp parts in
+    ``tb, tc``."""
+    dt, ls = o.dt, P.log_strain
     for i in range(start, stop):
         if not P.active[i]:
             _inactive(i, S)
@@ -202,8 +207,10 @@ def fbar_gradient_pass(P, M, N, S, o):
     """F-bar pass 1 (:mod:`fem_rmpm.locking`): per point the host cell at ``x_old`` and the
     increment ``D`` (n, 4) — finite strain: the Hughes-Winget dF; geostatic: grad(du) =
     L dt — and per cell the sums of ``V`` and ``V dJ`` (geostatic: ``V tr grad(du)``),
-    in point order as ``np.bincount``.  ``vol`` is read, not changed."""
+    in point order as ``np.bincount``.  ``vol`` is read, not changed.  Each point's
+    nodal velocities are those of its half (``N.v_musl``, ``N.half.v_musl``)."""
     x_old, host, D, cv, cvj, vol, dt = S.x_old, S.host, S.D, S.cell_v, S.cell_vdj, P.vol, o.dt
+    split = half_split(x_old.shape[0])
     for i in range(x_old.shape[0]):
         if not P.active[i]:
             continue
@@ -216,8 +223,8 @@ def fbar_gradient_pass(P, M, N, S, o):
     for i in range(x_old.shape[0]):
         if not P.active[i]:
             continue
-        L00, L01, L10, L11 = _point_velocity_gradient(i, x_old, P.half_width, M, N.v_remap,
-                                                      o.gimp)
+        vn = N.v_musl if i < split else N.half.v_musl
+        L00, L01, L10, L11 = _point_velocity_gradient(i, x_old, P.half_width, M, vn, o.gimp)
         if o.geostatic:
             g00, g01, g10, g11 = L00 * dt, L01 * dt, L10 * dt, L11 * dt
             j = g00 + g11
@@ -269,18 +276,21 @@ def hencky_trial_pass(dF, log_strain, active, ta, tb, tc, W, eps_tr):
         exp_block(ls, tb, tc, b, e)
         for i in range(b, e):
             if not active[i]:
+                W[i, 0] = 1.0
                 W[i, 3] = 1.0
                 ta[i] = 1.0
+                tb[i] = 1.0
                 tc[i] = 0.0
                 continue
             f00, f01, f10, f11 = dF[i, 0], dF[i, 1], dF[i, 2], dF[i, 3]
-            W[i, 3] = f00 * f11 - f01 * f10
-            ta[i] = W[i, 3]
-            W[i, 0], W[i, 1], W[i, 2], tc[i] = _trial_b(f00, f01, f10, f11, ls[i, 0],
-                                                        ls[i, 1], ls[i, 3], tb[i], tc[i])
+            J = f00 * f11 - f01 * f10
+            m, d, axy, s2 = _trial_b(f00, f01, f10, f11, ls[i, 0], ls[i, 1], ls[i, 3], tb[i],
+                                     tc[i])
+            W[i, 0], W[i, 1], W[i, 2], W[i, 3] = m, d, axy, J
+            ta[i], tb[i], tc[i] = J, m, s2
         log_block(W, ta, tb, tc, b, e)
         for i in range(b, e):
             iso = 0.5 * (ls[i, 0] + ls[i, 1]) + 0.5 * ta[i]
-            eps_tr[i, 0], eps_tr[i, 1], eps_tr[i, 3] = log_sym2_from(
-                W[i, 0], W[i, 1], W[i, 2], iso, tb[i])
+            eps_tr[i, 0], eps_tr[i, 1], eps_tr[i, 3] = log_sym2_from(tb[i], W[i, 1], W[i, 2],
+                                                                     iso)
             eps_tr[i, 2] = ls[i, 2] + 0.0

@@ -30,8 +30,11 @@ from numba import prange
 from ..materials import registry
 from ..materials.dispatch import point_dispatch
 from .arrays import top_of
-from .common import inline, jit, kernel, kernel_parallel
-from .hencky import BLOCK, block_bounds, exp_block, log_block
+from .common import BLOCK, block_bounds, half_split, inline, jit, kernel, kernel_parallel
+from .hencky import exp_block, log_block
+from .transfer import (half_range, nodal_velocities, nodal_velocities_parallel,
+                       nodal_velocity_half)
+from .transfer import _top as top
 from .strain import (fbar_apply_points, fbar_gradient_pass, hencky_trial_pass, kinematics_points,
                      log_sym2_from)
 
@@ -42,79 +45,119 @@ __all__ = ["update_stress", "material_kernels", "stress_update_points",
 @inline
 def _trial_strain(geostatic, i, W, ta, tb, ls):
     """Trial log strain of point ``i`` (its log strain ``ls[i]`` not yet updated).
-    Geostatic (small strain): ``W[i]`` holds it.  Finite strain: ``W[i, :3]``, ``ta[i]`` =
-    ln(J) and ``tb[i]`` = atanh(x)/x hold the log parts of B_tr (:mod:`.hencky`)."""
+    Geostatic (small strain): ``W[i]`` holds it.  Finite strain: ``W[i, 1:3]`` (d, axy),
+    ``ta[i]`` = ln(J) and ``tb[i]`` = atanh(x)/(2 x mu) hold the log parts of B_tr
+    (:mod:`.hencky`)."""
     if geostatic:
         return W[i, 0], W[i, 1], W[i, 2], W[i, 3]
     iso = 0.5 * (ls[i, 0] + ls[i, 1]) + 0.5 * ta[i]
-    x0, x1, x3 = log_sym2_from(W[i, 0], W[i, 1], W[i, 2], iso, tb[i])
+    x0, x1, x3 = log_sym2_from(tb[i], W[i, 1], W[i, 2], iso)
     return x0, x1, ls[i, 2] + 0.0, x3
 
 
 # The model dispatch is called in the factories' bodies, where ``version`` is a closure
 # value and so a compile-time literal (see fem_rmpm.materials.dispatch).
 def _make_stress_pass(version, only):
-    """``(serial, parallel)`` stress pass compiled for one registry version and model
+    """``(serial, parallel, wide)`` stress pass compiled for one registry version and model
     restriction ``only`` (-1: any model; else the one model id of all points; see
     :mod:`fem_rmpm.materials.dispatch`); ``S.out`` (4,) = max P-wave speed
-    sqrt(M / rho), max |v|, number of non-finite points, number outside the grid."""
+    sqrt(M / rho), max |v|, number of non-finite points, number outside the grid.
+    ``serial``: the two halves of the points one after the other, each with its nodal
+    velocities first (:func:`.transfer.nodal_velocity`; with F-bar they are computed
+    before, for the gradient pass); ``parallel``: the halves on two threads; ``wide``:
+    ``o.threads`` chunks of whole blocks, the nodal velocities computed before.  Maxima
+    and counts are combined exactly: the same result in all three."""
     @kernel
     def stress_pass(P, M, N, S, o):
-        # one chunk of all points (the point loops run over uint64 indices: .common)
-        _stress_points(version, only, P, M, N, S, o, 0, P.x.shape[0], S.parts[0])
-        _combine(S, 1)
+        T = top(N)                   # (both halves' nodes, then both halves' points)
+        if not o.fbar:
+            nodal_velocity_half(M, T, N.half, np.int64(0))
+            nodal_velocity_half(M, T, N.half, np.int64(1))
+        _stress_points_call(version, only, P, M, T, N.half, S, o, np.int64(0))
+        _stress_points_call(version, only, P, M, T, N.half, S, o, np.int64(1))
+        _combine(S, 2)
 
     @kernel_parallel
-    def stress_pass_parallel(P, M, N, S, o):
-        # the points in ``o.threads`` chunks of whole blocks; maxima and counts combined
-        # exactly, so the result is the serial one for any number of chunks
+    def stress_pass_parallel(P, M, T, H, S, o):
+        for c in prange(2):
+            _stress_half_call(version, only, P, M, T, H, S, o, np.int64(c))
+        _combine(S, 2)
+
+    @kernel_parallel
+    def stress_pass_wide(P, M, T, H, S, o):
         n = P.x.shape[0]
-        parts = S.parts
-        nch = max(1, min(o.threads, parts.shape[0]))
+        nch = max(1, min(o.threads, S.parts.shape[0]))
         for c in prange(nch):
             start, stop = block_bounds(n, nch, c)
-            _stress_chunk_call(version, only, P, M, N, S, o, start, stop, parts[c])
+            _stress_chunk_call(version, only, P, M, T, H, S, o, start, stop, np.int64(c))
         _combine(S, nch)
-    return stress_pass, stress_pass_parallel
+    return stress_pass, stress_pass_parallel, stress_pass_wide
 
 
 @kernel
-def _stress_chunk_call(version, only, P, M, N, S, o, start, stop, part):
-    """:func:`_stress_points` as a compiled function of its own (``version`` and ``only``
-    literals: one compile and cache entry per pair), called from the threaded loop, not
-    inlined into it: numba's parfor passes, run over the inlined model update, changed the
-    result (1 vs 2 threads differed in tests/test_threads.py once the dispatch was inlined).
-    Module level, not a closure of :func:`_make_stress_pass`: numba's cache key of a closure
-    holds its cell values pickled, and a dispatcher pickles with a random uuid, so the
-    threaded pass closing over a chunk dispatcher missed the cache in every new process
-    (1.6 s of compile at every start with threads = 2, measured)."""
-    _stress_points(version, only, P, M, N, S, o, start, stop, part)
+def _stress_points_call(version, only, P, M, T, H, S, o, c):
+    """The stress pass over the points of half ``c`` with its nodal velocities, into
+    ``S.parts[c]``: a compiled function of its own (``version`` and ``only`` literals: one
+    compile and cache entry per pair) that the serial and the threaded passes both call
+    (the same machine code: inlined into each, LLVM's FMA contraction may differ), not
+    inlined into the threaded loop: numba's parfor passes, run over the inlined model
+    update, changed the result (1 vs 2 threads differed in tests/test_threads.py once the
+    dispatch was inlined).  Module level, not a closure of :func:`_make_stress_pass`:
+    numba's cache key of a closure holds its cell values pickled, and a dispatcher pickles
+    with a random uuid, so the threaded pass closing over a chunk dispatcher missed the
+    cache in every new process (1.6 s of compile at every start with threads = 2,
+    measured)."""
+    start, stop = half_range(P.x.shape[0], c)
+    vn = T.v_musl if c == 0 else H.v_musl
+    c2, nb = _stress_points(version, only, P, M, vn, S, o, start, stop)
+    S.parts[c, 0] = c2
+    S.parts[c, 1] = nb
+
+
+@kernel
+def _stress_half_call(version, only, P, M, T, H, S, o, c):
+    """Half ``c`` of the points on one thread: its nodal velocities (unless F-bar: computed
+    before), then :func:`_stress_points_call`."""
+    if not o.fbar:
+        nodal_velocity_half(M, T, H, c)
+    _stress_points_call(version, only, P, M, T, H, S, o, c)
+
+
+@kernel
+def _stress_chunk_call(version, only, P, M, T, H, S, o, start, stop, c):
+    """Chunk ``c`` (points ``start:stop``, whole blocks) of :func:`_make_stress_pass`'s
+    ``wide`` pass: each block with the nodal velocities of its half (the halves split at a
+    block boundary); its statistics into ``S.parts[c]``."""
+    split = half_split(P.x.shape[0])
+    a0, a1 = _stress_points(version, only, P, M, T.v_musl, S, o, start, min(stop, split))
+    b0, b1 = _stress_points(version, only, P, M, H.v_musl, S, o, max(start, split), stop)
+    S.parts[c, 0] = max(a0, b0)
+    S.parts[c, 1] = a1 + b1
 
 
 @inline
 def _combine(S, nch):
-    """``S.out`` from the squared maxima and counts of the chunks in ``S.parts``."""
-    S.out[0] = 0.0
-    S.out[1] = 0.0
-    S.out[2] = 0.0
-    S.out[3] = 0.0
+    """``S.out`` = (largest P-wave speed, largest point speed, non-finite points, points
+    outside the grid) from the stress pass's ``nch`` chunks (``S.parts``) and the map
+    back's two halves (``S.halves``), exactly (maxima and counts)."""
+    c2 = 0.0
+    n_bad = S.halves[0, 3] + S.halves[1, 3]
     for c in range(nch):
-        S.out[0] = max(S.out[0], S.parts[c, 0])
-        S.out[1] = max(S.out[1], S.parts[c, 1])
-        S.out[2] += S.parts[c, 2]
-        S.out[3] += S.parts[c, 3]
-    S.out[0] = math.sqrt(S.out[0])
-    S.out[1] = math.sqrt(S.out[1])
+        c2 = max(c2, S.parts[c, 0])
+        n_bad += S.parts[c, 1]
+    S.out[0] = math.sqrt(c2)
+    S.out[1] = math.sqrt(max(S.halves[0, 2], S.halves[1, 2]))
+    S.out[2] = n_bad
+    S.out[3] = S.halves[0, 4] + S.halves[1, 4]
 
 
 @inline
-def _stress_points(version, only, P, M, N, S, o, start, stop, part):
+def _stress_points(version, only, P, M, vn, S, o, start, stop):
     """The stress pass over points ``start:stop`` (whole blocks from a multiple of
-    :data:`BLOCK`); squared maxima and counts into ``part`` (4,) (a row of ``S.parts``)."""
+    :data:`.common.BLOCK`) with the nodal velocities ``vn`` (nn, 2); returns the largest
+    squared P-wave speed and the number of points with a non-finite stress."""
     c2max = 0.0
-    vmax2 = 0.0
     n_bad = 0
-    n_out = 0
     stop_ = np.uint64(stop)
     for b in range(np.uint64(start), stop_, np.uint64(BLOCK)):
         e = min(b + np.uint64(BLOCK), stop_)
@@ -123,30 +166,24 @@ def _stress_points(version, only, P, M, N, S, o, start, stop, part):
         if o.fbar:
             fbar_apply_points(P, S, o, b, e)
         else:
-            kinematics_points(P, M, N, S, o, b, e)
+            kinematics_points(P, M, vn, S, o, b, e)
         if not o.geostatic:
             log_block(S.W, S.ta, S.tb, S.tc, b, e)
-        c2, v2, nb, no = _finish_points(version, only, P, M, S, o, b, e)
+        c2, nb = _finish_points(version, only, P, S, o, b, e)
         c2max = max(c2max, c2)
-        vmax2 = max(vmax2, v2)
         n_bad += nb
-        n_out += no
-    part[0] = c2max
-    part[1] = vmax2
-    part[2] = n_bad
-    part[3] = n_out
+    return c2max, n_bad
 
 
 @inline
-def _finish_points(version, only, P, M, S, o, b, e):
+def _finish_points(version, only, P, S, o, b, e):
     """Points ``b:e``: the model update of the trial strain, Cauchy stress; returns the
-    squared maxima (P-wave speed, |v|) and the non-finite and outside counts."""
-    x, v, ls, stress, params, W, lo, hi = P.x, P.v, P.log_strain, P.stress, P.params, \
-        S.W, M.lo, M.hi
+    largest squared P-wave speed sqrt((K + 4/3 G) V / m) (for the next CFL step) and the
+    number of points with a non-finite stress (for the guards; their positions and
+    velocities are checked by the map back)."""
+    ls, stress, params, W = P.log_strain, P.stress, P.params, S.W
     c2max = 0.0
-    vmax2 = 0.0
     n_bad = 0
-    n_out = 0
     for i in range(b, e):
         if not P.active[i]:
             continue
@@ -168,17 +205,9 @@ def _finish_points(version, only, P, M, S, o, b, e):
         stress[i, 3] = s3
         # for the next CFL step (max of sqrt = sqrt of max) and the guards
         c2max = max(c2max, (params[i, 1] + 4.0 / 3.0 * params[i, 0]) * V / P.mass[i])
-        v0 = v[i, 0]
-        v1 = v[i, 1]
-        s2v = v0 * v0 + v1 * v1
-        vmax2 = max(vmax2, s2v)
-        y0 = x[i, 0]
-        y1 = x[i, 1]
-        if not math.isfinite(y0 + y1 + s2v + s0 + s1 + s2 + s3):
+        if not math.isfinite(s0 + s1 + s2 + s3):
             n_bad += 1
-        elif y0 < lo[0] or y1 < lo[1] or y0 > hi[0] or y1 > hi[1]:
-            n_out += 1
-    return c2max, vmax2, n_bad, n_out
+    return c2max, n_bad
 
 
 def _make_material_pass(version):
@@ -203,13 +232,13 @@ _BY_VERSION: dict = {}
 
 
 def material_kernels(only: int = -1):
-    """``(stress_pass, material_pass, stress_pass_parallel)`` compiled for the current
-    model registry; the stress passes for points of model ``only`` alone (-1: any model;
-    the material pass always takes any model)."""
+    """``(stress_pass, material_pass, stress_pass_parallel, stress_pass_wide)`` compiled
+    for the current model registry; the stress passes for points of model ``only`` alone
+    (-1: any model; the material pass always takes any model)."""
     key = (registry.version(), int(only))
     if key not in _BY_VERSION:
-        serial, parallel = _make_stress_pass(*key)
-        _BY_VERSION[key] = (serial, _make_material_pass(key[0]), parallel)
+        serial, parallel, wide = _make_stress_pass(*key)
+        _BY_VERSION[key] = (serial, _make_material_pass(key[0]), parallel, wide)
     return _BY_VERSION[key]
 
 
@@ -218,20 +247,27 @@ def _direct(kernel, *args):
 
 
 def update_stress(P, M, N, S, o, call=_direct) -> None:
-    """Stage 3c: velocity gradient from the re-mapped nodal velocities at the positions
-    before the move (``S.x_old``), deformation increment (geostatic: small strain, J = 1),
-    F, volume, the material update, Cauchy stress, and ``S.out`` (4,) = the largest P-wave
-    speed and point speed, the non-finite and the outside points — one stress pass (on
-    ``o.threads`` threads), after :func:`.strain.fbar_gradient_pass` with ``o.fbar`` (the
-    F-bar remedy, :mod:`fem_rmpm.locking`).  ``call(kernel, *args)`` runs a kernel (e.g.
-    :meth:`.Workspace.call`)."""
+    """Stage 3b and 3c: the MUSL nodal velocities from the re-mapped momenta, then per
+    point the velocity gradient at the positions before the move (``S.x_old``),
+    deformation increment (geostatic: small strain, J = 1), F, volume, the material
+    update, Cauchy stress, and ``S.out`` (4,) = the largest P-wave speed and point speed,
+    the non-finite and the outside points — one stress pass per half of the points, on
+    ``o.threads`` threads.  ``o.fbar`` (the F-bar remedy, :mod:`fem_rmpm.locking`): the
+    nodal velocities and :func:`.strain.fbar_gradient_pass` first.  ``call(kernel,
+    *args)`` runs a kernel (e.g. :meth:`.Workspace.call`)."""
+    serial, _, parallel, wide = material_kernels(o.model)
+    if o.threads <= 1:
+        if o.fbar:
+            call(nodal_velocities, M, N)
+            call(fbar_gradient_pass, P, M, N, S, o)
+        call(serial, P, M, N, S, o)
+        return
+    T = top_of(N)                    # (the threaded loop takes no nested group)
+    if o.fbar or o.threads > 2:
+        call(nodal_velocities_parallel, M, T, N.half)
     if o.fbar:
         call(fbar_gradient_pass, P, M, N, S, o)
-    passes = material_kernels(o.model)
-    if o.threads > 1:                # (the threaded loop takes no nested group: top_of)
-        call(passes[2], P, M, top_of(N), S, o)
-    else:
-        call(passes[0], P, M, N, S, o)
+    call(wide if o.threads > 2 else parallel, P, M, T, N.half, S, o)
 
 
 # --------------------------------------------------------------------- vectorised material (tests)

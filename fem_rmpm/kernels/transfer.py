@@ -1,21 +1,31 @@
 """Grid transfers of the explicit step: stage 1 (map to nodes), stage 2 (solve on the
-mesh) and the first part of stage 3 (map back, move, MUSL re-map).
+mesh) and stage 3a (map back, move, MUSL re-map), and the MUSL nodal velocities (3b).
 
 Every formula is the one of :func:`fem_rmpm.explicit.explicit_step_numpy`.
 
-**Deterministic two-part scatter.**  The points are split at ``n // 2`` (by index, a
-split that does not depend on the number of threads); each half scatters in point
-order into its own nodal arrays (``N`` and ``N.half``, each with its own list of touched
-nodes).  The node loops that follow (solve on the mesh, the re-mapped nodal velocities)
-take the two sums where they read them, ``N + N.half`` at a node both halves touched:
-part 0 visits the first half's nodes, part 1 the nodes only the second half touched, so
-the two parts run on two threads with no serial merge of the lists in between.  The
-halves and parts run on two threads in the ``*_parallel`` compiles and one after the
-other in the serial ones, with the same arithmetic: a run gives bitwise the same result
-on 1 or 2 threads (``tests/test_threads.py``).  Against the single point-order sum of
+**Two halves, each with its own nodes.**  The points are split in two halves at a block
+boundary near the middle (:func:`.common.half_split`, which does not depend on the number
+of threads).  Each half scatters in point order into its own nodal arrays (``N`` and
+``N.half``) and lists the nodes it touched.  Then each half, on its own:
+
+* solves the momentum balance on the nodes *it* touched (:func:`solve_and_move`), taking
+  at a node both halves touched the sum first half + second half (the numpy path's
+  ``second`` split), into its own ``v_new`` and ``acc``; maps back to its points, moves
+  them and re-maps their momenta into its own ``v_remap``;
+* computes the nodal velocities ``v_remap / m`` of its nodes (both halves' re-mapped
+  momenta) into its own ``v_musl`` (:func:`nodal_velocity`), for its points' stress
+  update (:mod:`.stress`).
+
+A node both halves touched is solved by both, with the same sums in the same order, so
+with the same result.  So the two halves run as two independent tasks between the two
+synchronisations of the method (after the scatter, after the re-map), each on the data it
+wrote itself: on two threads a step has three parallel regions (map; solve and move;
+nodal velocities and stress) and no serial merge of the nodal lists; on one thread the
+halves run one after the other with the same arithmetic, so 1 and 2 threads give bitwise
+the same run (``tests/test_threads.py``).  Against the single point-order sum of
 ``np.bincount`` (the numpy path) this only regroups the sums at nodes both halves touch
-(round-off, ~1e-16 relative per step).  More threads than two do not speed the scatter
-up (the split is fixed so that results do not depend on them).
+(round-off, ~1e-16 relative per step).  The grid kinetic energy is summed over the first
+half's nodes, then the second half's that the first did not touch.
 """
 from __future__ import annotations
 
@@ -26,10 +36,30 @@ from numba import prange
 
 from .arrays import NodeArrays
 from .basis import gimp, q4_at, q4_cell
-from .common import MASS_TOL, inline, kernel, kernel_parallel
+from .common import MASS_TOL, half_split, inline, kernel, kernel_exact, kernel_parallel
 
-__all__ = ["map_to_nodes", "solve_on_mesh", "g2p", "map_to_nodes_parallel", "solve_on_mesh_parallel",
-           "g2p_parallel"]
+__all__ = ["map_to_nodes", "map_to_nodes_parallel", "solve_and_move", "solve_and_move_parallel",
+           "nodal_velocity", "nodal_velocities", "nodal_velocities_parallel", "half_range"]
+
+
+@inline
+def half_range(n, c):
+    """Points ``start:stop`` of half ``c`` (0 or 1) of ``n`` points."""
+    s = half_split(n)
+    return (0, s) if c == 0 else (s, n)
+
+
+@inline
+def _top(N):
+    """``N`` without its ``half`` (the threads' loop takes no nested groups)."""
+    return NodeArrays(N.m, N.p, N.f, N.v_new, N.acc, N.v_remap, N.v_musl, N.flag, N.touched,
+                      N.n_touched, None)
+
+
+@inline
+def _own(T, H, c):
+    """The nodal arrays of half ``c``."""
+    return T if c == 0 else H
 
 
 # --------------------------------------------------------------------- 1. map to nodes
@@ -92,36 +122,26 @@ def _scatter_points(P, M, N, S, o, start, stop):
     N.n_touched[0] = nt
 
 
-@inline
-def _top(N):
-    """``N`` without its ``half`` (the threads' loop takes no nested groups)."""
-    return NodeArrays(N.m, N.p, N.f, N.v_new, N.acc, N.v_remap, N.flag, N.touched, N.n_touched,
-                      None)
-
-
 @kernel
 def _map_half(P, M, T, H, S, o, c):
-    """Half ``c`` (0: points ``:n // 2`` into ``T``; 1: the rest into ``H``, the nodes'
-    ``half``), after clearing those arrays at the nodes of the previous step.  The two
+    """Half ``c`` of the points into its nodal arrays (``T``: the first, ``H`` = the nodes'
+    ``half``: the second), after clearing them at the nodes of its previous step.  The two
     halves touch disjoint arrays, so they can run at the same time (a compiled function,
     called from the threads' loop: numba's parfor analysis crashed on this body inline)."""
-    n = P.x.shape[0]
-    if c == 0:
-        _clear(T)
-        _scatter_points(P, M, T, S, o, 0, n // 2)
-    else:
-        _clear(H)
-        _scatter_points(P, M, H, S, o, n // 2, n)
+    A = _own(T, H, c)
+    start, stop = half_range(P.x.shape[0], c)
+    _clear(A)
+    _scatter_points(P, M, A, S, o, start, stop)
 
 
 @kernel
 def map_to_nodes(P, M, N, S, o):
     """Stage 1: nodal mass, momentum and internal force (stress divergence) from the
-    active points (gravity, ``m_I g``, is added on the mesh by :func:`solve_on_mesh`),
+    active points (gravity, ``m_I g``, is added on the mesh by :func:`solve_and_move`),
     the first half of the points into ``N``, the second into ``N.half``; the nodes each
     half touched are listed in its ``touched[:n_touched[0]]`` (flag 1).  The nodes of the
-    previous step are cleared first.  Q4: the points' cells into ``S`` (reused by
-    :func:`g2p` and the stress pass, which so skip locating the points again)."""
+    previous step are cleared first.  Q4: the points' cells into ``S`` (reused by the map
+    back and the stress pass, which so skip locating the points again)."""
     T = _top(N)
     _map_half(P, M, T, N.half, S, o, np.int64(0))
     _map_half(P, M, T, N.half, S, o, np.int64(1))
@@ -130,45 +150,35 @@ def map_to_nodes(P, M, N, S, o):
 @kernel_parallel
 def map_to_nodes_parallel(P, M, T, H, S, o):
     """:func:`map_to_nodes` with the two halves on two threads (bitwise the same):
-    ``T`` the nodes' arrays without ``half`` (``N._replace(half=None)``), ``H`` =
-    ``N.half`` (numba's threaded loop does not take a nested group)."""
+    ``T`` the nodes' arrays without ``half`` (:func:`.arrays.top_of`), ``H`` = ``N.half``
+    (numba's threaded loop does not take a nested group)."""
     for c in prange(2):
         _map_half(P, M, T, H, S, o, np.int64(c))
 
 
 # --------------------------------------------------------------------- 2. solve on the mesh
 @inline
-def _part_nodes(T, H, c):
-    """Part ``c`` of the active nodes: ``(list, count, other flags)``; part 0 the nodes the
-    first half touched, part 1 those of the second half, less the ones with ``flag`` set in
-    ``other`` (the first half's: they are part 0's)."""
-    if c == 0:
-        return T.touched, T.n_touched[0], H.flag
-    return H.touched, H.n_touched[0], T.flag
-
-
-@inline
 def _solve_nodes(M, T, H, o, c):
-    """Stage 2 on part ``c`` of the active nodes (:func:`_part_nodes`), the two halves'
-    sums added where both touched a node; ``T.v_new``, ``T.acc``; returns the part's sum of
-    m |v|^2."""
-    v_new, acc, fixed = T.v_new, T.acc, M.fixed
+    """Stage 2 on the nodes half ``c`` touched: lumped-mass momentum balance with the sums
+    of both halves (first + second where both touched a node), force ``f = f_int + m_I g``
+    (gravity on the mesh: exactly the scattered ``sum_p N_Ip m_p g`` in exact arithmetic,
+    two products per node and point fewer in the map), Cundall damping ``f - damping |f|
+    sign(v)``, fixed components zero, into the half's ``v_new`` and ``acc``.  Returns the
+    sum of m |v|^2 over these nodes (half 1: less those half 0 touched)."""
+    A = _own(T, H, c)
+    other = H.flag if c == 0 else T.flag
+    v_new, acc, fixed = A.v_new, A.acc, M.fixed
     dt, damping, gx, gy = o.dt, o.damping, o.gx, o.gy
-    nodes, count, other = _part_nodes(T, H, c)
     ke = 0.0
-    for k in range(count):
-        a = nodes[k]
-        if c == 0:
-            if other[a]:             # both halves: N + N.half
-                m = T.m[a] + H.m[a]
-                p0, p1 = T.p[a, 0] + H.p[a, 0], T.p[a, 1] + H.p[a, 1]
-                f0, f1 = T.f[a, 0] + H.f[a, 0], T.f[a, 1] + H.f[a, 1]
-            else:
-                m, p0, p1, f0, f1 = T.m[a], T.p[a, 0], T.p[a, 1], T.f[a, 0], T.f[a, 1]
-        elif other[a]:
-            continue                 # part 0's node
+    for k in range(A.n_touched[0]):
+        a = A.touched[k]
+        shared = other[a] != 0
+        if shared:                   # both halves: first + second
+            m = T.m[a] + H.m[a]
+            p0, p1 = T.p[a, 0] + H.p[a, 0], T.p[a, 1] + H.p[a, 1]
+            f0, f1 = T.f[a, 0] + H.f[a, 0], T.f[a, 1] + H.f[a, 1]
         else:
-            m, p0, p1, f0, f1 = H.m[a], H.p[a, 0], H.p[a, 1], H.f[a, 0], H.f[a, 1]
+            m, p0, p1, f0, f1 = A.m[a], A.p[a, 0], A.p[a, 1], A.f[a, 0], A.f[a, 1]
         has = m > MASS_TOL
         inv_m = 1.0 / m if has else 0.0
         for d in range(2):
@@ -183,37 +193,9 @@ def _solve_nodes(M, T, H, o, c):
             ac = fc * inv_m
             acc[a, d] = ac
             v_new[a, d] = vo + ac * dt
-        ke += m * (v_new[a, 0] * v_new[a, 0] + v_new[a, 1] * v_new[a, 1])
+        if c == 0 or not shared:
+            ke += m * (v_new[a, 0] * v_new[a, 0] + v_new[a, 1] * v_new[a, 1])
     return ke
-
-
-@kernel
-def _solve_part(M, T, H, o, c, part):
-    """Part ``c`` of the active nodes; its sum of m |v|^2 into ``part[2]``."""
-    part[2] = _solve_nodes(M, T, H, o, c)
-
-
-@kernel
-def solve_on_mesh(M, N, o):
-    """Stage 2 on the active nodes: ``N.v_new`` and ``N.acc`` (lumped mass, force
-    ``f = f_int + m_I g`` — gravity on the mesh, exactly the scattered ``sum_p N_Ip m_p g``
-    in exact arithmetic: two products per node and point fewer in the map, ~1-3 ns per
-    point —, Cundall damping ``f - damping |f| sign(v)``, fixed components zero).
-    Returns the grid kinetic energy, summed over the two parts of the active nodes and
-    added (as the threaded version)."""
-    T = _top(N)
-    return 0.5 * (_solve_nodes(M, T, N.half, o, 0) + _solve_nodes(M, T, N.half, o, 1))
-
-
-@kernel_parallel
-def solve_on_mesh_parallel(M, T, H, o, S):
-    """:func:`solve_on_mesh` with the two parts of the active nodes on two threads (their
-    sums in ``S.parts[:2, 2]``; bitwise the same); ``T``, ``H`` as
-    :func:`map_to_nodes_parallel`."""
-    parts = S.parts
-    for c in prange(2):
-        _solve_part(M, T, H, o, np.int64(c), parts[c])
-    return 0.5 * (parts[0, 2] + parts[1, 2])
 
 
 # --------------------------------------------------------------------- 3. update the points
@@ -256,21 +238,42 @@ def _g2p_point(sh, i, P, N, v_remap, S, o):
 
 
 @inline
-def _g2p_points(P, M, N, v_remap, S, o, start, stop):
-    """Points ``start:stop``; their re-mapped momenta into ``v_remap``; max |v_pic|^2."""
-    vmax2 = 0.0
-    x, lp = P.x, P.half_width
+def _g2p_points(P, M, A, S, o, start, stop, row):
+    """Points ``start:stop`` with the nodal solution of their half ``A``; their re-mapped
+    momenta into ``A.v_remap``.  Into ``row`` (a row of ``S.halves``): max |v_pic|^2
+    (the motion as the grid sees it), max |v|^2 (for the next CFL step), the points with a
+    non-finite position or velocity and those outside the grid rectangle (for the guards);
+    here, where the new x and v are in registers, not in the stress pass (which would load
+    them again: ~1.5 ns per point-step, measured)."""
+    vpic2 = 0.0
+    v2max = 0.0
+    n_bad = 0
+    n_out = 0
+    x, v, lp, lo, hi = P.x, P.v, P.half_width, M.lo, M.hi
     for i in range(np.uint64(start), np.uint64(stop)):
         if not P.active[i]:
             continue
         if o.gimp:
             sg = gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M)
-            s2 = _g2p_point(sg, i, P, N, v_remap, S, o)
+            s2 = _g2p_point(sg, i, P, A, A.v_remap, S, o)
         else:                        # the cell of the map to nodes (same position)
             sq = q4_at(S.q4_ll[i], S.q4_st[i, 0], S.q4_st[i, 1], M)
-            s2 = _g2p_point(sq, i, P, N, v_remap, S, o)
-        vmax2 = max(vmax2, s2)
-    return vmax2
+            s2 = _g2p_point(sq, i, P, A, A.v_remap, S, o)
+        vpic2 = max(vpic2, s2)
+        v0 = v[i, 0]
+        v1 = v[i, 1]
+        sv = v0 * v0 + v1 * v1
+        v2max = max(v2max, sv)
+        y0 = x[i, 0]
+        y1 = x[i, 1]
+        if not math.isfinite(y0 + y1 + sv):
+            n_bad += 1
+        elif y0 < lo[0] or y1 < lo[1] or y0 > hi[0] or y1 > hi[1]:
+            n_out += 1
+    row[1] = vpic2
+    row[2] = v2max
+    row[3] = n_bad
+    row[4] = n_out
 
 
 @inline
@@ -281,78 +284,105 @@ def _clear_remap(N):
         N.v_remap[a, 1] = 0.0
 
 
-@kernel
-def _g2p_half(P, M, T, H, S, o, c):
-    """Half ``c`` of the points (as :func:`_map_half`): the re-mapped momenta into
-    ``T.v_remap`` (c = 0) or ``H.v_remap`` (cleared first); max |v_pic|^2 into
-    ``S.parts[c, 1]``."""
-    n = P.x.shape[0]
-    if c == 0:
-        _clear_remap(T)
-        S.parts[0, 1] = _g2p_points(P, M, T, T.v_remap, S, o, 0, n // 2)
-    else:
-        _clear_remap(H)
-        S.parts[1, 1] = _g2p_points(P, M, T, H.v_remap, S, o, n // 2, n)
+@inline
+def _move_points(P, M, T, H, S, o, c):
+    """Stage 3a for the points of half ``c`` (the re-mapped momenta into its ``v_remap``,
+    cleared first); their statistics into ``S.halves[c]`` (:func:`_g2p_points`)."""
+    A = _own(T, H, c)
+    start, stop = half_range(P.x.shape[0], c)
+    _clear_remap(A)
+    _g2p_points(P, M, A, S, o, start, stop, S.halves[c])
+
+
+@kernel_exact
+def _solve_half(M, T, H, S, o, c):
+    """Stage 2 on the nodes of half ``c``; their sum of m |v|^2 into ``S.halves[c, 0]``."""
+    S.halves[c, 0] = _solve_nodes(M, T, H, o, c)
 
 
 @kernel
-def _nodal_velocity_part(M, T, H, c):
-    _nodal_velocity(M, T, H, c)
-
-
-@kernel_parallel
-def _nodal_velocity_parallel(M, T, H):
-    """The nodal velocities, the two parts of the active nodes on two threads."""
-    for c in prange(2):
-        _nodal_velocity_part(M, T, H, np.int64(c))
+def _move_points_half(P, M, T, H, S, o, c):
+    _move_points(P, M, T, H, S, o, c)
 
 
 @kernel
-def g2p(P, M, N, S, o):
-    """Stage 3a: FLIP/PIC point velocities, positions (geostatic: ``P.u_geo`` instead),
-    and the MUSL re-map of the new point momenta into ``N.v_remap`` (active nodes; the
-    two halves of the points summed as in :func:`map_to_nodes`), then (3b) the re-mapped
-    nodal velocities ``v_remap / m`` in the same kernel (one pass over the nodes).  The
-    positions before the move are kept in ``S.x_old`` for the stress update.  Returns the
-    largest |v_pic| (the motion as the grid sees it)."""
-    T = _top(N)
-    _g2p_half(P, M, T, N.half, S, o, np.int64(0))
-    _g2p_half(P, M, T, N.half, S, o, np.int64(1))
-    _nodal_velocity(M, T, N.half, np.int64(0))
-    _nodal_velocity(M, T, N.half, np.int64(1))
-    return math.sqrt(max(S.parts[0, 1], S.parts[1, 1]))
-
-
-@kernel_parallel
-def g2p_parallel(P, M, T, H, S, o):
-    """:func:`g2p` with the two halves on two threads (bitwise the same); ``T``, ``H`` as
-    :func:`map_to_nodes_parallel`."""
-    for c in prange(2):
-        _g2p_half(P, M, T, H, S, o, np.int64(c))
-    _nodal_velocity_parallel(M, T, H)      # (a prange loop here would be fused: common.py)
-    return math.sqrt(max(S.parts[0, 1], S.parts[1, 1]))
+def _move_half(P, M, T, H, S, o, c):
+    """Half ``c``: stage 2 on its nodes, then stage 3a for its points.  The serial and the
+    threaded kernels call the same compiled functions (the serial one in another order):
+    inlined into different callers, LLVM's FMA contraction may differ (1 ulp of the
+    kinetic energy did, measured)."""
+    _solve_half(M, T, H, S, o, c)
+    _move_points_half(P, M, T, H, S, o, c)
 
 
 @inline
-def _nodal_velocity(M, T, H, c):
-    """Stage 3b on part ``c`` of the active nodes (:func:`_part_nodes`): the re-mapped
-    momenta of the two halves added where both touched a node, then the velocities
-    ``v_remap / m`` into ``T.v_remap`` (fixed: 0)."""
-    fixed = M.fixed
-    nodes, count, other = _part_nodes(T, H, c)
-    for k in range(count):
-        a = nodes[k]
-        if c == 0:
-            if other[a]:
-                m = T.m[a] + H.m[a]
-                q0 = T.v_remap[a, 0] + H.v_remap[a, 0]
-                q1 = T.v_remap[a, 1] + H.v_remap[a, 1]
-            else:
-                m, q0, q1 = T.m[a], T.v_remap[a, 0], T.v_remap[a, 1]
-        elif other[a]:
-            continue
+def _grid_stats(S):
+    """(grid kinetic energy, max |v_pic|) from the halves' rows of ``S.halves``."""
+    return 0.5 * (S.halves[0, 0] + S.halves[1, 0]), math.sqrt(max(S.halves[0, 1],
+                                                                   S.halves[1, 1]))
+
+
+@kernel
+def solve_and_move(P, M, N, S, o):
+    """Stage 2, solve on the mesh (the nodes' ``v_new``, ``acc``), and 3a: FLIP/PIC point
+    velocities, positions (geostatic: ``P.u_geo`` instead) and the MUSL re-map of the new
+    point momenta into ``v_remap``, per half (module docstring).  The positions before the
+    move are kept in ``S.x_old`` for the stress update.  Returns the grid kinetic energy
+    1/2 sum m_I |v_I|^2 and the largest |v_pic| (the motion as the grid sees it)."""
+    T = _top(N)                      # (both halves' nodes, then both halves' points)
+    _solve_half(M, T, N.half, S, o, np.int64(0))
+    _solve_half(M, T, N.half, S, o, np.int64(1))
+    _move_points_half(P, M, T, N.half, S, o, np.int64(0))
+    _move_points_half(P, M, T, N.half, S, o, np.int64(1))
+    return _grid_stats(S)
+
+
+@kernel_parallel
+def solve_and_move_parallel(P, M, T, H, S, o):
+    """:func:`solve_and_move` with the two halves on two threads (bitwise the same); ``T``,
+    ``H`` as :func:`map_to_nodes_parallel`."""
+    for c in prange(2):
+        _move_half(P, M, T, H, S, o, np.int64(c))
+    return _grid_stats(S)
+
+
+@inline
+def nodal_velocity(M, T, H, c):
+    """Stage 3b on the nodes half ``c`` touched: the velocities from the re-mapped momenta
+    of both halves (first + second where both touched a node), ``v_remap / m`` (fixed: 0),
+    into the half's ``v_musl``."""
+    A = _own(T, H, c)
+    other = H.flag if c == 0 else T.flag
+    fixed, out = M.fixed, A.v_musl
+    for k in range(A.n_touched[0]):
+        a = A.touched[k]
+        if other[a]:
+            m = T.m[a] + H.m[a]
+            q0 = T.v_remap[a, 0] + H.v_remap[a, 0]
+            q1 = T.v_remap[a, 1] + H.v_remap[a, 1]
         else:
-            m, q0, q1 = H.m[a], H.v_remap[a, 0], H.v_remap[a, 1]
+            m, q0, q1 = A.m[a], A.v_remap[a, 0], A.v_remap[a, 1]
         ma = m if m > MASS_TOL else 1.0
-        T.v_remap[a, 0] = 0.0 if fixed[a, 0] else q0 / ma
-        T.v_remap[a, 1] = 0.0 if fixed[a, 1] else q1 / ma
+        out[a, 0] = 0.0 if fixed[a, 0] else q0 / ma
+        out[a, 1] = 0.0 if fixed[a, 1] else q1 / ma
+
+
+@kernel
+def nodal_velocity_half(M, T, H, c):
+    """:func:`nodal_velocity` compiled on its own (serial and threaded callers share it)."""
+    nodal_velocity(M, T, H, c)
+
+
+@kernel
+def nodal_velocities(M, N):
+    """Stage 3b for both halves (before F-bar's gradient pass, which reads every point)."""
+    T = _top(N)
+    nodal_velocity_half(M, T, N.half, np.int64(0))
+    nodal_velocity_half(M, T, N.half, np.int64(1))
+
+
+@kernel_parallel
+def nodal_velocities_parallel(M, T, H):
+    """:func:`nodal_velocities` with the two halves on two threads."""
+    for c in prange(2):
+        nodal_velocity_half(M, T, H, np.int64(c))
