@@ -195,35 +195,39 @@ def time_runs(scene, grid, pts0, kernel, repeats):
 
 
 @kernel
-def _exp_stage(P, S):
-    """The stress pass's exp series alone, over all points in its blocks."""
+def _exp_stage(P, W, ta, tb, tc):
+    """The stress pass's exp series alone, over all points in its blocks (scratch W, ta,
+    tb, tc of n rows: each block a slice)."""
     n = np.uint64(P.x.shape[0])
     for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
-        H.exp_block(P.log_strain, S.tb, S.tc, b, min(b + np.uint64(K.BLOCK), n))
+        e = min(b + np.uint64(K.BLOCK), n)
+        H.exp_block(P.log_strain, tb[b:e], tc[b:e], b, e)
 
 
 @kernel
-def _kinematics_stage(P, M, N, S, o):
+def _kinematics_stage(P, M, N, S, o, W, ta, tb, tc):
     """The stress pass's kinematics alone (velocity gradient, dF, F, V, B_tr)."""
     n = np.uint64(P.x.shape[0])
     split = np.uint64(K.half_split(P.x.shape[0]))
     for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
+        e = min(b + np.uint64(K.BLOCK), n)
         vn = N.v_musl if b < split else N.half.v_musl
-        KS.kinematics_points(P, M, vn, S, o, b, min(b + np.uint64(K.BLOCK), n))
+        KS.kinematics_points(P, M, vn, S, o, W[b:e], ta[b:e], tb[b:e], tc[b:e], b, e)
 
 
 @kernel
-def _log_stage(S):
+def _log_stage(W, ta, tb, tc):
     """The stress pass's log series alone."""
-    n = np.uint64(S.ta.shape[0])
+    n = np.uint64(ta.shape[0])
     for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
-        H.log_block(S.W, S.ta, S.tb, S.tc, b, min(b + np.uint64(K.BLOCK), n))
+        e = min(b + np.uint64(K.BLOCK), n)
+        H.log_block(W[b:e], ta[b:e], tb[b:e], tc[b:e], e - b)
 
 
 def stages_numba(scene, grid, pts, geostatic, steps):
     """Median ns per particle of each kernel, called in the order of explicit_step; the
-    stress pass also as its four parts, each over all points (their sum exceeds the pass:
-    in the pass a block's scratch stays in L1 between them)."""
+    stress pass also as its four parts, each over all points with scratch of n rows (in the
+    pass a block's scratch is one row of BLOCK points per thread, in L1)."""
     w = Workspace.for_grid(grid, pts.n)
     g = np.array(scene.gravity_vector)
     sv = scene.solver
@@ -238,6 +242,7 @@ def stages_numba(scene, grid, pts, geostatic, steps):
     stress_pass = K.material_kernels(w.model)[0]
     finish = _finish_stage(w.model)
     saved = ("log_strain", "state", "F", "volume", "stress")
+    blk = (np.zeros((pts.n, 4)), np.zeros(pts.n), np.zeros(pts.n), np.zeros(pts.n))
     for _ in range(steps):
         dt = stable_time_step(pts, grid.cell, sv.cfl)
         o = K.StepOptions(dt, float(g[0]), float(g[1]), sv.damping, sv.flip, geostatic, False,
@@ -257,14 +262,14 @@ def stages_numba(scene, grid, pts, geostatic, steps):
             getattr(pts, f)[...] = before[f]
         t0 = clk()
         if not geostatic:
-            call(_exp_stage, P, S)
+            call(_exp_stage, P, *blk)
         t1 = clk()
-        call(_kinematics_stage, P, M, N, S, o)
+        call(_kinematics_stage, P, M, N, S, o, *blk)
         t2 = clk()
         if not geostatic:
-            call(_log_stage, S)
+            call(_log_stage, *blk)
         t3 = clk()
-        call(finish, P, M, S, o)
+        call(finish, P, o, *blk)
         spans += [(t0, t1), (t1, t2), (t2, t3), (t3, clk())]
         for f in saved:
             getattr(pts, f)[...] = after[f]
@@ -282,11 +287,11 @@ def _finish_stage(only):
     version = K.stress.registry.version()
     if (version, only) not in _FINISH:
         @kernel
-        def finish(P, M, S, o):
+        def finish(P, o, W, ta, tb, tc):
             n = np.uint64(P.x.shape[0])
             for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
-                K.stress._finish_points(version, only, P, S, o, b,
-                                        min(b + np.uint64(K.BLOCK), n))
+                e = min(b + np.uint64(K.BLOCK), n)
+                K.stress._finish_points(version, only, P, o, W[b:e], ta[b:e], tb[b:e], b, e)
         _FINISH[(version, only)] = finish
     return _FINISH[(version, only)]
 

@@ -22,6 +22,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import typeof
 
+from .common import BLOCK
+
+CHUNKS = 64          # the most chunks (threads) of the stress pass
+
 __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Workspace",
            "mesh_of", "point_arrays", "scratch_for", "node_arrays", "top_of"]
 
@@ -48,11 +52,12 @@ first half's group; None in the second's)."""
 
 Scratch = namedtuple("Scratch",
                      "x_old W ta tb tc host D cell_v cell_vdj out parts halves q4_ll q4_st")
-Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the trial state W (n, 4)
-and the arguments / values of the vectorised exp, expm1, log, arctanh ta, tb, tc (n,);
-F-bar host cells (n,), increments D (n, 4) and per-cell sums of V and V dJ (n_cells,);
-``out`` (4,) = largest P-wave speed, largest point speed, non-finite and outside points,
-``parts`` (64, 2) per chunk of points of the stress pass (threads): the largest squared
+Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the block scratch of the
+stress pass, one row per chunk (thread) of :data:`CHUNKS`: the trial state W (CHUNKS, BLOCK,
+4) and the arguments / values of the vectorised Hencky series ta, tb, tc (CHUNKS, BLOCK)
+(:mod:`.stress`); F-bar host cells (n,), increments D (n, 4) and per-cell sums of V and V dJ
+(n_cells,); ``out`` (4,) = largest P-wave speed, largest point speed, non-finite and outside
+points, ``parts`` (CHUNKS, 2) per chunk of the stress pass: the largest squared
 P-wave speed and the points with a non-finite stress; ``halves`` (2, 5) per half of the
 points from the map back: grid kinetic energy (2x), the largest squared |v_pic| and |v|,
 the points with a non-finite x or v and those outside the grid; ``q4_ll`` (n,) int64 and ``q4_st``
@@ -161,7 +166,8 @@ def node_arrays(nn: int, half: NodeArrays | None = None) -> NodeArrays:
 
 def scratch_for(n: int, n_cells: int) -> Scratch:
     """The :class:`Scratch` of ``n`` points on a grid of ``n_cells`` cells (zeros)."""
-    return Scratch(np.zeros((n, 2)), np.zeros((n, 4)), np.zeros(n), np.zeros(n), np.zeros(n),
-                   np.zeros(n, np.int64), np.zeros((n, 4)), np.zeros(n_cells), np.zeros(n_cells),
-                   np.zeros(4), np.zeros((64, 2)), np.zeros((2, 5)), np.zeros(n, np.int64),
+    rows = (CHUNKS, BLOCK + 24)      # block scratch, one row per chunk of the stress pass
+    return Scratch(np.zeros((n, 2)), np.zeros(rows + (4,)), np.zeros(rows), np.zeros(rows),
+                   np.zeros(rows), np.zeros(n, np.int64), np.zeros((n, 4)), np.zeros(n_cells), np.zeros(n_cells),
+                   np.zeros(4), np.zeros((CHUNKS, 2)), np.zeros((2, 5)), np.zeros(n, np.int64),
                    np.zeros((n, 2)))

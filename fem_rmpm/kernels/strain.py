@@ -26,7 +26,7 @@ from .common import BLOCK, half_split, inline, kernel
 from .hencky import exp_block, log_block
 
 __all__ = ["kinematics_points", "fbar_gradient_pass", "fbar_apply_points", "log_args",
-           "log_sym2_from", "hencky_trial_pass"]
+           "log_sym2_from", "hencky_trial_pass", "inactive_row"]
 
 
 @inline
@@ -127,7 +127,7 @@ def _q4_velocity_gradient(ll, s, t, M, vn):
 
 @inline
 def _small_strain_trial(i, g00, g01, g10, g11, e0, e1, e2, e3, W):
-    """Geostatic trial strain of point ``i``: eps + sym(grad du) into ``W``."""
+    """Geostatic trial strain: eps + sym(grad du) into row ``i`` of ``W``."""
     W[i, 0] = e0 + g00
     W[i, 1] = e1 + g11
     W[i, 2] = e2 + 0.0
@@ -135,12 +135,12 @@ def _small_strain_trial(i, g00, g01, g10, g11, e0, e1, e2, e3, W):
 
 
 @inline
-def _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, P, S):
-    """Finite strain at point ``i``: F <- dF F, V <- J V (J = det dF), and B_tr from the
-    exp parts ``S.tb, S.tc`` of its log strain: :func:`log_args` of B_tr into ``W[i]`` (mu,
-    d, axy, J) and, for :func:`.hencky.log_block`, ``S.ta[i], S.tb[i], S.tc[i]`` = J, mu,
-    s^2."""
-    F, W = P.F, S.W
+def _apply_increment(i, j, f00, f01, f10, f11, e0, e1, e3, P, W, ta, tb, tc):
+    """Finite strain at point ``i`` (row ``j`` of the block scratch W, ta, tb, tc): F <- dF
+    F, V <- J V (J = det dF), and B_tr from the exp parts ``tb, tc`` of its log strain:
+    :func:`log_args` of B_tr into ``W[j]`` (mu, d, axy, J) and, for
+    :func:`.hencky.log_block`, ``ta[j], tb[j], tc[j]`` = J, mu, s^2."""
+    F = P.F
     a00, a01, a10, a11 = F[i, 0, 0], F[i, 0, 1], F[i, 1, 0], F[i, 1, 1]
     F[i, 0, 0] = f00 * a00 + f01 * a10
     F[i, 0, 1] = f00 * a01 + f01 * a11
@@ -148,14 +148,14 @@ def _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, P, S):
     F[i, 1, 1] = f10 * a01 + f11 * a11
     J = f00 * f11 - f01 * f10
     P.vol[i] = P.vol[i] * J
-    W[i, 3] = J
-    S.ta[i] = J
-    m, d, axy, s2 = _trial_b(f00, f01, f10, f11, e0, e1, e3, S.tb[i], S.tc[i])
-    W[i, 0] = m
-    W[i, 1] = d
-    W[i, 2] = axy
-    S.tb[i] = m
-    S.tc[i] = s2
+    W[j, 3] = J
+    ta[j] = J
+    m, d, axy, s2 = _trial_b(f00, f01, f10, f11, e0, e1, e3, tb[j], tc[j])
+    W[j, 0] = m
+    W[j, 1] = d
+    W[j, 2] = axy
+    tb[j] = m
+    tc[j] = s2
 
 
 @inline
@@ -168,26 +168,27 @@ def _point_velocity_gradient(i, x, lp, M, vn, gimp_basis):
 
 
 @inline
-def _inactive(i, S):
-    """Neutral log arguments (J = mu = 1, s = 0) for an inactive point."""
-    S.W[i, 0] = 1.0
-    S.W[i, 3] = 1.0
-    S.ta[i] = 1.0
-    S.tb[i] = 1.0
-    S.tc[i] = 0.0
+def inactive_row(j, W, ta, tb, tc):
+    """Neutral log arguments (J = mu = 1, s = 0) in row ``j`` for an inactive point."""
+    W[j, 0] = 1.0
+    W[j, 3] = 1.0
+    ta[j] = 1.0
+    tb[j] = 1.0
+    tc[j] = 0.0
 
 
 @inline
-def kinematics_points(P, M, vn, S, o, start, stop):
-    """Points ``start:stop`` (uint64): velocity gradient from the nodal velocities ``vn``
-    (nn, 2) at the positions before the move.  Geostatic: ``W[i]`` = the small-strain
-    trial strain.  Finite strain: Hughes-Winget increment dF, F <- dF F, V <- det(dF) V,
-    and the log arguments of B_tr (:func:`_apply_increment`) from the exp parts in
-    ``tb, tc``."""
+def kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e):
+    """Points ``b:e`` (uint64; row ``i - b`` of the block scratch W, ta, tb, tc): velocity
+    gradient from the nodal velocities ``vn`` (nn, 2) at the positions
+    before the move.  Geostatic: ``W`` = the small-strain trial strain.  Finite strain:
+    Hughes-Winget increment dF, F <- dF F, V <- det(dF) V, and the log arguments of B_tr
+    (:func:`_apply_increment`) from the exp parts in ``tb, tc``."""
     dt, ls = o.dt, P.log_strain
-    for i in range(start, stop):
+    for i in range(b, e):
+        j = i - b
         if not P.active[i]:
-            _inactive(i, S)
+            inactive_row(j, W, ta, tb, tc)
             continue
         if o.gimp:
             L00, L01, L10, L11 = _point_velocity_gradient(i, S.x_old, P.half_width, M, vn, True)
@@ -196,10 +197,10 @@ def kinematics_points(P, M, vn, S, o, start, stop):
                                                        S.q4_st[i, 1], M, vn)
         e0, e1, e2, e3 = ls[i, 0], ls[i, 1], ls[i, 2], ls[i, 3]
         if o.geostatic:
-            _small_strain_trial(i, L00 * dt, L01 * dt, L10 * dt, L11 * dt, e0, e1, e2, e3, S.W)
+            _small_strain_trial(j, L00 * dt, L01 * dt, L10 * dt, L11 * dt, e0, e1, e2, e3, W)
             continue
         f00, f01, f10, f11 = _hughes_winget(L00, L01, L10, L11, dt)
-        _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, P, S)
+        _apply_increment(i, j, f00, f01, f10, f11, e0, e1, e3, P, W, ta, tb, tc)
 
 
 @kernel
@@ -241,15 +242,17 @@ def fbar_gradient_pass(P, M, N, S, o):
 
 
 @inline
-def fbar_apply_points(P, S, o, start, stop):
-    """F-bar pass 2 over points ``start:stop`` (uint64): the cell mean replaces each
-    point's volume change.  Finite strain: dF_bar = (dJ_bar / dJ)^(1/2) dF, then F, V and
-    the log arguments of b_tr as :func:`kinematics_points`; geostatic (B-bar): grad(du) +
-    1/2 (mean tr - tr) I, the trial strain into ``W``."""
+def fbar_apply_points(P, S, o, W, ta, tb, tc, b, e):
+    """F-bar pass 2 over points ``b:e`` (uint64; block scratch rows as
+    :func:`kinematics_points`): the cell mean replaces each point's volume change.  Finite
+    strain: dF_bar = (dJ_bar / dJ)^(1/2) dF, then F, V and the log arguments of B_tr as
+    :func:`kinematics_points`; geostatic (B-bar): grad(du) + 1/2 (mean tr - tr) I, the
+    trial strain into ``W``."""
     ls, D = P.log_strain, S.D
-    for i in range(start, stop):
+    for i in range(b, e):
+        j = i - b
         if not P.active[i]:
-            _inactive(i, S)
+            inactive_row(j, W, ta, tb, tc)
             continue
         c = S.host[i]
         mean = S.cell_vdj[c] / S.cell_v[c]
@@ -257,40 +260,38 @@ def fbar_apply_points(P, S, o, start, stop):
         e0, e1, e2, e3 = ls[i, 0], ls[i, 1], ls[i, 2], ls[i, 3]
         if o.geostatic:
             corr = 0.5 * (mean - (g00 + g11))
-            _small_strain_trial(i, g00 + corr, g01, g10, g11 + corr, e0, e1, e2, e3, S.W)
+            _small_strain_trial(j, g00 + corr, g01, g10, g11 + corr, e0, e1, e2, e3, W)
             continue
         sc = math.sqrt(mean / (g00 * g11 - g01 * g10))
         f00, f01, f10, f11 = sc * g00, sc * g01, sc * g10, sc * g11
-        _apply_increment(i, f00, f01, f10, f11, e0, e1, e3, P, S)
+        _apply_increment(i, j, f00, f01, f10, f11, e0, e1, e3, P, W, ta, tb, tc)
 
 
 @kernel
 def hencky_trial_pass(dF, log_strain, active, ta, tb, tc, W, eps_tr):
     """Trial log strains ``eps_tr`` (n, 4) of given increments ``dF`` (n, 4) (the
     material-only path of :func:`fem_rmpm.kernels.stress.stress_update_points`), in the
-    blocks of the stress pass; ``ta, tb, tc`` (n,), ``W`` (n, 4) scratch."""
+    blocks of the stress pass; ``ta, tb, tc`` (BLOCK,), ``W`` (BLOCK, 4) block scratch."""
     n = np.uint64(dF.shape[0])
     ls = log_strain
     for b in range(np.uint64(0), n, np.uint64(BLOCK)):
         e = min(b + np.uint64(BLOCK), n)
         exp_block(ls, tb, tc, b, e)
         for i in range(b, e):
+            j = i - b
             if not active[i]:
-                W[i, 0] = 1.0
-                W[i, 3] = 1.0
-                ta[i] = 1.0
-                tb[i] = 1.0
-                tc[i] = 0.0
+                inactive_row(j, W, ta, tb, tc)
                 continue
             f00, f01, f10, f11 = dF[i, 0], dF[i, 1], dF[i, 2], dF[i, 3]
             J = f00 * f11 - f01 * f10
-            m, d, axy, s2 = _trial_b(f00, f01, f10, f11, ls[i, 0], ls[i, 1], ls[i, 3], tb[i],
-                                     tc[i])
-            W[i, 0], W[i, 1], W[i, 2], W[i, 3] = m, d, axy, J
-            ta[i], tb[i], tc[i] = J, m, s2
-        log_block(W, ta, tb, tc, b, e)
+            m, d, axy, s2 = _trial_b(f00, f01, f10, f11, ls[i, 0], ls[i, 1], ls[i, 3], tb[j],
+                                     tc[j])
+            W[j, 0], W[j, 1], W[j, 2], W[j, 3] = m, d, axy, J
+            ta[j], tb[j], tc[j] = J, m, s2
+        log_block(W, ta, tb, tc, e - b)
         for i in range(b, e):
-            iso = 0.5 * (ls[i, 0] + ls[i, 1]) + 0.5 * ta[i]
-            eps_tr[i, 0], eps_tr[i, 1], eps_tr[i, 3] = log_sym2_from(tb[i], W[i, 1], W[i, 2],
+            j = i - b
+            iso = 0.5 * (ls[i, 0] + ls[i, 1]) + 0.5 * ta[j]
+            eps_tr[i, 0], eps_tr[i, 1], eps_tr[i, 3] = log_sym2_from(tb[j], W[j, 1], W[j, 2],
                                                                      iso)
             eps_tr[i, 2] = ls[i, 2] + 0.0

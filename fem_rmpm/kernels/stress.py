@@ -43,15 +43,15 @@ __all__ = ["update_stress", "material_kernels", "stress_update_points",
 
 
 @inline
-def _trial_strain(geostatic, i, W, ta, tb, ls):
-    """Trial log strain of point ``i`` (its log strain ``ls[i]`` not yet updated).
-    Geostatic (small strain): ``W[i]`` holds it.  Finite strain: ``W[i, 1:3]`` (d, axy),
-    ``ta[i]`` = ln(J) and ``tb[i]`` = atanh(x)/(2 x mu) hold the log parts of B_tr
-    (:mod:`.hencky`)."""
+def _trial_strain(geostatic, i, j, W, ta, tb, ls):
+    """Trial log strain of point ``i`` (its log strain ``ls[i]`` not yet updated) from row
+    ``j`` of the block scratch.  Geostatic (small strain): ``W[j]`` holds it.  Finite
+    strain: ``W[j, 1:3]`` (d, axy), ``ta[j]`` = ln(J) and ``tb[j]`` = atanh(x)/(2 x mu)
+    hold the log parts of B_tr (:mod:`.hencky`)."""
     if geostatic:
-        return W[i, 0], W[i, 1], W[i, 2], W[i, 3]
-    iso = 0.5 * (ls[i, 0] + ls[i, 1]) + 0.5 * ta[i]
-    x0, x1, x3 = log_sym2_from(tb[i], W[i, 1], W[i, 2], iso)
+        return W[j, 0], W[j, 1], W[j, 2], W[j, 3]
+    iso = 0.5 * (ls[i, 0] + ls[i, 1]) + 0.5 * ta[j]
+    x0, x1, x3 = log_sym2_from(tb[j], W[j, 1], W[j, 2], iso)
     return x0, x1, ls[i, 2] + 0.0, x3
 
 
@@ -109,7 +109,7 @@ def _stress_points_call(version, only, P, M, T, H, S, o, c):
     measured)."""
     start, stop = half_range(P.x.shape[0], c)
     vn = T.v_musl if c == 0 else H.v_musl
-    c2, nb = _stress_points(version, only, P, M, vn, S, o, start, stop)
+    c2, nb = _stress_points(version, only, P, M, vn, S, o, start, stop, c)
     S.parts[c, 0] = c2
     S.parts[c, 1] = nb
 
@@ -129,8 +129,8 @@ def _stress_chunk_call(version, only, P, M, T, H, S, o, start, stop, c):
     ``wide`` pass: each block with the nodal velocities of its half (the halves split at a
     block boundary); its statistics into ``S.parts[c]``."""
     split = half_split(P.x.shape[0])
-    a0, a1 = _stress_points(version, only, P, M, T.v_musl, S, o, start, min(stop, split))
-    b0, b1 = _stress_points(version, only, P, M, H.v_musl, S, o, max(start, split), stop)
+    a0, a1 = _stress_points(version, only, P, M, T.v_musl, S, o, start, min(stop, split), c)
+    b0, b1 = _stress_points(version, only, P, M, H.v_musl, S, o, max(start, split), stop, c)
     S.parts[c, 0] = max(a0, b0)
     S.parts[c, 1] = a1 + b1
 
@@ -152,42 +152,47 @@ def _combine(S, nch):
 
 
 @inline
-def _stress_points(version, only, P, M, vn, S, o, start, stop):
+def _stress_points(version, only, P, M, vn, S, o, start, stop, row):
     """The stress pass over points ``start:stop`` (whole blocks from a multiple of
-    :data:`.common.BLOCK`) with the nodal velocities ``vn`` (nn, 2); returns the largest
-    squared P-wave speed and the number of points with a non-finite stress."""
+    :data:`.common.BLOCK`) with the nodal velocities ``vn`` (nn, 2) and the block scratch
+    ``row`` of ``S`` (one per thread: the same BLOCK rows for every block, so they stay in
+    L1 and are never written back); returns the largest squared P-wave speed and the
+    number of points with a non-finite stress.  (The four scratch arrays are passed one by
+    one: as one tuple through the inlined functions, numba 0.68 lost the kinematics' writes
+    to them when two of those functions sat in the branches of an ``if``.)"""
+    W, ta, tb, tc = S.W[row], S.ta[row], S.tb[row], S.tc[row]
     c2max = 0.0
     n_bad = 0
     stop_ = np.uint64(stop)
     for b in range(np.uint64(start), stop_, np.uint64(BLOCK)):
         e = min(b + np.uint64(BLOCK), stop_)
         if not o.geostatic:
-            exp_block(P.log_strain, S.tb, S.tc, b, e)
+            exp_block(P.log_strain, tb, tc, b, e)
         if o.fbar:
-            fbar_apply_points(P, S, o, b, e)
+            fbar_apply_points(P, S, o, W, ta, tb, tc, b, e)
         else:
-            kinematics_points(P, M, vn, S, o, b, e)
+            kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e)
         if not o.geostatic:
-            log_block(S.W, S.ta, S.tb, S.tc, b, e)
-        c2, nb = _finish_points(version, only, P, S, o, b, e)
+            log_block(W, ta, tb, tc, e - b)
+        c2, nb = _finish_points(version, only, P, o, W, ta, tb, b, e)
         c2max = max(c2max, c2)
         n_bad += nb
     return c2max, n_bad
 
 
 @inline
-def _finish_points(version, only, P, S, o, b, e):
+def _finish_points(version, only, P, o, W, ta, tb, b, e):
     """Points ``b:e``: the model update of the trial strain, Cauchy stress; returns the
     largest squared P-wave speed sqrt((K + 4/3 G) V / m) (for the next CFL step) and the
     number of points with a non-finite stress (for the guards; their positions and
     velocities are checked by the map back)."""
-    ls, stress, params, W = P.log_strain, P.stress, P.params, S.W
+    ls, stress, params = P.log_strain, P.stress, P.params
     c2max = 0.0
     n_bad = 0
     for i in range(b, e):
         if not P.active[i]:
             continue
-        e0, e1, e2, e3 = _trial_strain(o.geostatic, i, W, S.ta, S.tb, ls)
+        e0, e1, e2, e3 = _trial_strain(o.geostatic, i, i - b, W, ta, tb, ls)
         r = point_dispatch(version, only, P.model[i], e0, e1, e2, e3, P.state, params, i)
         ls[i, 0] = r[0]
         ls[i, 1] = r[1]
@@ -279,8 +284,8 @@ def stress_update_points(dF, log_strain, state, soil):
     n = len(log_strain)
     D = np.ascontiguousarray(dF, dtype=float).reshape(n, 4)
     ls = np.ascontiguousarray(log_strain, dtype=float)
-    W, eps_tr = np.empty((n, 4)), np.empty((n, 4))
-    ta, tb, tc = np.empty(n), np.empty(n), np.empty(n)
+    eps_tr = np.empty((n, 4))
+    W, ta, tb, tc = np.empty((BLOCK, 4)), np.empty(BLOCK), np.empty(BLOCK), np.empty(BLOCK)
     hencky_trial_pass(D, ls, np.ones(n, dtype=bool), ta, tb, tc, W, eps_tr)
     return _points_update(eps_tr, state, soil)
 
