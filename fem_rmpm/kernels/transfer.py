@@ -219,8 +219,9 @@ def _g2p_point(sh, i, P, N, v_remap, S, o):
     v[i, 1] = v1
     x0 = x[i, 0]
     x1 = x[i, 1]
-    S.x_old[i, 0] = x0
-    S.x_old[i, 1] = x1
+    if o.gimp or o.fbar:             # (Q4 alone: the stress pass reuses the map's cell)
+        S.x_old[i, 0] = x0
+        S.x_old[i, 1] = x1
     if o.geostatic:
         P.u_geo[i, 0] += dt * vp0
         P.u_geo[i, 1] += dt * vp1
@@ -327,7 +328,8 @@ def solve_and_move(P, M, N, S, o):
     """Stage 2, solve on the mesh (the nodes' ``v_new``, ``acc``), and 3a: FLIP/PIC point
     velocities, positions (geostatic: ``P.u_geo`` instead) and the MUSL re-map of the new
     point momenta into ``v_remap``, per half (module docstring).  The positions before the
-    move are kept in ``S.x_old`` for the stress update.  Returns the grid kinetic energy
+    move are kept in ``S.x_old`` for the stress update (uGIMP or F-bar: the Q4 stress pass
+    takes the cell and local coordinates of the map instead).  Returns the grid kinetic energy
     1/2 sum m_I |v_I|^2 and the largest |v_pic| (the motion as the grid sees it)."""
     T = _top(N)                      # (both halves' nodes, then both halves' points)
     _solve_half(M, T, N.half, S, o, np.int64(0))
