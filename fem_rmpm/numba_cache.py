@@ -4,7 +4,7 @@ numba (``cache=True``) keeps a compiled function in ``__pycache__`` with an inde
 is valid while *the function's own source file* is unchanged (its stamp is the hash of
 that one file).  The explicit kernels inline helpers from other modules — the Q4/uGIMP
 basis (:mod:`fem_rmpm.kernels.basis`) into the transfers, the Hencky helpers of
-:mod:`fem_rmpm.kernels.strain` into the finish pass, the material models' point
+:mod:`fem_rmpm.kernels.strain` into the stress pass, the material models' point
 functions through the dispatch — so an edit of ``basis.py``, a rebase or an in-place
 upgrade left the kernels of the unchanged files running the old code (seen as NaN
 after a model file gained a state column), until ``*.nbi`` / ``*.nbc`` were deleted.

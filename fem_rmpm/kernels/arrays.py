@@ -69,8 +69,9 @@ StepOptions = namedtuple("StepOptions",
                          defaults=(1, -1))
 StepOptions.__doc__ = """One step: dt (s), gravity (m/s2), local damping (-), FLIP fraction
 (-), geostatic (small strain, points fixed), gimp (uGIMP basis), fbar (F-bar remedy),
-threads (the per-point passes of the stress update on that many threads), model (the
-one material model id of all points, -1 if they mix models: selects the finish pass
+threads (2 or more: the two halves of the points on two threads, the stress pass in up
+to that many chunks), model (the
+one material model id of all points, -1 if they mix models: selects the stress pass
 compiled for that model alone, :func:`.stress.material_kernels`)."""
 
 

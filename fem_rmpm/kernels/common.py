@@ -19,8 +19,8 @@ FASTMATH = {"contract", "arcp", "nsz"}
 # constant 0).  So node numbers are uint64 (:mod:`.basis`, ``NodeArrays.touched``) and
 # every point loop runs over ``range(np.uint64(start), np.uint64(stop))``; a uint64 index
 # must not meet an int64 in arithmetic (numba makes that float64).  Measured on case (i)
-# (t = 25 s, 1 thread): map to nodes ~18.5 -> ~14.5 ns per point, g2p ~12.3 -> ~10.3
-# (with gravity moved onto the mesh, :func:`.transfer.solve_on_mesh`).
+# (t = 25 s, 1 thread): map to nodes ~18.5 -> ~14.5 ns per point, the map back ~12.3 -> ~10.3
+# (with gravity moved onto the mesh, :func:`.transfer._solve_nodes`).
 jit = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy")
 # The step kernels allocate nothing, so they run without numba's reference counting
 # (NRT): with it, every array handed to an inlined per-point helper is incref'd and
