@@ -28,9 +28,10 @@ real ones):
   (0.25 m) this gives 8 628 steps against 11 560 taken in 34.4 s (at rest);
 * implicit steps = ``load_steps`` (quasi-static) or ``t_end / dt`` (dynamic);
 * wall time = steps x points x the cost per point-step: :data:`NS_PER_POINT_STEP`.
-  The explicit numba figure, 84 ns, is the whole-run figure of the reference slope
-  case (i) (18 260 points, 11 560 steps, 17.7 s wall) on an idle 2-core AMD EPYC
-  virtual machine (Python 3.11, numba, one thread).  uGIMP costs 2.1x, F-bar 1.05x
+  The explicit numba figure, 65 ns, is the whole-run figure of the reference slope
+  case (i) (18 260 points, 11 017 steps, 11.7-12.3 s wall, median of six runs 64.5 ns)
+  on an idle 2-core Intel Xeon virtual machine (Python 3.11, numba, one thread; 84 ns on
+  the AMD EPYC VM before the one-pass stress update).  uGIMP costs 2.1x, F-bar 1.05x
   and the numpy kernel about 2.7 us.  The implicit figure, 35 us per point-step, is
   the README's dynamic implicit run of the reference slope (1 788 Newmark steps in
   about 19 minutes on a shared core), so it may be 2x high on an idle machine.
@@ -51,14 +52,16 @@ __all__ = ["RunEstimate", "BudgetError", "estimate_run", "check_budget",
 #: Environment variable that sets the memory limit in GiB (default: 75 % of the RAM).
 MEMORY_LIMIT_ENV = "FEM_RMPM_MEMORY_LIMIT_GB"
 BASE_BYTES = 200e6          # interpreter + numpy/scipy/numba/scikit-fem, measured RSS ~190 MB
-BYTES_PER_CELL = 213.0      # mesh nodes and cells, node flags, seeding temporaries, workspace
-#                             (65 B of it: the second-half scatter arrays of the kernels)
-BYTES_PER_POINT = 380.0     # point state (Particles) + explicit workspace per point
+BYTES_PER_CELL = 277.0      # mesh nodes and cells, node flags, seeding temporaries, workspace
+#                             (129 B of it: the second half's nodal arrays of the kernels)
+BYTES_PER_POINT = 324.0     # point state (Particles) + explicit workspace per point (the
+#                             stress pass's scratch is per block, not per point)
 BYTES_PER_POINT_SNAPSHOT = 24.0
 #: Whole-run cost per point-step (ns) by (scheme, kernel or shape); see the module docstring.
-NS_PER_POINT_STEP = {"explicit": 84.0, "explicit_gimp_factor": 2.1, "explicit_fbar_factor": 1.05,
+NS_PER_POINT_STEP = {"explicit": 65.0, "explicit_gimp_factor": 2.1, "explicit_fbar_factor": 1.05,
                      "explicit_numpy": 2700.0, "implicit": 35000.0}
-COST_MACHINE = {"explicit": "idle 2-core AMD EPYC VM", "implicit": "shared 2-core AMD EPYC VM"}
+COST_MACHINE = {"explicit": "idle 2-core Intel Xeon VM",
+                "implicit": "shared 2-core AMD EPYC VM"}
 
 
 class BudgetError(SceneError):

@@ -35,7 +35,8 @@ def test_estimate_cfl_step_and_steps(meshes):
     est = budget.estimate_run(scene)
     assert est.dt == pytest.approx(0.5 * 0.25 / cp, rel=1e-12)
     assert est.steps == math.ceil(scene.solver.t_end / est.dt)
-    assert est.wall_time == pytest.approx(est.steps * est.points * 84e-9, rel=1e-12)
+    assert est.wall_time == pytest.approx(
+        est.steps * est.points * budget.NS_PER_POINT_STEP["explicit"] * 1e-9, rel=1e-12)
 
 
 def test_fine_reference_slope_refused_with_estimate(tmp_path, capsys):
