@@ -7,8 +7,9 @@ Finite strain: :func:`kinematics_points` reads the exp parts of each point's log
 ``B_tr = dF B dF^T`` (``B = exp(2 eps) / e^{2m}``) and writes the arguments of its log
 (``mu``, ``d``, ``axy``, ``s^2``, ``J = det dF``), whose transcendental parts (and the
 division by ``mu``) :func:`.hencky.log_block` computes after it, vectorised;
-:func:`log_sym2_from` then gives the trial log strain.  Formulas as :mod:`fem_rmpm.materials.hencky` (``exp_sym2``, ``log_sym2``,
-``hughes_winget_increment``) in the same order.
+:func:`log_sym2_from` then gives the trial log strain.  The same quantity as
+:mod:`fem_rmpm.materials.hencky` (``exp_sym2``, ``log_sym2``), factored as
+:mod:`.hencky` says (equal to round-off); ``hughes_winget_increment`` in the same order.
 
 With F-bar (:mod:`fem_rmpm.locking`) the increments come from two passes:
 :func:`fbar_gradient_pass` (increments and per-cell sums of ``V`` and ``V dJ``, in point

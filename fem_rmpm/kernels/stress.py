@@ -73,8 +73,10 @@ def _make_stress_pass(version, only):
         if not o.fbar:
             nodal_velocity_half(M, T, N.half, np.int64(0))
             nodal_velocity_half(M, T, N.half, np.int64(1))
-        _stress_points_call(version, only, P, M, T, N.half, S, o, np.int64(0))
-        _stress_points_call(version, only, P, M, T, N.half, S, o, np.int64(1))
+        n = P.x.shape[0]
+        for c in range(2):
+            start, stop = half_range(n, c)
+            _stress_chunk_call(version, only, P, M, T, N.half, S, o, start, stop, np.int64(c))
         _combine(S, 2)
 
     @kernel_parallel
@@ -95,39 +97,29 @@ def _make_stress_pass(version, only):
 
 
 @kernel
-def _stress_points_call(version, only, P, M, T, H, S, o, c):
-    """The stress pass over the points of half ``c`` with its nodal velocities, into
-    ``S.parts[c]``: a compiled function of its own (``version`` and ``only`` literals: one
-    compile and cache entry per pair) that the serial and the threaded passes both call
-    (the same machine code: inlined into each, LLVM's FMA contraction may differ), not
-    inlined into the threaded loop: numba's parfor passes, run over the inlined model
-    update, changed the result (1 vs 2 threads differed in tests/test_threads.py once the
-    dispatch was inlined).  Module level, not a closure of :func:`_make_stress_pass`:
-    numba's cache key of a closure holds its cell values pickled, and a dispatcher pickles
-    with a random uuid, so the threaded pass closing over a chunk dispatcher missed the
-    cache in every new process (1.6 s of compile at every start with threads = 2,
-    measured)."""
-    start, stop = half_range(P.x.shape[0], c)
-    vn = T.v_musl if c == 0 else H.v_musl
-    c2, nb = _stress_points(version, only, P, M, vn, S, o, start, stop, c)
-    S.parts[c, 0] = c2
-    S.parts[c, 1] = nb
-
-
-@kernel
 def _stress_half_call(version, only, P, M, T, H, S, o, c):
     """Half ``c`` of the points on one thread: its nodal velocities (unless F-bar: computed
-    before), then :func:`_stress_points_call`."""
+    before), then :func:`_stress_chunk_call` over its points."""
     if not o.fbar:
         nodal_velocity_half(M, T, H, c)
-    _stress_points_call(version, only, P, M, T, H, S, o, c)
+    start, stop = half_range(P.x.shape[0], c)
+    _stress_chunk_call(version, only, P, M, T, H, S, o, start, stop, c)
 
 
 @kernel
 def _stress_chunk_call(version, only, P, M, T, H, S, o, start, stop, c):
-    """Chunk ``c`` (points ``start:stop``, whole blocks) of :func:`_make_stress_pass`'s
-    ``wide`` pass: each block with the nodal velocities of its half (the halves split at a
-    block boundary); its statistics into ``S.parts[c]``."""
+    """The stress pass over chunk ``c`` (points ``start:stop``, whole blocks: a half, or a
+    chunk of the ``wide`` pass), each block with the nodal velocities of its half (the
+    halves split at a block boundary); its statistics into ``S.parts[c]``.  The one
+    compiled function all three passes of :func:`_make_stress_pass` call (the same machine
+    code for every point; inlined into each caller, LLVM's FMA contraction may differ),
+    ``version`` and ``only`` literals (one compile and cache entry per pair), not inlined
+    into the threaded loops: numba's parfor passes, run over the inlined model update,
+    changed the result (1 vs 2 threads differed in tests/test_threads.py once the dispatch
+    was inlined).  Module level, not a closure of :func:`_make_stress_pass`: numba's cache
+    key of a closure holds its cell values pickled, and a dispatcher pickles with a random
+    uuid, so the threaded pass closing over a chunk dispatcher missed the cache in every
+    new process (1.6 s of compile at every start with threads = 2, measured)."""
     split = half_split(P.x.shape[0])
     c2max = 0.0
     n_bad = 0

@@ -308,10 +308,11 @@ def _move_points_half(P, M, T, H, S, o, c):
 
 @kernel
 def _move_half(P, M, T, H, S, o, c):
-    """Half ``c``: stage 2 on its nodes, then stage 3a for its points.  The serial and the
-    threaded kernels call the same compiled functions (the serial one in another order):
-    inlined into different callers, LLVM's FMA contraction may differ (1 ulp of the
-    kinetic energy did, measured)."""
+    """Half ``c``: stage 2 on its nodes, then stage 3a for its points (the threaded
+    kernel's task; the serial kernel calls the same two functions, both halves' nodes
+    first).  The solve is compiled without FMA contraction (:data:`.common.kernel_exact`):
+    LLVM inlines it into both callers and contracted the kinetic-energy sum differently in
+    each (1 ulp, measured)."""
     _solve_half(M, T, H, S, o, c)
     _move_points_half(P, M, T, H, S, o, c)
 
