@@ -47,6 +47,7 @@ from .kernels import Workspace
 from .locking import bbar_gradient, fbar_increment, host_cells
 from .materials import hughes_winget_increment, small_strain_update, stress_update
 from .particles import Particles
+from .point_order import SORT_EVERY, PointOrder
 from .regularisation import average_softening
 from .run import RunRecord, SimulationError, at_rest, check_points
 from .scene import Scene
@@ -250,20 +251,21 @@ def _check_jump(jump: float, h_min: float, step: int, t: float, cfl: float) -> N
 
 
 def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
-                 progress=None, kernel: str | None = None) -> RunRecord:
+                 progress=None, kernel: str | None = None,
+                 sort_every: int = SORT_EVERY) -> RunRecord:
     """Time loop of the explicit scheme.
 
-    Phases: with ``gravity_phase = "geostatic"`` gravity is first ramped onto the
-    fixed in-situ geometry (small strain, damped) until at rest or for at most
-    ``geostatic_time``; then (or from t = 0 with ``"dynamic"``) the large
-    deformation phase runs, damped until ``damping_time``, until ``t_end`` or rest.
-    At rest: max point speed < ``rest_velocity`` and grid kinetic energy <=
-    ``rest_energy_ratio`` x its peak, once gravity is fully on.
-    ``on_output(t, pts)`` is called at t = 0, every ``output_interval`` and at the end.
-    ``kernel``: ``"numba"`` | ``"numpy"`` (default: ``[solver] kernel``, else
+    Phases: with ``gravity_phase = "geostatic"`` gravity is first ramped onto the fixed
+    in-situ geometry (small strain, damped) until at rest or for at most ``geostatic_time``;
+    then (or from t = 0 with ``"dynamic"``) the large deformation phase runs, damped until
+    ``damping_time``, until ``t_end`` or rest (:func:`fem_rmpm.run.at_rest`, once gravity is
+    fully on).  ``on_output(t, pts)`` is called at t = 0, every ``output_interval`` and at
+    the end.  ``kernel``: ``"numba"`` | ``"numpy"`` (default: ``[solver] kernel``, else
     :data:`DEFAULT_KERNEL`).  With numba the CFL step and the guards use the maxima the
-    stress kernel returns (the values of :func:`stable_time_step` and :func:`check_points`
-    without another pass over the points).  ``threads``: :func:`_run_threads`."""
+    stress kernel returns (no pass over the points in Python), and the points are sorted by
+    host cell after every output and every ``sort_every`` steps (0: never;
+    :mod:`fem_rmpm.point_order`), in their original order whenever ``on_output``, a guard
+    or the caller sees them.  ``threads``: :func:`_run_threads`."""
     sv = scene.solver
     kernel = kernel or getattr(sv, "kernel", None) or DEFAULT_KERNEL
     if kernel not in KERNELS:
@@ -271,53 +273,59 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     work = Workspace.for_grid(grid, pts.n) if kernel == "numba" else None
     threads = _run_threads(int(getattr(sv, "threads", 0)), kernel)
     stats = None
-    h_min = float(np.min(grid.cell))
-    g_full = np.array(scene.gravity_vector)
+    h_min, g_full = float(np.min(grid.cell)), np.array(scene.gravity_vector)
     rec = RunRecord(scheme="explicit", solver={"threads": threads})
     t, step, ke_peak, next_out = 0.0, 0, 0.0, sv.output_interval
     geostatic = sv.gravity_phase == "geostatic"
     wall0 = time.perf_counter()
     if on_output:
         on_output(t, pts)
-    while t < sv.t_end - 1e-12:
-        dt = min(_cfl_step(stats, pts, grid, sv.cfl, h_min), sv.t_end - t)
-        ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
-        damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
-        stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape, geostatic,
-                              kernel, work, bool(sv.fbar), threads)
-        average_softening(grid, pts)     # non-local softening (no-op for local soils)
-        t, step = t + dt, step + 1
-        rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
-        if step == 1:                    # the t = 0 output and the kernels' first calls
-            rec.solver["first_step_time"] = time.perf_counter() - wall0
-        if stats.wave_speed is None or stats.n_bad or stats.n_outside:
-            check_points(grid, pts, step, t, sv.edge_policy, rec)
-            if stats.n_outside:      # points were frozen: next CFL step from the numpy helper
-                stats.wave_speed = None
-            if not pts.active.any():
-                rec.stop_reason = "all points left the grid"
+    order = PointOrder(sort_every if kernel == "numba" else 0)
+    try:
+        while t < sv.t_end - 1e-12:
+            dt = min(_cfl_step(stats, pts, grid, sv.cfl, h_min), sv.t_end - t)
+            ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
+            damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
+            stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape,
+                                  geostatic, kernel, work, bool(sv.fbar), threads)
+            average_softening(grid, pts)     # non-local softening (no-op for local soils)
+            t, step = t + dt, step + 1
+            rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
+            if step == 1:                    # the t = 0 output and the kernels' first calls
+                rec.solver["first_step_time"] = time.perf_counter() - wall0
+            if stats.wave_speed is None or stats.n_bad or stats.n_outside:
+                order.restore(pts)           # the guards name points by their original index
+                check_points(grid, pts, step, t, sv.edge_policy, rec)
+                if stats.n_outside:      # points were frozen: next CFL step from the numpy helper
+                    stats.wave_speed = None
+                if not pts.active.any():
+                    rec.stop_reason = "all points left the grid"
+                    break
+            _check_jump(stats.max_speed * dt, h_min, step, t, sv.cfl)
+            ke_peak = max(ke_peak, stats.kinetic_energy)
+            if step % 20 == 0:
+                rec.energy.append((t, stats.kinetic_energy))
+                if progress:
+                    progress(t, step)
+            if on_output and t >= next_out - 1e-12:
+                order.restore(pts)
+                on_output(t, pts)
+                next_out += sv.output_interval
+            order.sort_if_due(grid, pts, step)
+            rest = at_rest(t, sv.gravity_ramp_time, stats.max_speed, stats.kinetic_energy, ke_peak,
+                           sv.rest_velocity, sv.rest_energy_ratio)
+            if geostatic and (rest or t >= sv.geostatic_time):
+                geostatic = False
+                rec.solver["geostatic_end_time"] = t
+                rec.solver["geostatic_at_rest"] = bool(rest)
+                continue
+            if rest:
+                rec.stop_reason = "at rest"
                 break
-        _check_jump(stats.max_speed * dt, h_min, step, t, sv.cfl)
-        ke_peak = max(ke_peak, stats.kinetic_energy)
-        if step % 20 == 0:
-            rec.energy.append((t, stats.kinetic_energy))
-            if progress:
-                progress(t, step)
-        if on_output and t >= next_out - 1e-12:
-            on_output(t, pts)
-            next_out += sv.output_interval
-        rest = at_rest(t, sv.gravity_ramp_time, stats.max_speed, stats.kinetic_energy, ke_peak,
-                       sv.rest_velocity, sv.rest_energy_ratio)
-        if geostatic and (rest or t >= sv.geostatic_time):
-            geostatic = False
-            rec.solver["geostatic_end_time"] = t
-            rec.solver["geostatic_at_rest"] = bool(rest)
-            continue
-        if rest:
-            rec.stop_reason = "at rest"
-            break
-    else:
-        rec.stop_reason = "t_end reached"
+        else:
+            rec.stop_reason = "t_end reached"
+    finally:
+        order.restore(pts)
     rec.steps, rec.time, rec.wall_time = step, t, time.perf_counter() - wall0
     if on_output and next_out - sv.output_interval < t - 1e-12:
         on_output(t, pts)

@@ -80,8 +80,11 @@ class Particles:
         return cohesion(self.state, self.soil)
 
     def copy(self) -> "Particles":
+        """A deep copy (the material's arrays too: the explicit time loop reorders them in
+        place, :mod:`fem_rmpm.point_order`)."""
         arrays = {k: (v.copy() if isinstance(v, np.ndarray) else v)
                   for k, v in self.__dict__.items()}
+        arrays["soil"] = self.soil.replace()
         return Particles(**arrays)
 
 

@@ -135,6 +135,11 @@ def _plan(soil):
     return plan
 
 
+def forget_plan(soil) -> None:
+    """Drop the cached plan of ``soil`` (its points were reordered in place)."""
+    _PLANS.pop(soil, None)
+
+
 def average_softening(grid, pts, method: str = "cells") -> None:
     """The non-local step of the staggered update (in place, once per step): the
     softening variable of every non-local point grows by the weighted mean of the
