@@ -5,10 +5,12 @@ nodes and the map back then read and write nodal arrays all over the mesh (cache
 misses), and the two halves of the points that the threaded step runs on two threads
 (:mod:`fem_rmpm.kernels.transfer`) come to touch the same nodes, which both halves then
 solve.  :class:`PointOrder` sorts the points by their host cell every few hundred steps
-(cells numbered along the grid's longer axis first, so the two halves are two compact
-pieces of the slope with a short common edge) and restores the original order before
-anyone outside the time loop looks at the points: at every output, at a guard and at
-the end of the run.  A point's index is therefore its identity everywhere outside the
+(cells numbered row by row, as the grid numbers its nodes: the order the points are
+seeded in) and restores the original order before anyone outside the time loop looks at
+the points: at every output, at a guard and at the end of the run.  (Column by column
+suits the two halves of a long slope better, but on a fine grid it walks the nodal
+arrays a row apart, one memory page per node: at 1/30 m cells, ~1e6 points, 152 against
+88-92 ns per point-step on one thread, measured.)  A point's index is therefore its identity everywhere outside the
 kernels (VTK frames, snapshots, measures, frozen-point lists, error messages).
 
 The sort is a stable sort of the cell numbers of the current positions: a pure function
@@ -30,14 +32,14 @@ SORT_EVERY = 500
 
 
 def cell_key(grid: Grid, x: np.ndarray) -> np.ndarray:
-    """Host cell number (n,) int64 of points ``x`` (n, 2) m, counted along the grid's
-    longer axis first: column by column (x outer) when the grid has at least as many
-    columns as rows, else row by row.  Points outside the grid are clamped to its edge
-    cells (frozen points stay where they left)."""
+    """Host cell number (n,) int64 of points ``x`` (n, 2) m, row by row as the grid numbers
+    its cells and nodes (``cell = j nx + i``), so that points in order touch nodes in memory
+    order.  Points outside the grid are clamped to its edge cells (frozen points stay
+    where they left)."""
     nx, ny = int(grid.shape[0]), int(grid.shape[1])
     i = np.clip(((x[:, 0] - grid.origin[0]) / grid.cell[0]).astype(np.int64), 0, nx - 1)
     j = np.clip(((x[:, 1] - grid.origin[1]) / grid.cell[1]).astype(np.int64), 0, ny - 1)
-    return i * ny + j if nx >= ny else j * nx + i
+    return j * nx + i
 
 
 def _point_arrays(pts: Particles) -> list[np.ndarray]:

@@ -32,14 +32,12 @@ def _scene(meshes, **changes):
     return with_values(load_scene(meshes / "slope_elastic.toml"), values)
 
 
-def test_cell_key_runs_along_the_longer_axis():
-    """A 4 x 2 grid of 1 m cells: cells numbered column by column (x outer)."""
+def test_cell_key_numbers_cells_row_by_row():
+    """A 4 x 2 grid of 1 m cells: cell = j nx + i, as the grid numbers its cells."""
     class G:
         origin, cell, shape = np.zeros(2), np.ones(2), (4, 2)
     x = np.array([[0.5, 0.5], [0.5, 1.5], [1.5, 0.5], [3.5, 1.5], [9.0, -3.0]])
-    assert cell_key(G, x).tolist() == [0, 1, 2, 7, 6]      # the last one clamped to (3, 0)
-    G.shape = (2, 4)                                        # taller than wide: row by row
-    assert cell_key(G, x[:3]).tolist() == [0, 2, 1]
+    assert cell_key(G, x).tolist() == [0, 4, 1, 7, 3]      # the last one clamped to (3, 0)
 
 
 def test_permutation_and_restore_are_exact(meshes):
