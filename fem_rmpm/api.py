@@ -196,14 +196,15 @@ MECHANISM_TIME = 3.0
 
 
 #: Time numba takes to compile the explicit kernels on a cold cache (s), announced before
-#: the first run, measured on the 2-core Intel Xeon VM from a fresh venv (``pip install .``,
-#: no numba cache, load ~1): a 7-step case (i) process 25.0 s cold (first step done 22.9 s
-#: into the time loop) against 1.9 s warm (first step 0.17 s) on one thread; the threaded
-#: kernels (``threads = 2``) 9.0 s more the first time they run, then 2.0 s warm (first
-#: step 0.18 s).  (On the AMD EPYC VM before the one-pass stress update: 42.5 s and 27.8 s.)
-#: More on a loaded machine.
-COMPILE_SECONDS = 25.0
-COMPILE_SECONDS_THREADED = 10.0
+#: the first run, measured from a fresh venv (``pip install .``, no numba cache, load ~1):
+#: on the 2-core Emerald Rapids VM (session 9) a 5-step case (i) process 51.0 s cold (first
+#: step done 47.1 s into the time loop) on one thread, the threaded kernels (``threads = 2``)
+#: 16.5 s more the first time they run; warm, process start to first step done 1.15-1.45 s
+#: (first step 0.24-0.35 s).  On the model 167 Intel VM (session 8): 25.0 s and 9.0 s more;
+#: on the AMD EPYC VM before the one-pass stress update: 42.5 s and 27.8 s.  More on a
+#: loaded machine.
+COMPILE_SECONDS = 45.0
+COMPILE_SECONDS_THREADED = 15.0
 
 
 #: Explicit kernels every numba run calls (others, e.g. uGIMP or F-bar passes, only some;

@@ -26,7 +26,7 @@ def test_notice_printed_when_cold(tmp_path, capsys, meshes, monkeypatch):
     monkeypatch.setattr(api, "kernels_cold", lambda: True)
     assert main(["run", str(meshes / "column.toml"), "--out", str(tmp_path / "o")]) == 0
     err = capsys.readouterr().err
-    assert "compiling kernels (first run only, about 25 s, the threaded ones about 10 s more" in err
+    assert "compiling kernels (first run only, about 45 s, the threaded ones about 15 s more" in err
     assert "estimate: 80 material points" in err
 
 
