@@ -10,8 +10,9 @@ seeded in) and restores the original order before anyone outside the time loop l
 the points: at every output, at a guard and at the end of the run.  (Column by column
 suits the two halves of a long slope better, but on a fine grid it walks the nodal
 arrays a row apart, one memory page per node: at 1/30 m cells, ~1e6 points, 152 against
-88-92 ns per point-step on one thread, measured.)  A point's index is therefore its identity everywhere outside the
-kernels (VTK frames, snapshots, measures, frozen-point lists, error messages).
+88-92 ns per point-step on one thread, measured.)  A point's index is therefore its
+identity everywhere outside the kernels (VTK frames, snapshots, measures, frozen-point
+lists, error messages).
 
 The sort is a stable sort of the cell numbers of the current positions: a pure function
 of the state, the same on any number of threads.  It changes the order of the nodal
@@ -21,25 +22,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .grid import Grid
+from .grid import Grid, locate
 from .particles import Particles
 from .regularisation import forget_plan
 
-__all__ = ["SORT_EVERY", "cell_key", "permute_points", "PointOrder"]
+__all__ = ["SORT_EVERY", "permute_points", "PointOrder"]
 
 #: Steps between two sorts of the points (besides the sort after every output).
 SORT_EVERY = 500
-
-
-def cell_key(grid: Grid, x: np.ndarray) -> np.ndarray:
-    """Host cell number (n,) int64 of points ``x`` (n, 2) m, row by row as the grid numbers
-    its cells and nodes (``cell = j nx + i``), so that points in order touch nodes in memory
-    order.  Points outside the grid are clamped to its edge cells (frozen points stay
-    where they left)."""
-    nx, ny = int(grid.shape[0]), int(grid.shape[1])
-    i = np.clip(((x[:, 0] - grid.origin[0]) / grid.cell[0]).astype(np.int64), 0, nx - 1)
-    j = np.clip(((x[:, 1] - grid.origin[1]) / grid.cell[1]).astype(np.int64), 0, ny - 1)
-    return j * nx + i
 
 
 def _point_arrays(pts: Particles) -> list[np.ndarray]:
@@ -82,11 +72,13 @@ class PointOrder:
         self._buffers: dict = {}
 
     def sort(self, grid: Grid, pts: Particles) -> None:
-        """Sort the points by :func:`cell_key` (stable: ties keep their current order)."""
+        """Sort the points by host cell, :func:`fem_rmpm.grid.locate`'s number (row by row,
+        ``j nx + i``, as the grid numbers its cells and nodes; points outside the grid in
+        its edge cells), stably: ties keep their current order."""
         if self.every <= 0:
             return
         self.sorted = True
-        key = cell_key(grid, pts.x)
+        key = locate(grid, pts.x)[0]
         if bool((key[1:] >= key[:-1]).all()):
             return
         idx = np.argsort(key, kind="stable")
