@@ -472,7 +472,10 @@ def main(argv=None):
             st = res["cases"][name][phase]["stages_numba_ns"]
             print(f"  {name:>4} {phase:9} " + "  ".join(f"{k.split(' ', 1)[1]} {v:.1f}"
                                                          for k, v in st.items() if v > 0)
-                  + f"  | sum {sum(st.values()):.1f}")
+                  + f"  | sum of the three stages "
+                    f"{sum(v for k, v in st.items() if 'part:' not in k):.1f} (the parts "
+                    f"{sum(v for k, v in st.items() if 'part:' in k):.1f} are inside the "
+                    "stress pass, timed alone)")
     for name in cases:
         for phase in ("finite", "geostatic"):
             st = res["cases"][name][phase].get("stages_numpy_ns")
