@@ -33,7 +33,7 @@ from tqdm import tqdm
 
 from . import kernels, strength_reduction
 from .budget import check_budget
-from .explicit import run_explicit
+from .explicit import auto_threads, run_explicit
 from .materials import invalid_points
 from .run import RunRecord, SimulationError
 from .fem import FemResult, solve_static
@@ -132,10 +132,9 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     estimate = check_budget(scene)
     if progress:
         print(f"{scene.scene.name}: {estimate.describe()}", file=sys.stderr, flush=True)
-        if scene.solver.scheme == "explicit" and scene.solver.kernel == "numba" and kernels_cold():
-            print(f"compiling kernels (first run only, about {COMPILE_SECONDS:.0f} s, the "
-                  f"threaded ones about {COMPILE_SECONDS_THREADED:.0f} s more; cached on disk "
-                  "after)", file=sys.stderr, flush=True)
+        notice = compile_notice(scene)
+        if notice:
+            print(notice, file=sys.stderr, flush=True)
     grid, pts = prepare(scene, seed, noise)
     vtk = scene.output.vtk if vtk is None else vtk
     figures = scene.output.png if figures is None else figures
@@ -197,33 +196,55 @@ MECHANISM_TIME = 3.0
 
 #: Time numba takes to compile the explicit kernels on a cold cache (s), announced before
 #: the first run, measured from a fresh venv (``pip install .``, no numba cache, load ~1):
-#: on the 2-core Emerald Rapids VM (session 9) a 5-step case (i) process 51.0 s cold (first
-#: step done 47.1 s into the time loop) on one thread, the threaded kernels (``threads = 2``)
-#: 16.5 s more the first time they run; warm, process start to first step done 1.15-1.45 s
-#: (first step 0.24-0.35 s).  On the model 167 Intel VM (session 8): 25.0 s and 9.0 s more;
-#: on the AMD EPYC VM before the one-pass stress update: 42.5 s and 27.8 s.  More on a
-#: loaded machine.
-COMPILE_SECONDS = 45.0
-COMPILE_SECONDS_THREADED = 15.0
+#: Announced compile time (s) of the first explicit run on one thread, and the extra of the
+#: threaded kernels (``threads`` >= 2, the default of a single run on an idle multi-core
+#: machine).  Measured from a fresh ``pip install .`` (5 steps of case (i)): on the 2-core
+#: AMD EPYC (Zen 3) VM (session 10) 58.4 s on one thread, 100.8 s for a first run on two
+#: threads; on the Emerald Rapids VM (session 9) 47.1 s and 16.5 s more; on the model 167
+#: Intel VM (session 8) 25.0 s and 9.0 s more.  Warm (cache filled), process start to the
+#: first step done: 2.6-3.1 s (Zen 3), 1.15-1.45 s (Emerald Rapids).  More on a loaded machine.
+COMPILE_SECONDS = 60.0
+COMPILE_SECONDS_THREADED = 40.0
 
 
-#: Explicit kernels every numba run calls (others, e.g. uGIMP or F-bar passes, only some;
-#: the stress pass is made per model registry version, :func:`.kernels.material_kernels`).
+#: Explicit kernels every numba run calls, on one thread and on two or more (others, e.g.
+#: uGIMP or F-bar passes, only some; the stress pass is made per model registry version,
+#: :func:`.kernels.material_kernels`).
 _ALWAYS_COMPILED = ("map_to_nodes", "solve_and_move")
+_ALWAYS_COMPILED_THREADED = ("map_to_nodes_parallel", "solve_and_move_parallel")
 
 
-def kernels_cold() -> bool:
+def kernels_cold(threads: int = 1) -> bool:
     """True when numba's on-disk cache holds no valid compiled version of a kernel every
-    explicit run calls (first run, or kernels.py changed): that run compiles first.
-    Reads numba's cache index only (no compilation); False if that cannot be determined."""
+    explicit run on ``threads`` threads calls (first run, or the kernels' sources changed):
+    that run compiles first.  The serial and the threaded drivers are cached apart (a
+    two-thread run never compiles the serial ones).  Reads numba's cache index only (no
+    compilation); False if that cannot be determined."""
+    names = _ALWAYS_COMPILED if threads <= 1 else _ALWAYS_COMPILED_THREADED
     try:
-        for name in _ALWAYS_COMPILED:
+        for name in names:
             cache = getattr(getattr(kernels, name, None), "_cache", None)
             if hasattr(cache, "_cache_file") and not cache._cache_file._load_index():
                 return True
     except Exception:      # noqa: BLE001 - numba internals moved: no notice, never an error
         return False
     return False
+
+
+def compile_notice(scene: Scene) -> str | None:
+    """The line announcing the one-time compile of an explicit numba run of ``scene`` on
+    the threads it will use (``[solver] threads``, 0: :func:`.explicit.auto_threads`), or
+    None when those kernels are cached (or the run is not an explicit numba run)."""
+    sv = scene.solver
+    if sv.scheme != "explicit" or getattr(sv, "kernel", "numba") != "numba":
+        return None
+    threads = int(getattr(sv, "threads", 0)) or auto_threads()
+    if not kernels_cold(threads):
+        return None
+    seconds = COMPILE_SECONDS + (COMPILE_SECONDS_THREADED if threads > 1 else 0.0)
+    where = "" if threads <= 1 else f" for {threads} threads"
+    return (f"compiling kernels{where} (first run only, about {seconds:.0f} s; cached on disk "
+            "after)")
 
 
 def _summary(scene, seed, pts, rec, measures) -> dict:

@@ -22,15 +22,39 @@ def test_cold_cache_detected(tmp_path):
     assert out.stdout.strip() == "True"
 
 
+def test_cold_cache_detected_for_the_threaded_kernels_too(tmp_path):
+    """The threaded drivers are cached apart from the serial ones: with an empty cache both
+    are cold (a two-thread run compiles its own; before, a warm two-thread install still
+    announced a compile at every run because only the serial drivers were checked)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_CACHE_DIR": str(tmp_path / "nc")}
+    out = subprocess.run([sys.executable, "-c", "from fem_rmpm import api; "
+                          "print(api.kernels_cold(1), api.kernels_cold(2))"], env=env,
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["True", "True"]
+
+
+def test_notice_asks_about_the_run_s_threads(meshes, monkeypatch):
+    """The notice checks the kernels of the thread count the run will use."""
+    asked = []
+    monkeypatch.setattr(api, "kernels_cold", lambda threads=1: asked.append(threads) or True)
+    scene = api.load_scene(meshes / "column.toml")
+    one = api.compile_notice(api.with_value(scene, "solver.threads", 1))
+    two = api.compile_notice(api.with_value(scene, "solver.threads", 2))
+    assert asked == [1, 2]
+    assert one == f"compiling kernels (first run only, about {api.COMPILE_SECONDS:.0f} s; cached on disk after)"
+    assert two.startswith("compiling kernels for 2 threads (first run only, about "
+                          f"{api.COMPILE_SECONDS + api.COMPILE_SECONDS_THREADED:.0f} s")
+
+
 def test_notice_printed_when_cold(tmp_path, capsys, meshes, monkeypatch):
-    monkeypatch.setattr(api, "kernels_cold", lambda: True)
+    monkeypatch.setattr(api, "kernels_cold", lambda threads=1: True)
     assert main(["run", str(meshes / "column.toml"), "--out", str(tmp_path / "o")]) == 0
     err = capsys.readouterr().err
-    assert "compiling kernels (first run only, about 45 s, the threaded ones about 15 s more" in err
+    assert "compiling kernels" in err and "(first run only, about " in err
     assert "estimate: 80 material points" in err
 
 
 def test_no_notice_when_quiet_or_warm(tmp_path, capsys, meshes, monkeypatch):
-    monkeypatch.setattr(api, "kernels_cold", lambda: False)
+    monkeypatch.setattr(api, "kernels_cold", lambda threads=1: False)
     assert main(["run", str(meshes / "column.toml"), "--out", str(tmp_path / "o")]) == 0
     assert "compiling" not in capsys.readouterr().err
