@@ -14,15 +14,12 @@ import tomllib
 from dataclasses import replace
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import api, materials
-from .campaign import LITERATURE_CASES, CampaignResult, run_campaign
-from .campaign.backends import ClusterSpec, parse_adapt
-from .campaign.estimate import estimate_campaign, estimate_text
-from .campaign.factor_of_safety import fs_text
-from .campaign.subset_runner import run_subset_campaign, subset_summary_text
+from .campaign import LITERATURE_CASES
 from .errors import InputError
 from .field_output import plot_realization, plot_variogram, write_field_vtu
 from .grid import make_grid
@@ -37,6 +34,10 @@ from .rundir import output_dir_for
 from .scene import (RandomFieldSpec, Scene, SceneError, check_seed, load_scene, scene_to_dict,
                     with_value, with_values)
 from .strength_reduction import fs_cli
+
+if TYPE_CHECKING:
+    from .campaign import CampaignResult
+    from .campaign.backends import ClusterSpec
 
 __all__ = ["main", "default_scene_path", "build_parser", "parse_settings", "summary_text",
            "campaign_cases", "InputError"]
@@ -133,6 +134,7 @@ _MECHANISM_TEXT = (("slip_surface_height", "slip-surface height", " m"),
 
 def summary_text(res: CampaignResult) -> str:
     """The final one-paragraph-per-case summary printed by ``fem-rmpm mc``."""
+    from .campaign.factor_of_safety import fs_text
     lines = []
     rph = res.realizations_per_hour
     head = (f"Campaign in {res.out}: {sum(res.realizations.values())} realizations in "
@@ -213,6 +215,7 @@ def _cmd_mc_subset(a, scene: Scene, cluster: ClusterSpec) -> int:
     if a.dry_run:
         raise InputError("--dry-run: only for crude campaigns (--method crude); the runs of a "
                          "subset campaign depend on how many levels it needs (n per level)")
+    from .campaign.subset_runner import run_subset_campaign, subset_summary_text
     res = run_subset_campaign(scene, a.out, a.response, a.threshold,
                               p0=0.1 if a.p0 is None else a.p0,
                               n=a.realizations, workers=a.workers, scheduler=a.scheduler,
@@ -223,6 +226,10 @@ def _cmd_mc_subset(a, scene: Scene, cluster: ClusterSpec) -> int:
 
 def _cmd_mc(a) -> int:
     """``fem-rmpm mc``: returns 0, or 3 if realizations were lost (re-run to finish)."""
+    # the campaign modules import dask and distributed (~0.65 s): here, not for every command
+    from .campaign import run_campaign
+    from .campaign.backends import ClusterSpec, parse_adapt
+    from .campaign.estimate import estimate_campaign, estimate_text
     scene = scene_from_args(a)
     if a.fs and a.fs_only:
         raise InputError("--fs and --fs-only: give one (--fs: FS before each MPM run; "

@@ -142,16 +142,29 @@ picklable arguments; records are JSON: nothing a user gives is ever unpickled.
 """
 from __future__ import annotations
 
+import importlib
+
 from .cases import (LITERATURE_CASES, CampaignError, Case, literature_cases, parse_case,
                     realization_seed, without_random_field)
-from .cluster import start_local_cluster, worker_environment
-from .keep_vtk import parse_keep_vtk
-from .runner import CampaignResult, run_campaign
-from .statistics import case_statistics, wilson_interval
-from .store import RESULT_COLUMNS, read_results, result_columns, write_results
-from .task import run_realization
-from .subset import CampaignMethod, CrudeMonteCarlo, SubsetSimulation, subset_simulation
-from .subset_runner import run_subset_campaign
+
+# The rest is imported when first used (PEP 562): the cluster, runner and task modules
+# import dask and distributed (~0.65 s), which a plain ``fem-rmpm run`` never needs.
+_LAZY = {"start_local_cluster": ".cluster", "worker_environment": ".cluster",
+         "parse_keep_vtk": ".keep_vtk", "CampaignResult": ".runner", "run_campaign": ".runner",
+         "case_statistics": ".statistics", "wilson_interval": ".statistics",
+         "RESULT_COLUMNS": ".store", "read_results": ".store", "result_columns": ".store",
+         "write_results": ".store", "run_realization": ".task", "CampaignMethod": ".subset",
+         "CrudeMonteCarlo": ".subset", "SubsetSimulation": ".subset",
+         "subset_simulation": ".subset", "run_subset_campaign": ".subset_runner"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["CampaignError", "Case", "LITERATURE_CASES", "parse_case", "literature_cases",
            "realization_seed", "without_random_field", "run_realization", "run_campaign",
