@@ -205,6 +205,11 @@ MECHANISM_TIME = 3.0
 #: first step done: 2.6-3.1 s (Zen 3), 1.15-1.45 s (Emerald Rapids).  More on a loaded machine.
 COMPILE_SECONDS = 60.0
 COMPILE_SECONDS_THREADED = 40.0
+#: ... and of the serial (index 0) or threaded (1) drivers alone, when the other drivers ran
+#: before (the per-half functions they share are cached): ~6 s measured for the serial ones
+#: after a two-thread run (Zen 3 VM), 16.5 s for the threaded ones after a one-thread run
+#: (Emerald Rapids VM).
+COMPILE_SECONDS_DRIVERS = (10.0, 30.0)
 
 
 #: Explicit kernels every numba run calls, on one thread and on two or more (others, e.g.
@@ -241,7 +246,10 @@ def compile_notice(scene: Scene) -> str | None:
     threads = int(getattr(sv, "threads", 0)) or auto_threads()
     if not kernels_cold(threads):
         return None
-    seconds = COMPILE_SECONDS + (COMPILE_SECONDS_THREADED if threads > 1 else 0.0)
+    if not kernels_cold(2 if threads <= 1 else 1):   # the other drivers' shared parts are cached
+        seconds = COMPILE_SECONDS_DRIVERS[threads > 1]
+    else:
+        seconds = COMPILE_SECONDS + (COMPILE_SECONDS_THREADED if threads > 1 else 0.0)
     where = "" if threads <= 1 else f" for {threads} threads"
     return (f"compiling kernels{where} (first run only, about {seconds:.0f} s; cached on disk "
             "after)")

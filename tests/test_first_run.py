@@ -40,10 +40,19 @@ def test_notice_asks_about_the_run_s_threads(meshes, monkeypatch):
     scene = api.load_scene(meshes / "column.toml")
     one = api.compile_notice(api.with_value(scene, "solver.threads", 1))
     two = api.compile_notice(api.with_value(scene, "solver.threads", 2))
-    assert asked == [1, 2]
+    assert asked == [1, 2, 2, 1]          # the run's drivers, then the other ones
     assert one == f"compiling kernels (first run only, about {api.COMPILE_SECONDS:.0f} s; cached on disk after)"
     assert two.startswith("compiling kernels for 2 threads (first run only, about "
                           f"{api.COMPILE_SECONDS + api.COMPILE_SECONDS_THREADED:.0f} s")
+
+
+def test_notice_when_only_the_drivers_compile(meshes, monkeypatch):
+    """After a two-thread run only the serial drivers are missing: a short compile."""
+    monkeypatch.setattr(api, "kernels_cold", lambda threads=1: threads == 1)
+    scene = api.load_scene(meshes / "column.toml")
+    one = api.compile_notice(api.with_value(scene, "solver.threads", 1))
+    assert f"about {api.COMPILE_SECONDS_DRIVERS[0]:.0f} s" in one
+    assert api.compile_notice(api.with_value(scene, "solver.threads", 2)) is None
 
 
 def test_notice_printed_when_cold(tmp_path, capsys, meshes, monkeypatch):
