@@ -14,12 +14,11 @@ import tomllib
 from dataclasses import replace
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import api, materials
-from .campaign import LITERATURE_CASES
+from . import campaign      # its cluster and runner modules (dask, ~0.65 s) load on first use
 from .errors import InputError
 from .field_output import plot_realization, plot_variogram, write_field_vtu
 from .grid import make_grid
@@ -34,10 +33,6 @@ from .rundir import output_dir_for
 from .scene import (RandomFieldSpec, Scene, SceneError, check_seed, load_scene, scene_to_dict,
                     with_value, with_values)
 from .strength_reduction import fs_cli
-
-if TYPE_CHECKING:
-    from .campaign import CampaignResult
-    from .campaign.backends import ClusterSpec
 
 __all__ = ["main", "default_scene_path", "build_parser", "parse_settings", "summary_text",
            "campaign_cases", "InputError"]
@@ -123,7 +118,7 @@ def campaign_cases(scene: Scene, scene_path: str | Path | None = None) -> list[s
     if listed:
         return list(listed)
     if scene_path is not None and _is_default_scene(scene_path):
-        return list(LITERATURE_CASES)
+        return list(campaign.LITERATURE_CASES)
     return ["scene"]
 
 
@@ -132,9 +127,8 @@ _MECHANISM_TEXT = (("slip_surface_height", "slip-surface height", " m"),
                    ("sliding_area_early", "early sliding area", " m2"))
 
 
-def summary_text(res: CampaignResult) -> str:
+def summary_text(res: campaign.CampaignResult) -> str:
     """The final one-paragraph-per-case summary printed by ``fem-rmpm mc``."""
-    from .campaign.factor_of_safety import fs_text
     lines = []
     rph = res.realizations_per_hour
     head = (f"Campaign in {res.out}: {sum(res.realizations.values())} realizations in "
@@ -158,7 +152,7 @@ def summary_text(res: CampaignResult) -> str:
                          + (f" (first error: {s['errors'][0]['error']})" if s["errors"] else ""))
             continue
         if not s.get("mpm_runs"):                      # --fs-only
-            lines.append(head + fs_text(s.get("fs")))
+            lines.append(head + campaign.fs_text(s.get("fs")))
             continue
         if c.deterministic:
             r, t, a = (s[k]["mean"] for k in ("runout_distance", "retrogression_distance",
@@ -167,7 +161,7 @@ def summary_text(res: CampaignResult) -> str:
                            for k, lab, unit in _MECHANISM_TEXT if k in s)
             lines.append(head + f"failed = {bool(s['slope_failures'])}, run-out {r:.2f} m, "
                          f"retrogression {t:.2f} m, sliding area {a:.1f} m2{mech}"
-                         + (f"; {fs_text(s['fs'])}" if s.get("fs") else ""))
+                         + (f"; {campaign.fs_text(s['fs'])}" if s.get("fs") else ""))
             continue
         lo, hi = s["wilson95"]
         txt = (f"P(failure) = {s['p_failure']:.3f} +- {s['se']:.3f} (SE sqrt(p(1-p)/N); "
@@ -191,7 +185,7 @@ def summary_text(res: CampaignResult) -> str:
                     + ": P(failure) " + ", ".join(f"{conv['p_failure'][i]:.2f}" for i in idx)
                     + ("" if len(conv["mean_runout"]) < len(conv["n"]) else ", mean run-out "
                        + ", ".join(f"{conv['mean_runout'][i]:.1f}" for i in idx) + " m"))
-        lines.append(head + txt + (f"; {fs_text(s['fs'])}" if s.get("fs") else ""))
+        lines.append(head + txt + (f"; {campaign.fs_text(s['fs'])}" if s.get("fs") else ""))
         if s["numerical_failures"]:
             e = s["errors"][0]
             lines.append(f"    first failed realization: #{e['index']} (seed {e['seed']}): "
@@ -206,7 +200,7 @@ def summary_text(res: CampaignResult) -> str:
     return "\n".join(lines)
 
 
-def _cmd_mc_subset(a, scene: Scene, cluster: ClusterSpec) -> int:
+def _cmd_mc_subset(a, scene: Scene, cluster: campaign.ClusterSpec) -> int:
     """``fem-rmpm mc --method subset``: P(response beyond threshold) by subset simulation
     on the same cluster options as crude Monte Carlo (``--cluster``, ``--scheduler``)."""
     for opt, val in (("--keep-vtk", a.keep_vtk), ("--case", a.case)):
@@ -215,29 +209,26 @@ def _cmd_mc_subset(a, scene: Scene, cluster: ClusterSpec) -> int:
     if a.dry_run:
         raise InputError("--dry-run: only for crude campaigns (--method crude); the runs of a "
                          "subset campaign depend on how many levels it needs (n per level)")
-    from .campaign.subset_runner import run_subset_campaign, subset_summary_text
-    res = run_subset_campaign(scene, a.out, a.response, a.threshold,
-                              p0=0.1 if a.p0 is None else a.p0,
-                              n=a.realizations, workers=a.workers, scheduler=a.scheduler,
-                              force=a.force, progress=not a.quiet, cluster=cluster)
-    print(subset_summary_text(res))
+    res = campaign.run_subset_campaign(scene, a.out, a.response, a.threshold,
+                                       p0=0.1 if a.p0 is None else a.p0,
+                                       n=a.realizations, workers=a.workers,
+                                       scheduler=a.scheduler, force=a.force,
+                                       progress=not a.quiet, cluster=cluster)
+    print(campaign.subset_summary_text(res))
     return 3 if res.lost else 0
 
 
 def _cmd_mc(a) -> int:
     """``fem-rmpm mc``: returns 0, or 3 if realizations were lost (re-run to finish)."""
-    # the campaign modules import dask and distributed (~0.65 s): here, not for every command
-    from .campaign import run_campaign
-    from .campaign.backends import ClusterSpec, parse_adapt
-    from .campaign.estimate import estimate_campaign, estimate_text
     scene = scene_from_args(a)
     if a.fs and a.fs_only:
         raise InputError("--fs and --fs-only: give one (--fs: FS before each MPM run; "
                          "--fs-only: FS instead of it)")
-    cluster = ClusterSpec(kind=a.cluster, queue=a.queue, account=a.account, cores=a.cores,
-                          memory=a.memory, walltime=a.walltime, interface=a.interface,
-                          job_directives=tuple(a.job_directive or ()),
-                          adapt=parse_adapt(a.adapt))
+    cluster = campaign.ClusterSpec(kind=a.cluster, queue=a.queue, account=a.account,
+                                   cores=a.cores, memory=a.memory, walltime=a.walltime,
+                                   interface=a.interface,
+                                   job_directives=tuple(a.job_directive or ()),
+                                   adapt=campaign.parse_adapt(a.adapt))
     if a.method == "subset":
         if a.fs or a.fs_only:
             raise InputError("--fs / --fs-only: only for crude campaigns (--method crude); "
@@ -251,15 +242,16 @@ def _cmd_mc(a) -> int:
         raise InputError(f"{given[0]}: only with --method subset")
     cases = list(a.case) if a.case else campaign_cases(scene, a.scene)
     if a.dry_run:
-        est = estimate_campaign(scene, a.out, realizations=a.realizations, cases=cases,
-                                workers=a.workers, scheduler=a.scheduler, force=a.force,
-                                keep_vtk=a.keep_vtk, cluster=cluster)
-        print(estimate_text(est))
+        est = campaign.estimate_campaign(scene, a.out, realizations=a.realizations,
+                                         cases=cases, workers=a.workers,
+                                         scheduler=a.scheduler, force=a.force,
+                                         keep_vtk=a.keep_vtk, cluster=cluster)
+        print(campaign.estimate_text(est))
         return 0
-    res = run_campaign(scene, a.out, realizations=a.realizations, cases=cases,
-                       workers=a.workers, scheduler=a.scheduler, force=a.force,
-                       keep_vtk=a.keep_vtk, progress=not a.quiet, cluster=cluster,
-                       fs_only=a.fs_only)
+    res = campaign.run_campaign(scene, a.out, realizations=a.realizations, cases=cases,
+                                workers=a.workers, scheduler=a.scheduler, force=a.force,
+                                keep_vtk=a.keep_vtk, progress=not a.quiet, cluster=cluster,
+                                fs_only=a.fs_only)
     print(summary_text(res))
     return 3 if res.lost else 0
 

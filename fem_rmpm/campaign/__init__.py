@@ -155,7 +155,11 @@ _LAZY = {"start_local_cluster": ".cluster", "worker_environment": ".cluster",
          "RESULT_COLUMNS": ".store", "read_results": ".store", "result_columns": ".store",
          "write_results": ".store", "run_realization": ".task", "CampaignMethod": ".subset",
          "CrudeMonteCarlo": ".subset", "SubsetSimulation": ".subset",
-         "subset_simulation": ".subset", "run_subset_campaign": ".subset_runner"}
+         "subset_simulation": ".subset", "run_subset_campaign": ".subset_runner",
+         # for the CLI's mc command
+         "ClusterSpec": ".backends", "parse_adapt": ".backends",
+         "estimate_campaign": ".estimate", "estimate_text": ".estimate",
+         "fs_text": ".factor_of_safety", "subset_summary_text": ".subset_runner"}
 
 
 def __getattr__(name: str):
