@@ -178,33 +178,55 @@ def test_own_structures_keep_their_covariance_and_scale_the_cross_correlation():
 
 
 # ----------------------------------------------------------------------------- same as before
-GOLDEN = {  # sha256 of the arrays' bytes, computed by main at bb8e4ed (before this change)
-    ("gaussian_field", 0): "29da5e10c9bf0ed2c03572f85d01f69c7670c41cc81d080c85f4ff25415cfeda",
-    ("gaussian_field", 11): "6dd7ed29d7fc804278f76dce0bcbf75635da4e5ff437965eb7a19deab57f7d3d",
-    ("sample_point_property", 0):
-        "e6e7bd8ceeacf40309a8901ef0e3416dceba91789d2bfc40a32bf9c04e915934",
-    ("sample_point_property", 11):
-        "3cefbc37c8e393649fef06686cce950e39da0ee32f243733497c34a318cc6d8a",
-    ("prepare", 11): "e8e5c068494157c391a4aa3bd5b80c5cc448229fb96ca1fa8586daf51dbd49b5",
+# The arrays of the code before several properties existed (main at bb8e4ed), on the AMD
+# EPYC Zen 3 VM of session 10: (sum, sum of squares, first, middle and last finite entry).
+# bb8e4ed and today's code give bitwise the same arrays there (sha256 compared, session 10)
+# and on the Intel VM of the earlier sessions, but not the same bits on both: numpy's FFT
+# takes other SIMD paths (AVX2 / AVX-512), 1.6e-12 relative apart at most (measured on the
+# reference slope's field).  So "as before" is asserted to 1e-10 relative, far below what
+# any change of the seed path (other draws: O(1) differences) would give.
+GOLDEN = {
+    ("gaussian_field", 0): (6.63414266656928, 14.842020682566268, -0.20350799336526723,
+                            0.16299079249154977, -0.1982762871305678),
+    ("gaussian_field", 11): (11.326176889446764, 7.2963021493447915, 0.2415059004281545,
+                             0.46519414962610284, -0.3428707975541456),
+    ("sample_point_property", 0): (1019.2265211019885, 7182.049357439747, 5.280903219420509,
+                                   8.377930026764012, 4.223394111267531),
+    ("sample_point_property", 11): (1018.8349395194613, 6972.023005573011, 6.516341729779928,
+                                    6.333302323261649, 6.2167988554877445),
+    ("prepare", 11): (207570.78759921214, 167587601.96573818, 375.9398496240601,
+                      375.9398496240601, 0.0),
 }
 
 
-def test_single_property_seed_path_is_bitwise_as_before():
-    """The one-property scene (mc_tiny) gives bitwise the fields, point cohesions and
-    parameter rows of the code before several properties existed (sha256 of the arrays,
-    computed on this machine by main at commit bb8e4ed); the same field written as a
-    one-entry [[random_field.properties]] list is bitwise the same too."""
+def _summary(a: np.ndarray) -> tuple:
+    """(sum, sum of squares, first, middle, last) of the finite entries of ``a``."""
+    v = np.asarray(a, float).ravel()
+    v = v[np.isfinite(v)]
+    return (float(v.sum()), float((v * v).sum()), float(v[0]), float(v[len(v) // 2]),
+            float(v[-1]))
+
+
+def _as_before(a: np.ndarray, key) -> bool:
+    return _summary(a) == pytest.approx(GOLDEN[key], rel=1e-10, abs=1e-300)
+
+
+def test_single_property_seed_path_is_as_before():
+    """The one-property scene (mc_tiny) gives the fields, point cohesions and parameter
+    rows of the code before several properties existed (:data:`GOLDEN`, 1e-10 relative:
+    bitwise on one machine, FFT round-off between machines); the same field written as a
+    one-entry [[random_field.properties]] list gives bitwise the same parameter rows."""
     scene = load_scene(TINY)
     grid = make_grid(scene)
     pts = seed_particles(scene, grid)
     for seed in (0, 11):
-        assert _sha(rf.gaussian_field(scene, grid, seed)) == GOLDEN[("gaussian_field", seed)]
-        assert _sha(rf.sample_point_property(scene, grid, pts, seed)) == \
-            GOLDEN[("sample_point_property", seed)]
+        assert _as_before(rf.gaussian_field(scene, grid, seed), ("gaussian_field", seed))
+        assert _as_before(rf.sample_point_property(scene, grid, pts, seed),
+                          ("sample_point_property", seed))
     # the parameter rows' first 6 columns (moduli + the von Mises parameters of bb8e4ed);
-    # columns added later (the regularisation keys) are not part of the golden hash
+    # columns added later (the regularisation keys) are not part of the golden values
     params = api.prepare(scene, 11)[1].soil.params
-    assert _sha(np.ascontiguousarray(params[:, :6])) == GOLDEN[("prepare", 11)]
+    assert _as_before(params[:, :6], ("prepare", 11))
     d = scene_to_dict(scene)
     f = d["random_field"]
     d["random_field"] = {"theta_v": f.pop("theta_v"), "anisotropy": f.pop("anisotropy"),
@@ -213,8 +235,16 @@ def test_single_property_seed_path_is_bitwise_as_before():
     assert listed.random_field.properties and rf.noise_shape(listed, grid) == \
         rf.noise_shape(scene, grid)
     listed_params = api.prepare(listed, 11)[1].soil.params
-    assert _sha(np.ascontiguousarray(listed_params[:, :6])) == GOLDEN[("prepare", 11)]
+    assert _sha(np.ascontiguousarray(listed_params[:, :6])) == \
+        _sha(np.ascontiguousarray(params[:, :6]))
     assert np.array_equal(listed_params, params, equal_nan=True)
+
+
+def test_the_golden_check_sees_another_seed():
+    """The check can fail: seed 1's field is not seed 0's."""
+    scene = load_scene(TINY)
+    grid = make_grid(scene)
+    assert not _as_before(rf.gaussian_field(scene, grid, 1), ("gaussian_field", 0))
 
 
 def test_noise_path_equals_seed_path_and_first_property_is_the_single_field():
