@@ -30,12 +30,13 @@ real ones):
 * wall time = steps x points x the cost per point-step: :data:`NS_PER_POINT_STEP`.
   The explicit numba figure, 65 ns, is the whole-run figure of the reference slope
   case (i) (18 260 points, 11 017 steps, 11.7-12.3 s wall, median of six runs 64.5 ns)
-  on an idle 2-core Intel Xeon virtual machine (Python 3.11, numba, one thread; 84 ns on
-  the AMD EPYC VM before the one-pass stress update).  uGIMP costs 2.1x, F-bar 1.05x
+  on an idle 2-core Intel Xeon virtual machine (Python 3.11, numba, one thread; the same
+  code ran ~100 ns on an Emerald Rapids VM and ~140 ns on an AMD EPYC Zen 3 VM, median of
+  six runs each: the estimate says which machine it is for).  uGIMP costs 2.1x, F-bar 1.05x
   and the numpy kernel about 2.7 us.  The implicit figure, 35 us per point-step, is
   the README's dynamic implicit run of the reference slope (1 788 Newmark steps in
   about 19 minutes on a shared core), so it may be 2x high on an idle machine.
-  The numba compile of a first run (about 12 s, cached on disk) is not included.
+  The numba compile of a first run (about 1-1.5 minutes, cached on disk) is not included.
 """
 from __future__ import annotations
 
