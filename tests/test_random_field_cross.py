@@ -182,9 +182,9 @@ def test_own_structures_keep_their_covariance_and_scale_the_cross_correlation():
 # EPYC Zen 3 VM of session 10: (sum, sum of squares, first, middle and last finite entry).
 # bb8e4ed and today's code give bitwise the same arrays there (sha256 compared, session 10)
 # and on the Intel VM of the earlier sessions, but not the same bits on both: numpy's FFT
-# takes other SIMD paths (AVX2 / AVX-512), 1.6e-12 relative apart at most (measured on the
-# reference slope's field).  So "as before" is asserted to 1e-10 relative, far below what
-# any change of the seed path (other draws: O(1) differences) would give.
+# takes other SIMD paths (AVX2 / AVX-512), 1.55e-12 relative apart at most (measured on the
+# reference slope's larger field, tests/test_noise_field.py).  So "as before" is asserted to
+# 1e-11 relative, far below what any change of the seed path (other draws: O(1)) would give.
 GOLDEN = {
     ("gaussian_field", 0): (6.63414266656928, 14.842020682566268, -0.20350799336526723,
                             0.16299079249154977, -0.1982762871305678),
@@ -208,12 +208,12 @@ def _summary(a: np.ndarray) -> tuple:
 
 
 def _as_before(a: np.ndarray, key) -> bool:
-    return _summary(a) == pytest.approx(GOLDEN[key], rel=1e-10, abs=1e-300)
+    return _summary(a) == pytest.approx(GOLDEN[key], rel=1e-11, abs=1e-300)
 
 
 def test_single_property_seed_path_is_as_before():
     """The one-property scene (mc_tiny) gives the fields, point cohesions and parameter
-    rows of the code before several properties existed (:data:`GOLDEN`, 1e-10 relative:
+    rows of the code before several properties existed (:data:`GOLDEN`, 1e-11 relative:
     bitwise on one machine, FFT round-off between machines); the same field written as a
     one-entry [[random_field.properties]] list gives bitwise the same parameter rows."""
     scene = load_scene(TINY)
