@@ -51,7 +51,7 @@ acceleration, the MUSL re-mapped momentum ``v_remap`` and the velocity from it `
 first half's group; None in the second's)."""
 
 Scratch = namedtuple("Scratch",
-                     "x_old W ta tb tc host D cell_v cell_vdj out parts halves q4_ll q4_st")
+                     "x_old W ta tb tc host D cell_v cell_vdj out parts halves q4_ll q4_st queue")
 Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the block scratch of the
 stress pass, one row per chunk (thread) of :data:`CHUNKS`: the trial state W (CHUNKS, BLOCK,
 4) and the arguments / values of the vectorised Hencky series ta, tb, tc (CHUNKS, BLOCK)
@@ -63,7 +63,8 @@ points from the map back: grid kinetic energy (2x), the largest squared |v_pic| 
 the points with a non-finite x or v and those outside the grid; ``q4_ll`` (n,) int64 and
 ``q4_st`` (n, 2): each point's Q4 cell (lower-left node) and local coordinates, found by
 the map to nodes and reused by the later passes of the step (the points have not moved in
-between)."""
+between); ``queue`` (8,) int64: element 0 the next block of the stress pass's work queue
+(:func:`.stress._stress_queue_call`; the rest pads it to a cache line of its own)."""
 
 StepOptions = namedtuple("StepOptions",
                          "dt gx gy damping flip geostatic gimp fbar threads model",
@@ -174,4 +175,4 @@ def scratch_for(n: int, n_cells: int) -> Scratch:
     return Scratch(np.zeros((n, 2)), np.zeros(rows + (4,)), np.zeros(rows), np.zeros(rows),
                    np.zeros(rows), np.zeros(n, np.int64), np.zeros((n, 4)), np.zeros(n_cells),
                    np.zeros(n_cells), np.zeros(4), np.zeros((CHUNKS, 2)), np.zeros((2, 5)),
-                   np.zeros(n, np.int64), np.zeros((n, 2)))
+                   np.zeros(n, np.int64), np.zeros((n, 2)), np.zeros(8, np.int64))

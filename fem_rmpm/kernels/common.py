@@ -1,7 +1,8 @@
 """numba decorators and constants shared by the kernel modules."""
 from __future__ import annotations
 
-from numba import njit
+from numba import njit, types
+from numba.extending import intrinsic
 
 MASS_TOL = 1e-14     # as explicit._MASS_TOL: nodes lighter than this carry no velocity
 # LLVM floating-point flags of every kernel (and of the material point functions inlined
@@ -55,8 +56,8 @@ kernel_parallel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="n
                        parallel=True)
 
 # Points are processed in blocks of BLOCK (the stress pass: .stress, .hencky) and in two
-# halves split at a block boundary (the scatters: .transfer); chunks of whole blocks from
-# point 0, so that blocks, halves and every point's code do not depend on the thread count.
+# halves split at a block boundary (the scatters: .transfer); whole blocks from point 0,
+# so that blocks, halves and every point's code do not depend on the thread count.
 BLOCK = 128
 
 
@@ -73,3 +74,19 @@ def half_split(n):
     """First point of the second half of ``n`` points: the block boundary nearest below
     the middle's (:func:`block_bounds` of two chunks)."""
     return block_bounds(n, 2, 1)[0]
+
+
+@intrinsic
+def take_ticket(typingctx, counter):
+    """``counter[0] += 1`` as one atomic operation (any thread), returning the value before:
+    the next ticket of a shared work queue (``counter``: an int64 array).  numba has no
+    atomics on the CPU; this is LLVM's ``atomicrmw add`` on the array's first element."""
+    if not (isinstance(counter, types.Array) and counter.dtype == types.int64):
+        return None
+    sig = types.int64(counter)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        one = context.get_constant(types.int64, 1)
+        return builder.atomic_rmw("add", ary.data, one, "seq_cst")
+    return sig, codegen

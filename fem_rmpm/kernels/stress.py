@@ -30,10 +30,9 @@ from numba import prange
 from ..materials import registry
 from ..materials.dispatch import point_dispatch
 from .arrays import top_of
-from .common import BLOCK, block_bounds, half_split, inline, jit, kernel, kernel_parallel
+from .common import BLOCK, half_split, inline, jit, kernel, kernel_parallel, take_ticket
 from .hencky import exp_block, log_block
-from .transfer import (half_range, nodal_velocities, nodal_velocities_parallel,
-                       nodal_velocity_half)
+from .transfer import nodal_velocities, nodal_velocities_parallel, nodal_velocity_half
 from .transfer import _top as top
 from .strain import (fbar_apply_points, fbar_gradient_pass, hencky_trial_pass, kinematics_points,
                      log_sym2_from)
@@ -58,76 +57,66 @@ def _trial_strain(geostatic, i, j, W, ta, tb, ls):
 # The model dispatch is called in the factories' bodies, where ``version`` is a closure
 # value and so a compile-time literal (see fem_rmpm.materials.dispatch).
 def _make_stress_pass(version, only):
-    """``(serial, parallel, wide)`` stress pass compiled for one registry version and model
+    """``(serial, parallel)`` stress pass compiled for one registry version and model
     restriction ``only`` (-1: any model; else the one model id of all points; see
     :mod:`fem_rmpm.materials.dispatch`); ``S.out`` (4,) = max P-wave speed
     sqrt(M / rho), max |v|, number of non-finite points, number outside the grid.
-    ``serial``: the two halves of the points one after the other, each with its nodal
-    velocities first (:func:`.transfer.nodal_velocity`; with F-bar they are computed
-    before, for the gradient pass); ``parallel``: the halves on two threads; ``wide``:
-    ``o.threads`` chunks of whole blocks, the nodal velocities computed before.  Maxima
-    and counts are combined exactly: the same result in all three."""
+    ``serial``: the nodal velocities of both halves (:func:`.transfer.nodal_velocity`;
+    with F-bar they are computed before, for the gradient pass), then every block of
+    points in order; ``parallel``: ``o.threads`` workers taking the blocks from one queue
+    (:func:`_stress_queue_call`), the nodal velocities computed before.  Maxima and counts
+    are combined exactly: the same result in both."""
     @kernel
     def stress_pass(P, M, N, S, o):
-        T = top(N)                   # (both halves' nodes, then both halves' points)
+        T = top(N)
         if not o.fbar:
             nodal_velocity_half(M, T, N.half, np.int64(0))
             nodal_velocity_half(M, T, N.half, np.int64(1))
-        n = P.x.shape[0]
-        for c in range(2):
-            start, stop = half_range(n, c)
-            _stress_chunk_call(version, only, P, M, T, N.half, S, o, start, stop, np.int64(c))
-        _combine(S, 2)
+        S.queue[0] = 0
+        _stress_queue_call(version, only, P, M, T, N.half, S, o, np.int64(0))
+        _combine(S, 1)
 
     @kernel_parallel
     def stress_pass_parallel(P, M, T, H, S, o):
-        for c in prange(2):
-            _stress_half_call(version, only, P, M, T, H, S, o, np.int64(c))
-        _combine(S, 2)
-
-    @kernel_parallel
-    def stress_pass_wide(P, M, T, H, S, o):
-        n = P.x.shape[0]
         nch = max(1, min(o.threads, S.parts.shape[0]))
+        S.queue[0] = 0
         for c in prange(nch):
-            start, stop = block_bounds(n, nch, c)
-            _stress_chunk_call(version, only, P, M, T, H, S, o, start, stop, np.int64(c))
+            _stress_queue_call(version, only, P, M, T, H, S, o, np.int64(c))
         _combine(S, nch)
-    return stress_pass, stress_pass_parallel, stress_pass_wide
+    return stress_pass, stress_pass_parallel
 
 
 @kernel
-def _stress_half_call(version, only, P, M, T, H, S, o, c):
-    """Half ``c`` of the points on one thread: its nodal velocities (unless F-bar: computed
-    before), then :func:`_stress_chunk_call` over its points."""
-    if not o.fbar:
-        nodal_velocity_half(M, T, H, c)
-    start, stop = half_range(P.x.shape[0], c)
-    _stress_chunk_call(version, only, P, M, T, H, S, o, start, stop, c)
-
-
-@kernel
-def _stress_chunk_call(version, only, P, M, T, H, S, o, start, stop, c):
-    """The stress pass over chunk ``c`` (points ``start:stop``, whole blocks: a half, or a
-    chunk of the ``wide`` pass), each block with the nodal velocities of its half (the
-    halves split at a block boundary); its statistics into ``S.parts[c]``.  The one
-    compiled function all three passes of :func:`_make_stress_pass` call (the same machine
-    code for every point; inlined into each caller, LLVM's FMA contraction may differ),
-    ``version`` and ``only`` literals (one compile and cache entry per pair), not inlined
-    into the threaded loops: numba's parfor passes, run over the inlined model update,
-    changed the result (1 vs 2 threads differed in tests/test_threads.py once the dispatch
-    was inlined).  Module level, not a closure of :func:`_make_stress_pass`: numba's cache
-    key of a closure holds its cell values pickled, and a dispatcher pickles with a random
-    uuid, so the threaded pass closing over a chunk dispatcher missed the cache in every
-    new process (1.6 s of compile at every start with threads = 2, measured)."""
-    split = half_split(P.x.shape[0])
+def _stress_queue_call(version, only, P, M, T, H, S, o, c):
+    """Worker ``c`` of the stress pass: takes the next block of :data:`.common.BLOCK`
+    points from the queue ``S.queue`` (:func:`.common.take_ticket`) until none is left,
+    each with the nodal velocities of its half (the halves split at a block boundary),
+    its scratch row ``c``; its statistics into ``S.parts[c]``.  A queue, not fixed
+    chunks: a plastic point costs more than an elastic one, and once the slope has failed
+    the plastic points sit in one part of the (cell-sorted) points, so fixed halves left
+    one thread waiting ~30 % of the pass (444 vs 647 us per step at t = 15 s of case (i),
+    measured).  Which worker takes a block changes nothing in it: every block is computed
+    by this one compiled function, maxima and counts combine exactly, so any thread count
+    and any interleaving give bitwise the same result.  ``version`` and ``only`` are
+    literals (one compile and cache entry per pair); not inlined into the threaded loop:
+    numba's parfor passes, run over the inlined model update, changed the result (1 vs 2
+    threads differed in tests/test_threads.py once the dispatch was inlined).  Module
+    level, not a closure of :func:`_make_stress_pass`: numba's cache key of a closure holds
+    its cell values pickled, and a dispatcher pickles with a random uuid, so a threaded
+    pass closing over this dispatcher missed the cache in every new process (1.6 s of
+    compile at every start with threads = 2, measured)."""
+    n = P.x.shape[0]
+    split = half_split(n)
+    blocks = (n + BLOCK - 1) // BLOCK
     c2max = 0.0
     n_bad = 0
-    for h in range(2):               # (one loop, one inlined copy of the model update)
-        lo = start if h == 0 else max(start, split)
-        hi = min(stop, split) if h == 0 else stop
-        vn = T.v_musl if h == 0 else H.v_musl
-        c2, nb = _stress_points(version, only, P, M, vn, S, o, lo, hi, c)
+    while True:                      # (one call site: one inlined copy of the model update)
+        k = take_ticket(S.queue)
+        if k >= blocks:
+            break
+        b = k * BLOCK
+        vn = T.v_musl if b < split else H.v_musl
+        c2, nb = _stress_points(version, only, P, M, vn, S, o, b, min(b + BLOCK, n), c)
         c2max = max(c2max, c2)
         n_bad += nb
     S.parts[c, 0] = c2max
@@ -236,13 +225,13 @@ _BY_VERSION: dict = {}
 
 
 def material_kernels(only: int = -1):
-    """``(stress_pass, material_pass, stress_pass_parallel, stress_pass_wide)`` compiled
+    """``(stress_pass, material_pass, stress_pass_parallel)`` compiled
     for the current model registry; the stress passes for points of model ``only`` alone
     (-1: any model; the material pass always takes any model)."""
     key = (registry.version(), int(only))
     if key not in _BY_VERSION:
-        serial, parallel, wide = _make_stress_pass(*key)
-        _BY_VERSION[key] = (serial, _make_material_pass(key[0]), parallel, wide)
+        serial, parallel = _make_stress_pass(*key)
+        _BY_VERSION[key] = (serial, _make_material_pass(key[0]), parallel)
     return _BY_VERSION[key]
 
 
@@ -260,7 +249,7 @@ def update_stress(P, M, N, S, o, call=_direct) -> None:
     ``o.threads`` threads.  ``o.fbar`` (the F-bar remedy, :mod:`fem_rmpm.locking`): the
     nodal velocities and :func:`.strain.fbar_gradient_pass` first.  ``call(kernel,
     *args)`` runs a kernel (e.g. :meth:`.Workspace.call`)."""
-    serial, _, parallel, wide = material_kernels(o.model)
+    serial, _, parallel = material_kernels(o.model)
     if o.threads <= 1:
         if o.fbar:
             call(nodal_velocities, M, N)
@@ -268,11 +257,10 @@ def update_stress(P, M, N, S, o, call=_direct) -> None:
         call(serial, P, M, N, S, o)
         return
     T = top_of(N)                    # (the threaded loop takes no nested group)
-    if o.fbar or o.threads > 2:
-        call(nodal_velocities_parallel, M, T, N.half)
+    call(nodal_velocities_parallel, M, T, N.half)
     if o.fbar:
         call(fbar_gradient_pass, P, M, N, S, o)
-    call(wide if o.threads > 2 else parallel, P, M, T, N.half, S, o)
+    call(parallel, P, M, T, N.half, S, o)
 
 
 # --------------------------------------------------------------------- vectorised material (tests)
