@@ -73,6 +73,7 @@ def _make_stress_pass(version, only):
             nodal_velocity_half(M, T, N.half, np.int64(0))
             nodal_velocity_half(M, T, N.half, np.int64(1))
         S.queue[0] = 0
+        S.queue[8] = 0
         _stress_queue_call(version, only, P, M, T, N.half, S, o, np.int64(0))
         _combine(S, 1)
 
@@ -80,6 +81,7 @@ def _make_stress_pass(version, only):
     def stress_pass_parallel(P, M, T, H, S, o):
         nch = max(1, min(o.threads, S.parts.shape[0]))
         S.queue[0] = 0
+        S.queue[8] = 0
         for c in prange(nch):
             _stress_queue_call(version, only, P, M, T, H, S, o, np.int64(c))
         _combine(S, nch)
@@ -89,13 +91,16 @@ def _make_stress_pass(version, only):
 @kernel
 def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     """Worker ``c`` of the stress pass: takes the next block of :data:`.common.BLOCK`
-    points from the queue ``S.queue`` (:func:`.common.take_ticket`) until none is left,
-    each with the nodal velocities of its half (the halves split at a block boundary),
-    its scratch row ``c``; its statistics into ``S.parts[c]``.  A queue, not fixed
-    chunks: a plastic point costs more than an elastic one, and once the slope has failed
-    the plastic points sit in one part of the (cell-sorted) points, so fixed halves left
-    one thread waiting ~30 % of the pass (444 vs 647 us per step at t = 15 s of case (i),
-    measured).  Which worker takes a block changes nothing in it: every block is computed
+    points from the queue of its own half of the points (half ``c % 2``, the half its
+    thread mapped and moved: those points are in its core's cache), then from the other
+    half's queue until none is left (``S.queue[0]`` and ``[8]``, :func:`.common.take_ticket`),
+    each block with the nodal velocities of its half, the scratch row ``c``; its
+    statistics into ``S.parts[c]``.  Queues, not fixed halves: a plastic point costs more
+    than an elastic one, and once the slope has failed the plastic points sit in one part
+    of the (cell-sorted) points, so fixed halves left one thread waiting ~30 % of the pass
+    (444 vs 647 us per step at t = 15 s of case (i), measured); one queue for all blocks
+    spread each half's points over both cores (two threads on case (i): 47.3-56.3 ns per
+    point-step, median 48.6, against 46.4-58.3, median 47.3, with fixed halves).  Which worker takes a block changes nothing in it: every block is computed
     by this one compiled function, maxima and counts combine exactly, so any thread count
     and any interleaving give bitwise the same result.  ``version`` and ``only`` are
     literals (one compile and cache entry per pair); not inlined into the threaded loop:
@@ -106,19 +111,20 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     pass closing over this dispatcher missed the cache in every new process (1.6 s of
     compile at every start with threads = 2, measured)."""
     n = P.x.shape[0]
-    split = half_split(n)
-    blocks = (n + BLOCK - 1) // BLOCK
+    bounds = (0, half_split(n) // BLOCK, (n + BLOCK - 1) // BLOCK)   # blocks of the halves
     c2max = 0.0
     n_bad = 0
-    while True:                      # (one call site: one inlined copy of the model update)
-        k = take_ticket(S.queue)
-        if k >= blocks:
-            break
-        b = k * BLOCK
-        vn = T.v_musl if b < split else H.v_musl
-        c2, nb = _stress_points(version, only, P, M, vn, S, o, b, min(b + BLOCK, n), c)
-        c2max = max(c2max, c2)
-        n_bad += nb
+    for r in range(2):               # its own half (c % 2) first, then the other's rest
+        h = (c + r) % 2
+        vn = T.v_musl if h == 0 else H.v_musl
+        while True:                  # (one call site: one inlined copy of the model update)
+            k = bounds[h] + take_ticket(S.queue[8 * h:])
+            if k >= bounds[h + 1]:
+                break
+            b = k * BLOCK
+            c2, nb = _stress_points(version, only, P, M, vn, S, o, b, min(b + BLOCK, n), c)
+            c2max = max(c2max, c2)
+            n_bad += nb
     S.parts[c, 0] = c2max
     S.parts[c, 1] = n_bad
 
