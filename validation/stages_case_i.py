@@ -1,7 +1,8 @@
 """Kernel timers along case (i): the three compiled stages of the explicit step, on one
 and on two threads, from the states of case (i) at given times (issue 13).
 
-For each ``--times`` value the reference slope is run to that time, then 300 further steps
+For each ``--times`` value the reference slope is run to that time, its points sorted by
+host cell as the run keeps them (``--unsorted``: in their original order), then 300 further steps
 (dt = 0.9 x the smallest step so far, no damping) are timed stage by stage: map to nodes;
 solve on the mesh + map back, move, re-map; nodal velocities + the stress pass.  Prints the
 median ns per point of each stage and their sum, and the ratio of one thread to two::
@@ -26,18 +27,22 @@ sys.path.insert(0, str(ROOT))
 
 from fem_rmpm import api, kernels as K  # noqa: E402
 from fem_rmpm.explicit import Workspace, explicit_step, run_explicit  # noqa: E402
+from fem_rmpm.point_order import PointOrder  # noqa: E402
 from fem_rmpm.scene import load_scene, with_values  # noqa: E402
 
 STAGES = ("map to nodes", "solve + map back", "nodal velocities + stress pass")
 
 
-def stage_times(t_state: float, threads: int, steps: int = 300) -> dict:
+def stage_times(t_state: float, threads: int, steps: int = 300, sort: bool = True) -> dict:
     """Median ns per point of each stage over ``steps`` steps from the state at
-    ``t_state`` seconds of case (i)."""
+    ``t_state`` seconds of case (i); ``sort``: the points sorted by host cell first, as
+    the run keeps them (else in their original order, as the run returns them)."""
     scene = with_values(load_scene(ROOT / "meshes" / "slope_reference.toml"),
                         {"solver.t_end": t_state, "solver.threads": threads})
     grid, pts = api.prepare(scene)
     rec = run_explicit(scene, grid, pts)
+    if sort:                        # as the run holds them (it restores the order at its end)
+        PointOrder().sort(grid, pts)
     sv = scene.solver
     w = Workspace.for_grid(grid, pts.n)
     g = np.array(scene.gravity_vector)
@@ -71,9 +76,12 @@ def stage_times(t_state: float, threads: int, steps: int = 300) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--times", type=float, nargs="+", default=[2.0, 8.0, 25.0])
+    ap.add_argument("--unsorted", action="store_true",
+                    help="the points in their original order (before session 12: the "
+                         "only order this script timed, not the run's)")
     args = ap.parse_args()
     for t_state in args.times:
-        res = {th: stage_times(t_state, th) for th in (1, 2)}
+        res = {th: stage_times(t_state, th, sort=not args.unsorted) for th in (1, 2)}
         for th, r in res.items():
             print(f"t = {t_state:g} s, {th} thread(s): "
                   + "  ".join(f"{k} {v:.2f}" for k, v in r.items())
