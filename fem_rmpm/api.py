@@ -48,7 +48,8 @@ from .rundir import RunDirError, check_run_dir, run_files, start_run_dir
 from .scene import Scene, SceneError, check_seed, load_scene, scene_to_dict, with_value
 
 __all__ = ["load_scene", "with_value", "prepare", "run", "fem", "factor_of_safety", "RunResult",
-           "noise_shape", "field_noise", "SceneError", "SimulationError", "RunDirError"]
+           "noise_shape", "field_noise", "with_run_threads", "SceneError", "SimulationError",
+           "RunDirError"]
 
 
 @dataclass
@@ -130,9 +131,10 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     out = check_run_dir(out, force) if out is not None else None
     check_seed(seed)
     estimate = check_budget(scene)
+    solved = with_run_threads(scene)     # the notice and the run use the same thread count
     if progress:
         print(f"{scene.scene.name}: {estimate.describe()}", file=sys.stderr, flush=True)
-        notice = compile_notice(scene)
+        notice = compile_notice(solved)
         if notice:
             print(notice, file=sys.stderr, flush=True)
     grid, pts = prepare(scene, seed, noise)
@@ -158,7 +160,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     wall0, cpu0 = time.perf_counter(), time.process_time()
     error = None
     try:
-        rec = _run_scheme(scene, grid, pts, on_output, bar.update_to if bar else None)
+        rec = _run_scheme(solved, grid, pts, on_output, bar.update_to if bar else None)
     except _Stopped as stop:
         rec = RunRecord(scheme=scene.solver.scheme, time=stop.t, stop_reason=stop.reason,
                         frozen_points=np.nonzero(~pts.active)[0].tolist())
@@ -234,6 +236,18 @@ def kernels_cold(threads: int = 1) -> bool:
     except Exception:      # noqa: BLE001 - numba internals moved: no notice, never an error
         return False
     return False
+
+
+def with_run_threads(scene: Scene) -> Scene:
+    """``scene`` with ``[solver] threads = 0`` (auto) replaced by the count
+    :func:`.explicit.auto_threads` gives now, for an explicit numba run (else ``scene``):
+    resolved once, so that the compile notice and the run agree (each asking on its own,
+    the count of free cores could change in between: 2 in the notice, 1 in the run)."""
+    sv = scene.solver
+    if (sv.scheme != "explicit" or getattr(sv, "kernel", "numba") != "numba"
+            or int(getattr(sv, "threads", 0)) > 0):
+        return scene
+    return with_value(scene, "solver.threads", auto_threads())
 
 
 def compile_notice(scene: Scene) -> str | None:

@@ -67,3 +67,25 @@ def test_no_notice_when_quiet_or_warm(tmp_path, capsys, meshes, monkeypatch):
     monkeypatch.setattr(api, "kernels_cold", lambda threads=1: False)
     assert main(["run", str(meshes / "column.toml"), "--out", str(tmp_path / "o")]) == 0
     assert "compiling" not in capsys.readouterr().err
+
+
+def test_notice_and_run_use_one_thread_count(tmp_path, capsys, meshes, monkeypatch):
+    """``threads = 0`` (auto) is resolved once per run: the free-core count can change
+    between two asks (seen: two threads announced, the run then on one), so the notice and
+    the run must not ask apart.  The stub answers 2, then 1 to any later ask."""
+    from fem_rmpm import explicit
+    answers = iter([2, 1, 1, 1])
+    asks = []
+
+    def auto_threads():
+        asks.append(1)
+        return next(answers)
+
+    monkeypatch.setattr(api, "auto_threads", auto_threads)
+    monkeypatch.setattr(explicit, "auto_threads", auto_threads)
+    monkeypatch.setattr(api, "kernels_cold", lambda threads=1: True)
+    scene = api.with_value(api.load_scene(meshes / "column.toml"), "solver.t_end", 0.05)
+    res = api.run(scene, out=tmp_path / "o", progress=True, vtk=False, figures=False)
+    assert "compiling kernels for 2 threads" in capsys.readouterr().err
+    assert len(asks) == 1 and res.record.solver["threads"] == 2
+    assert res.summary["scene"]["solver"]["threads"] == 0      # the scene as given: auto
