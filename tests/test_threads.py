@@ -3,8 +3,8 @@
 The points are taken in two fixed halves, each scattering into its own nodal arrays and
 solving, moving and re-mapping on its own nodes, with both halves' sums added in a fixed
 order where both touched a node (:mod:`fem_rmpm.kernels.transfer`); the halves run on two
-threads or one after the other.  The stress pass hands out blocks of points from a work
-queue to however many threads there are, in whatever order they come; each block is
+threads or one after the other.  The stress pass hands out blocks of points from two work
+queues (one per half) to however many threads there are, in whatever order they come; each block is
 computed by the one compiled function the serial pass also runs, and the step's maxima
 and counts are combined exactly.  So the state after any number of steps
 is equal bit for bit on 1 and 2 threads (asserted: 0 difference).  numba's pool is set
@@ -27,7 +27,7 @@ FIELDS = ("x", "velocity", "stress", "log_strain", "state", "F", "volume", "u_ge
 @pytest.mark.parametrize("shape,fbar,threads", [("standard", False, 2), ("gimp", True, 2),
                                                ("standard", False, 4), ("gimp", True, 3)])
 def test_two_threads_bitwise_equal_one_thread(meshes, shape, fbar, threads):
-    """``threads`` 3 and 4: the stress pass's queue taken by that many workers on numba's
+    """``threads`` 3 and 4: the stress pass's queues taken by that many workers on numba's
     two threads (the nodal velocities in a region of their own before it)."""
     scene = with_values(load_scene(meshes / "slope_elastic.toml"), {
         "grid.cell": [0.5, 0.5], "solver.shape": shape, "soil.model": "von_mises_softening",

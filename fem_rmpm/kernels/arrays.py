@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import typeof
 
-from .common import BLOCK
+from .common import BLOCK, QUEUE_STRIDE
 
 CHUNKS = 64          # the most chunks (threads) of the stress pass
 
@@ -63,9 +63,9 @@ points from the map back: grid kinetic energy (2x), the largest squared |v_pic| 
 the points with a non-finite x or v and those outside the grid; ``q4_ll`` (n,) int64 and
 ``q4_st`` (n, 2): each point's Q4 cell (lower-left node) and local coordinates, found by
 the map to nodes and reused by the later passes of the step (the points have not moved in
-between); ``queue`` (16,) int64: elements 0 and 8 the next block of the stress pass's two work
-queues, one per half of the points (:func:`.stress._stress_queue_call`; the padding puts
-each counter on a cache line of its own)."""
+between); ``queue`` (2 QUEUE_STRIDE,) int64: at 0 and :data:`.common.QUEUE_STRIDE` the next
+block of the stress pass's two work queues, one per half of the points
+(:func:`.stress._stress_queue_call`; the padding puts each counter on a cache line of its own)."""
 
 StepOptions = namedtuple("StepOptions",
                          "dt gx gy damping flip geostatic gimp fbar threads model",
@@ -176,4 +176,4 @@ def scratch_for(n: int, n_cells: int) -> Scratch:
     return Scratch(np.zeros((n, 2)), np.zeros(rows + (4,)), np.zeros(rows), np.zeros(rows),
                    np.zeros(rows), np.zeros(n, np.int64), np.zeros((n, 4)), np.zeros(n_cells),
                    np.zeros(n_cells), np.zeros(4), np.zeros((CHUNKS, 2)), np.zeros((2, 5)),
-                   np.zeros(n, np.int64), np.zeros((n, 2)), np.zeros(16, np.int64))
+                   np.zeros(n, np.int64), np.zeros((n, 2)), np.zeros(2 * QUEUE_STRIDE, np.int64))

@@ -59,6 +59,9 @@ kernel_parallel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="n
 # halves split at a block boundary (the scatters: .transfer); whole blocks from point 0,
 # so that blocks, halves and every point's code do not depend on the thread count.
 BLOCK = 128
+# The stress pass's two work queues (one per half of the points): counters at elements 0
+# and QUEUE_STRIDE of an int64 array, so that each sits on a cache line of its own.
+QUEUE_STRIDE = 8
 
 
 @inline

@@ -30,7 +30,8 @@ from numba import prange
 from ..materials import registry
 from ..materials.dispatch import point_dispatch
 from .arrays import top_of
-from .common import BLOCK, half_split, inline, jit, kernel, kernel_parallel, take_ticket
+from .common import (BLOCK, QUEUE_STRIDE, half_split, inline, jit, kernel, kernel_parallel,
+                     take_ticket)
 from .hencky import exp_block, log_block
 from .transfer import nodal_velocities, nodal_velocities_parallel, nodal_velocity_half
 from .transfer import _top as top
@@ -63,29 +64,34 @@ def _make_stress_pass(version, only):
     sqrt(M / rho), max |v|, number of non-finite points, number outside the grid.
     ``serial``: the nodal velocities of both halves (:func:`.transfer.nodal_velocity`;
     with F-bar they are computed before, for the gradient pass), then every block of
-    points in order; ``parallel``: ``o.threads`` workers taking the blocks from one queue
-    (:func:`_stress_queue_call`), the nodal velocities computed before.  Maxima and counts
-    are combined exactly: the same result in both."""
+    points in order; ``parallel``: ``o.threads`` workers taking the blocks from the two
+    halves' queues (:func:`_stress_queue_call`), the nodal velocities computed before.
+    Maxima and counts are combined exactly: the same result in both."""
     @kernel
     def stress_pass(P, M, N, S, o):
         T = top(N)
         if not o.fbar:
             nodal_velocity_half(M, T, N.half, np.int64(0))
             nodal_velocity_half(M, T, N.half, np.int64(1))
-        S.queue[0] = 0
-        S.queue[8] = 0
+        _reset_queues(S)
         _stress_queue_call(version, only, P, M, T, N.half, S, o, np.int64(0))
         _combine(S, 1)
 
     @kernel_parallel
     def stress_pass_parallel(P, M, T, H, S, o):
         nch = max(1, min(o.threads, S.parts.shape[0]))
-        S.queue[0] = 0
-        S.queue[8] = 0
+        _reset_queues(S)
         for c in prange(nch):
             _stress_queue_call(version, only, P, M, T, H, S, o, np.int64(c))
         _combine(S, nch)
     return stress_pass, stress_pass_parallel
+
+
+@inline
+def _reset_queues(S):
+    """Both work queues of the stress pass back to their first block."""
+    S.queue[0] = 0
+    S.queue[QUEUE_STRIDE] = 0
 
 
 @kernel
@@ -93,23 +99,24 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     """Worker ``c`` of the stress pass: takes the next block of :data:`.common.BLOCK`
     points from the queue of its own half of the points (half ``c % 2``, the half its
     thread mapped and moved: those points are in its core's cache), then from the other
-    half's queue until none is left (``S.queue[0]`` and ``[8]``, :func:`.common.take_ticket`),
-    each block with the nodal velocities of its half, the scratch row ``c``; its
-    statistics into ``S.parts[c]``.  Queues, not fixed halves: a plastic point costs more
-    than an elastic one, and once the slope has failed the plastic points sit in one part
-    of the (cell-sorted) points, so fixed halves left one thread waiting ~30 % of the pass
-    (444 vs 647 us per step at t = 15 s of case (i), measured); one queue for all blocks
-    spread each half's points over both cores (two threads on case (i): 47.3-56.3 ns per
-    point-step, median 48.6, against 46.4-58.3, median 47.3, with fixed halves).  Which worker takes a block changes nothing in it: every block is computed
-    by this one compiled function, maxima and counts combine exactly, so any thread count
-    and any interleaving give bitwise the same result.  ``version`` and ``only`` are
-    literals (one compile and cache entry per pair); not inlined into the threaded loop:
-    numba's parfor passes, run over the inlined model update, changed the result (1 vs 2
-    threads differed in tests/test_threads.py once the dispatch was inlined).  Module
-    level, not a closure of :func:`_make_stress_pass`: numba's cache key of a closure holds
-    its cell values pickled, and a dispatcher pickles with a random uuid, so a threaded
-    pass closing over this dispatcher missed the cache in every new process (1.6 s of
-    compile at every start with threads = 2, measured)."""
+    half's queue until none is left (``S.queue[0]`` and ``[QUEUE_STRIDE]``,
+    :func:`.common.take_ticket`), each block with the nodal velocities of its half, the
+    scratch row ``c``; its statistics into ``S.parts[c]``.  Queues, not fixed halves: a
+    plastic point costs more than an elastic one, and once the slope has failed the plastic
+    points sit in one part of the (cell-sorted) points, so fixed halves left one thread
+    waiting ~30 % of the pass (444 vs 647 us per step at t = 15 s of case (i), measured);
+    one queue for all blocks spread each half's points over both cores (two threads on
+    case (i): 47.3-56.3 ns per point-step, median 48.6, against 46.4-58.3, median 47.3,
+    with fixed halves).  Which worker takes a block changes nothing in it: every block is
+    computed by this one compiled function, maxima and counts combine exactly, so any
+    thread count and any interleaving give bitwise the same result.  ``version`` and
+    ``only`` are literals (one compile and cache entry per pair); not inlined into the
+    threaded loop: numba's parfor passes, run over the inlined model update, changed the
+    result (1 vs 2 threads differed in tests/test_threads.py once the dispatch was
+    inlined).  Module level, not a closure of :func:`_make_stress_pass`: numba's cache key
+    of a closure holds its cell values pickled, and a dispatcher pickles with a random
+    uuid, so a threaded pass closing over this dispatcher missed the cache in every new
+    process (1.6 s of compile at every start with threads = 2, measured)."""
     n = P.x.shape[0]
     bounds = (0, half_split(n) // BLOCK, (n + BLOCK - 1) // BLOCK)   # blocks of the halves
     c2max = 0.0
@@ -118,7 +125,7 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
         h = (c + r) % 2
         vn = T.v_musl if h == 0 else H.v_musl
         while True:                  # (one call site: one inlined copy of the model update)
-            k = bounds[h] + take_ticket(S.queue[8 * h:])
+            k = bounds[h] + take_ticket(S.queue[QUEUE_STRIDE * h:])
             if k >= bounds[h + 1]:
                 break
             b = k * BLOCK
