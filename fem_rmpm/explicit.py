@@ -224,7 +224,6 @@ def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarr
         log_strain, mstate, tau = stress_update(dF, *state)
         J = np.linalg.det(dF)
     pts.x[act], pts.velocity[act], pts.volume[act] = x, v, vol * J
-    pts.F[act] = dF @ pts.F[act]
     pts.log_strain[act], pts.state[act] = log_strain, mstate
     pts.stress[act] = tau * (pts.volume0[act] / pts.volume[act])[:, None]
     # motion as the grid sees it (FLIP keeps particle velocity modes the grid cannot see)
@@ -265,17 +264,17 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     stress kernel returns (no pass over the points in Python), and the points are sorted by
     host cell after every output and every ``sort_every`` steps (0: never;
     :mod:`fem_rmpm.point_order`), in their original order whenever ``on_output``, a guard
-    or the caller sees them.  ``threads``: :func:`_run_threads`."""
+    or the caller sees them.  ``threads``: :func:`_run_threads`.  ``pts.F``: NaN (not tracked)."""
     sv = scene.solver
     kernel = kernel or getattr(sv, "kernel", None) or DEFAULT_KERNEL
     if kernel not in KERNELS:
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
     work = Workspace.for_grid(grid, pts.n) if kernel == "numba" else None
     threads = _run_threads(int(getattr(sv, "threads", 0)), kernel)
-    stats = None
+    pts.F[...] = np.nan              # the step needs det(dF) only (volume), not the total F
     h_min, g_full = float(np.min(grid.cell)), np.array(scene.gravity_vector)
     rec = RunRecord(scheme="explicit", solver={"threads": threads})
-    t, step, ke_peak, next_out = 0.0, 0, 0.0, sv.output_interval
+    t, step, ke_peak, next_out, stats = 0.0, 0, 0.0, sv.output_interval, None
     geostatic = sv.gravity_phase == "geostatic"
     wall0 = time.perf_counter()
     if on_output:

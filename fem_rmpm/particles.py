@@ -47,7 +47,8 @@ class Particles:
     cell0: np.ndarray                  # (n,) host cell at seeding
     active: np.ndarray                 # (n,) False once frozen at the grid edge
     half_width: np.ndarray = field(default=None)  # (n, 2) particle half-size lp (uGIMP), m
-    F: np.ndarray = field(default=None)  # (n, 2, 2) deformation gradient
+    F: np.ndarray = field(default=None)  # (n, 2, 2) deformation gradient (implicit scheme;
+    #                                      the explicit one does not track it: NaN after a run)
     u_geostatic: np.ndarray = field(default=None)  # (n, 2) displacement of the geostatic phase, m
 
     def __post_init__(self):

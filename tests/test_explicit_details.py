@@ -125,6 +125,7 @@ def test_time_loop_bookkeeping(column, kernel):
     assert [t for t, _ in rec.energy] == [t for t, _ in prog]
     assert 0 < rec.dt_min <= rec.dt_max <= dt0 * (1 + 1e-9)
     assert rec.steps >= 0.05 / rec.dt_max - 1e-9 and rec.steps <= 0.05 / rec.dt_min + 1
+    assert np.isnan(pts.F).all()     # not tracked by the explicit scheme: not left as current
 
 
 def test_geostatic_phase_ends_at_rest_then_stops_at_rest(column):

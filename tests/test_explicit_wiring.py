@@ -31,7 +31,7 @@ from fem_rmpm.scene import load_scene, with_values
 from fem_rmpm.shape import shape_at_points
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
-FIELDS = ("x", "velocity", "stress", "log_strain", "state", "volume", "F")
+FIELDS = ("x", "velocity", "stress", "log_strain", "state", "volume")
 
 
 def _column(**values):

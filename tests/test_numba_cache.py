@@ -28,7 +28,7 @@ M = A.Mesh(0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 2, 2, np.zeros(2), np.full(2, 2.0),
 z = np.zeros((1, 2))
 P = A.PointArrays(np.array([[0.5, 0.5]]), z.copy(), np.ones(1), np.ones(1), np.ones(1),
                   np.zeros((1, 4)), np.ones(1, bool), np.full((1, 2), 0.25),
-                  np.zeros((1, 2, 2)), np.zeros((1, 4)), np.zeros((1, 1)), z.copy(),
+                  np.zeros((1, 4)), np.zeros((1, 1)), z.copy(),
                   np.zeros(1, np.int64), np.zeros((1, 2)))
 N = A.node_arrays(9, A.node_arrays(9))
 T.map_to_nodes(P, M, N, A.scratch_for(1, 4),

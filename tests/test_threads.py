@@ -21,7 +21,7 @@ from fem_rmpm.grid import make_grid
 from fem_rmpm.particles import seed_particles
 from fem_rmpm.scene import load_scene, with_values
 
-FIELDS = ("x", "velocity", "stress", "log_strain", "state", "F", "volume", "u_geostatic")
+FIELDS = ("x", "velocity", "stress", "log_strain", "state", "volume", "u_geostatic")
 
 
 @pytest.mark.parametrize("shape,fbar,threads", [("standard", False, 2), ("gimp", True, 2),

@@ -331,7 +331,6 @@ def stages_numpy(scene, grid, pts, geostatic, steps):
             dF = hughes_winget_increment(L, dt)
             ls, gp, tau = stress_update(dF, pts.log_strain, pts.plastic_shear_strain, pts.soil)
             J = np.linalg.det(dF)
-            pts.F[:] = dF @ pts.F
         pts.x[:], pts.velocity[:], pts.volume[:] = x, v, vol * J
         pts.log_strain[:], pts.plastic_shear_strain[:] = ls, gp
         pts.stress[:] = tau * (pts.volume0 / pts.volume)[:, None]

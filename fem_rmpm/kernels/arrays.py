@@ -33,10 +33,10 @@ Mesh = namedtuple("Mesh", "o0 o1 h0 h1 ih0 ih1 nx ny lo hi fixed")
 Mesh.__doc__ = """Structured grid: origin (m), cell size h and 1/h, cells nx x ny, the grid
 rectangle ``lo``, ``hi`` (2,) (m) and the fixed node components ``fixed`` (nn, 2) bool."""
 
-PointArrays = namedtuple("PointArrays", "x v mass vol vol0 stress active half_width F "
+PointArrays = namedtuple("PointArrays", "x v mass vol vol0 stress active half_width "
                                         "log_strain state u_geo model params")
 PointArrays.__doc__ = """Material points: x, v (n, 2) m, m/s; mass (n,) t; vol, vol0 (n,)
-m3/m; Cauchy stress (n, 4) kPa; active (n,) bool; uGIMP half widths (n, 2) m; F (n, 2, 2);
+m3/m; Cauchy stress (n, 4) kPa; active (n,) bool; uGIMP half widths (n, 2) m;
 elastic log strain (n, 4); model state (n, S); geostatic displacement u_geo (n, 2) m;
 model id (n,) and parameter rows (n, P) (:mod:`fem_rmpm.materials`)."""
 
@@ -108,7 +108,7 @@ def point_arrays(pts, fallback_half_width: np.ndarray) -> PointArrays:
     lp = pts.half_width if pts.half_width is not None else fallback_half_width
     s = pts.soil
     return PointArrays(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.stress,
-                       pts.active, lp, pts.F, pts.log_strain, pts.state, pts.u_geostatic,
+                       pts.active, lp, pts.log_strain, pts.state, pts.u_geostatic,
                        s.model, s.params)
 
 

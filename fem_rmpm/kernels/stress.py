@@ -6,7 +6,7 @@ kinematics, the Hencky trial state, the material model through the model registr
 F-bar).  The pass walks the points in blocks of :data:`.hencky.BLOCK`; per block:
 
 1. the exp parts of the log strains (:func:`.hencky.exp_block`, vectorised series);
-2. per point the velocity gradient, Hughes-Winget increment, F, volume and b_tr
+2. per point the velocity gradient, Hughes-Winget increment, volume and b_tr
    (:func:`.strain.kinematics_points`, or :func:`.strain.fbar_apply_points`);
 3. the log parts of b_tr (:func:`.hencky.log_block`, vectorised series);
 4. per point the trial log strain, the point's model update (one dispatch on its model
@@ -256,7 +256,7 @@ def update_stress(P, M, N, S, o, call=_direct) -> None:
     """Stage 3b and 3c: the MUSL nodal velocities from the re-mapped momenta, then per
     point the velocity gradient at the positions before the move (``S.x_old``, Q4: the
     map's cells),
-    deformation increment (geostatic: small strain, J = 1), F, volume, the material
+    deformation increment (geostatic: small strain, J = 1), volume, the material
     update, Cauchy stress, and ``S.out`` (4,) = the largest P-wave speed and point speed,
     the non-finite and the outside points — one stress pass per half of the points, on
     ``o.threads`` threads.  ``o.fbar`` (the F-bar remedy, :mod:`fem_rmpm.locking`): the
