@@ -155,6 +155,7 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     change is replaced by the volume-weighted mean of its host cell (geostatic: B-bar).
     ``threads`` (numba): 2 or more runs the two halves of the points on two threads (the
     stress update on up to ``threads``); the result is bitwise the single-thread one.
+    ``pts.F`` is not updated (the step needs det(dF) only; :func:`run_explicit` sets it NaN).
     """
     kernel = kernel or DEFAULT_KERNEL
     if kernel == "numpy":

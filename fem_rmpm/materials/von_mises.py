@@ -252,8 +252,8 @@ def point_update(e0, e1, e2, e3, state, params, i):
         # one division gives both dg and the scale on the softening branch; a point on the
         # residual branch skips it (case (i), t = 8 s, 86 % of the points yielding: stress
         # pass -1.2 ns per point against dg first, then scale = 1 - G dg / q, measured)
-        dg = 0.0
-        scale = 1.0
+        dg = 0.0                                    # (always set below: numba's inliner
+        scale = 1.0                                 # rejects names bound in one branch only)
         soft_branch = gam < gs
         if soft_branch:
             hs = (cp - cr) / gs
