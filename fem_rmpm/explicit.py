@@ -44,11 +44,12 @@ from numba.np.ufunc import parallel as numba_parallel
 from . import kernels as K
 from .grid import Grid
 from .kernels import Workspace
+from .kernels.advance import RECORD_EVERY, RunControl, step_drivers
 from .locking import bbar_gradient, fbar_increment, host_cells
 from .materials import hughes_winget_increment, small_strain_update, stress_update
 from .particles import Particles
 from .point_order import SORT_EVERY, PointOrder
-from .regularisation import average_softening
+from .regularisation import average_softening, has_nonlocal
 from .run import RunRecord, SimulationError, at_rest, check_points
 from .scene import Scene
 from .shape import shape_at_points
@@ -265,7 +266,9 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     stress kernel returns (no pass over the points in Python), and the points are sorted by
     host cell after every output and every ``sort_every`` steps (0: never;
     :mod:`fem_rmpm.point_order`), in their original order whenever ``on_output``, a guard
-    or the caller sees them.  ``threads``: :func:`_run_threads`.  ``pts.F``: NaN (not tracked)."""
+    or the caller sees them; the ordinary steps between two steps the loop must see run in
+    one compiled call (:func:`_advance`, bitwise the same).  ``threads``:
+    :func:`_run_threads`.  ``pts.F``: NaN (not tracked)."""
     sv = scene.solver
     kernel = kernel or getattr(sv, "kernel", None) or DEFAULT_KERNEL
     if kernel not in KERNELS:
@@ -281,29 +284,27 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     if on_output:
         on_output(t, pts)
     order = PointOrder(sort_every if kernel == "numba" else 0)
+    driven = kernel == "numba" and not has_nonlocal(pts.soil)    # non-local: Python steps
     try:
         while t < sv.t_end - 1e-12:
-            dt = min(_cfl_step(stats, pts, grid, sv.cfl, h_min), sv.t_end - t)
-            ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
-            damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
-            stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape,
-                                  geostatic, kernel, work, bool(sv.fbar), threads)
-            average_softening(grid, pts)     # non-local softening (no-op for local soils)
-            t, step = t + dt, step + 1
-            rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
+            if driven and stats is not None and stats.wave_speed is not None:
+                ctl = _run_control(sv, h_min, g_full, next_out if on_output else np.inf,
+                                   order.due_step())
+                stats, dt, t, step, ke_peak = _advance(grid, pts, work, sv, geostatic, threads,
+                                                       ctl, (t, step, ke_peak), rec)
+            else:
+                stats, dt, t, step, ke_peak = _python_step(
+                    grid, pts, sv, kernel, work, threads, geostatic, g_full,
+                    _cfl_step(stats, pts, grid, sv.cfl, h_min), (t, step, ke_peak), rec)
             if step == 1:                    # the t = 0 output and the kernels' first calls
                 rec.solver["first_step_time"] = time.perf_counter() - wall0
-            if stats.wave_speed is None or stats.n_bad or stats.n_outside:
-                order.restore(pts)           # the guards name points by their original index
-                check_points(grid, pts, step, t, sv.edge_policy, rec)
-                if stats.n_outside:      # points were frozen: next CFL step from the numpy helper
-                    stats.wave_speed = None
-                if not pts.active.any():
-                    rec.stop_reason = "all points left the grid"
-                    break
+            if (stats.wave_speed is None or stats.n_bad or stats.n_outside) and \
+                    not _guards(grid, pts, stats, order, step, t, sv.edge_policy, rec):
+                rec.stop_reason = "all points left the grid"
+                break
             _check_jump(stats.max_speed * dt, h_min, step, t, sv.cfl)
             ke_peak = max(ke_peak, stats.kinetic_energy)
-            if step % 20 == 0:
+            if step % RECORD_EVERY == 0:
                 rec.energy.append((t, stats.kinetic_energy))
                 if progress:
                     progress(t, step)
@@ -330,6 +331,72 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     if on_output and next_out - sv.output_interval < t - 1e-12:
         on_output(t, pts)
     return rec
+
+
+def _run_control(sv, h_min: float, g_full: np.ndarray, next_output: float,
+                 sort_step: float) -> RunControl:
+    """The :class:`~.kernels.advance.RunControl` of ``[solver]`` ``sv`` (all floats)."""
+    return RunControl(float(sv.cfl), float(h_min), float(sv.t_end), float(sv.gravity_ramp_time),
+                      float(sv.damping), float(sv.damping_time), float(g_full[0]),
+                      float(g_full[1]), float(sv.geostatic_time), float(sv.rest_velocity),
+                      float(sv.rest_energy_ratio), float(next_output), float(sort_step))
+
+
+def _guards(grid: Grid, pts: Particles, stats: StepStats, order: PointOrder, step: int,
+            t: float, policy: str, rec: RunRecord) -> bool:
+    """The run's guards after a step with a finding (or from the numpy path):
+    :func:`fem_rmpm.run.check_points` on the points in their original order (the guards
+    name points by their original index); frozen points make the next CFL step come from
+    :func:`stable_time_step`.  False when no active point is left."""
+    order.restore(pts)
+    check_points(grid, pts, step, t, policy, rec)
+    if stats.n_outside:
+        stats.wave_speed = None
+    return bool(pts.active.any())
+
+
+def _python_step(grid: Grid, pts: Particles, sv, kernel: str, work: Workspace | None,
+                 threads: int, geostatic: bool, g_full: np.ndarray, cfl_dt: float,
+                 clock0: tuple, rec: RunRecord) -> tuple[StepStats, float, float, int, float]:
+    """One step of the time loop from Python, from ``clock0`` = (t, step, peak kinetic
+    energy): the CFL step ``cfl_dt`` (s) cut at ``t_end``, the gravity ramp and the damping
+    of ``[solver]`` ``sv``, then the non-local averaging; ``rec.dt_min`` / ``dt_max``
+    updated.  Returns as :func:`_advance` (the peak is left to the loop)."""
+    t, step, ke_peak = clock0
+    dt = min(cfl_dt, sv.t_end - t)
+    ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
+    damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
+    stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape,
+                          geostatic, kernel, work, bool(sv.fbar), threads)
+    average_softening(grid, pts)     # non-local softening (no-op for local soils)
+    rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
+    return stats, dt, t + dt, step + 1, ke_peak
+
+
+def _advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, threads: int,
+             ctl: RunControl, clock0: tuple,
+             rec: RunRecord) -> tuple[StepStats, float, float, int, float]:
+    """Ordinary steps of the time loop in one compiled call (:mod:`.kernels.advance`), from
+    ``clock0`` = (t, step, peak kinetic energy) and the previous step's maxima in the
+    scratch, to the first step the loop must see; ``rec.dt_min`` / ``dt_max`` updated.
+    Returns that step's
+    :class:`StepStats`, its dt, and the new t, step and peak."""
+    (P, M), N, S, call = work.bind(grid, pts), work.nodes, work.scratch, work.call
+    clock, count = work.clock, work.count
+    o = K.StepOptions(0.0, 0.0, 0.0, 0.0, float(sv.flip), bool(geostatic), sv.shape == "gimp",
+                      bool(sv.fbar), int(threads), work.model)
+    clock[:4] = clock0[0], clock0[2], rec.dt_min, rec.dt_max
+    count[0] = clock0[1]
+    serial, parallel = step_drivers(o.model)
+    if threads > 1:
+        call(parallel, P, M, N, K.top_of(N), N.half, S, o, ctl, clock, count)
+    else:
+        call(serial, P, M, N, S, o, ctl, clock, count)
+    out = S.out
+    rec.dt_min, rec.dt_max = float(clock[2]), float(clock[3])
+    stats = StepStats(float(clock[4]), float(clock[5]), float(out[0]), float(out[1]),
+                      int(out[2]), int(out[3]))
+    return stats, float(clock[6]), float(clock[0]), int(count[0]), float(clock[1])
 
 
 def _run_threads(threads: int, kernel: str) -> int:

@@ -92,6 +92,13 @@ class PointOrder:
             self.sort(grid, pts)
             self.next_sort = step + self.every
 
+    def due_step(self) -> float:
+        """The first step after which :meth:`sort_if_due` sorts: 0 (any step) while the
+        points are unsorted, the next sort's step, or inf when sorting is off."""
+        if self.every <= 0:
+            return float("inf")
+        return float(self.next_sort) if self.sorted else 0.0
+
     def restore(self, pts: Particles) -> None:
         """Put the points back in their original order."""
         self.sorted = False

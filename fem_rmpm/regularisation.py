@@ -75,6 +75,7 @@ from .materials import registry
 from .scene import SceneError
 
 __all__ = ["DEFAULT_INTERNAL_LENGTH", "DEFAULT_FACTOR", "CUTOFF", "MODES", "average_softening",
+           "has_nonlocal",
            "prepare_softening", "nonlocal_average", "cell_average", "stencil", "galavi_weight"]
 
 DEFAULT_INTERNAL_LENGTH = 0.5      # m (theta_v of the reference fields; 2 cells of 0.25 m)
@@ -133,6 +134,12 @@ def _plan(soil):
         plan = None
     _PLANS[key] = plan
     return plan
+
+
+def has_nonlocal(soil) -> bool:
+    """True when some points of ``soil`` soften non-locally (:func:`average_softening`
+    then has work to do after every step)."""
+    return _plan(soil) is not None
 
 
 def forget_plan(soil) -> None:

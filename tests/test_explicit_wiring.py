@@ -42,6 +42,13 @@ def _column(**values):
     return scene, grid, seed_particles(scene, grid)
 
 
+def _python_loop(monkeypatch):
+    """Every step from Python (as with a non-local soil): the tests below spy on the calls
+    the loop makes per step; the compiled driver that otherwise runs the ordinary steps is
+    checked bitwise against this loop in ``tests/test_advance.py``."""
+    monkeypatch.setattr(ex, "has_nonlocal", lambda soil: True)
+
+
 def _moved(pts):
     """Points given a velocity pattern so that a step deforms them (m/s)."""
     rng = np.random.default_rng(11)
@@ -158,6 +165,7 @@ def test_rest_test_gets_the_running_peak_of_the_kinetic_energy(monkeypatch):
         return at_rest(t, ramp, speed, ke, ke_peak, v_rest, ratio)
 
     monkeypatch.setattr(ex, "at_rest", spy)
+    _python_loop(monkeypatch)
     scene, grid, pts = _column()
     run_explicit(scene, grid, pts)
     running = np.maximum.accumulate([ke for ke, _ in seen])
@@ -176,6 +184,7 @@ def test_nonlocal_averaging_follows_every_step_with_the_runs_grid(monkeypatch):
         return real(grid, pts, *args, **kwargs)
 
     monkeypatch.setattr(ex, "average_softening", spy)
+    _python_loop(monkeypatch)
     scene, grid, pts = _column(**{"solver.t_end": 0.02})
     rec = run_explicit(scene, grid, pts)
     assert len(calls) == rec.steps > 3
@@ -201,6 +210,7 @@ def test_solver_options_reach_every_step(monkeypatch, options):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(ex, "explicit_step", spy)
+    _python_loop(monkeypatch)
     scene, grid, pts = _column(**options, **{"solver.t_end": 0.02})
     rec = run_explicit(scene, grid, pts)
     assert len(calls) == rec.steps > 3

@@ -22,6 +22,11 @@ step's options ``o``.  The points are taken in two halves, each with its own nod
    :mod:`.hencky`), the material model of each point through one dispatch on its model
    id, Cauchy stress and the maxima the time loop needs (:mod:`.stress`).
 
+The time loop runs its ordinary steps back to back in one compiled call
+(:mod:`.advance`: the same three stages, then the CFL step, gravity ramp, damping and the
+loop's checks, returning at the first step the loop must see), bitwise the steps made one
+by one from Python.
+
 Every formula is the one of the numpy path, in the same order where it matters, so the
 two agree to round-off (``tests/test_kernels.py``: 1e-12 relative over several steps,
 measured ~1e-14).  ``cache=True`` keeps the compiled code on disk

@@ -123,13 +123,16 @@ class Workspace:
     then calls the compiled entry point directly (~3x cheaper), as long as :meth:`bind`
     sees the same point arrays (a new array drops the resolved calls).  ``model``: the
     one model id of the bound points (-1: several), found at :meth:`bind` (a point's
-    model is set when the points are made and never changes during a run)."""
+    model is set when the points are made and never changes during a run).  ``clock``,
+    ``count``: the step driver's time and step buffers (:mod:`.advance`)."""
     nodes: NodeArrays
     scratch: Scratch
     mesh: Mesh | None = None
     points: PointArrays | None = None
     calls: dict = field(default_factory=dict)
     model: int = -1
+    clock: np.ndarray = field(default_factory=lambda: np.zeros(7))
+    count: np.ndarray = field(default_factory=lambda: np.zeros(2, np.int64))
 
     def bind(self, grid, pts) -> tuple[PointArrays, Mesh]:
         """The point and mesh groups of ``pts`` and ``grid`` (kept while the arrays are)."""

@@ -1,0 +1,168 @@
+"""Many explicit steps in one compiled call: the time loop's ordinary steps without Python.
+
+Between two steps the time loop of :func:`fem_rmpm.explicit.run_explicit` picks the CFL
+step, the gravity ramp and the damping, then checks guards, output times, sorting and
+rest.  Done in Python that cost ~70-100 us per step (building the argument groups,
+unboxing ~50 arrays for each of the three kernel calls, the loop's own bookkeeping, all
+on caches the kernels had just filled with points): ~4-5 ns per point-step on the
+reference slope (18 260 points), more on smaller scenes.  :func:`step_drivers` gives
+compiled drivers that run steps back to back with the same arithmetic, in the same
+order, and return to Python at the first step that needs it (:data:`EVENTS`): a guard
+fired, an output or sort is due, the run is at rest or at its end, the geostatic phase
+may end, or the step number is a multiple of :data:`RECORD_EVERY` (the energy record and
+progress).  The loop then runs its usual per-step block for that step, so a run is
+bitwise the one stepped from Python (``tests/test_advance.py``).
+
+Each step is the three stages of the method, as :func:`fem_rmpm.explicit.explicit_step`
+calls them: map to nodes (:func:`.transfer.map_to_nodes`), solve on the mesh and map back
+(:func:`.transfer.solve_and_move`), then the stress pass (:mod:`.stress`).  The driver
+arithmetic (step size, ramp, damping, the checks) is compiled without any fast-math
+flag: every operation is rounded as Python rounds it.
+"""
+from __future__ import annotations
+
+from collections import namedtuple
+
+import numpy as np
+from numba import njit, prange
+
+from ..materials import registry
+from .arrays import StepOptions
+from .stress import _combine, _reset_queues, _stress_queue_call
+from .strain import fbar_gradient_pass
+from .transfer import (_top, map_to_nodes, map_to_nodes_parallel, nodal_velocities,
+                       nodal_velocities_parallel, nodal_velocity_half, solve_and_move,
+                       solve_and_move_parallel)
+
+__all__ = ["RunControl", "step_drivers", "RECORD_EVERY", "EVENTS"]
+
+#: The step numbers at which the loop records the kinetic energy and reports progress.
+RECORD_EVERY = 20
+
+RunControl = namedtuple("RunControl", "cfl h_min t_end ramp_time damping damping_time g0 g1 "
+                                      "geostatic_time rest_velocity rest_energy_ratio "
+                                      "next_output sort_step")
+RunControl.__doc__ = """The time loop's constants for one driver call: CFL number (-),
+smallest cell size (m), end time (s), gravity ramp time (s), damping (-) applied while
+t < damping_time (s), full gravity (m/s2), end of the geostatic phase (s), rest speed (m/s)
+and kinetic-energy ratio (-), the next output time (s; inf: none) and the step at which
+the next sort is due (a large number: none).  All floats."""
+
+#: Why a driver returned (``count[1]``), for tests and debugging.
+EVENTS = ("record", "guard", "jump", "output", "sort", "rest", "geostatic", "end")
+
+# no fast-math flags: the driver's own arithmetic must round as the Python loop's does
+driver = njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+driver_parallel = njit(cache=True, nogil=True, error_model="numpy", _nrt=False, parallel=True)
+exact_inline = njit(inline="always", error_model="numpy")
+
+
+@exact_inline
+def _options(o, c, t, wave_speed, point_speed):
+    """The next step's options, as the Python loop makes them (``explicit._cfl_step``)."""
+    dt = min(c.cfl * c.h_min / (wave_speed + point_speed), c.t_end - t)
+    ramp = 1.0 if c.ramp_time <= 0 else min(1.0, (t + dt) / c.ramp_time)
+    damping = c.damping if (o.geostatic or t < c.damping_time) else 0.0
+    return StepOptions(dt, ramp * c.g0, ramp * c.g1, damping, o.flip, o.geostatic, o.gimp,
+                       o.fbar, o.threads, o.model)
+
+
+@exact_inline
+def _event(c, o, S, t, step, dt, ke, ke_peak, vmax):
+    """The first of :data:`EVENTS` (its index) the step just done raises, or -1 (the
+    checks of the Python loop; ``ke_peak`` already holds this step's energy, as the loop's
+    rest check sees it — the loop's own ``max`` at the returned step changes nothing)."""
+    if S.out[2] != 0 or S.out[3] != 0:
+        return 1
+    if vmax * dt > 0.5 * c.h_min:
+        return 2
+    if step % RECORD_EVERY == 0:
+        return 0
+    if t >= c.next_output - 1e-12:
+        return 3
+    if step >= c.sort_step:
+        return 4
+    if t >= c.ramp_time and vmax < c.rest_velocity and ke <= c.rest_energy_ratio * ke_peak:
+        return 5
+    if o.geostatic and t >= c.geostatic_time:
+        return 6
+    if not t < c.t_end - 1e-12:
+        return 7
+    return -1
+
+
+def _make_drivers(version, only):
+    """``(serial, parallel)`` drivers for one registry version and model restriction (the
+    stress pass's, :func:`.stress.material_kernels`).  Both take the step options ``o``
+    of the previous step (their dt, gravity and damping are replaced), a :class:`RunControl`
+    ``c``, ``clock`` (float64 (7,): t, peak kinetic energy, smallest and largest dt so far,
+    then the last step's kinetic energy, max |v_pic| and dt; updated) and ``count`` (int64 (2,): the step
+    number, updated; the event that stopped the call); ``S.out`` holds the last step's
+    maxima on entry (the CFL step) and on return."""
+    @driver
+    def advance(P, M, N, S, o, c, clock, count):
+        t, ke_peak, step = clock[0], clock[1], count[0]
+        dt, ke, vmax, event = 0.0, 0.0, 0.0, -1
+        while True:
+            op = _options(o, c, t, S.out[0], S.out[1])
+            map_to_nodes(P, M, N, S, op)                      # 1. map to nodes
+            ke, vmax = solve_and_move(P, M, N, S, op)         # 2. solve, 3a. map back
+            T = _top(N)                                       # 3b, 3c. stress update
+            if op.fbar:
+                nodal_velocities(M, N)
+                fbar_gradient_pass(P, M, N, S, op)
+            else:
+                nodal_velocity_half(M, T, N.half, np.int64(0))
+                nodal_velocity_half(M, T, N.half, np.int64(1))
+            _reset_queues(S)
+            _stress_queue_call(version, only, P, M, T, N.half, S, op, np.int64(0))
+            _combine(S, 1)
+            dt = op.dt
+            t, step = t + dt, step + 1
+            clock[2], clock[3] = min(clock[2], dt), max(clock[3], dt)
+            ke_peak = max(ke_peak, ke)
+            event = _event(c, op, S, t, step, dt, ke, ke_peak, vmax)
+            if event >= 0:
+                break
+        clock[0], clock[1], clock[4], clock[5], clock[6] = t, ke_peak, ke, vmax, dt
+        count[0], count[1] = step, event
+
+    @driver_parallel
+    def advance_parallel(P, M, N, T, H, S, o, c, clock, count):
+        t, ke_peak, step = clock[0], clock[1], count[0]
+        dt, ke, vmax, event = 0.0, 0.0, 0.0, -1
+        nch = max(1, min(o.threads, S.parts.shape[0]))
+        while True:
+            op = _options(o, c, t, S.out[0], S.out[1])
+            map_to_nodes_parallel(P, M, T, H, S, op)
+            ke, vmax = solve_and_move_parallel(P, M, T, H, S, op)
+            nodal_velocities_parallel(M, T, H)
+            if op.fbar:
+                fbar_gradient_pass(P, M, N, S, op)
+            _reset_queues(S)
+            for ch in prange(nch):
+                _stress_queue_call(version, only, P, M, T, H, S, op, np.int64(ch))
+            _combine(S, nch)
+            dt = op.dt
+            t, step = t + dt, step + 1
+            clock[2], clock[3] = min(clock[2], dt), max(clock[3], dt)
+            ke_peak = max(ke_peak, ke)
+            event = _event(c, op, S, t, step, dt, ke, ke_peak, vmax)
+            if event >= 0:
+                break
+        clock[0], clock[1], clock[4], clock[5], clock[6] = t, ke_peak, ke, vmax, dt
+        count[0], count[1] = step, event
+    return advance, advance_parallel
+
+
+_BY_VERSION: dict = {}
+
+
+def step_drivers(only: int = -1):
+    """``(advance, advance_parallel)`` compiled for the current model registry and model
+    restriction ``only`` (the one model id of all points, -1: any; see
+    :func:`.stress.material_kernels`)."""
+    key = (registry.version(), int(only))
+    if key not in _BY_VERSION:
+        _BY_VERSION[key] = _make_drivers(*key)
+    return _BY_VERSION[key]
