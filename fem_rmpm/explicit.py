@@ -379,8 +379,7 @@ def _advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, t
     """Ordinary steps of the time loop in one compiled call (:mod:`.kernels.advance`), from
     ``clock0`` = (t, step, peak kinetic energy) and the previous step's maxima in the
     scratch, to the first step the loop must see; ``rec.dt_min`` / ``dt_max`` updated.
-    Returns that step's
-    :class:`StepStats`, its dt, and the new t, step and peak."""
+    Returns that step's :class:`StepStats`, its dt, and the new t, step and peak."""
     (P, M), N, S, call = work.bind(grid, pts), work.nodes, work.scratch, work.call
     clock, count = work.clock, work.count
     o = K.StepOptions(0.0, 0.0, 0.0, 0.0, float(sv.flip), bool(geostatic), sv.shape == "gimp",

@@ -91,20 +91,33 @@ def _event(c, o, S, t, step, dt, ke, ke_peak, vmax):
     return -1
 
 
+@exact_inline
+def _tick(c, op, S, clock, count, ke, vmax):
+    """Book the step just done in ``clock`` / ``count`` (time, step number, dt range, peak,
+    then its kinetic energy ``ke``, max |v_pic| ``vmax`` and dt) as the Python loop does;
+    returns its event (:func:`_event`), also in ``count[1]``."""
+    dt = op.dt
+    clock[0] = clock[0] + dt
+    count[0] = count[0] + 1
+    clock[2], clock[3] = min(clock[2], dt), max(clock[3], dt)
+    clock[1] = max(clock[1], ke)
+    clock[4], clock[5], clock[6] = ke, vmax, dt
+    count[1] = _event(c, op, S, clock[0], count[0], dt, ke, clock[1], vmax)
+    return count[1]
+
+
 def _make_drivers(version, only):
     """``(serial, parallel)`` drivers for one registry version and model restriction (the
     stress pass's, :func:`.stress.material_kernels`).  Both take the step options ``o``
     of the previous step (their dt, gravity and damping are replaced), a :class:`RunControl`
     ``c``, ``clock`` (float64 (7,): t, peak kinetic energy, smallest and largest dt so far,
-    then the last step's kinetic energy, max |v_pic| and dt; updated) and ``count`` (int64 (2,): the step
-    number, updated; the event that stopped the call); ``S.out`` holds the last step's
-    maxima on entry (the CFL step) and on return."""
+    then the last step's kinetic energy, max |v_pic| and dt) and ``count`` (int64 (2,): the
+    step number; the event that stopped the call), both updated; ``S.out`` holds the last
+    step's maxima on entry (the CFL step) and on return."""
     @driver
     def advance(P, M, N, S, o, c, clock, count):
-        t, ke_peak, step = clock[0], clock[1], count[0]
-        dt, ke, vmax, event = 0.0, 0.0, 0.0, -1
         while True:
-            op = _options(o, c, t, S.out[0], S.out[1])
+            op = _options(o, c, clock[0], S.out[0], S.out[1])
             map_to_nodes(P, M, N, S, op)                      # 1. map to nodes
             ke, vmax = solve_and_move(P, M, N, S, op)         # 2. solve, 3a. map back
             T = _top(N)                                       # 3b, 3c. stress update
@@ -117,23 +130,14 @@ def _make_drivers(version, only):
             _reset_queues(S)
             _stress_queue_call(version, only, P, M, T, N.half, S, op, np.int64(0))
             _combine(S, 1)
-            dt = op.dt
-            t, step = t + dt, step + 1
-            clock[2], clock[3] = min(clock[2], dt), max(clock[3], dt)
-            ke_peak = max(ke_peak, ke)
-            event = _event(c, op, S, t, step, dt, ke, ke_peak, vmax)
-            if event >= 0:
+            if _tick(c, op, S, clock, count, ke, vmax) >= 0:
                 break
-        clock[0], clock[1], clock[4], clock[5], clock[6] = t, ke_peak, ke, vmax, dt
-        count[0], count[1] = step, event
 
     @driver_parallel
     def advance_parallel(P, M, N, T, H, S, o, c, clock, count):
-        t, ke_peak, step = clock[0], clock[1], count[0]
-        dt, ke, vmax, event = 0.0, 0.0, 0.0, -1
         nch = max(1, min(o.threads, S.parts.shape[0]))
         while True:
-            op = _options(o, c, t, S.out[0], S.out[1])
+            op = _options(o, c, clock[0], S.out[0], S.out[1])
             map_to_nodes_parallel(P, M, T, H, S, op)
             ke, vmax = solve_and_move_parallel(P, M, T, H, S, op)
             nodal_velocities_parallel(M, T, H)
@@ -143,15 +147,8 @@ def _make_drivers(version, only):
             for ch in prange(nch):
                 _stress_queue_call(version, only, P, M, T, H, S, op, np.int64(ch))
             _combine(S, nch)
-            dt = op.dt
-            t, step = t + dt, step + 1
-            clock[2], clock[3] = min(clock[2], dt), max(clock[3], dt)
-            ke_peak = max(ke_peak, ke)
-            event = _event(c, op, S, t, step, dt, ke, ke_peak, vmax)
-            if event >= 0:
+            if _tick(c, op, S, clock, count, ke, vmax) >= 0:
                 break
-        clock[0], clock[1], clock[4], clock[5], clock[6] = t, ke_peak, ke, vmax, dt
-        count[0], count[1] = step, event
     return advance, advance_parallel
 
 
