@@ -10,6 +10,7 @@ cluster, and the tables must be bitwise identical.
 """
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import subprocess
@@ -31,6 +32,22 @@ jobqueue:
     walltime: "00:20:00"
     log-directory: {logs}
 """
+
+
+@pytest.fixture(autouse=True)
+def _one_slurm_test_at_a_time(tmp_path_factory):
+    """These tests count the jobs in the one queue, so with pytest-xdist they run one at a
+    time across the workers (an exclusive lock on a file beside the workers' temporary
+    directories): a campaign's jobs from the other worker once showed up in the dry run's
+    "nothing submitted" check in CI.  (pytest-xdist's ``xdist_group`` does not group
+    under pytest 9.2: it renames ``item._nodeid``, which pytest no longer reads.)"""
+    lock = tmp_path_factory.getbasetemp().parent / "fem-rmpm-slurm-tests.lock"
+    with open(lock, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def _env(config_dir: Path) -> dict:
