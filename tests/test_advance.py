@@ -83,7 +83,6 @@ def test_driver_is_the_python_loop_bitwise(meshes, monkeypatch, values, threads,
         assert ra.stop_reason == "at rest" and not (a.plastic_shear_strain > 0).any()
 
 
-
 def test_nonlocal_soil_steps_from_python(meshes, monkeypatch):
     """Non-local softening needs a Python pass (:func:`~fem_rmpm.regularisation.average_softening`)
     after every step, so a run with a non-local soil takes every step from Python (the

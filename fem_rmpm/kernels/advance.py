@@ -2,10 +2,11 @@
 
 Between two steps the time loop of :func:`fem_rmpm.explicit.run_explicit` picks the CFL
 step, the gravity ramp and the damping, then checks guards, output times, sorting and
-rest.  Done in Python that cost ~70-100 us per step (building the argument groups,
-unboxing ~50 arrays for each of the three kernel calls, the loop's own bookkeeping, all
-on caches the kernels had just filled with points): ~4-5 ns per point-step on the
-reference slope (18 260 points), more on smaller scenes.  :func:`step_drivers` gives
+rest.  Done in Python that cost ~27 us per step in a tight loop and ~70-100 us inside
+a run (building the argument groups, unboxing ~50 arrays for each of the three kernel
+calls, the loop's own bookkeeping, all on caches the kernels had just filled with
+points): 1.5-5 ns per point-step on the reference slope (18 260 points; ~5 % of a whole
+run, measured), more on smaller scenes.  :func:`step_drivers` gives
 compiled drivers that run steps back to back with the same arithmetic, in the same
 order, and return to Python at the first step that needs it (:data:`EVENTS`): a guard
 fired, an output or sort is due, the run is at rest or at its end, the geostatic phase
@@ -28,11 +29,10 @@ from numba import njit, prange
 
 from ..materials import registry
 from .arrays import StepOptions
-from .stress import _combine, _reset_queues, _stress_queue_call
+from .stress import _combine, _reset_queues, _stress_queue_call, serial_stress_pass
 from .strain import fbar_gradient_pass
-from .transfer import (_top, map_to_nodes, map_to_nodes_parallel, nodal_velocities,
-                       nodal_velocities_parallel, nodal_velocity_half, solve_and_move,
-                       solve_and_move_parallel)
+from .transfer import (map_to_nodes, map_to_nodes_parallel, nodal_velocities,
+                       nodal_velocities_parallel, solve_and_move, solve_and_move_parallel)
 
 __all__ = ["RunControl", "step_drivers", "RECORD_EVERY", "EVENTS"]
 
@@ -48,7 +48,7 @@ t < damping_time (s), full gravity (m/s2), end of the geostatic phase (s), rest 
 and kinetic-energy ratio (-), the next output time (s; inf: none) and the step at which
 the next sort is due (a large number: none).  All floats."""
 
-#: Why a driver returned (``count[1]``), for tests and debugging.
+#: Why a driver returned (``count[1]``; read by nobody, for debugging).
 EVENTS = ("record", "guard", "jump", "output", "sort", "rest", "geostatic", "end")
 
 # no fast-math flags: the driver's own arithmetic must round as the Python loop's does
@@ -120,16 +120,10 @@ def _make_drivers(version, only):
             op = _options(o, c, clock[0], S.out[0], S.out[1])
             map_to_nodes(P, M, N, S, op)                      # 1. map to nodes
             ke, vmax = solve_and_move(P, M, N, S, op)         # 2. solve, 3a. map back
-            T = _top(N)                                       # 3b, 3c. stress update
-            if op.fbar:
+            if op.fbar:                                       # 3b, 3c. stress update
                 nodal_velocities(M, N)
                 fbar_gradient_pass(P, M, N, S, op)
-            else:
-                nodal_velocity_half(M, T, N.half, np.int64(0))
-                nodal_velocity_half(M, T, N.half, np.int64(1))
-            _reset_queues(S)
-            _stress_queue_call(version, only, P, M, T, N.half, S, op, np.int64(0))
-            _combine(S, 1)
+            serial_stress_pass(version, only, P, M, N, S, op)
             if _tick(c, op, S, clock, count, ke, vmax) >= 0:
                 break
 

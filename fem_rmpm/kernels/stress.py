@@ -69,13 +69,7 @@ def _make_stress_pass(version, only):
     Maxima and counts are combined exactly: the same result in both."""
     @kernel
     def stress_pass(P, M, N, S, o):
-        T = top(N)
-        if not o.fbar:
-            nodal_velocity_half(M, T, N.half, np.int64(0))
-            nodal_velocity_half(M, T, N.half, np.int64(1))
-        _reset_queues(S)
-        _stress_queue_call(version, only, P, M, T, N.half, S, o, np.int64(0))
-        _combine(S, 1)
+        serial_stress_pass(version, only, P, M, N, S, o)
 
     @kernel_parallel
     def stress_pass_parallel(P, M, T, H, S, o):
@@ -85,6 +79,21 @@ def _make_stress_pass(version, only):
             _stress_queue_call(version, only, P, M, T, H, S, o, np.int64(c))
         _combine(S, nch)
     return stress_pass, stress_pass_parallel
+
+
+@inline
+def serial_stress_pass(version, only, P, M, N, S, o):
+    """The serial stress pass (the body of :func:`_make_stress_pass`'s ``serial``, also run
+    by the step driver, :mod:`.advance`): the nodal velocities of both halves (with F-bar
+    the caller computed them before its gradient pass), then every block of points in
+    order, one worker; ``version``, ``only``: literals, as there."""
+    T = top(N)
+    if not o.fbar:
+        nodal_velocity_half(M, T, N.half, np.int64(0))
+        nodal_velocity_half(M, T, N.half, np.int64(1))
+    _reset_queues(S)
+    _stress_queue_call(version, only, P, M, T, N.half, S, o, np.int64(0))
+    _combine(S, 1)
 
 
 @inline
