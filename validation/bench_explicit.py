@@ -206,13 +206,15 @@ def _exp_stage(P, W, ta, tb, tc):
 
 @kernel
 def _kinematics_stage(P, M, N, S, o, W, ta, tb, tc):
-    """The stress pass's kinematics alone (velocity gradient, dF, F, V, B_tr)."""
+    """The stress pass's kinematics alone (velocity gradient, dF, V, B_tr), with the block
+    work rows of chunk 0 (``S.G[0]``)."""
     n = np.uint64(P.x.shape[0])
     split = np.uint64(K.half_split(P.x.shape[0]))
     for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
         e = min(b + np.uint64(K.BLOCK), n)
         vn = N.v_musl if b < split else N.half.v_musl
-        KS.kinematics_points(P, M, vn, S, o, W[b:e], ta[b:e], tb[b:e], tc[b:e], b, e)
+        KS.kinematics_points(P, M, vn, S, o, W[b:e], ta[b:e], tb[b:e], tc[b:e], S.G[0], b,
+                             e)
 
 
 @kernel

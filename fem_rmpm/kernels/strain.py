@@ -174,29 +174,103 @@ def inactive_row(j, W, ta, tb, tc):
 
 
 @inline
-def kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e):
-    """Points ``b:e`` (uint64; row ``i - b`` of the block scratch W, ta, tb, tc): velocity
-    gradient from the nodal velocities ``vn`` (nn, 2) at the positions
-    before the move.  Geostatic: ``W`` = the small-strain trial strain.  Finite strain:
-    Hughes-Winget increment dF, V <- det(dF) V, and the log arguments of B_tr
-    (:func:`_apply_increment`) from the exp parts in ``tb, tc``."""
+def kinematics_points(P, M, vn, S, o, W, ta, tb, tc, G, b, e):
+    """Points ``b:e`` (uint64; row ``i - b`` of the block scratch W, ta, tb, tc; ``G``
+    (8, >= BLOCK) the block's own work rows): velocity gradient from the nodal velocities
+    ``vn`` (nn, 2) at the positions before the move.  Geostatic: ``W`` = the small-strain
+    trial strain.  Finite strain: Hughes-Winget increment dF, V <- det(dF) V, and the log
+    arguments of B_tr (:func:`_apply_increment`) from the exp parts in ``tb, tc``, in three
+    loops: the gradients (gathers from the nodes, per point) and the point's strain and
+    volume into the rows of ``G`` (:func:`_gather_points`), the increment's arithmetic on
+    those rows (:func:`_increment_rows`: branch-free over contiguous rows, so LLVM
+    vectorises it, AVX2: four points at a time), then V and ``W`` back.  One loop over the
+    points ran the arithmetic one point at a time: the split took the kinematics from
+    19.0-19.5 to 11.1-11.9 ns per point (case (i) at t = 8 s, one thread, micro-benchmark,
+    8 interleaved rounds)."""
+    if o.geostatic:
+        _small_strain_points(P, M, vn, S, o, W, ta, tb, tc, b, e)
+        return
+    _gather_points(P, M, vn, S, o, tb, tc, G, b, e)
+    n = e - b
+    _increment_rows(G, ta, tb, tc, o.dt, n)
+    vol = P.vol
+    for j in range(n):
+        vol[b + j] = G[7, j]
+        W[j, 0] = G[0, j]
+        W[j, 1] = G[1, j]
+        W[j, 2] = G[2, j]
+        W[j, 3] = ta[j]
+
+
+@inline
+def _small_strain_points(P, M, vn, S, o, W, ta, tb, tc, b, e):
+    """Geostatic points ``b:e``: the small-strain trial strain ``eps + sym(L dt)`` into
+    ``W`` (inactive points: a neutral row, :func:`inactive_row`)."""
     dt, ls = o.dt, P.log_strain
     for i in range(b, e):
         j = i - b
         if not P.active[i]:
             inactive_row(j, W, ta, tb, tc)
             continue
-        if o.gimp:
-            L00, L01, L10, L11 = _point_velocity_gradient(i, S.x_old, P.half_width, M, vn, True)
-        else:                        # the Q4 cell of the map to nodes (at x_old)
-            L00, L01, L10, L11 = _q4_velocity_gradient(S.q4_ll[i], S.q4_st[i, 0],
-                                                       S.q4_st[i, 1], M, vn)
-        e0, e1, e2, e3 = ls[i, 0], ls[i, 1], ls[i, 2], ls[i, 3]
-        if o.geostatic:
-            _small_strain_trial(j, L00 * dt, L01 * dt, L10 * dt, L11 * dt, e0, e1, e2, e3, W)
-            continue
-        f00, f01, f10, f11 = _hughes_winget(L00, L01, L10, L11, dt)
-        _apply_increment(i, j, f00, f01, f10, f11, e0, e1, e3, P, W, ta, tb, tc)
+        L00, L01, L10, L11 = _gradient_at(P, M, vn, S, o, i)
+        _small_strain_trial(j, L00 * dt, L01 * dt, L10 * dt, L11 * dt, ls[i, 0], ls[i, 1],
+                            ls[i, 2], ls[i, 3], W)
+
+
+@inline
+def _gradient_at(P, M, vn, S, o, i):
+    """Velocity gradient at point ``i`` before the move: uGIMP at ``S.x_old``, Q4 in the
+    cell and local coordinates of the map to nodes."""
+    if o.gimp:
+        return _point_velocity_gradient(i, S.x_old, P.half_width, M, vn, True)
+    return _q4_velocity_gradient(S.q4_ll[i], S.q4_st[i, 0], S.q4_st[i, 1], M, vn)
+
+
+@inline
+def _gather_points(P, M, vn, S, o, tb, tc, G, b, e):
+    """Per point of ``b:e``, into column ``i - b`` of the rows of ``G``: the velocity
+    gradient (L00, L01, L10, L11), the in-plane log strain (xx, yy, xy) and the volume.
+    An inactive point gets zero gradient and strain and ``tb = tc = 1`` (cosh 0, sinh(0)/0),
+    so that :func:`_increment_rows` leaves it neutral: dF = I, J = mu = 1, s = 0, V kept."""
+    ls, vol = P.log_strain, P.vol
+    for i in range(b, e):
+        j = i - b
+        if P.active[i]:
+            L00, L01, L10, L11 = _gradient_at(P, M, vn, S, o, i)
+            e0, e1, e3 = ls[i, 0], ls[i, 1], ls[i, 3]
+        else:
+            L00, L01, L10, L11 = 0.0, 0.0, 0.0, 0.0
+            e0, e1, e3 = 0.0, 0.0, 0.0
+            tb[j] = 1.0
+            tc[j] = 1.0
+        G[0, j] = L00
+        G[1, j] = L01
+        G[2, j] = L10
+        G[3, j] = L11
+        G[4, j] = e0
+        G[5, j] = e1
+        G[6, j] = e3
+        G[7, j] = vol[i]
+
+
+@inline
+def _increment_rows(G, ta, tb, tc, dt, n):
+    """The first ``n`` columns of the rows of ``G`` (:func:`_gather_points`): Hughes-Winget
+    dF, J = det dF, V <- J V (into row 7), and :func:`log_args` of B_tr (:func:`_trial_b`,
+    exp parts ``tb, tc``) into rows 0-2 (mu, d, axy), ``ta = J``, ``tb = mu``, ``tc = s^2``.
+    Contiguous rows and no branch: LLVM vectorises this loop."""
+    g0, g1, g2, g3, g4, g5, g6, g7 = G[0], G[1], G[2], G[3], G[4], G[5], G[6], G[7]
+    for j in range(n):
+        f00, f01, f10, f11 = _hughes_winget(g0[j], g1[j], g2[j], g3[j], dt)
+        J = f00 * f11 - f01 * f10
+        g7[j] = g7[j] * J
+        ta[j] = J
+        m, d, axy, s2 = _trial_b(f00, f01, f10, f11, g4[j], g5[j], g6[j], tb[j], tc[j])
+        g0[j] = m
+        g1[j] = d
+        g2[j] = axy
+        tb[j] = m
+        tc[j] = s2
 
 
 @kernel

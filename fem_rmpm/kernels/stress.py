@@ -170,7 +170,7 @@ def _stress_points(version, only, P, M, vn, S, o, start, stop, row):
     number of points with a non-finite stress.  (The four scratch arrays are passed one by
     one: as one tuple through the inlined functions, numba 0.68 lost the kinematics' writes
     to them when two of those functions sat in the branches of an ``if``.)"""
-    W, ta, tb, tc = S.W[row], S.ta[row], S.tb[row], S.tc[row]
+    W, ta, tb, tc, G = S.W[row], S.ta[row], S.tb[row], S.tc[row], S.G[row]
     c2max = 0.0
     n_bad = 0
     stop_ = np.uint64(stop)
@@ -181,7 +181,7 @@ def _stress_points(version, only, P, M, vn, S, o, start, stop, row):
         if o.fbar:
             fbar_apply_points(P, S, o, W, ta, tb, tc, b, e)
         else:
-            kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e)
+            kinematics_points(P, M, vn, S, o, W, ta, tb, tc, G, b, e)
         if not o.geostatic:
             log_block(W, ta, tb, tc, e - b)
         c2, nb = _finish_points(version, only, P, o, W, ta, tb, b, e)
