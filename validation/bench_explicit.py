@@ -233,7 +233,7 @@ def stages_numba(scene, grid, pts, geostatic, steps):
     sv = scene.solver
     names = ("1 map_to_nodes", "2 + 3a solve on the mesh, map back, move, re-map",
              "3b + 3c stress pass (nodal velocities + all of it)", "3c part: exp series",
-             "3c part: L, dF, F, V, B_tr", "3c part: log series",
+             "3c part: L, dF, V, B_tr", "3c part: log series",
              "3c part: material model + stress")
     T = {k: [] for k in names}
     clk = time.perf_counter
