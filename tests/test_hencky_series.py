@@ -92,7 +92,7 @@ def _trial_kernel(dF, ls, active=None):
     eps = np.zeros((n, 4))
     active = np.ones(n, bool) if active is None else active
     hencky_trial_pass(np.ascontiguousarray(dF), np.ascontiguousarray(ls), active, np.zeros(n),
-                      np.zeros(n), np.zeros(n), np.zeros((n, 4)), eps)
+                      np.zeros(n), np.zeros(n), np.zeros((4, n)), eps)
     return eps
 
 

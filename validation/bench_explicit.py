@@ -206,13 +206,13 @@ def _exp_stage(P, W, ta, tb, tc):
 
 @kernel
 def _kinematics_stage(P, M, N, S, o, W, ta, tb, tc):
-    """The stress pass's kinematics alone (velocity gradient, dF, F, V, B_tr)."""
+    """The stress pass's kinematics alone (velocity gradient, dF, V, B_tr)."""
     n = np.uint64(P.x.shape[0])
     split = np.uint64(K.half_split(P.x.shape[0]))
     for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
         e = min(b + np.uint64(K.BLOCK), n)
         vn = N.v_musl if b < split else N.half.v_musl
-        KS.kinematics_points(P, M, vn, S, o, W[b:e], ta[b:e], tb[b:e], tc[b:e], b, e)
+        KS.kinematics_points(P, M, vn, S, o, W[:, b:e], ta[b:e], tb[b:e], tc[b:e], b, e)
 
 
 @kernel
@@ -221,7 +221,7 @@ def _log_stage(W, ta, tb, tc):
     n = np.uint64(ta.shape[0])
     for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
         e = min(b + np.uint64(K.BLOCK), n)
-        H.log_block(W[b:e], ta[b:e], tb[b:e], tc[b:e], e - b)
+        H.log_block(W[:, b:e], ta[b:e], tb[b:e], tc[b:e], e - b)
 
 
 def stages_numba(scene, grid, pts, geostatic, steps):
@@ -242,7 +242,7 @@ def stages_numba(scene, grid, pts, geostatic, steps):
     stress_pass = K.material_kernels(w.model)[0]
     finish = _finish_stage(w.model)
     saved = ("log_strain", "state", "F", "volume", "stress")
-    blk = (np.zeros((pts.n, 4)), np.zeros(pts.n), np.zeros(pts.n), np.zeros(pts.n))
+    blk = (np.zeros((8, pts.n)), np.zeros(pts.n), np.zeros(pts.n), np.zeros(pts.n))
     for _ in range(steps):
         dt = stable_time_step(pts, grid.cell, sv.cfl)
         o = K.StepOptions(dt, float(g[0]), float(g[1]), sv.damping, sv.flip, geostatic, False,
@@ -291,7 +291,7 @@ def _finish_stage(only):
             n = np.uint64(P.x.shape[0])
             for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
                 e = min(b + np.uint64(K.BLOCK), n)
-                K.stress._finish_points(version, only, P, o, W[b:e], ta[b:e], tb[b:e], b, e)
+                K.stress._finish_points(version, only, P, o, W[:, b:e], ta[b:e], tb[b:e], b, e)
         _FINISH[(version, only)] = finish
     return _FINISH[(version, only)]
 

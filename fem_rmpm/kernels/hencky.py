@@ -159,7 +159,7 @@ def log_block(W, ta, tb, tc, n):
     """The first ``n`` rows of the block scratch: from ``ta, tb, tc`` = J, mu, s^2 of B_tr
     (contiguous: one vectorised loop, its division by ``mu`` too) ``ta = ln(J)`` and
     ``tb = atanh(x) / (2 x mu)``, ``x^2 = s^2 / mu^2``.  The rows outside the series ranges
-    are then recomputed by :func:`log_parts` from ``W[:, 3]`` = J, ``W[:, 0]`` = mu and
+    are then recomputed by :func:`log_parts` from ``W[3]`` = J, ``W[0]`` = mu and
     ``tc`` (inactive points carry J = mu = 1, s = 0)."""
     out = False
     for j in range(n):
@@ -173,9 +173,9 @@ def log_block(W, ta, tb, tc, n):
         out |= not ((u2 <= Z_MAX) & (z <= Z_MAX))
     if out:
         for j in range(n):
-            J = W[j, 3]
+            J = W[3, j]
             u = (J - 1.0) / (J + 1.0)
-            im = 1.0 / W[j, 0]
+            im = 1.0 / W[0, j]
             z = tc[j] * im * im
             if not ((u * u <= Z_MAX) & (z <= Z_MAX)):
                 lj, at = log_parts(J, z)

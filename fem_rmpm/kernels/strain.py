@@ -128,28 +128,28 @@ def _q4_velocity_gradient(ll, s, t, M, vn):
 
 @inline
 def _small_strain_trial(i, g00, g01, g10, g11, e0, e1, e2, e3, W):
-    """Geostatic trial strain: eps + sym(grad du) into row ``i`` of ``W``."""
-    W[i, 0] = e0 + g00
-    W[i, 1] = e1 + g11
-    W[i, 2] = e2 + 0.0
-    W[i, 3] = e3 + 0.5 * (g01 + g10)
+    """Geostatic trial strain: eps + sym(grad du) into column ``i`` of ``W``."""
+    W[0, i] = e0 + g00
+    W[1, i] = e1 + g11
+    W[2, i] = e2 + 0.0
+    W[3, i] = e3 + 0.5 * (g01 + g10)
 
 
 @inline
 def _apply_increment(i, j, f00, f01, f10, f11, e0, e1, e3, P, W, ta, tb, tc):
     """Finite strain at point ``i`` (row ``j`` of the block scratch W, ta, tb, tc): V <- J V
     (J = det dF), and B_tr from the exp parts ``tb, tc`` of its log strain: :func:`log_args`
-    of B_tr into ``W[j]`` (mu, d, axy, J) and, for :func:`.hencky.log_block`, ``ta[j],
+    of B_tr into ``W[:4, j]`` (mu, d, axy, J) and, for :func:`.hencky.log_block`, ``ta[j],
     tb[j], tc[j]`` = J, mu, s^2.  The total F is not carried: nothing in the explicit step
     reads it (updating it cost ~2 ns per point-step, 5 % of the stress pass, measured)."""
     J = f00 * f11 - f01 * f10
     P.vol[i] = P.vol[i] * J
-    W[j, 3] = J
+    W[3, j] = J
     ta[j] = J
     m, d, axy, s2 = _trial_b(f00, f01, f10, f11, e0, e1, e3, tb[j], tc[j])
-    W[j, 0] = m
-    W[j, 1] = d
-    W[j, 2] = axy
+    W[0, j] = m
+    W[1, j] = d
+    W[2, j] = axy
     tb[j] = m
     tc[j] = s2
 
@@ -166,8 +166,8 @@ def _point_velocity_gradient(i, x, lp, M, vn, gimp_basis):
 @inline
 def inactive_row(j, W, ta, tb, tc):
     """Neutral log arguments (J = mu = 1, s = 0) in row ``j`` for an inactive point."""
-    W[j, 0] = 1.0
-    W[j, 3] = 1.0
+    W[0, j] = 1.0
+    W[3, j] = 1.0
     ta[j] = 1.0
     tb[j] = 1.0
     tc[j] = 0.0
@@ -175,28 +175,102 @@ def inactive_row(j, W, ta, tb, tc):
 
 @inline
 def kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e):
-    """Points ``b:e`` (uint64; row ``i - b`` of the block scratch W, ta, tb, tc): velocity
-    gradient from the nodal velocities ``vn`` (nn, 2) at the positions
-    before the move.  Geostatic: ``W`` = the small-strain trial strain.  Finite strain:
-    Hughes-Winget increment dF, V <- det(dF) V, and the log arguments of B_tr
-    (:func:`_apply_increment`) from the exp parts in ``tb, tc``."""
-    dt, ls = o.dt, P.log_strain
+    """Points ``b:e`` (uint64; column ``i - b`` of the block scratch ``W`` (8, >= BLOCK)
+    and of ``ta, tb, tc``): velocity gradient from the nodal velocities ``vn`` (nn, 2) at
+    the positions before the move, per point (:func:`_gather_points`: the gathers from the
+    nodes, with the point's strain and volume, into the rows of ``W``); then, over those
+    contiguous rows without a branch (LLVM vectorises the loops, AVX2: four points at a
+    time), geostatic: the small-strain trial strain into ``W[:4]``
+    (:func:`_small_strain_rows`); finite strain: Hughes-Winget increment dF, V <- det(dF) V
+    and the log arguments of B_tr (:func:`_increment_rows`, from the exp parts in ``tb,
+    tc``).  One loop over the points ran the arithmetic one point at a time: the rows took
+    the kinematics from 23.6-24.6 to 13.6-15.4 ns per point (case (i) at t = 8 s, one thread,
+    micro-benchmark, 8 interleaved rounds).  The velocity gradient has one call site: with
+    a second one for the geostatic path (the uGIMP basis is compiled for Q4 runs too, the
+    basis being a runtime option) the stress pass's first compile took 15-35 s longer."""
+    _gather_points(P, M, vn, S, o, tb, tc, W, b, e)
+    n = e - b
+    if o.geostatic:
+        _small_strain_rows(W, P.log_strain, o.dt, b, n)
+        return
+    _increment_rows(W, ta, tb, tc, o.dt, n)
+    vol, V = P.vol, W[7]
+    for j in range(n):
+        vol[b + j] = V[j]
+
+
+@inline
+def _small_strain_rows(W, ls, dt, b, n):
+    """Geostatic (small strain), the first ``n`` columns of ``W``
+    (:func:`_gather_points`): the trial strain ``eps + sym(L dt)`` (xx, yy, zz, xy) into
+    rows 0-3 (the volume is not changed)."""
+    for j in range(n):
+        g00 = W[0, j] * dt
+        g01 = W[1, j] * dt
+        g10 = W[2, j] * dt
+        g11 = W[3, j] * dt
+        W[0, j] = W[4, j] + g00
+        W[1, j] = W[5, j] + g11
+        W[2, j] = ls[b + j, 2] + 0.0
+        W[3, j] = W[6, j] + 0.5 * (g01 + g10)
+
+
+@inline
+def _gradient_at(P, M, vn, S, o, i):
+    """Velocity gradient at point ``i`` before the move: uGIMP at ``S.x_old``, Q4 in the
+    cell and local coordinates of the map to nodes."""
+    if o.gimp:
+        return _point_velocity_gradient(i, S.x_old, P.half_width, M, vn, True)
+    return _q4_velocity_gradient(S.q4_ll[i], S.q4_st[i, 0], S.q4_st[i, 1], M, vn)
+
+
+@inline
+def _gather_points(P, M, vn, S, o, tb, tc, W, b, e):
+    """Per point of ``b:e``, into column ``i - b`` of the rows of ``W``: the velocity
+    gradient (L00, L01, L10, L11; rows 0-3), the in-plane log strain (xx, yy, xy; rows
+    4-6) and the volume (row 7).
+    An inactive point gets zero gradient and strain and ``tb = tc = 1`` (cosh 0, sinh(0)/0),
+    so that :func:`_increment_rows` leaves it neutral: dF = I, J = mu = 1, s = 0, V kept."""
+    ls, vol = P.log_strain, P.vol
     for i in range(b, e):
         j = i - b
-        if not P.active[i]:
-            inactive_row(j, W, ta, tb, tc)
-            continue
-        if o.gimp:
-            L00, L01, L10, L11 = _point_velocity_gradient(i, S.x_old, P.half_width, M, vn, True)
-        else:                        # the Q4 cell of the map to nodes (at x_old)
-            L00, L01, L10, L11 = _q4_velocity_gradient(S.q4_ll[i], S.q4_st[i, 0],
-                                                       S.q4_st[i, 1], M, vn)
-        e0, e1, e2, e3 = ls[i, 0], ls[i, 1], ls[i, 2], ls[i, 3]
-        if o.geostatic:
-            _small_strain_trial(j, L00 * dt, L01 * dt, L10 * dt, L11 * dt, e0, e1, e2, e3, W)
-            continue
-        f00, f01, f10, f11 = _hughes_winget(L00, L01, L10, L11, dt)
-        _apply_increment(i, j, f00, f01, f10, f11, e0, e1, e3, P, W, ta, tb, tc)
+        if P.active[i]:
+            L00, L01, L10, L11 = _gradient_at(P, M, vn, S, o, i)
+            e0, e1, e3 = ls[i, 0], ls[i, 1], ls[i, 3]
+        else:
+            L00, L01, L10, L11 = 0.0, 0.0, 0.0, 0.0
+            e0, e1, e3 = 0.0, 0.0, 0.0
+            tb[j] = 1.0
+            tc[j] = 1.0
+        W[0, j] = L00
+        W[1, j] = L01
+        W[2, j] = L10
+        W[3, j] = L11
+        W[4, j] = e0
+        W[5, j] = e1
+        W[6, j] = e3
+        W[7, j] = vol[i]
+
+
+@inline
+def _increment_rows(W, ta, tb, tc, dt, n):
+    """The first ``n`` columns of the rows of ``W`` (:func:`_gather_points`): Hughes-Winget
+    dF, J = det dF, V <- J V (into row 7), and :func:`log_args` of B_tr (:func:`_trial_b`,
+    exp parts ``tb, tc``) into rows 0-3 (mu, d, axy, J), ``ta = J``, ``tb = mu``,
+    ``tc = s^2``.  Contiguous rows and no branch: LLVM vectorises this loop."""
+    g0, g1, g2, g3, g4, g5, g6, g7 = W[0], W[1], W[2], W[3], W[4], W[5], W[6], W[7]
+    for j in range(n):
+        f00, f01, f10, f11 = _hughes_winget(g0[j], g1[j], g2[j], g3[j], dt)
+        J = f00 * f11 - f01 * f10
+        g7[j] = g7[j] * J
+        ta[j] = J
+        m, d, axy, s2 = _trial_b(f00, f01, f10, f11, g4[j], g5[j], g6[j], tb[j], tc[j])
+        g0[j] = m
+        g1[j] = d
+        g2[j] = axy
+        g3[j] = J
+        tb[j] = m
+        tc[j] = s2
 
 
 @kernel
@@ -267,7 +341,7 @@ def fbar_apply_points(P, S, o, W, ta, tb, tc, b, e):
 def hencky_trial_pass(dF, log_strain, active, ta, tb, tc, W, eps_tr):
     """Trial log strains ``eps_tr`` (n, 4) of given increments ``dF`` (n, 4) (the
     material-only path of :func:`fem_rmpm.kernels.stress.stress_update_points`), in the
-    blocks of the stress pass; ``ta, tb, tc`` (BLOCK,), ``W`` (BLOCK, 4) block scratch."""
+    blocks of the stress pass; ``ta, tb, tc`` (BLOCK,), ``W`` (4, BLOCK) block scratch."""
     n = np.uint64(dF.shape[0])
     ls = log_strain
     for b in range(np.uint64(0), n, np.uint64(BLOCK)):
@@ -282,12 +356,12 @@ def hencky_trial_pass(dF, log_strain, active, ta, tb, tc, W, eps_tr):
             J = f00 * f11 - f01 * f10
             m, d, axy, s2 = _trial_b(f00, f01, f10, f11, ls[i, 0], ls[i, 1], ls[i, 3], tb[j],
                                      tc[j])
-            W[j, 0], W[j, 1], W[j, 2], W[j, 3] = m, d, axy, J
+            W[0, j], W[1, j], W[2, j], W[3, j] = m, d, axy, J
             ta[j], tb[j], tc[j] = J, m, s2
         log_block(W, ta, tb, tc, e - b)
         for i in range(b, e):
             j = i - b
             iso = 0.5 * (ls[i, 0] + ls[i, 1]) + 0.5 * ta[j]
-            eps_tr[i, 0], eps_tr[i, 1], eps_tr[i, 3] = log_sym2_from(tb[j], W[j, 1], W[j, 2],
+            eps_tr[i, 0], eps_tr[i, 1], eps_tr[i, 3] = log_sym2_from(tb[j], W[1, j], W[2, j],
                                                                      iso)
             eps_tr[i, 2] = ls[i, 2] + 0.0

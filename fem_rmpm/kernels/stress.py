@@ -45,13 +45,13 @@ __all__ = ["update_stress", "material_kernels", "stress_update_points",
 @inline
 def _trial_strain(geostatic, i, j, W, ta, tb, ls):
     """Trial log strain of point ``i`` (its log strain ``ls[i]`` not yet updated) from row
-    ``j`` of the block scratch.  Geostatic (small strain): ``W[j]`` holds it.  Finite
-    strain: ``W[j, 1:3]`` (d, axy), ``ta[j]`` = ln(J) and ``tb[j]`` = atanh(x)/(2 x mu)
+    ``j`` of the block scratch.  Geostatic (small strain): ``W[:4, j]`` holds it.  Finite
+    strain: ``W[1:3, j]`` (d, axy), ``ta[j]`` = ln(J) and ``tb[j]`` = atanh(x)/(2 x mu)
     hold the log parts of B_tr (:mod:`.hencky`)."""
     if geostatic:
-        return W[j, 0], W[j, 1], W[j, 2], W[j, 3]
+        return W[0, j], W[1, j], W[2, j], W[3, j]
     iso = 0.5 * (ls[i, 0] + ls[i, 1]) + 0.5 * ta[j]
-    x0, x1, x3 = log_sym2_from(tb[j], W[j, 1], W[j, 2], iso)
+    x0, x1, x3 = log_sym2_from(tb[j], W[1, j], W[2, j], iso)
     return x0, x1, ls[i, 2] + 0.0, x3
 
 
@@ -295,7 +295,7 @@ def stress_update_points(dF, log_strain, state, soil):
     D = np.ascontiguousarray(dF, dtype=float).reshape(n, 4)
     ls = np.ascontiguousarray(log_strain, dtype=float)
     eps_tr = np.empty((n, 4))
-    W, ta, tb, tc = np.empty((BLOCK, 4)), np.empty(BLOCK), np.empty(BLOCK), np.empty(BLOCK)
+    W, ta, tb, tc = np.empty((4, BLOCK)), np.empty(BLOCK), np.empty(BLOCK), np.empty(BLOCK)
     hencky_trial_pass(D, ls, np.ones(n, dtype=bool), ta, tb, tc, W, eps_tr)
     return _points_update(eps_tr, state, soil)
 
