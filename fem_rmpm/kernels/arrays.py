@@ -57,7 +57,8 @@ stress pass, one row per chunk (thread) of :data:`CHUNKS`: W (CHUNKS, 8, BLOCK),
 of a block (columns) the trial state in rows 0-3 and the kinematics' work rows 4-7, and
 the arguments / values of the vectorised Hencky series ta, tb, tc (CHUNKS, BLOCK)
 (:mod:`.stress`, :mod:`.strain`); F-bar host cells (n,), increments D (n, 4) and per-cell
-sums of V and V dJ (n_cells,); ``out`` (4,) = largest P-wave speed, largest point speed, non-finite and outside
+sums of V and V dJ (n_cells,); ``out`` (4,) = largest P-wave speed, largest point speed,
+non-finite and outside
 points, ``parts`` (CHUNKS, 2) per chunk of the stress pass: the largest squared
 P-wave speed and the points with a non-finite stress; ``halves`` (2, 5) per half of the
 points from the map back: grid kinetic energy (2x), the largest squared |v_pic| and |v|,
@@ -180,4 +181,5 @@ def scratch_for(n: int, n_cells: int) -> Scratch:
     return Scratch(np.zeros((n, 2)), np.zeros((CHUNKS, 8, rows[1])), np.zeros(rows),
                    np.zeros(rows), np.zeros(rows), np.zeros(n, np.int64), np.zeros((n, 4)),
                    np.zeros(n_cells), np.zeros(n_cells), np.zeros(4), np.zeros((CHUNKS, 2)),
-                   np.zeros((2, 5)), np.zeros(n, np.int64), np.zeros((n, 2)), np.zeros(2 * QUEUE_STRIDE, np.int64))
+                   np.zeros((2, 5)), np.zeros(n, np.int64), np.zeros((n, 2)),
+                   np.zeros(2 * QUEUE_STRIDE, np.int64))
