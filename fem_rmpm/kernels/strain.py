@@ -137,7 +137,7 @@ def _small_strain_trial(i, g00, g01, g10, g11, e0, e1, e2, e3, W):
 
 @inline
 def _apply_increment(i, j, f00, f01, f10, f11, e0, e1, e3, P, W, ta, tb, tc):
-    """Finite strain at point ``i`` (row ``j`` of the block scratch W, ta, tb, tc): V <- J V
+    """Finite strain at point ``i`` (column ``j`` of the block scratch W, ta, tb, tc): V <- J V
     (J = det dF), and B_tr from the exp parts ``tb, tc`` of its log strain: :func:`log_args`
     of B_tr into ``W[:4, j]`` (mu, d, axy, J) and, for :func:`.hencky.log_block`, ``ta[j],
     tb[j], tc[j]`` = J, mu, s^2.  The total F is not carried: nothing in the explicit step
@@ -165,7 +165,8 @@ def _point_velocity_gradient(i, x, lp, M, vn, gimp_basis):
 
 @inline
 def inactive_row(j, W, ta, tb, tc):
-    """Neutral log arguments (J = mu = 1, s = 0) in row ``j`` for an inactive point."""
+    """Neutral log arguments (J = mu = 1, s = 0) in column ``j`` of the block scratch for
+    an inactive point."""
     W[0, j] = 1.0
     W[3, j] = 1.0
     ta[j] = 1.0
@@ -205,14 +206,8 @@ def _small_strain_rows(W, ls, dt, b, n):
     (:func:`_gather_points`): the trial strain ``eps + sym(L dt)`` (xx, yy, zz, xy) into
     rows 0-3 (the volume is not changed)."""
     for j in range(n):
-        g00 = W[0, j] * dt
-        g01 = W[1, j] * dt
-        g10 = W[2, j] * dt
-        g11 = W[3, j] * dt
-        W[0, j] = W[4, j] + g00
-        W[1, j] = W[5, j] + g11
-        W[2, j] = ls[b + j, 2] + 0.0
-        W[3, j] = W[6, j] + 0.5 * (g01 + g10)
+        _small_strain_trial(j, W[0, j] * dt, W[1, j] * dt, W[2, j] * dt, W[3, j] * dt,
+                            W[4, j], W[5, j], ls[b + j, 2], W[6, j], W)
 
 
 @inline

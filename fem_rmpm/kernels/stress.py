@@ -44,8 +44,8 @@ __all__ = ["update_stress", "material_kernels", "stress_update_points",
 
 @inline
 def _trial_strain(geostatic, i, j, W, ta, tb, ls):
-    """Trial log strain of point ``i`` (its log strain ``ls[i]`` not yet updated) from row
-    ``j`` of the block scratch.  Geostatic (small strain): ``W[:4, j]`` holds it.  Finite
+    """Trial log strain of point ``i`` (its log strain ``ls[i]`` not yet updated) from
+    column ``j`` of the block scratch.  Geostatic (small strain): ``W[:4, j]`` holds it.  Finite
     strain: ``W[1:3, j]`` (d, axy), ``ta[j]`` = ln(J) and ``tb[j]`` = atanh(x)/(2 x mu)
     hold the log parts of B_tr (:mod:`.hencky`)."""
     if geostatic:
