@@ -223,7 +223,7 @@ def _gather_points(P, M, vn, S, o, tb, tc, W, b, e):
         if P.active[i]:
             # velocity gradient before the move: uGIMP at x_old, Q4 in the cell and local
             # coordinates of the map to nodes.  Written out here, not through two levels of
-            # inlined helpers: numba's inliner took 3.7-4.3 s of each stress-pass compile
+            # inlined helpers: numba's inliner took 3.9-4.3 s of each stress-pass compile
             # for kinematics_points that way, 2.1-2.4 s now (case (i), cold, traced)
             if o.gimp:
                 x, lp = S.x_old, P.half_width
