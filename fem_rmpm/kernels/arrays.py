@@ -53,21 +53,21 @@ first half's group; None in the second's)."""
 Scratch = namedtuple("Scratch",
                      "x_old W ta tb tc host D cell_v cell_vdj out parts halves q4_ll q4_st queue")
 Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the block scratch of the
-stress pass, one row per chunk (thread) of :data:`CHUNKS`: W (CHUNKS, 8, BLOCK), per point
-of a block (columns) the trial state in rows 0-3 and the kinematics' work rows 4-7, and
-the arguments / values of the vectorised Hencky series ta, tb, tc (CHUNKS, BLOCK)
-(:mod:`.stress`, :mod:`.strain`); F-bar host cells (n,), increments D (n, 4) and per-cell
-sums of V and V dJ (n_cells,); ``out`` (4,) = largest P-wave speed, largest point speed,
-non-finite and outside
-points, ``parts`` (CHUNKS, 2) per chunk of the stress pass: the largest squared
-P-wave speed and the points with a non-finite stress; ``halves`` (2, 5) per half of the
-points from the map back: grid kinetic energy (2x), the largest squared |v_pic| and |v|,
-the points with a non-finite x or v and those outside the grid; ``q4_ll`` (n,) int64 and
-``q4_st`` (n, 2): each point's Q4 cell (lower-left node) and local coordinates, found by
-the map to nodes and reused by the later passes of the step (the points have not moved in
-between); ``queue`` (2 QUEUE_STRIDE,) int64: at 0 and :data:`.common.QUEUE_STRIDE` the next
-block of the stress pass's two work queues, one per half of the points
-(:func:`.stress._stress_queue_call`; the padding puts each counter on a cache line of its own)."""
+stress pass, one row per chunk (thread) of :data:`CHUNKS`: W (CHUNKS, 8, BLOCK + 24), per
+point of a block (columns) the trial state in rows 0-3 and the kinematics' work rows 4-7,
+and the arguments / values of the vectorised Hencky series ta, tb, tc (CHUNKS, BLOCK + 24)
+(:mod:`.stress`, :mod:`.strain`; 24 columns of padding); F-bar host cells (n,), increments D
+(n, 4) and per-cell sums of V and V dJ (n_cells,); ``out`` (4,) = largest P-wave speed,
+largest point speed, non-finite and outside points, ``parts`` (CHUNKS, 2) per chunk of the
+stress pass: the largest squared P-wave speed and the points with a non-finite stress;
+``halves`` (2, 5) per half of the points from the map back: grid kinetic energy (2x), the
+largest squared |v_pic| and |v|, the points with a non-finite x or v and those outside the
+grid; ``q4_ll`` (n,) int64 and ``q4_st`` (n, 2): each point's Q4 cell (lower-left node) and
+local coordinates, found by the map to nodes and reused by the later passes of the step (the
+points have not moved in between); ``queue`` (2 QUEUE_STRIDE,) int64: at 0 and
+:data:`.common.QUEUE_STRIDE` the next block of the stress pass's two work queues, one per
+half of the points (:func:`.stress._stress_queue_call`; the padding puts each counter on a
+cache line of its own)."""
 
 StepOptions = namedtuple("StepOptions",
                          "dt gx gy damping flip geostatic gimp fbar threads model",
