@@ -107,18 +107,24 @@ def _reset_queues(S):
 def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     """Worker ``c`` of the stress pass: takes the next block of :data:`.common.BLOCK`
     points from the queue of its own half of the points (half ``c % 2``, the half its
-    thread mapped and moved: those points are in its core's cache), then from the other
-    half's queue until none is left (``S.queue[0]`` and ``[QUEUE_STRIDE]``,
-    :func:`.common.take_ticket`), each block with the nodal velocities of its half, the
-    scratch row ``c``; its statistics into ``S.parts[c]``.  Queues, not fixed halves: a
-    plastic point costs more than an elastic one, and once the slope has failed the plastic
-    points sit in one part of the (cell-sorted) points, so fixed halves left one thread
-    waiting ~30 % of the pass (444 vs 647 us per step at t = 15 s of case (i), measured);
-    one queue for all blocks spread each half's points over both cores (two threads on
-    case (i): 47.3-56.3 ns per point-step, median 48.6, against 46.4-58.3, median 47.3,
-    with fixed halves).  Which worker takes a block changes nothing in it: every block is
-    computed by this one compiled function, maxima and counts combine exactly, so any
-    thread count and any interleaving give bitwise the same result.  ``version`` and
+    thread mapped and moved: those points are in its core's cache), then — with more than
+    two workers — from the other half's queue until none is left (``S.queue[0]`` and
+    ``[QUEUE_STRIDE]``, :func:`.common.take_ticket`), each block with the nodal velocities
+    of its half, the scratch row ``c``; its statistics into ``S.parts[c]``.  With exactly
+    two workers each takes its own half only, as its thread mapped and moved it: a block
+    the other thread took must cross between the cores twice per step (its stress and
+    volume to the other core, then back for the next map), and on the 2-core VM the two
+    vCPUs sat on cores with a ~60 ns and, every other second or so, a ~350-700 ns
+    core-to-core round trip (measured with a ping-pong between two pinned threads); there
+    the map to nodes of the stolen points doubled (10.5 -> 22 ns per point) and two
+    threads on case (i) ran at 42.5-59.1 ns per point-step (median 56.3, 6 runs) with
+    the blocks shared against 46.7-59.9 (median 51.3) with the halves kept, interleaved
+    with one thread at 73.3-87.8 (median 81.4) — although the plastic points sit in one
+    part of the (cell-sorted) points once the slope has failed, so that kept halves leave
+    one thread waiting (444 vs 647 us per step at t = 15 s, measured).  Which worker takes
+    a block changes nothing in it: every block is computed by this one compiled function,
+    maxima and counts combine exactly, so any thread count and any interleaving give
+    bitwise the same result.  ``version`` and
     ``only`` are literals (one compile and cache entry per pair); not inlined into the
     threaded loop: numba's parfor passes, run over the inlined model update, changed the
     result (1 vs 2 threads differed in tests/test_threads.py once the dispatch was
@@ -130,7 +136,8 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     bounds = (0, half_split(n) // BLOCK, (n + BLOCK - 1) // BLOCK)   # blocks of the halves
     c2max = 0.0
     n_bad = 0
-    for r in range(2):               # its own half (c % 2) first, then the other's rest
+    nch = max(1, min(o.threads, S.parts.shape[0]))
+    for r in range(1 if nch == 2 else 2):    # its own half (c % 2), then the other's rest
         h = (c + r) % 2
         vn = T.v_musl if h == 0 else H.v_musl
         while True:                  # (one call site: one inlined copy of the model update)
