@@ -29,7 +29,8 @@ from numba import njit, prange
 
 from ..materials import registry
 from .arrays import StepOptions
-from .stress import _combine, _reset_queues, _stress_queue_call, serial_stress_pass
+from .stress import (_combine, _reset_queues, _stress_queue_call, nodal_in_pass,
+                     serial_stress_pass, workers)
 from .strain import fbar_gradient_pass
 from .transfer import (map_to_nodes, map_to_nodes_parallel, nodal_velocities,
                        nodal_velocities_parallel, solve_and_move, solve_and_move_parallel)
@@ -129,12 +130,13 @@ def _make_drivers(version, only):
 
     @driver_parallel
     def advance_parallel(P, M, N, T, H, S, o, c, clock, count):
-        nch = max(1, min(o.threads, S.parts.shape[0]))
+        nch = workers(o, S)
         while True:
             op = _options(o, c, clock[0], S.out[0], S.out[1])
             map_to_nodes_parallel(P, M, T, H, S, op)
             ke, vmax = solve_and_move_parallel(P, M, T, H, S, op)
-            nodal_velocities_parallel(M, T, H)
+            if not nodal_in_pass(op, S):                      # (else in the stress pass)
+                nodal_velocities_parallel(M, T, H)
             if op.fbar:
                 fbar_gradient_pass(P, M, N, S, op)
             _reset_queues(S)

@@ -65,7 +65,8 @@ def _make_stress_pass(version, only):
     ``serial``: the nodal velocities of both halves (:func:`.transfer.nodal_velocity`;
     with F-bar they are computed before, for the gradient pass), then every block of
     points in order; ``parallel``: ``o.threads`` workers taking the blocks from the two
-    halves' queues (:func:`_stress_queue_call`), the nodal velocities computed before.
+    halves' queues (:func:`_stress_queue_call`), the nodal velocities computed before
+    (two workers without F-bar: by the workers, :func:`nodal_in_pass`).
     Maxima and counts are combined exactly: the same result in both."""
     @kernel
     def stress_pass(P, M, N, S, o):
@@ -73,7 +74,7 @@ def _make_stress_pass(version, only):
 
     @kernel_parallel
     def stress_pass_parallel(P, M, T, H, S, o):
-        nch = max(1, min(o.threads, S.parts.shape[0]))
+        nch = workers(o, S)
         _reset_queues(S)
         for c in prange(nch):
             _stress_queue_call(version, only, P, M, T, H, S, o, np.int64(c))
@@ -97,6 +98,21 @@ def serial_stress_pass(version, only, P, M, N, S, o):
 
 
 @inline
+def workers(o, S):
+    """The stress pass's workers: ``o.threads``, at most one per row of ``S.parts``."""
+    return max(1, min(o.threads, S.parts.shape[0]))
+
+
+@inline
+def nodal_in_pass(o, S):
+    """Whether the threaded stress pass computes the nodal velocities itself: each of
+    exactly two workers those of its own half, then its half's blocks (no other worker
+    reads them, so the threaded loop needs no region of its own for them; F-bar's gradient
+    pass needs all of them before the pass)."""
+    return workers(o, S) == 2 and not o.fbar
+
+
+@inline
 def _reset_queues(S):
     """Both work queues of the stress pass back to their first block."""
     S.queue[0] = 0
@@ -110,7 +126,8 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     thread mapped and moved: those points are in its core's cache), then — with more than
     two workers — from the other half's queue until none is left (``S.queue[0]`` and
     ``[QUEUE_STRIDE]``, :func:`.common.take_ticket`), each block with the nodal velocities
-    of its half, the scratch row ``c``; its statistics into ``S.parts[c]``.  With exactly
+    of its half, the scratch row ``c``; its statistics into ``S.parts[c]``; first, where
+    :func:`nodal_in_pass`, the nodal velocities of its half.  With exactly
     two workers each takes its own half only, as its thread mapped and moved it: a block
     the other thread took must cross between the cores twice per step (its stress and
     volume to the other core, then back for the next map), and on the 2-core VM the two
@@ -136,8 +153,9 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     bounds = (0, half_split(n) // BLOCK, (n + BLOCK - 1) // BLOCK)   # blocks of the halves
     c2max = 0.0
     n_bad = 0
-    nch = max(1, min(o.threads, S.parts.shape[0]))
-    for r in range(1 if nch == 2 else 2):    # its own half (c % 2), then the other's rest
+    if nodal_in_pass(o, S):
+        nodal_velocity_half(M, T, H, c)
+    for r in range(1 if workers(o, S) == 2 else 2):  # its own half (c % 2), then the other's
         h = (c + r) % 2
         vn = T.v_musl if h == 0 else H.v_musl
         while True:                  # (one call site: one inlined copy of the model update)
@@ -286,7 +304,8 @@ def update_stress(P, M, N, S, o, call=_direct) -> None:
         call(serial, P, M, N, S, o)
         return
     T = top_of(N)                    # (the threaded loop takes no nested group)
-    call(nodal_velocities_parallel, M, T, N.half)
+    if o.fbar or min(o.threads, S.parts.shape[0]) != 2:      # (else: nodal_in_pass)
+        call(nodal_velocities_parallel, M, T, N.half)
     if o.fbar:
         call(fbar_gradient_pass, P, M, N, S, o)
     call(parallel, P, M, T, N.half, S, o)
