@@ -53,10 +53,11 @@ first half's group; None in the second's)."""
 Scratch = namedtuple("Scratch",
                      "x_old W ta tb tc host D cell_v cell_vdj out parts halves q4_ll q4_st queue")
 Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the block scratch of the
-stress pass, one row per chunk (thread) of :data:`CHUNKS`: W (CHUNKS, 8, BLOCK + 24), per
-point of a block (columns) the trial state in rows 0-3 and the kinematics' work rows 4-7,
-and the arguments / values of the vectorised Hencky series ta, tb, tc (CHUNKS, BLOCK + 24)
-(:mod:`.stress`, :mod:`.strain`; 24 columns of padding); F-bar host cells (n,), increments D
+stress pass, one row per chunk (thread) of :data:`CHUNKS`: W (CHUNKS, 8, :data:`W_COLUMNS`),
+per point of a block (its first BLOCK columns) the trial state in rows 0-3 and the
+kinematics' work rows 4-7, and the arguments / values of the vectorised Hencky series ta,
+tb, tc (CHUNKS, :data:`SERIES_COLUMNS`) (:mod:`.stress`, :mod:`.strain`; laid out in pages
+by :func:`scratch_for`); F-bar host cells (n,), increments D
 (n, 4) and per-cell sums of V and V dJ (n_cells,); ``out`` (4,) = largest P-wave speed,
 largest point speed, non-finite and outside points, ``parts`` (CHUNKS, 2) per chunk of the
 stress pass: the largest squared P-wave speed and the points with a non-finite stress;
@@ -173,13 +174,32 @@ def node_arrays(nn: int, half: NodeArrays | None = None) -> NodeArrays:
                       half)
 
 
+# The stress pass's block scratch (W, ta, tb, tc): every chunk's row starts at the same
+# offset in its 4 KiB page, W's 8 rows at 8 different offsets (a multiple of 512 bytes
+# apart) and ta, tb, tc at three more (256 bytes from W's), so each thread's eleven
+# streams sit the same way in the L1 cache and no two of them are 4 KiB apart (a load
+# from one then waits on a store to another: "4K aliasing").  As plain arrays, W's rows
+# were 1216 bytes apart and its base and ta's where malloc put them, different for each
+# row and each run: the thread with scratch row 1 took 430-650 us for its half of case
+# (i) at t = 15 s against 345-380 us for row 0 (cycle counters), 310-390 us laid out so.
+W_COLUMNS = 192                      # 8 x 192 x 8 bytes = 3 pages per chunk
+SERIES_COLUMNS = 512                 # one page per chunk
+SERIES_AT = (256, 1792, 3328)        # ta, tb, tc: offsets (bytes) in their pages
+assert BLOCK <= W_COLUMNS and BLOCK + 24 <= SERIES_COLUMNS
+
+
+def _page_rows(shape: tuple, offset: int) -> np.ndarray:
+    """Zeros of ``shape`` (float64, C order) starting ``offset`` bytes into a 4 KiB page."""
+    size = int(np.prod(shape))
+    buf = np.zeros(size + 4096 // 8)
+    start = (offset - buf.ctypes.data) % 4096 // 8
+    return buf[start:start + size].reshape(shape)
+
+
 def scratch_for(n: int, n_cells: int) -> Scratch:
     """The :class:`Scratch` of ``n`` points on a grid of ``n_cells`` cells (zeros)."""
-    # block scratch, one row per chunk of the stress pass, padded: rows of exactly BLOCK
-    # made the two-thread pass ~1 ns per point-step slower (measured)
-    rows = (CHUNKS, BLOCK + 24)
-    return Scratch(np.zeros((n, 2)), np.zeros((CHUNKS, 8, rows[1])), np.zeros(rows),
-                   np.zeros(rows), np.zeros(rows), np.zeros(n, np.int64), np.zeros((n, 4)),
+    return Scratch(np.zeros((n, 2)), _page_rows((CHUNKS, 8, W_COLUMNS), 0),
+                   *(_page_rows((CHUNKS, SERIES_COLUMNS), at) for at in SERIES_AT), np.zeros(n, np.int64), np.zeros((n, 4)),
                    np.zeros(n_cells), np.zeros(n_cells), np.zeros(4), np.zeros((CHUNKS, 2)),
                    np.zeros((2, 5)), np.zeros(n, np.int64), np.zeros((n, 2)),
                    np.zeros(2 * QUEUE_STRIDE, np.int64))
