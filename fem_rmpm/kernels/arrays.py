@@ -198,8 +198,9 @@ def _page_rows(shape: tuple, offset: int) -> np.ndarray:
 
 def scratch_for(n: int, n_cells: int) -> Scratch:
     """The :class:`Scratch` of ``n`` points on a grid of ``n_cells`` cells (zeros)."""
-    return Scratch(np.zeros((n, 2)), _page_rows((CHUNKS, 8, W_COLUMNS), 0),
-                   *(_page_rows((CHUNKS, SERIES_COLUMNS), at) for at in SERIES_AT), np.zeros(n, np.int64), np.zeros((n, 4)),
+    ta, tb, tc = (_page_rows((CHUNKS, SERIES_COLUMNS), at) for at in SERIES_AT)
+    return Scratch(np.zeros((n, 2)), _page_rows((CHUNKS, 8, W_COLUMNS), 0), ta, tb, tc,
+                   np.zeros(n, np.int64), np.zeros((n, 4)),
                    np.zeros(n_cells), np.zeros(n_cells), np.zeros(4), np.zeros((CHUNKS, 2)),
                    np.zeros((2, 5)), np.zeros(n, np.int64), np.zeros((n, 2)),
                    np.zeros(2 * QUEUE_STRIDE, np.int64))

@@ -136,9 +136,9 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     the map to nodes of the stolen points doubled (10.5 -> 22 ns per point) and two
     threads on case (i) ran at 42.5-59.1 ns per point-step (median 56.3, 6 runs) with
     the blocks shared against 46.7-59.9 (median 51.3) with the halves kept, interleaved
-    with one thread at 73.3-87.8 (median 81.4) — although the plastic points sit in one
-    part of the (cell-sorted) points once the slope has failed, so that kept halves leave
-    one thread waiting (444 vs 647 us per step at t = 15 s, measured).  Which worker takes
+    with one thread at 73.3-87.8 (median 81.4).  The halves cost about the same (one
+    thread, case (i): 265 / 280 us at t = 15 s, 332 / 293 us at t = 8 s; the queues were
+    made when the plastic points of one half cost ~30 % more).  Which worker takes
     a block changes nothing in it: every block is computed by this one compiled function,
     maxima and counts combine exactly, so any thread count and any interleaving give
     bitwise the same result.  ``version`` and
