@@ -44,7 +44,7 @@ from numba.np.ufunc import parallel as numba_parallel
 from . import kernels as K
 from .grid import Grid
 from .kernels import Workspace
-from .kernels.advance import RECORD_EVERY, RunControl, step_drivers
+from .kernels.advance import RECORD_EVERY, RunControl, record_limit, step_drivers
 from .locking import bbar_gradient, fbar_increment, host_cells
 from .materials import hughes_winget_increment, small_strain_update, stress_update
 from .particles import Particles
@@ -91,13 +91,19 @@ class StepStats:
     n_outside: int = 0                # active points outside the grid rectangle
 
 
-def stable_time_step(pts: Particles, cell: np.ndarray, cfl: float) -> float:
-    """CFL step dt = cfl * h / (c_p + |v|max), c_p = sqrt(M / rho) the P-wave speed (s)."""
+def _cfl_speeds(pts: Particles) -> tuple[float, float]:
+    """(largest P-wave speed c_p = sqrt(M / rho), largest |v|) of the active points (m/s)."""
     act = pts.active
     rho = pts.mass[act] / pts.volume[act]
     M = pts.soil.bulk_modulus[act] + 4.0 / 3.0 * pts.soil.shear_modulus[act]
     wave_speed = float(np.max(np.sqrt(M / rho)))
     vmax = float(np.max(np.linalg.norm(pts.velocity[act], axis=1))) if act.any() else 0.0
+    return wave_speed, vmax
+
+
+def stable_time_step(pts: Particles, cell: np.ndarray, cfl: float) -> float:
+    """CFL step dt = cfl * h / (c_p + |v|max), c_p = sqrt(M / rho) the P-wave speed (s)."""
+    wave_speed, vmax = _cfl_speeds(pts)
     return cfl * float(np.min(cell)) / (wave_speed + vmax)
 
 
@@ -287,11 +293,11 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     driven = kernel == "numba" and not has_nonlocal(pts.soil)    # non-local: Python steps
     try:
         while t < sv.t_end - 1e-12:
-            if driven and stats is not None and stats.wave_speed is not None:
+            if driven:
                 ctl = _run_control(sv, h_min, g_full, next_out if on_output else np.inf,
-                                   order.due_step())
+                                   order.due_step(), pts.n)
                 stats, dt, t, step, ke_peak = _advance(grid, pts, work, sv, geostatic, threads,
-                                                       ctl, (t, step, ke_peak), rec)
+                                                       ctl, (t, step, ke_peak), rec, stats)
             else:
                 stats, dt, t, step, ke_peak = _python_step(
                     grid, pts, sv, kernel, work, threads, geostatic, g_full,
@@ -306,8 +312,8 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
             ke_peak = max(ke_peak, stats.kinetic_energy)
             if step % RECORD_EVERY == 0:
                 rec.energy.append((t, stats.kinetic_energy))
-                if progress:
-                    progress(t, step)
+            if progress and (driven or step % RECORD_EVERY == 0):
+                progress(t, step)
             if on_output and t >= next_out - 1e-12:
                 order.restore(pts)
                 on_output(t, pts)
@@ -334,12 +340,14 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
 
 
 def _run_control(sv, h_min: float, g_full: np.ndarray, next_output: float,
-                 sort_step: float) -> RunControl:
-    """The :class:`~.kernels.advance.RunControl` of ``[solver]`` ``sv`` (all floats)."""
+                 sort_step: float, n_points: int) -> RunControl:
+    """The :class:`~.kernels.advance.RunControl` of ``[solver]`` ``sv`` for ``n_points``
+    points (all floats)."""
     return RunControl(float(sv.cfl), float(h_min), float(sv.t_end), float(sv.gravity_ramp_time),
                       float(sv.damping), float(sv.damping_time), float(g_full[0]),
                       float(g_full[1]), float(sv.geostatic_time), float(sv.rest_velocity),
-                      float(sv.rest_energy_ratio), float(next_output), float(sort_step))
+                      float(sv.rest_energy_ratio), float(next_output), float(sort_step),
+                      record_limit(n_points))
 
 
 def _guards(grid: Grid, pts: Particles, stats: StepStats, order: PointOrder, step: int,
@@ -374,24 +382,31 @@ def _python_step(grid: Grid, pts: Particles, sv, kernel: str, work: Workspace | 
 
 
 def _advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, threads: int,
-             ctl: RunControl, clock0: tuple,
-             rec: RunRecord) -> tuple[StepStats, float, float, int, float]:
+             ctl: RunControl, clock0: tuple, rec: RunRecord,
+             stats: StepStats | None) -> tuple[StepStats, float, float, int, float]:
     """Ordinary steps of the time loop in one compiled call (:mod:`.kernels.advance`), from
     ``clock0`` = (t, step, peak kinetic energy) and the previous step's maxima in the
-    scratch, to the first step the loop must see; ``rec.dt_min`` / ``dt_max`` updated.
-    Returns that step's :class:`StepStats`, its dt, and the new t, step and peak."""
+    scratch (``stats`` None or without them, at the first step and after a guard: those of
+    the points, :func:`_cfl_speeds`, so :func:`stable_time_step`'s dt), to the first step
+    the loop must see; ``rec.dt_min`` / ``dt_max`` and ``rec.energy`` updated.  Returns
+    that step's :class:`StepStats`, its dt, and the new t, step and peak.  (The first step
+    through the driver, not from Python: the Python step's six kernels took ~0.25 s to
+    load from the numba cache, the driver ~0.03 s, measured.)"""
     (P, M), N, S, call = work.bind(grid, pts), work.nodes, work.scratch, work.call
+    if stats is None or stats.wave_speed is None:
+        S.out[:2] = _cfl_speeds(pts)
     clock, count = work.clock, work.count
     o = K.StepOptions(0.0, 0.0, 0.0, 0.0, float(sv.flip), bool(geostatic), sv.shape == "gimp",
                       bool(sv.fbar), int(threads), work.model)
     clock[:4] = clock0[0], clock0[2], rec.dt_min, rec.dt_max
-    count[0] = clock0[1]
+    count[0], count[2] = clock0[1], 0
     serial, parallel = step_drivers(o.model)
     if threads > 1:
-        call(parallel, P, M, N, K.top_of(N), N.half, S, o, ctl, clock, count)
+        call(parallel, P, M, N, K.top_of(N), N.half, S, o, ctl, clock, count, work.energy)
     else:
-        call(serial, P, M, N, S, o, ctl, clock, count)
+        call(serial, P, M, N, S, o, ctl, clock, count, work.energy)
     out = S.out
+    rec.energy.extend(map(tuple, work.energy[:count[2]].tolist()))   # the steps run inside
     rec.dt_min, rec.dt_max = float(clock[2]), float(clock[3])
     stats = StepStats(float(clock[4]), float(clock[5]), float(out[0]), float(out[1]),
                       int(out[2]), int(out[3]))

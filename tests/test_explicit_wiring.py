@@ -142,16 +142,28 @@ def test_point_leaving_with_stop_policy_names_the_step():
                     r"the grid, first point [0-9]+ at x = ", str(e.value))
 
 
-def test_progress_and_energy_record_every_20_steps():
-    """The column to rest: ``progress(t, step)`` and the energy record at steps 20, 40, ...
-    (same times), none in between."""
+@pytest.mark.parametrize("driven", [False, True])
+def test_progress_and_energy_record_every_20_steps(monkeypatch, driven):
+    """The column to rest: the energy record at steps 20, 40, ... (times increasing);
+    stepped from Python, ``progress(t, step)`` at the same steps (same times), none in
+    between; with the compiled driver, progress at the driver's returns (steps increasing;
+    the driver's records are checked bitwise against the Python loop's in
+    ``tests/test_advance.py``)."""
+    if not driven:
+        _python_loop(monkeypatch)
     scene, grid, pts = _column()
     calls = []
     rec = run_explicit(scene, grid, pts, progress=lambda t, s: calls.append((t, s)))
     assert rec.stop_reason == "at rest" and rec.steps > 400
-    assert [s for _, s in calls] == list(range(20, rec.steps + 1, 20))
-    assert [t for t, _ in calls] == [t for t, _ in rec.energy]
-    assert all(0.0 < t <= rec.time for t, _ in calls)
+    assert len(rec.energy) == rec.steps // 20
+    assert all(b[0] > a[0] for a, b in zip(rec.energy, rec.energy[1:]))
+    assert all(0.0 < t <= rec.time for t, _ in calls + rec.energy)
+    steps = [s for _, s in calls]
+    if driven:
+        assert steps[-1] == rec.steps and all(b > a for a, b in zip(steps, steps[1:]))
+    else:
+        assert steps == list(range(20, rec.steps + 1, 20))
+        assert [t for t, _ in calls] == [t for t, _ in rec.energy]
 
 
 def test_rest_test_gets_the_running_peak_of_the_kinetic_energy(monkeypatch):

@@ -201,6 +201,7 @@ def test_run_warns_once_at_the_start_on_busy_cores(monkeypatch, capsys):
         raise FirstStep
 
     monkeypatch.setattr(ex, "explicit_step", first_step)
+    monkeypatch.setattr(ex, "_advance", first_step)
     monkeypatch.setattr(ex, "_runnable_others", lambda: 1)
     monkeypatch.setattr(ex, "_cores", lambda: 2)
     monkeypatch.setattr(ex, "_THREADS_WARNED", set())

@@ -115,6 +115,10 @@ def point_arrays(pts, fallback_half_width: np.ndarray) -> PointArrays:
                        s.model, s.params)
 
 
+#: Rows of the step driver's energy record (:mod:`.advance`): record steps per call at most.
+RECORD_BUFFER = 64
+
+
 @dataclass
 class Workspace:
     """Nodal and scratch arrays of the compiled step, allocated once per (grid, points),
@@ -127,7 +131,8 @@ class Workspace:
     sees the same point arrays (a new array drops the resolved calls).  ``model``: the
     one model id of the bound points (-1: several), found at :meth:`bind` (a point's
     model is set when the points are made and never changes during a run).  ``clock``,
-    ``count``: the step driver's time and step buffers (:mod:`.advance`)."""
+    ``count``, ``energy``: the step driver's time, step and energy record buffers
+    (:mod:`.advance`)."""
     nodes: NodeArrays
     scratch: Scratch
     mesh: Mesh | None = None
@@ -135,7 +140,8 @@ class Workspace:
     calls: dict = field(default_factory=dict)
     model: int = -1
     clock: np.ndarray = field(default_factory=lambda: np.zeros(7))
-    count: np.ndarray = field(default_factory=lambda: np.zeros(2, np.int64))
+    count: np.ndarray = field(default_factory=lambda: np.zeros(3, np.int64))
+    energy: np.ndarray = field(default_factory=lambda: np.zeros((RECORD_BUFFER, 2)))
 
     def bind(self, grid, pts) -> tuple[PointArrays, Mesh]:
         """The point and mesh groups of ``pts`` and ``grid`` (kept while the arrays are)."""
