@@ -266,14 +266,14 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     in-situ geometry (small strain, damped) until at rest or for at most ``geostatic_time``;
     then (or from t = 0 with ``"dynamic"``) the large deformation phase runs, damped until
     ``damping_time``, until ``t_end`` or rest (:func:`fem_rmpm.run.at_rest`, once gravity is
-    fully on).  ``on_output(t, pts)`` is called at t = 0, every ``output_interval`` and at
-    the end.  ``kernel``: ``"numba"`` | ``"numpy"`` (default: ``[solver] kernel``, else
-    :data:`DEFAULT_KERNEL`).  With numba the CFL step and the guards use the maxima the
-    stress kernel returns (no pass over the points in Python), and the points are sorted by
-    host cell after every output and every ``sort_every`` steps (0: never;
-    :mod:`fem_rmpm.point_order`), in their original order whenever ``on_output``, a guard
-    or the caller sees them; the ordinary steps between two steps the loop must see run in
-    one compiled call (:func:`_advance`, bitwise the same).  ``threads``:
+    fully on).  ``on_output(t, pts)`` is called at t = 0, every ``output_interval`` and at the end;
+    ``progress(t, step)`` at the driver's returns (from Python: every 20th step).  ``kernel``:
+    ``"numba"`` | ``"numpy"`` (default: ``[solver] kernel``, else :data:`DEFAULT_KERNEL`).  With
+    numba the CFL step and the guards use the maxima the stress kernel returns (no pass over the
+    points in Python), and the points are sorted by host cell after every output and every
+    ``sort_every`` steps (0: never; :mod:`fem_rmpm.point_order`), in their original order whenever
+    ``on_output``, a guard or the caller sees them; the ordinary steps between two steps the loop
+    must see run in one compiled call (:func:`_advance`, bitwise the same).  ``threads``:
     :func:`_run_threads`.  ``pts.F``: NaN (not tracked)."""
     sv = scene.solver
     kernel = kernel or getattr(sv, "kernel", None) or DEFAULT_KERNEL
