@@ -84,6 +84,27 @@ def test_job_scripts_carry_the_options_and_one_thread_per_worker(kind, directive
     assert kw["processes"] == 4 and B._memory_bytes(kw["memory"]) == 8e9
 
 
+def test_local_workers_get_the_threads_the_scene_asks_for(monkeypatch):
+    """``[solver] threads = 2`` in a campaign: each local worker process gets a numba pool
+    of 2 threads (``NUMBA_NUM_THREADS=2``; BLAS and OpenMP stay at 1) and 4 usable CPUs
+    hold 2 such workers; ``threads = 0`` (the default) keeps one thread per worker.
+    (Before, every local worker had ``NUMBA_NUM_THREADS=1``, so a campaign asked for two
+    threads silently ran on one.)"""
+    from types import SimpleNamespace
+    from fem_rmpm.campaign import cluster
+    from fem_rmpm.scene import with_values
+    monkeypatch.setattr(cluster, "_usable_cpus", lambda: 4)
+    scene = load_scene(TINY)
+    assert scene.solver.threads == 0
+    for threads, workers, per_worker in ((0, 4, 1), (1, 4, 1), (2, 2, 2), (3, 1, 3)):
+        case = SimpleNamespace(scene=with_values(scene, {"solver.threads": threads}))
+        plan = B.campaign_backend(None, None, None, [case]).plan(10)
+        assert (plan["workers"], plan["cores_per_worker"]) == (workers, per_worker)
+        env = cluster.worker_environment(per_worker)
+        assert env["NUMBA_NUM_THREADS"] == str(per_worker) and env["OMP_NUM_THREADS"] == "1"
+    assert B.campaign_backend(None, 3, None, [case]).plan(10)["workers"] == 3   # --workers wins
+
+
 def test_default_job_memory_follows_the_estimate():
     """Without --memory or a configured one: per worker the larger of 1 GiB and twice the
     estimated peak of one realization."""

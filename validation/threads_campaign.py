@@ -3,8 +3,10 @@
 identical with 1 and 2 threads").
 
 Runs ``fem-rmpm mc`` twice on the reference slope with one local worker, ``--set
-solver.threads=1`` and ``=2`` (the campaign task then gives numba's pool that many
-threads), and compares the two ``results.csv`` byte for byte (they hold no timings).
+solver.threads=1`` and ``=2`` (the worker process then has a numba pool of that many
+threads), checks that every realization ran on that many threads (its record's
+``worker.threads``) and compares the two ``results.csv`` byte for byte (they hold no
+timings).
 
 The acceptance's campaign (the scene's 3 realizations of each of its four cases, whole
 runs): ``python validation/threads_campaign.py`` (~10 realizations x ~20 s on one thread,
@@ -15,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import filecmp
+import json
 import os
 import subprocess
 import sys
@@ -37,6 +40,12 @@ def campaign(out: Path, threads: int, args) -> float:
     return sum(os.times()[2:4]) - t0
 
 
+def threads_used(out: Path) -> list:
+    """The numba thread count each realization of the campaign in ``out`` ran on."""
+    return [json.loads(p.read_text())["worker"].get("threads")
+            for p in sorted((out / "records").glob("*.json"))]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("runs/threads_campaign"))
@@ -44,15 +53,20 @@ def main(argv=None) -> int:
     ap.add_argument("--case", action="append", help="as fem-rmpm mc --case (repeatable)")
     ap.add_argument("--t-end", type=float, default=None, help="simulated seconds per run")
     a = ap.parse_args(argv)
-    cpu = {}
+    cpu, used = {}, {}
     for th in (1, 2):
         cpu[th] = campaign(a.out / f"threads{th}", th, a)
+        used[th] = threads_used(a.out / f"threads{th}")
+        print(f"threads = {th}: the realizations ran on {used[th]} threads")
     f1, f2 = a.out / "threads1" / "results.csv", a.out / "threads2" / "results.csv"
     same = filecmp.cmp(f1, f2, shallow=False)
     rows = len(f1.read_text().splitlines()) - 1
     print(f"results.csv {'IDENTICAL' if same else 'DIFFERENT'} on 1 and 2 threads "
           f"({rows} realizations; CPU {cpu[1]:.1f} s / {cpu[2]:.1f} s): {f1} {f2}")
-    return 0 if same else 1
+    ran_as_asked = all(u == [th] * len(u) for th, u in used.items())
+    if not ran_as_asked:
+        print("NOT a 1 / 2 thread comparison: a campaign did not run on the threads asked for")
+    return 0 if same and ran_as_asked else 1
 
 
 if __name__ == "__main__":

@@ -96,8 +96,10 @@ default the usable CPUs, at most the number of realizations to run), one thread
 each.  Before the cluster starts, the worker environment is set through
 ``distributed.nanny.pre-spawn-environ`` (the only place where it takes effect;
 variables already set in the user's environment win): ``OMP_NUM_THREADS``,
-``MKL_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``, ``NUMBA_NUM_THREADS`` = 1 (one
-thread per process; parallelism comes from the processes) and
+``MKL_NUM_THREADS``, ``OPENBLAS_NUM_THREADS`` = 1 and ``NUMBA_NUM_THREADS`` = the
+scene's ``[solver] threads`` (1 for 0, the default: one thread per process, the
+parallelism comes from the processes; with ``threads = 2`` a 2-core machine gets one
+worker of two threads, unless ``--workers`` says otherwise) and
 ``MALLOC_TRIM_THRESHOLD_`` = 1 GiB with ``MALLOC_MMAP_THRESHOLD_`` = 32 MiB.
 Dask sets ``MALLOC_TRIM_THRESHOLD_=65536``; setting *any* trim threshold also
 freezes glibc's mmap threshold at 128 KiB, so every array above 128 KiB is a

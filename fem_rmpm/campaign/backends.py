@@ -17,8 +17,9 @@ checks the options and starts nothing), then
 
 Kinds
 -----
-``local`` (default): a ``distributed.LocalCluster`` of K single-thread worker processes
-(``--workers K``, default the usable CPUs, at most the realizations to run).
+``local`` (default): a ``distributed.LocalCluster`` of K worker processes, each with
+``[solver] threads`` numba threads (1 for 0, the default; ``--workers K``, default as
+many as the usable CPUs hold, at most the realizations to run).
 ``local`` with ``--scheduler ADDRESS``: the workers of a running Dask cluster.
 ``slurm`` | ``pbs`` | ``sge`` | ``lsf``: dask-jobqueue's ``SLURMCluster``,
 ``PBSCluster``, ``SGECluster`` or ``LSFCluster``.  The scheduler runs in the client
@@ -80,7 +81,8 @@ from tornado.ioloop import PeriodicCallback
 from ..budget import estimate_run
 
 from .cases import CampaignError
-from .cluster import _usable_cpus, start_client, worker_environment
+from .cluster import (_usable_cpus, campaign_threads, local_worker_count, start_client,
+                      worker_environment)
 
 __all__ = ["CLUSTER_KINDS", "ClusterError", "ClusterSpec", "Backend", "open_backend",
            "campaign_backend",
@@ -118,6 +120,7 @@ class ClusterSpec:
     interface: str | None = None
     job_directives: tuple[str, ...] = ()
     worker_memory_estimate: float | None = field(default=None, compare=False)  # B
+    threads_per_worker: int = field(default=1, compare=False)  # numba threads, local workers
 
     @property
     def batch(self) -> bool:
@@ -136,8 +139,7 @@ def parse_adapt(text: str | None) -> tuple[int, int] | None:
 
 
 def _positive(name: str, value) -> None:
-    if value is not None and (isinstance(value, bool) or not isinstance(value, int)
-                              or value <= 0):
+    if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value <= 0):
         raise ClusterError(f"{name} {value}: expected a positive integer")
 
 
@@ -145,8 +147,7 @@ def _memory_bytes(text: str, option: str = "--memory") -> float:
     """'8GB', '954M', '2 GiB' -> bytes (dask's units: kB = 1000, KiB = 1024)."""
     m = _MEMORY.match(str(text))
     if not m:
-        raise ClusterError(f"{option} {text!r}: expected a memory size like 4GB, 1500MB or "
-                           "2GiB")
+        raise ClusterError(f"{option} {text!r}: expected a memory size like 4GB, 1500MB or 2GiB")
     unit = (m.group(2) or "B").upper().replace("IB", "iB")
     unit = unit if unit.endswith("B") else unit + "B"
     return float(parse_bytes(f"{m.group(1)} {unit}"))
@@ -208,7 +209,8 @@ def campaign_backend(spec: ClusterSpec | None, workers: int | None, scheduler: s
     if scheduler:
         spec = replace(spec, scheduler=scheduler)
     memory = max((estimate_run(c.scene).memory_bytes for c in cases), default=None)
-    return open_backend(replace(spec, worker_memory_estimate=memory))
+    threads = max((campaign_threads(c.scene) for c in cases), default=1)
+    return open_backend(replace(spec, worker_memory_estimate=memory, threads_per_worker=threads))
 
 
 def open_backend(spec: ClusterSpec) -> Backend:
@@ -218,7 +220,7 @@ def open_backend(spec: ClusterSpec) -> Backend:
         return JobqueueBackend(spec)
     if spec.scheduler:
         return SchedulerBackend(spec.scheduler)
-    return LocalBackend(spec.workers)
+    return LocalBackend(spec.workers, spec.threads_per_worker)
 
 
 class _ClientBackend:
@@ -242,17 +244,19 @@ class _ClientBackend:
 
 
 class LocalBackend(_ClientBackend):
-    """A LocalCluster of single-thread worker processes on this machine."""
+    """A LocalCluster of worker processes on this machine, ``threads`` numba threads each."""
 
-    def __init__(self, workers: int | None):
+    def __init__(self, workers: int | None, threads: int = 1):
         super().__init__()
         self.workers = workers
+        self.threads = threads
 
     def _count(self, n_tasks: int) -> int:
-        return self.workers or max(1, min(_usable_cpus(), n_tasks))
+        return local_worker_count(self.workers, n_tasks, self.threads)
 
     def start(self, n_tasks: int, out: Path):
-        self.client, self.cluster, self.description = start_client(self.workers, None, n_tasks)
+        self.client, self.cluster, self.description = start_client(self.workers, None,
+                                                                   n_tasks, self.threads)
         return self.client
 
     def check_directory(self, client, out: Path) -> None:
@@ -260,7 +264,7 @@ class LocalBackend(_ClientBackend):
 
     def plan(self, n_tasks: int) -> dict:
         k = self._count(n_tasks)
-        return {"kind": "local", "workers": k, "cores_per_worker": 1,
+        return {"kind": "local", "workers": k, "cores_per_worker": self.threads,
                 "description": f"{k} local worker process{'es' if k > 1 else ''} "
                                f"({_usable_cpus()} usable CPUs)"}
 
@@ -340,14 +344,10 @@ class JobqueueBackend(_ClientBackend):
         kw: dict[str, Any] = {"cores": int(cores), "processes": processes, "memory": memory,
                               "job_script_prologue": job_environment_lines()
                               + list(_config(kind, "job-script-prologue", []) or [])}
-        if s.queue is not None:
-            kw["queue"] = s.queue
-        if s.account is not None:
-            kw[_ACCOUNT_KEYWORD[kind]] = s.account
-        if s.walltime is not None:
-            kw["walltime"] = s.walltime
-        if s.interface is not None:
-            kw["interface"] = s.interface
+        for key, value in (("queue", s.queue), (_ACCOUNT_KEYWORD[kind], s.account),
+                           ("walltime", s.walltime), ("interface", s.interface)):
+            if value is not None:
+                kw[key] = value
         if s.job_directives:
             kw["job_extra_directives"] = (list(_config(kind, "job-extra-directives", []) or [])
                                           + list(s.job_directives))

@@ -1,5 +1,6 @@
-"""The Dask client of a campaign: a local cluster of single-thread worker processes with
-the worker environment set before they start, or a connection to a running scheduler."""
+"""The Dask client of a campaign: a local cluster of worker processes (one Dask thread
+each, numba threads as the scene asks) with the worker environment set before they
+start, or a connection to a running scheduler."""
 from __future__ import annotations
 
 import logging
@@ -11,14 +12,18 @@ from distributed import Client, LocalCluster
 from .cases import CampaignError
 from .task import MALLOC_THRESHOLDS
 
-__all__ = ["worker_environment", "start_local_cluster", "start_client"]
+__all__ = ["worker_environment", "campaign_threads", "local_worker_count", "start_local_cluster",
+           "start_client"]
 
 _THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 
 
-def worker_environment() -> dict[str, str]:
-    """Environment of local worker processes (:mod:`fem_rmpm.campaign`, "Dask"): one thread, malloc thresholds."""
+def worker_environment(threads: int = 1) -> dict[str, str]:
+    """Environment of local worker processes (:mod:`fem_rmpm.campaign`, "Dask"): one
+    thread for BLAS and OpenMP, ``threads`` for numba's pool (the scene's ``[solver]
+    threads``; 1 by default), malloc thresholds."""
     env = {k: "1" for k in _THREADS}
+    env["NUMBA_NUM_THREADS"] = str(max(1, int(threads)))
     env.update({k: str(v) for k, v in MALLOC_THRESHOLDS.items()})
     return env
 
@@ -30,9 +35,22 @@ def _usable_cpus() -> int:
         return os.cpu_count() or 1
 
 
-def start_client(workers: int | None, scheduler: str | None, n_tasks: int):
+def campaign_threads(scene) -> int:
+    """Numba threads per realization in a campaign: the scene's ``[solver] threads``, 1
+    for 0 (auto: the campaign's parallelism is its worker processes)."""
+    return max(1, int(getattr(scene.solver, "threads", 0) or 1))
+
+
+def local_worker_count(workers: int | None, n_tasks: int, threads: int = 1) -> int:
+    """Local worker processes: ``workers`` if given, else as many as the usable CPUs hold
+    at ``threads`` each (at least 1, at most ``n_tasks``)."""
+    return workers or max(1, min(_usable_cpus() // max(1, threads), n_tasks))
+
+
+def start_client(workers: int | None, scheduler: str | None, n_tasks: int, threads: int = 1):
     """``(client, cluster or None, description)``: connect to ``scheduler`` if given, else
-    start a local cluster of ``workers`` (default: usable CPUs, at most ``n_tasks``)."""
+    start a local cluster of ``workers`` processes with ``threads`` numba threads each
+    (default :func:`local_worker_count`)."""
     if scheduler:
         timeout = dask.config.get("distributed.comm.timeouts.connect")
         try:
@@ -43,20 +61,22 @@ def start_client(workers: int | None, scheduler: str | None, n_tasks: int):
                                 f"{timeout}: {msg[:200]}") from None
         n = len(client.scheduler_info(n_workers=-1).get("workers", {}))
         return client, None, f"the Dask cluster at {scheduler} ({n} workers now)"
-    k = workers or max(1, min(_usable_cpus(), n_tasks))
-    client, cluster = start_local_cluster(k)
-    return client, cluster, f"{k} local worker process{'es' if k > 1 else ''}"
+    k = local_worker_count(workers, n_tasks, threads)
+    client, cluster = start_local_cluster(k, threads)
+    each = f" of {threads} threads" if threads > 1 else ""
+    return client, cluster, f"{k} local worker process{'es' if k > 1 else ''}{each}"
 
 
-def start_local_cluster(workers: int):
-    """``(client, cluster)``: a LocalCluster of ``workers`` single-thread processes with
-    :func:`worker_environment` set before they start (close both when done)."""
+def start_local_cluster(workers: int, threads: int = 1):
+    """``(client, cluster)``: a LocalCluster of ``workers`` processes (one Dask thread each,
+    ``threads`` numba threads) with :func:`worker_environment` set before they start
+    (close both when done)."""
     env = {f"distributed.nanny.pre-spawn-environ.{key}": val
-           for key, val in worker_environment().items()}
+           for key, val in worker_environment(threads).items()}
     # the nannies set these in *this* process's environment before spawning; put ours
     # back after (else a later numba compile here reads NUMBA_NUM_THREADS=1 and refuses
     # to run once numba's thread pool has started with more threads)
-    saved = {key: os.environ.get(key) for key in worker_environment()}
+    saved = {key: os.environ.get(key) for key in worker_environment(threads)}
     with dask.config.set(env):
         # ":0": the scheduler's HTTP server (and the dashboard, if bokeh is installed) on a
         # free port; None would still bind 8787 and warn when another cluster holds it

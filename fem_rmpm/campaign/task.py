@@ -80,7 +80,8 @@ def run_realization(task: dict) -> dict:
         "format": FORMAT, "case": task["case"], "index": int(task["index"]),
         "seed": None if task["seed"] is None else int(task["seed"]), "scheme": task["scene"].solver.scheme, "status": "ok",
         "error": None, "vtk": task.get("vtk_rel"),
-        "worker": {"host": socket.gethostname(), "pid": os.getpid()},
+        "worker": {"host": socket.gethostname(), "pid": os.getpid(),
+                   "threads": numba.get_num_threads()},
         "fem_rmpm": _version(),
     }
     t0, c0 = time.perf_counter(), time.process_time()
