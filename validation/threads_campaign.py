@@ -43,7 +43,7 @@ def campaign(out: Path, threads: int, args) -> float:
 def threads_used(out: Path) -> list:
     """The numba thread count each realization of the campaign in ``out`` ran on."""
     return [json.loads(p.read_text())["worker"].get("threads")
-            for p in sorted((out / "records").glob("*.json"))]
+            for p in sorted((out / "records").rglob("*.json"))]
 
 
 def main(argv=None) -> int:
@@ -63,7 +63,7 @@ def main(argv=None) -> int:
     rows = len(f1.read_text().splitlines()) - 1
     print(f"results.csv {'IDENTICAL' if same else 'DIFFERENT'} on 1 and 2 threads "
           f"({rows} realizations; CPU {cpu[1]:.1f} s / {cpu[2]:.1f} s): {f1} {f2}")
-    ran_as_asked = all(u == [th] * len(u) for th, u in used.items())
+    ran_as_asked = all(u and u == [th] * len(u) for th, u in used.items())
     if not ran_as_asked:
         print("NOT a 1 / 2 thread comparison: a campaign did not run on the threads asked for")
     return 0 if same and ran_as_asked else 1
