@@ -105,6 +105,24 @@ def test_local_workers_get_the_threads_the_scene_asks_for(monkeypatch):
     assert B.campaign_backend(None, 3, None, [case]).plan(10)["workers"] == 3   # --workers wins
 
 
+def test_fewer_threads_than_asked_is_one_warning_line():
+    """Records that ran on fewer numba threads than the case asks for (workers of a running
+    cluster keep their own ``NUMBA_NUM_THREADS``) give one warning line naming both counts;
+    as many as asked, more, or records without a thread count (older campaigns): none."""
+    from types import SimpleNamespace
+    from fem_rmpm.campaign.runner import thread_shortfall
+    from fem_rmpm.scene import with_values
+    scene = load_scene(TINY)
+    cases = [SimpleNamespace(name="a", scene=with_values(scene, {"solver.threads": 2})),
+             SimpleNamespace(name="b", scene=scene)]
+    rec = lambda case, threads: {"case": case, "worker": {"pid": 1, "threads": threads}}
+    text = thread_shortfall(cases, [rec("a", 1), rec("a", 2), rec("b", 1), rec("a", 1)])
+    assert text.startswith("fem-rmpm: warning: 2 realization(s) ran on 1 numba thread(s), "
+                           "fewer than [solver] threads = 2") and "\n" not in text
+    assert thread_shortfall(cases, [rec("a", 2), rec("b", 1), rec("b", 2)]) is None
+    assert thread_shortfall(cases, [{"case": "a", "worker": {"pid": 1}}]) is None
+
+
 def test_default_job_memory_follows_the_estimate():
     """Without --memory or a configured one: per worker the larger of 1 GiB and twice the
     estimated peak of one realization."""
@@ -190,3 +208,12 @@ def test_dry_run_estimate_adds_up(tmp_path):
     assert est.workers == 2 and est.wall_seconds == pytest.approx(
         cal.worker_start_seconds + 2 * per)
     assert not (tmp_path / "c").exists()
+    # threads = 2: one local worker of two threads runs each realization THREAD_EFFICIENCY
+    # x 2 times faster (no probe: the budget's constant)
+    from fem_rmpm.campaign.estimate import THREAD_EFFICIENCY
+    from fem_rmpm.scene import with_values
+    two = estimate_campaign(with_values(scene, {"solver.threads": 2}), tmp_path / "c",
+                            realizations=3, workers=1, probe=False)
+    c2, cal2 = two.cases[0], two.calibration
+    assert two.plan["cores_per_worker"] == 2 and two.wall_seconds == pytest.approx(
+        cal2.worker_start_seconds + 3 * c2.cpu_seconds / (2 * THREAD_EFFICIENCY))

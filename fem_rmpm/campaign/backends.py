@@ -265,8 +265,8 @@ class LocalBackend(_ClientBackend):
     def plan(self, n_tasks: int) -> dict:
         k = self._count(n_tasks)
         return {"kind": "local", "workers": k, "cores_per_worker": self.threads,
-                "description": f"{k} local worker process{'es' if k > 1 else ''} "
-                               f"({_usable_cpus()} usable CPUs)"}
+                "description": f"{k} local worker process{'es' if k > 1 else ''} of "
+                               f"{self.threads} thread(s) ({_usable_cpus()} usable CPUs)"}
 
 
 class SchedulerBackend(_ClientBackend):

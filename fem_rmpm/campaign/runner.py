@@ -20,6 +20,7 @@ from ..scene import Scene
 from .cases import CampaignError, Case, parse_case, realization_seed
 from .decide import decision_check, in_measure_sample, is_decided
 from .backends import ClusterSpec, campaign_backend
+from .cluster import campaign_threads
 from .keep_vtk import kept, parse_keep_vtk
 from .factor_of_safety import fs_statistics, plot_factor_of_safety
 from .statistics import case_statistics
@@ -27,7 +28,7 @@ from .store import (Layout, Lock, campaign_doc, check_directory, clean_temporari
                     read_record, write_results)
 from .task import run_realization
 
-__all__ = ["run_campaign", "CampaignResult", "pending_work"]
+__all__ = ["run_campaign", "CampaignResult", "pending_work", "thread_shortfall"]
 
 
 class _Progress:
@@ -154,6 +155,8 @@ def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
             result = _finish(out, scene, case_list, counts, lay, finished,
                              len(tasks) - len(lost), skipped, lost, desc, t_start,
                              compute_time, figures)
+            if (short := thread_shortfall(case_list, finished.values())) is not None:
+                print(short, file=sys.stderr, flush=True)
     finally:
         if backend is not None:
             backend.close()
@@ -271,6 +274,24 @@ def _compute(client, tasks: list[dict], lay: Layout, finished: dict, progress: b
     finally:
         bar.close()
     return lost
+
+
+def thread_shortfall(cases: Sequence[Case], records) -> str | None:
+    """A one-line warning when realizations ran on fewer numba threads than their case's
+    ``[solver] threads`` asks for (records that name their threads), else None.  The
+    workers' ``NUMBA_NUM_THREADS`` caps the count: workers of a running Dask cluster or of
+    batch jobs start with one thread.  The results are the same on any thread count; only
+    the wall time is longer."""
+    asked = {c.name: campaign_threads(c.scene) for c in cases}
+    short = [(r["worker"]["threads"], asked[r["case"]]) for r in records
+             if r.get("case") in asked and isinstance(r.get("worker"), dict)
+             and r["worker"].get("threads", asked[r["case"]]) < asked[r["case"]]]
+    if not short:
+        return None
+    used, want = min(short)
+    return (f"fem-rmpm: warning: {len(short)} realization(s) ran on {used} numba thread(s), "
+            f"fewer than [solver] threads = {want}: the workers' NUMBA_NUM_THREADS caps it "
+            "(set it in the workers' environment; the results are the same, only slower)")
 
 
 def _finish(out, scene, cases, counts, lay, finished, computed, skipped, lost, desc,
