@@ -33,7 +33,7 @@ from tqdm import tqdm
 
 from . import kernels, strength_reduction
 from .budget import check_budget
-from .explicit import auto_threads, run_explicit
+from .explicit import auto_threads, run_explicit, threads_from_auto
 from .materials import invalid_points
 from .run import RunRecord, SimulationError
 from .fem import FemResult, solve_static
@@ -160,7 +160,8 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     wall0, cpu0 = time.perf_counter(), time.process_time()
     error = None
     try:
-        rec = _run_scheme(solved, grid, pts, on_output, bar.update_to if bar else None)
+        with threads_from_auto(solved is not scene):      # auto: no busy-cores warning
+            rec = _run_scheme(solved, grid, pts, on_output, bar.update_to if bar else None)
     except _Stopped as stop:
         rec = RunRecord(scheme=scene.solver.scheme, time=stop.t, stop_reason=stop.reason,
                         frozen_points=np.nonzero(~pts.active)[0].tolist())

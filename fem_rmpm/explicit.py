@@ -35,6 +35,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numba
@@ -54,7 +55,7 @@ from .run import RunRecord, SimulationError, at_rest, check_points
 from .scene import Scene
 from .shape import shape_at_points
 
-__all__ = ["StepStats", "Workspace", "explicit_step", "explicit_step_numpy",
+__all__ = ["StepStats", "Workspace", "explicit_step", "explicit_step_numpy", "threads_from_auto",
            "stable_time_step", "run_explicit", "KERNELS", "DEFAULT_KERNEL", "auto_threads",
            "busy_threads_warning"]
 
@@ -483,11 +484,26 @@ def busy_threads_warning(threads: int) -> str | None:
 
 
 _THREADS_WARNED: set = set()      # the thread counts already warned about by this process
+_FROM_AUTO = [False]              # True while a run uses a count resolved from threads = 0
+
+
+@contextmanager
+def threads_from_auto(resolved: bool):
+    """While ``resolved`` (the run's ``[solver] threads`` was 0 and the caller replaced it by
+    :func:`auto_threads`, as :func:`fem_rmpm.api.run` does): no busy-cores warning.  The
+    warning is for a count the user set; auto left the busy cores out a moment before the
+    run, and a process that started since (e.g. another test worker) is not the user's
+    setting to change."""
+    before, _FROM_AUTO[0] = _FROM_AUTO[0], bool(resolved)
+    try:
+        yield
+    finally:
+        _FROM_AUTO[0] = before
 
 
 def _warn_busy_threads(threads: int) -> None:
     """Print :func:`busy_threads_warning` to stderr, once per process and thread count."""
-    if threads in _THREADS_WARNED:
+    if _FROM_AUTO[0] or threads in _THREADS_WARNED:
         return
     text = busy_threads_warning(threads)
     if text:

@@ -212,3 +212,33 @@ def test_run_warns_once_at_the_start_on_busy_cores(monkeypatch, capsys):
         err = capsys.readouterr().err
         assert len(err.splitlines()) == lines, (threads, err)
         assert lines == 0 or "[solver] threads = 2," in err
+
+
+def test_threads_resolved_from_auto_by_run_do_not_warn(monkeypatch, capsys):
+    """``fem_rmpm.api.run`` replaces ``threads = 0`` by :func:`auto_threads` once, before
+    the run; if the cores turn busy in between (another process starts), the run does not
+    warn as if the user had set that count (CI once failed a one-line-stderr test on it: the
+    warning said "threads = 2" for a scene without a ``threads`` key).  An explicit
+    ``threads = 2`` on the same busy cores still warns, once."""
+    import fem_rmpm.api as api
+    scene = load_scene(Path(__file__).resolve().parents[1] / "meshes" / "column.toml")
+
+    class FirstStep(Exception):
+        pass
+
+    def first_step(*a, **k):
+        raise FirstStep
+
+    monkeypatch.setattr(ex, "explicit_step", first_step)
+    monkeypatch.setattr(ex, "_advance", first_step)
+    monkeypatch.setattr(api, "auto_threads", lambda: 2)        # two idle cores when resolved
+    monkeypatch.setattr(ex, "_runnable_others", lambda: 2)     # both busy at the run's start
+    monkeypatch.setattr(ex, "_cores", lambda: 2)
+    monkeypatch.setattr(ex, "_THREADS_WARNED", set())
+    for threads, lines in ((0, 0), (2, 1)):
+        sc = with_values(scene, {"solver.t_end": 0.01, "solver.threads": threads})
+        with pytest.raises(FirstStep):
+            api.run(sc)
+        err = capsys.readouterr().err
+        assert len(err.splitlines()) == lines, (threads, err)
+    assert not ex._FROM_AUTO[0]
