@@ -188,23 +188,29 @@ def test_runnable_others_reads_proc_loadavg(monkeypatch):
     assert ex._runnable_others(pause=0.0) is None
 
 
-def test_run_warns_once_at_the_start_on_busy_cores(monkeypatch, capsys):
-    """run_explicit with ``threads = 2`` on busy cores prints the warning before the first
-    step (not a refusal), once per process; ``threads = 0`` (auto) and 1 print nothing."""
-    scene = load_scene(Path(__file__).resolve().parents[1] / "meshes" / "column.toml")
-    grid = make_grid(scene)
+class FirstStep(Exception):
+    """Raised in place of a run's first step (the busy-cores tests stop there)."""
 
-    class FirstStep(Exception):
-        pass
 
+def _busy_two_cores(monkeypatch, others: int) -> None:
+    """A 2-core machine with ``others`` busy processes; the run stops at its first step
+    (:class:`FirstStep`), and no thread count has been warned about yet."""
     def first_step(*a, **k):
         raise FirstStep
 
     monkeypatch.setattr(ex, "explicit_step", first_step)
     monkeypatch.setattr(ex, "_advance", first_step)
-    monkeypatch.setattr(ex, "_runnable_others", lambda: 1)
+    monkeypatch.setattr(ex, "_runnable_others", lambda: others)
     monkeypatch.setattr(ex, "_cores", lambda: 2)
     monkeypatch.setattr(ex, "_THREADS_WARNED", set())
+
+
+def test_run_warns_once_at_the_start_on_busy_cores(monkeypatch, capsys):
+    """run_explicit with ``threads = 2`` on busy cores prints the warning before the first
+    step (not a refusal), once per process; ``threads = 0`` (auto) and 1 print nothing."""
+    scene = load_scene(Path(__file__).resolve().parents[1] / "meshes" / "column.toml")
+    grid = make_grid(scene)
+    _busy_two_cores(monkeypatch, others=1)
     for threads, lines in ((0, 0), (1, 0), (2, 1), (2, 0)):
         sc = with_values(scene, {"solver.t_end": 0.01, "solver.threads": threads})
         with pytest.raises(FirstStep):
@@ -222,19 +228,8 @@ def test_threads_resolved_from_auto_by_run_do_not_warn(monkeypatch, capsys):
     ``threads = 2`` on the same busy cores still warns, once."""
     import fem_rmpm.api as api
     scene = load_scene(Path(__file__).resolve().parents[1] / "meshes" / "column.toml")
-
-    class FirstStep(Exception):
-        pass
-
-    def first_step(*a, **k):
-        raise FirstStep
-
-    monkeypatch.setattr(ex, "explicit_step", first_step)
-    monkeypatch.setattr(ex, "_advance", first_step)
     monkeypatch.setattr(api, "auto_threads", lambda: 2)        # two idle cores when resolved
-    monkeypatch.setattr(ex, "_runnable_others", lambda: 2)     # both busy at the run's start
-    monkeypatch.setattr(ex, "_cores", lambda: 2)
-    monkeypatch.setattr(ex, "_THREADS_WARNED", set())
+    _busy_two_cores(monkeypatch, others=2)                     # both busy at the run's start
     for threads, lines in ((0, 0), (2, 1)):
         sc = with_values(scene, {"solver.t_end": 0.01, "solver.threads": threads})
         with pytest.raises(FirstStep):
