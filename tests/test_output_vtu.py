@@ -164,3 +164,26 @@ def test_block_by_block_is_bitwise_the_whole_array_fields(tmp_path, monkeypatch)
     with pytest.raises(output.OutputError, match="'displacement'"):
         write_particles(tmp_path / "c.vtu", pts)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.vtu"]
+
+
+def test_the_grid_round_trips_in_meshio_and_pyvista(tmp_path):
+    """``grid.vtu`` (:func:`fem_rmpm.output.write_grid`, VTK's XML writer, zlib level 1):
+    the node coordinates bitwise, the quads' node numbers, ``soil_cell`` (1 on the given
+    cells) and ``fixed`` read back by meshio and by pyvista, no temporary left behind."""
+    import pyvista as pv
+    grid, _ = api.prepare(api.load_scene(MESHES / "slope_reference.toml"))
+    active = np.arange(0, grid.n_cells, 3)
+    flag = np.zeros(grid.n_cells, np.int8)
+    flag[active] = 1
+    path = tmp_path / "grid.vtu"
+    output.write_grid(path, grid, active)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["grid.vtu"]
+    m = meshio.read(path)
+    assert _same(m.points[:, :2], grid.nodes) and not m.points[:, 2].any()
+    assert np.array_equal(m.cells_dict["quad"], grid.cells)
+    assert np.array_equal(m.cell_data["soil_cell"][0], flag)
+    assert np.array_equal(m.point_data["fixed"], grid.fixed.astype(np.int8))
+    v = pv.read(path)
+    assert v.n_cells == grid.n_cells and _same(np.asarray(v.points)[:, :2], grid.nodes)
+    assert np.array_equal(v.cell_data["soil_cell"], flag)
+    assert np.array_equal(v.point_data["fixed"], grid.fixed.astype(np.int8))
