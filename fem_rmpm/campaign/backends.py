@@ -81,8 +81,8 @@ from tornado.ioloop import PeriodicCallback
 from ..budget import estimate_run
 
 from .cases import CampaignError
-from .cluster import (_usable_cpus, campaign_threads, local_worker_count, start_client,
-                      worker_environment)
+from .cluster import _usable_cpus, local_worker_count, start_client, worker_environment
+from .task import campaign_threads
 
 __all__ = ["CLUSTER_KINDS", "ClusterError", "ClusterSpec", "Backend", "open_backend",
            "campaign_backend",

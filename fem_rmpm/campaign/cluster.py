@@ -12,8 +12,7 @@ from distributed import Client, LocalCluster
 from .cases import CampaignError
 from .task import MALLOC_THRESHOLDS
 
-__all__ = ["worker_environment", "campaign_threads", "local_worker_count", "start_local_cluster",
-           "start_client"]
+__all__ = ["worker_environment", "local_worker_count", "start_local_cluster", "start_client"]
 
 _THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 
@@ -33,12 +32,6 @@ def _usable_cpus() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover
         return os.cpu_count() or 1
-
-
-def campaign_threads(scene) -> int:
-    """Numba threads per realization in a campaign: the scene's ``[solver] threads``, 1
-    for 0 (auto: the campaign's parallelism is its worker processes)."""
-    return max(1, int(getattr(scene.solver, "threads", 0) or 1))
 
 
 def local_worker_count(workers: int | None, n_tasks: int, threads: int = 1) -> int:

@@ -20,13 +20,12 @@ from ..scene import Scene
 from .cases import CampaignError, Case, parse_case, realization_seed
 from .decide import decision_check, in_measure_sample, is_decided
 from .backends import ClusterSpec, campaign_backend
-from .cluster import campaign_threads
 from .keep_vtk import kept, parse_keep_vtk
 from .factor_of_safety import fs_statistics, plot_factor_of_safety
 from .statistics import case_statistics
 from .store import (Layout, Lock, campaign_doc, check_directory, clean_temporaries,
                     read_record, write_results)
-from .task import run_realization
+from .task import campaign_threads, run_realization
 
 __all__ = ["run_campaign", "CampaignResult", "pending_work", "thread_shortfall"]
 

@@ -18,7 +18,7 @@ from .decide import DECIDED, FailureWatch
 from .factor_of_safety import fs_measures
 from .store import FORMAT
 
-__all__ = ["run_realization", "MALLOC_THRESHOLDS"]
+__all__ = ["run_realization", "campaign_threads", "MALLOC_THRESHOLDS"]
 
 #: glibc malloc thresholds of campaign workers (see :mod:`fem_rmpm.campaign`, "Dask").
 MALLOC_THRESHOLDS = {"MALLOC_TRIM_THRESHOLD_": 2**30, "MALLOC_MMAP_THRESHOLD_": 2**25}
@@ -60,6 +60,12 @@ def _scalar_measures(m: dict) -> dict:
             if v is None or isinstance(v, (bool, int, float, np.bool_, np.integer, np.floating))}
 
 
+def campaign_threads(scene) -> int:
+    """Numba threads per realization in a campaign: the scene's ``[solver] threads``, 1
+    for 0 (auto: the campaign's parallelism is its worker processes)."""
+    return max(1, int(getattr(scene.solver, "threads", 0) or 1))
+
+
 def run_realization(task: dict) -> dict:
     """The Dask task: run realization ``task["index"]`` of ``task["case"]`` and return
     its record (a JSON-ready dict).  Never raises for a failing realization: the
@@ -73,9 +79,9 @@ def run_realization(task: dict) -> dict:
     (``seed`` None; subset simulation)."""
     _raise_malloc_thresholds()
     # one thread per realization (the campaign runs them in parallel), unless the scene asks
-    # for more ([solver] threads; any count gives bitwise the same realization)
-    numba.set_num_threads(max(1, min(int(getattr(task["scene"].solver, "threads", 0)) or 1,
-                                     numba.config.NUMBA_NUM_THREADS)))
+    # for more ([solver] threads; any count gives bitwise the same realization), at most the
+    # worker's pool (NUMBA_NUM_THREADS)
+    numba.set_num_threads(min(campaign_threads(task["scene"]), numba.config.NUMBA_NUM_THREADS))
     rec: dict[str, Any] = {
         "format": FORMAT, "case": task["case"], "index": int(task["index"]),
         "seed": None if task["seed"] is None else int(task["seed"]), "scheme": task["scene"].solver.scheme, "status": "ok",
