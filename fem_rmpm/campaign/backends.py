@@ -81,7 +81,8 @@ from tornado.ioloop import PeriodicCallback
 from ..budget import estimate_run
 
 from .cases import CampaignError
-from .cluster import _usable_cpus, local_worker_count, start_client, worker_environment
+from .cluster import (_usable_cpus, local_worker_count, local_workers_text, start_client,
+                      worker_environment)
 from .task import campaign_threads
 
 __all__ = ["CLUSTER_KINDS", "ClusterError", "ClusterSpec", "Backend", "open_backend",
@@ -265,8 +266,8 @@ class LocalBackend(_ClientBackend):
     def plan(self, n_tasks: int) -> dict:
         k = self._count(n_tasks)
         return {"kind": "local", "workers": k, "cores_per_worker": self.threads,
-                "description": f"{k} local worker process{'es' if k > 1 else ''} of "
-                               f"{self.threads} thread(s) ({_usable_cpus()} usable CPUs)"}
+                "description": f"{local_workers_text(k, self.threads)} "
+                               f"({_usable_cpus()} usable CPUs)"}
 
 
 class SchedulerBackend(_ClientBackend):

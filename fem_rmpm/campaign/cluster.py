@@ -12,7 +12,8 @@ from distributed import Client, LocalCluster
 from .cases import CampaignError
 from .task import MALLOC_THRESHOLDS
 
-__all__ = ["worker_environment", "local_worker_count", "start_local_cluster", "start_client"]
+__all__ = ["worker_environment", "local_worker_count", "local_workers_text",
+           "start_local_cluster", "start_client"]
 
 _THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 
@@ -56,20 +57,26 @@ def start_client(workers: int | None, scheduler: str | None, n_tasks: int, threa
         return client, None, f"the Dask cluster at {scheduler} ({n} workers now)"
     k = local_worker_count(workers, n_tasks, threads)
     client, cluster = start_local_cluster(k, threads)
+    return client, cluster, local_workers_text(k, threads)
+
+
+def local_workers_text(workers: int, threads: int) -> str:
+    """"2 local worker processes", "1 local worker process of 2 threads": for the campaign's
+    messages and ``summary.json``."""
     each = f" of {threads} threads" if threads > 1 else ""
-    return client, cluster, f"{k} local worker process{'es' if k > 1 else ''}{each}"
+    return f"{workers} local worker process{'es' if workers > 1 else ''}{each}"
 
 
 def start_local_cluster(workers: int, threads: int = 1):
     """``(client, cluster)``: a LocalCluster of ``workers`` processes (one Dask thread each,
     ``threads`` numba threads) with :func:`worker_environment` set before they start
     (close both when done)."""
-    env = {f"distributed.nanny.pre-spawn-environ.{key}": val
-           for key, val in worker_environment(threads).items()}
+    wenv = worker_environment(threads)
+    env = {f"distributed.nanny.pre-spawn-environ.{key}": val for key, val in wenv.items()}
     # the nannies set these in *this* process's environment before spawning; put ours
     # back after (else a later numba compile here reads NUMBA_NUM_THREADS=1 and refuses
     # to run once numba's thread pool has started with more threads)
-    saved = {key: os.environ.get(key) for key in worker_environment(threads)}
+    saved = {key: os.environ.get(key) for key in wenv}
     with dask.config.set(env):
         # ":0": the scheduler's HTTP server (and the dashboard, if bokeh is installed) on a
         # free port; None would still bind 8787 and warn when another cluster holds it
