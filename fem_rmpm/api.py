@@ -197,15 +197,16 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
 MECHANISM_TIME = 3.0
 
 
-#: Time numba takes to compile the explicit kernels on a cold cache (s), announced before
-#: the first run, measured from a fresh venv (``pip install .``, no numba cache, load ~1):
 #: Announced compile time (s) of the first explicit run on one thread, and the extra of the
 #: threaded kernels (``threads`` >= 2, the default of a single run on an idle multi-core
 #: machine).  Measured from a fresh ``pip install .`` (5 steps of case (i)): on the 2-core
 #: AMD EPYC (Zen 3) VM (session 10) 58.4 s on one thread, 100.8 s for a first run on two
 #: threads; on the Emerald Rapids VM (session 9) 47.1 s and 16.5 s more; on the model 167
-#: Intel VM (session 8) 25.0 s and 9.0 s more.  Warm (cache filled), process start to the
-#: first step done: 2.6-3.1 s (Zen 3), 1.15-1.45 s (Emerald Rapids).  More on a loaded machine.
+#: Intel VM (session 8) 25.0 s and 9.0 s more; there (session 20, empty numba cache, the
+#: block kernels compiled once for all model restrictions) 28.1 s to the first step on one
+#: thread and 33.0 s on two, against 33.3 s and 38.3 s before.  Warm (cache filled),
+#: process start to the first step done: 2.6-3.1 s (Zen 3), 1.15-1.45 s (Emerald Rapids).
+#: More on a loaded machine.
 COMPILE_SECONDS = 60.0
 COMPILE_SECONDS_THREADED = 40.0
 #: ... and of the serial (index 0) or threaded (1) drivers alone, when the other drivers ran

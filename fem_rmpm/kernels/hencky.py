@@ -55,7 +55,7 @@ from __future__ import annotations
 import math
 from fractions import Fraction
 
-from .common import inline
+from .common import inline, kernel
 
 __all__ = ["Y2_MAX", "Z_MAX", "exp_block", "log_block", "exp_parts", "log_parts",
            "cosh_series", "sinhc_series", "atanhc_series"]
@@ -130,7 +130,7 @@ def log_parts(J, z):
     return lj, math.atanh(x) / x
 
 
-@inline
+@kernel
 def exp_block(ls, tb, tc, b, e):
     """Points ``b:e`` (uint64) into the block scratch (entry ``i - b``): ``tb, tc = cosh(y),
     sinh(y)/y`` of the log strains ``ls`` (n, 4).  Two vectorised loops (``y^2`` from the
@@ -154,7 +154,7 @@ def exp_block(ls, tb, tc, b, e):
                 tb[j], tc[j] = exp_parts(ls[i, 0], ls[i, 1], ls[i, 3])
 
 
-@inline
+@kernel
 def log_block(W, ta, tb, tc, n):
     """The first ``n`` columns of the block scratch: from ``ta, tb, tc`` = J, mu, s^2 of B_tr
     (contiguous: one vectorised loop, its division by ``mu`` too) ``ta = ln(J)`` and

@@ -174,7 +174,7 @@ def inactive_row(j, W, ta, tb, tc):
     tc[j] = 0.0
 
 
-@inline
+@kernel
 def kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e):
     """Points ``b:e`` (uint64; column ``i - b`` of the block scratch ``W`` (8, >= BLOCK)
     and of ``ta, tb, tc``): velocity gradient from the nodal velocities ``vn`` (nn, 2) at
@@ -307,7 +307,7 @@ def fbar_gradient_pass(P, M, N, S, o):
         cvj[c] += vol[i] * j
 
 
-@inline
+@kernel
 def fbar_apply_points(P, S, o, W, ta, tb, tc, b, e):
     """F-bar pass 2 over points ``b:e`` (uint64; block scratch rows as
     :func:`kinematics_points`): the cell mean replaces each point's volume change.  Finite
