@@ -6,7 +6,7 @@ import math
 import numpy as np
 
 from .arrays import Mesh
-from .common import inline, jit
+from .common import inline, jit, kernel
 
 __all__ = ["q4", "q4_cell", "q4_at", "gimp", "q4_shape", "gimp_shape"]
 
@@ -56,7 +56,13 @@ def q4(x0, x1, M):
     return q4_at(ll, s, t, M)
 
 
-@inline
+# Compiled once and called, not inlined: :func:`gimp` calls it six times and is inlined
+# into the map to nodes, the map back, the kinematics and F-bar's gradient pass; numba's
+# inliner repeats its pipeline and copies the IR at every inline site, which took ~9 s
+# of the first run's compile (cold, numba 0.68: the serial driver 28.3 -> 19.6 s).  It
+# computes from its arguments alone, so the results are bitwise those inlined (LLVM
+# still inlines it: uGIMP on case (i), 5 interleaved one-thread pairs, 0.96-1.02x).
+@kernel
 def _gimp_1d(d, h, lp):
     """uGIMP weight and derivative (Bardenhagen & Kober 2004), as shape._gimp_1d."""
     a = abs(d)

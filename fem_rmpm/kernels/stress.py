@@ -19,14 +19,14 @@ four loops; before, 1 and 3 were numpy ufunc passes over all points between thre
 kernels (the ufuncs alone ~5 ns per point-step on one thread, and serial).  The pass is
 compiled once per registry version and model restriction (:func:`material_kernels`) and
 cached on disk by numba; only step 4 differs between those compiles.  Steps 1-3 are
-kernels of their own, compiled once for all of them: numba's inliner (``inline="always"``)
-runs the callee's untyped pipeline again and deep-copies its IR at every inline site, at a
-cost of about blocks x variables, so inlined they made every model restriction's first
-compile 14-22 s (von Mises alone: 19.2 s); called, it is 2-5 s, after 5.6 s once for the
-four block kernels (measured cold, numba 0.68).  They exchange data with step 4 through
-the block scratch only, so a run is bitwise the one with them inlined (case (i): run-out
-63.72968029438788 m in 11 724 steps either way) and as fast (case (i), one thread, 5
-interleaved pairs: 0.97-1.01x the time).
+kernels of their own, called once per block and compiled once for all of them: numba's
+inliner (``inline="always"``) runs the callee's untyped pipeline again and deep-copies
+its IR at every inline site, at a cost of about blocks x variables, so inlined they made
+every model restriction's first compile 14-22 s (von Mises alone: 19.2 s); called, it
+is 2-5 s, after 5.6 s once for the four block kernels (measured cold, numba 0.68).  They
+exchange data with step 4 through the block scratch only, so a run is bitwise the one
+with them inlined (case (i): run-out 63.72968029438788 m in 11 724 steps either way) and
+as fast (case (i), one thread, 5 interleaved pairs: 0.97-1.01x the time).
 """
 from __future__ import annotations
 
