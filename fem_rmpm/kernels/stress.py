@@ -201,8 +201,9 @@ def _stress_points(version, only, P, M, vn, S, o, start, stop, row):
     ``row`` of ``S`` (one per thread: the same BLOCK rows for every block, so they stay in
     L1 and are never written back); returns the largest squared P-wave speed and the
     number of points with a non-finite stress.  (The four scratch arrays are passed one by
-    one: as one tuple through the inlined functions, numba 0.68 lost the kinematics' writes
-    to them when two of those functions sat in the branches of an ``if``.)"""
+    one: as one tuple, when the kinematics and F-bar functions were still inlined here,
+    numba 0.68 lost the kinematics' writes to them when the two sat in the branches of an
+    ``if``; they are called kernels now, see the module docstring.)"""
     W, ta, tb, tc = S.W[row], S.ta[row], S.tb[row], S.tc[row]
     c2max = 0.0
     n_bad = 0
