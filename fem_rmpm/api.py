@@ -199,21 +199,22 @@ MECHANISM_TIME = 3.0
 
 #: Announced compile time (s) of the first explicit run on one thread, and the extra of the
 #: threaded kernels (``threads`` >= 2, the default of a single run on an idle multi-core
-#: machine).  Measured from a fresh ``pip install .`` (5 steps of case (i)): on the 2-core
-#: AMD EPYC (Zen 3) VM (session 10) 58.4 s on one thread, 100.8 s for a first run on two
-#: threads; on the Emerald Rapids VM (session 9) 47.1 s and 16.5 s more; on the model 167
-#: Intel VM (session 8) 25.0 s and 9.0 s more; there (session 20, empty numba cache, the
-#: block kernels compiled once for all model restrictions) 28.1 s to the first step on one
-#: thread and 33.0 s on two, against 33.3 s and 38.3 s before.  Warm (cache filled),
-#: process start to the first step done: 2.6-3.1 s (Zen 3), 1.15-1.45 s (Emerald Rapids).
-#: More on a loaded machine.
-COMPILE_SECONDS = 60.0
-COMPILE_SECONDS_THREADED = 40.0
+#: machine), as (fastest, slowest) of the machines measured, to the first step done from a
+#: fresh install or an empty numba cache.  Slowest: the 2-core AMD EPYC (Zen 3) VM
+#: (session 10) 58.4 s on one thread, 100.8 s for a first run on two threads; the Emerald
+#: Rapids VM (session 9) 47.1 s and 16.5 s more.  Fastest: the model 167 Intel VM, 25.0 s
+#: and 9.0 s more (session 8); there, with the block kernels compiled once for all model
+#: restrictions, 28.1 s on one thread and 33.0 s on two (session 20, fresh venv), 18.1 s
+#: and 9.9 s more (session 21, empty ``NUMBA_CACHE_DIR``).  Warm (cache filled), process
+#: start to the first step done: 2.6-3.1 s (Zen 3), 1.15-1.45 s (Emerald Rapids), 0.96 s
+#: (model 167, session 21).  More on a loaded machine.
+COMPILE_SECONDS = (20.0, 60.0)
+COMPILE_SECONDS_THREADED = (10.0, 40.0)
 #: ... and of the serial (index 0) or threaded (1) drivers alone, when the other drivers ran
 #: before (the per-half functions they share are cached): ~6 s measured for the serial ones
 #: after a two-thread run (Zen 3 VM), 16.5 s for the threaded ones after a one-thread run
-#: (Emerald Rapids VM).
-COMPILE_SECONDS_DRIVERS = (10.0, 30.0)
+#: (Emerald Rapids VM), 9.9 s (model 167 VM, session 21).
+COMPILE_SECONDS_DRIVERS = ((5.0, 10.0), (10.0, 30.0))
 
 
 #: Explicit kernels every numba run calls, on one thread and on two or more (others, e.g.
@@ -267,12 +268,13 @@ def compile_notice(scene: Scene) -> str | None:
     if not kernels_cold(threads):
         return None
     if not kernels_cold(2 if threads <= 1 else 1):   # the other drivers' shared parts are cached
-        seconds = COMPILE_SECONDS_DRIVERS[threads > 1]
+        lo, hi = COMPILE_SECONDS_DRIVERS[threads > 1]
     else:
-        seconds = COMPILE_SECONDS + (COMPILE_SECONDS_THREADED if threads > 1 else 0.0)
+        extra = COMPILE_SECONDS_THREADED if threads > 1 else (0.0, 0.0)
+        lo, hi = COMPILE_SECONDS[0] + extra[0], COMPILE_SECONDS[1] + extra[1]
     where = "" if threads <= 1 else f" for {threads} threads"
-    return (f"compiling kernels{where} (first run only, about {seconds:.0f} s; cached on disk "
-            "after)")
+    return (f"compiling kernels{where} (first run only, {lo:.0f}-{hi:.0f} s by the machine; "
+            "cached on disk after)")
 
 
 def _summary(scene, seed, pts, rec, measures) -> dict:
