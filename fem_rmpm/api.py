@@ -208,7 +208,7 @@ MECHANISM_TIME = 3.0
 #: and 9.9 s more (session 21, empty ``NUMBA_CACHE_DIR``).  Warm (cache filled), process
 #: start to the first step done: 2.6-3.1 s (Zen 3), 1.15-1.45 s (Emerald Rapids), 0.96 s
 #: (model 167, session 21).  More on a loaded machine.
-COMPILE_SECONDS = (20.0, 60.0)
+COMPILE_SECONDS = (15.0, 60.0)
 COMPILE_SECONDS_THREADED = (10.0, 40.0)
 #: ... and of the serial (index 0) or threaded (1) drivers alone, when the other drivers ran
 #: before (the per-half functions they share are cached): ~6 s measured for the serial ones
