@@ -31,7 +31,8 @@ __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Works
 
 Mesh = namedtuple("Mesh", "o0 o1 h0 h1 ih0 ih1 nx ny lo hi fixed")
 Mesh.__doc__ = """Structured grid: origin (m), cell size h and 1/h, cells nx x ny, the grid
-rectangle ``lo``, ``hi`` (2,) (m) and the fixed node components ``fixed`` (nn, 2) bool."""
+rectangle ``lo``, ``hi`` (2,) (m) and the fixed node components ``fixed`` (2 nn,) bool,
+interleaved as the nodal vectors of :class:`NodeArrays`."""
 
 PointArrays = namedtuple("PointArrays", "x v mass vol vol0 stress active half_width "
                                         "log_strain state u_geo model params")
@@ -46,9 +47,13 @@ NodeArrays = namedtuple("NodeArrays",
 NodeArrays.__doc__ = """The nodal arrays of one half of the points (:mod:`.transfer`): mass
 (nn,), momentum, internal force (gravity is added in the solve), end-of-step velocity and
 acceleration, the MUSL re-mapped momentum ``v_remap`` and the velocity from it ``v_musl``
-(nn, 2); ``flag`` (nn,) uint8 touched by the half this step, ``touched[:n_touched[0]]``
-(uint64) those nodes; ``half``: the same arrays of the second half of the points (in the
-first half's group; None in the second's)."""
+(2 nn,): x and y of node ``a`` at ``2 a`` and ``2 a + 1`` (:func:`.common.xy`; the same
+memory as C-ordered (nn, 2)); ``flag`` (nn,) uint8 touched by the half this step,
+``touched[:n_touched[0]]`` (uint64) those nodes; ``half``: the same arrays of the second
+half of the points (in the first half's group; None in the second's).  Flat, not (nn, 2):
+numba addresses ``v[a, k]`` of a C-ordered 2-D array as ``(a * shape[1] + k) * 8`` with
+``shape[1]`` read at run time, an integer multiply per node and array that ``v[2 a + k]``
+does without (case (i), one thread, measured when this was changed)."""
 
 Scratch = namedtuple("Scratch",
                      "x_old W ta tb tc host D cell_v cell_vdj out parts halves q4_ll q4_st queue")
@@ -103,7 +108,7 @@ def mesh_of(grid) -> Mesh:
     (o0, o1), (h0, h1), (nx, ny) = grid.origin, grid.cell, grid.shape
     return Mesh(float(o0), float(o1), float(h0), float(h1), 1.0 / h0, 1.0 / h1, int(nx),
                 int(ny), np.asarray(grid.origin, float), np.asarray(grid.upper, float),
-                grid.fixed)
+                np.ascontiguousarray(grid.fixed).reshape(-1))
 
 
 def point_arrays(pts, fallback_half_width: np.ndarray) -> PointArrays:
@@ -174,8 +179,8 @@ class Workspace:
 
 def node_arrays(nn: int, half: NodeArrays | None = None) -> NodeArrays:
     """The :class:`NodeArrays` of one half of the points on ``nn`` nodes (zeros)."""
-    return NodeArrays(np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((nn, 2)),
-                      np.zeros((nn, 2)), np.zeros((nn, 2)), np.zeros((nn, 2)),
+    return NodeArrays(np.zeros(nn), np.zeros(2 * nn), np.zeros(2 * nn), np.zeros(2 * nn),
+                      np.zeros(2 * nn), np.zeros(2 * nn), np.zeros(2 * nn),
                       np.zeros(nn, np.uint8), np.zeros(nn, np.uint64), np.zeros(1, np.int64),
                       half)
 

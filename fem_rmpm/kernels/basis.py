@@ -114,7 +114,7 @@ def gimp(x0, x1, lp0, lp1, M):
 
 def _mesh(org, h, nx, ny) -> Mesh:
     return Mesh(float(org[0]), float(org[1]), float(h[0]), float(h[1]), 1.0 / h[0], 1.0 / h[1],
-                int(nx), int(ny), np.zeros(2), np.zeros(2), np.zeros((1, 2), np.bool_))
+                int(nx), int(ny), np.zeros(2), np.zeros(2), np.zeros(2, np.bool_))
 
 
 @jit

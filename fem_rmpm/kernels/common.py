@@ -1,6 +1,7 @@
 """numba decorators and constants shared by the kernel modules."""
 from __future__ import annotations
 
+import numpy as np
 from numba import njit, types
 from numba.extending import intrinsic
 
@@ -62,6 +63,14 @@ BLOCK = 128
 # The stress pass's two work queues (one per half of the points): counters at elements 0
 # and QUEUE_STRIDE of an int64 array, so that each sits on a cache line of its own.
 QUEUE_STRIDE = 8
+
+
+@inline
+def xy(a):
+    """Indices of the x and y components of node ``a`` (uint64) in a nodal vector array,
+    stored interleaved as (2 nn,) (:class:`.arrays.NodeArrays`): ``2 a``, ``2 a + 1``."""
+    i = a + a
+    return i, i + np.uint64(1)
 
 
 @inline

@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from .basis import gimp, q4
-from .common import BLOCK, half_split, inline, kernel
+from .common import BLOCK, half_split, inline, kernel, xy
 from .hencky import exp_block, log_block
 
 __all__ = ["kinematics_points", "fbar_gradient_pass", "fbar_apply_points", "log_args",
@@ -96,11 +96,11 @@ def _velocity_gradient(sh, vn):
     L10 = 0.0
     L11 = 0.0
     for k in range(len(nodes)):
-        a = nodes[k]
-        L00 += vn[a, 0] * dx[k]
-        L01 += vn[a, 0] * dy[k]
-        L10 += vn[a, 1] * dx[k]
-        L11 += vn[a, 1] * dy[k]
+        ax, ay = xy(nodes[k])
+        L00 += vn[ax] * dx[k]
+        L01 += vn[ax] * dy[k]
+        L10 += vn[ay] * dx[k]
+        L11 += vn[ay] * dy[k]
     return L00, L01, L10, L11
 
 
@@ -119,10 +119,14 @@ def _q4_velocity_gradient(ll, s, t, M, vn):
     fs = 1.0 - s
     ft = 1.0 - t
     ih0, ih1 = M.ih0, M.ih1
-    L00 = ih0 * (ft * (vn[b, 0] - vn[a, 0]) + t * (vn[c, 0] - vn[d, 0]))
-    L10 = ih0 * (ft * (vn[b, 1] - vn[a, 1]) + t * (vn[c, 1] - vn[d, 1]))
-    L01 = ih1 * (fs * (vn[d, 0] - vn[a, 0]) + s * (vn[c, 0] - vn[b, 0]))
-    L11 = ih1 * (fs * (vn[d, 1] - vn[a, 1]) + s * (vn[c, 1] - vn[b, 1]))
+    a0, a1 = xy(a)
+    b0, b1 = xy(b)
+    c0, c1 = xy(c)
+    d0, d1 = xy(d)
+    L00 = ih0 * (ft * (vn[b0] - vn[a0]) + t * (vn[c0] - vn[d0]))
+    L10 = ih0 * (ft * (vn[b1] - vn[a1]) + t * (vn[c1] - vn[d1]))
+    L01 = ih1 * (fs * (vn[d0] - vn[a0]) + s * (vn[c0] - vn[b0]))
+    L11 = ih1 * (fs * (vn[d1] - vn[a1]) + s * (vn[c1] - vn[b1]))
     return L00, L01, L10, L11
 
 

@@ -36,7 +36,7 @@ from numba import prange
 
 from .arrays import NodeArrays
 from .basis import gimp, q4_at, q4_cell
-from .common import MASS_TOL, half_split, inline, kernel, kernel_exact, kernel_parallel
+from .common import MASS_TOL, half_split, inline, kernel, kernel_exact, kernel_parallel, xy
 
 __all__ = ["map_to_nodes", "map_to_nodes_parallel", "solve_and_move", "solve_and_move_parallel",
            "nodal_velocity", "nodal_velocities", "nodal_velocities_parallel", "half_range"]
@@ -68,10 +68,11 @@ def _clear(N):
     for k in range(N.n_touched[0]):
         a = N.touched[k]
         N.m[a] = 0.0
-        N.p[a, 0] = 0.0
-        N.p[a, 1] = 0.0
-        N.f[a, 0] = 0.0
-        N.f[a, 1] = 0.0
+        ax, ay = xy(a)
+        N.p[ax] = 0.0
+        N.p[ay] = 0.0
+        N.f[ax] = 0.0
+        N.f[ay] = 0.0
         N.flag[a] = 0
 
 
@@ -94,10 +95,11 @@ def _scatter(sh, i, P, N, nt):
             nt += 1
         wk = w[k]
         m[a] += wk * mp
-        p[a, 0] += wk * mv0
-        p[a, 1] += wk * mv1
-        f[a, 0] -= sx * dx[k] + sxy * dy[k]
-        f[a, 1] -= sxy * dx[k] + sy * dy[k]
+        ax, ay = xy(a)
+        p[ax] += wk * mv0
+        p[ay] += wk * mv1
+        f[ax] -= sx * dx[k] + sxy * dy[k]
+        f[ay] -= sxy * dx[k] + sy * dy[k]
     return nt
 
 
@@ -172,29 +174,31 @@ def _solve_nodes(M, T, H, o, c):
     ke = 0.0
     for k in range(A.n_touched[0]):
         a = A.touched[k]
+        ax, ay = xy(a)
         shared = other[a] != 0
         if shared:                   # both halves: first + second
             m = T.m[a] + H.m[a]
-            p0, p1 = T.p[a, 0] + H.p[a, 0], T.p[a, 1] + H.p[a, 1]
-            f0, f1 = T.f[a, 0] + H.f[a, 0], T.f[a, 1] + H.f[a, 1]
+            p0, p1 = T.p[ax] + H.p[ax], T.p[ay] + H.p[ay]
+            f0, f1 = T.f[ax] + H.f[ax], T.f[ay] + H.f[ay]
         else:
-            m, p0, p1, f0, f1 = A.m[a], A.p[a, 0], A.p[a, 1], A.f[a, 0], A.f[a, 1]
+            m, p0, p1, f0, f1 = A.m[a], A.p[ax], A.p[ay], A.f[ax], A.f[ay]
         has = m > MASS_TOL
         inv_m = 1.0 / m if has else 0.0
         for d in range(2):
+            ad = ax if d == 0 else ay
             vo = (p0 if d == 0 else p1) * inv_m
             fc = (f0 if d == 0 else f1) + m * (gx if d == 0 else gy)     # + gravity, m_I g
             if damping > 0:
                 sg = 1.0 if vo > 0 else (-1.0 if vo < 0 else 0.0)
                 fc = fc - damping * abs(fc) * sg
-            if fixed[a, d]:
+            if fixed[ad]:
                 fc = 0.0
                 vo = 0.0
             ac = fc * inv_m
-            acc[a, d] = ac
-            v_new[a, d] = vo + ac * dt
+            acc[ad] = ac
+            v_new[ad] = vo + ac * dt
         if c == 0 or not shared:
-            ke += m * (v_new[a, 0] * v_new[a, 0] + v_new[a, 1] * v_new[a, 1])
+            ke += m * (v_new[ax] * v_new[ax] + v_new[ay] * v_new[ay])
     return ke
 
 
@@ -208,11 +212,11 @@ def _g2p_point(sh, i, P, N, v_remap, S, o):
     ap0 = 0.0
     ap1 = 0.0
     for k in range(len(nodes)):
-        a = nodes[k]
-        vp0 += w[k] * v_new[a, 0]
-        vp1 += w[k] * v_new[a, 1]
-        ap0 += w[k] * acc[a, 0]
-        ap1 += w[k] * acc[a, 1]
+        ax, ay = xy(nodes[k])
+        vp0 += w[k] * v_new[ax]
+        vp1 += w[k] * v_new[ay]
+        ap0 += w[k] * acc[ax]
+        ap1 += w[k] * acc[ay]
     v0 = flip * (v[i, 0] + dt * ap0) + (1.0 - flip) * vp0
     v1 = flip * (v[i, 1] + dt * ap1) + (1.0 - flip) * vp1
     v[i, 0] = v0
@@ -232,9 +236,9 @@ def _g2p_point(sh, i, P, N, v_remap, S, o):
     mv0 = mp * v0
     mv1 = mp * v1
     for k in range(len(nodes)):
-        a = nodes[k]
-        p2[a, 0] += w[k] * mv0
-        p2[a, 1] += w[k] * mv1
+        ax, ay = xy(nodes[k])
+        p2[ax] += w[k] * mv0
+        p2[ay] += w[k] * mv1
     return vp0 * vp0 + vp1 * vp1
 
 
@@ -280,9 +284,9 @@ def _g2p_points(P, M, A, S, o, start, stop, row):
 @inline
 def _clear_remap(N):
     for k in range(N.n_touched[0]):
-        a = N.touched[k]
-        N.v_remap[a, 0] = 0.0
-        N.v_remap[a, 1] = 0.0
+        ax, ay = xy(N.touched[k])
+        N.v_remap[ax] = 0.0
+        N.v_remap[ay] = 0.0
 
 
 @inline
@@ -359,15 +363,16 @@ def nodal_velocity(M, T, H, c):
     fixed, out = M.fixed, A.v_musl
     for k in range(A.n_touched[0]):
         a = A.touched[k]
+        ax, ay = xy(a)
         if other[a]:
             m = T.m[a] + H.m[a]
-            q0 = T.v_remap[a, 0] + H.v_remap[a, 0]
-            q1 = T.v_remap[a, 1] + H.v_remap[a, 1]
+            q0 = T.v_remap[ax] + H.v_remap[ax]
+            q1 = T.v_remap[ay] + H.v_remap[ay]
         else:
-            m, q0, q1 = A.m[a], A.v_remap[a, 0], A.v_remap[a, 1]
+            m, q0, q1 = A.m[a], A.v_remap[ax], A.v_remap[ay]
         ma = m if m > MASS_TOL else 1.0
-        out[a, 0] = 0.0 if fixed[a, 0] else q0 / ma
-        out[a, 1] = 0.0 if fixed[a, 1] else q1 / ma
+        out[ax] = 0.0 if fixed[ax] else q0 / ma
+        out[ay] = 0.0 if fixed[ay] else q1 / ma
 
 
 @kernel
