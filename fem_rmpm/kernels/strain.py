@@ -181,7 +181,7 @@ def inactive_row(j, W, ta, tb, tc):
 @kernel
 def kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e):
     """Points ``b:e`` (uint64; column ``i - b`` of the block scratch ``W`` (8, >= BLOCK)
-    and of ``ta, tb, tc``): velocity gradient from the nodal velocities ``vn`` (nn, 2) at
+    and of ``ta, tb, tc``): velocity gradient from the nodal velocities ``vn`` (2 nn,) at
     the positions before the move, per point (:func:`_gather_points`: the gathers from the
     nodes, with the point's strain and volume, into the rows of ``W``); then, over those
     contiguous rows without a branch (LLVM vectorises the loops, AVX2: four points at a

@@ -197,7 +197,7 @@ def _combine(S, nch):
 @inline
 def _stress_points(version, only, P, M, vn, S, o, start, stop, row):
     """The stress pass over points ``start:stop`` (whole blocks from a multiple of
-    :data:`.common.BLOCK`) with the nodal velocities ``vn`` (nn, 2) and the block scratch
+    :data:`.common.BLOCK`) with the nodal velocities ``vn`` (2 nn,) and the block scratch
     ``row`` of ``S`` (one per thread: the same BLOCK rows for every block, so they stay in
     L1 and are never written back); returns the largest squared P-wave speed and the
     number of points with a non-finite stress.  (The four scratch arrays are passed one by
