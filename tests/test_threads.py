@@ -18,7 +18,9 @@ import pytest
 
 from fem_rmpm.explicit import Workspace, explicit_step, stable_time_step
 from fem_rmpm.grid import make_grid
+from fem_rmpm.kernels import half_split
 from fem_rmpm.particles import seed_particles
+from fem_rmpm.point_order import permute_points
 from fem_rmpm.scene import load_scene, with_values
 
 FIELDS = ("x", "velocity", "stress", "log_strain", "state", "volume", "u_geostatic")
@@ -51,5 +53,40 @@ def test_two_threads_bitwise_equal_one_thread(meshes, shape, fbar, threads):
     finally:
         numba.set_num_threads(before)
     assert (a.plastic_shear_strain > 0).sum() > 100
+    for f in FIELDS:
+        assert np.array_equal(getattr(a, f), getattr(b, f)), f
+
+
+def test_stolen_stress_blocks_bitwise_equal_one_thread(meshes):
+    """The threaded stress pass with two workers: a worker done with its own half takes
+    blocks from the other half's queue once that half's nodal velocities are published
+    (:func:`fem_rmpm.kernels.stress._stress_queue_call`).  Here the first half of the points
+    is switched off, so the first worker has next to nothing to do and takes blocks of the
+    second half on nearly every step; a stolen block computed with the wrong nodal
+    velocities, or before they were complete, would show as a difference.  The points are
+    put in reverse order first, so that the switched-off half is the top of the layer and the
+    rest stands on the fixed base and yields (with two numba threads, the first worker took
+    57 of the second half's 18 x 12 blocks, counted once with a probe in the pass)."""
+    scene = with_values(load_scene(meshes / "slope_elastic.toml"), {
+        "grid.cell": [0.5, 0.5], "soil.model": "von_mises_softening",
+        "soil.cohesion_peak": 3.0, "soil.cohesion_residual": 1.0, "soil.softening_strain": 0.05})
+    grid = make_grid(scene)
+    a = seed_particles(scene, grid)
+    permute_points(a, np.arange(a.n)[::-1].copy())
+    a.active[:half_split(a.n)] = False
+    b = a.copy()
+    wa, wb = Workspace.for_grid(grid, a.n), Workspace.for_grid(grid, b.n)
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    try:
+        g = np.array(scene.gravity_vector) * 20.0
+        for k in range(12):
+            dt = stable_time_step(a, grid.cell, 0.5)
+            for pts, w, threads in ((a, wa, 1), (b, wb, 2)):
+                explicit_step(grid, pts, dt, g, 0.7, 1.0, "standard", k < 3, "numba", w, False,
+                              threads=threads)
+    finally:
+        numba.set_num_threads(before)
+    assert (a.plastic_shear_strain > 0).sum() > 1000
     for f in FIELDS:
         assert np.array_equal(getattr(a, f), getattr(b, f)), f

@@ -61,7 +61,8 @@ kernel_parallel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="n
 # so that blocks, halves and every point's code do not depend on the thread count.
 BLOCK = 128
 # The stress pass's two work queues (one per half of the points): counters at elements 0
-# and QUEUE_STRIDE of an int64 array, so that each sits on a cache line of its own.
+# and QUEUE_STRIDE of an int64 array, so that each sits on a cache line of its own (with
+# its half's nodal-velocity flag next to it, at 1 and QUEUE_STRIDE + 1).
 QUEUE_STRIDE = 8
 
 
@@ -101,4 +102,18 @@ def take_ticket(typingctx, counter):
         ary = context.make_array(signature.args[0])(context, builder, args[0])
         one = context.get_constant(types.int64, 1)
         return builder.atomic_rmw("add", ary.data, one, "seq_cst")
+    return sig, codegen
+
+
+@intrinsic
+def read_flag(typingctx, counter):
+    """``counter[0]`` read as one atomic (sequentially consistent) load: a flag another
+    thread set with :func:`take_ticket`, and everything that thread wrote before it."""
+    if not (isinstance(counter, types.Array) and counter.dtype == types.int64):
+        return None
+    sig = types.int64(counter)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        return builder.load_atomic(ary.data, "seq_cst", 8)
     return sig, codegen

@@ -39,7 +39,7 @@ from ..materials import registry
 from ..materials.dispatch import point_dispatch
 from .arrays import top_of
 from .common import (BLOCK, QUEUE_STRIDE, half_split, inline, jit, kernel, kernel_parallel,
-                     take_ticket)
+                     read_flag, take_ticket)
 from .hencky import exp_block, log_block
 from .transfer import nodal_velocities, nodal_velocities_parallel, nodal_velocity_half
 from .transfer import _top as top
@@ -114,42 +114,52 @@ def workers(o, S):
 @inline
 def nodal_in_pass(o, S):
     """Whether the threaded stress pass computes the nodal velocities itself: each of
-    exactly two workers those of its own half, then its half's blocks (no other worker
-    reads them, so the threaded loop needs no region of its own for them; F-bar's gradient
-    pass needs all of them before the pass)."""
+    exactly two workers those of its own half, publishes them (a flag, read by the other
+    worker before it takes any block of that half), then its half's blocks; so the threaded
+    loop needs no region of its own for them (F-bar's gradient pass needs all of them
+    before the pass)."""
     return workers(o, S) == 2 and not o.fbar
 
 
 @inline
 def _reset_queues(S):
-    """Both work queues of the stress pass back to their first block."""
+    """Both work queues of the stress pass back to their first block, both halves' nodal
+    velocities unpublished (:func:`nodal_in_pass`)."""
     S.queue[0] = 0
+    S.queue[1] = 0
     S.queue[QUEUE_STRIDE] = 0
+    S.queue[QUEUE_STRIDE + 1] = 0
 
 
 @kernel
 def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     """Worker ``c`` of the stress pass: takes the next block of :data:`.common.BLOCK`
     points from the queue of its own half of the points (half ``c % 2``, the half its
-    thread mapped and moved: those points are in its core's cache), then — with more than
-    two workers — from the other half's queue until none is left (``S.queue[0]`` and
-    ``[QUEUE_STRIDE]``, :func:`.common.take_ticket`), each block with the nodal velocities
-    of its half, the scratch row ``c``; its statistics into ``S.parts[c]``; first, where
-    :func:`nodal_in_pass`, the nodal velocities of its half.  With exactly
-    two workers each takes its own half only, as its thread mapped and moved it: a block
-    the other thread took must cross between the cores twice per step (its stress and
-    volume to the other core, then back for the next map), and on the 2-core VM the two
-    vCPUs sat on cores with a ~60 ns and, every other second or so, a ~350-700 ns
-    core-to-core round trip (measured with a ping-pong between two pinned threads); there
-    the map to nodes of the stolen points doubled (10.5 -> 22 ns per point) and two
-    threads on case (i) ran at 42.5-59.1 ns per point-step (median 56.3, 6 runs) with
-    the blocks shared against 46.7-59.9 (median 51.3) with the halves kept, interleaved
-    with one thread at 73.3-87.8 (median 81.4).  The halves cost about the same (one
-    thread, case (i): 265 / 280 us at t = 15 s, 332 / 293 us at t = 8 s; the queues were
-    made when the plastic points of one half cost ~30 % more).  Which worker takes
-    a block changes nothing in it: every block is computed by this one compiled function,
-    maxima and counts combine exactly, so any thread count and any interleaving give
-    bitwise the same result.  ``version`` and
+    thread mapped and moved: those points are in its core's cache), then from the other
+    half's queue until none is left (``S.queue[0]`` and ``[QUEUE_STRIDE]``,
+    :func:`.common.take_ticket`), each block with the nodal velocities of its half, the
+    scratch row ``c``; its statistics into ``S.parts[c]``.  Where :func:`nodal_in_pass`
+    (two workers), first the nodal velocities of its own half, then their flag
+    (``S.queue[QUEUE_STRIDE c + 1]``, an atomic add); it takes blocks of the other half
+    only once that half's flag is set (:func:`.common.read_flag`), else it stops (it never
+    waits: a numba pool of one thread runs the workers one after the other).
+    Why its own half first: a block the other thread took crosses between the cores twice
+    per step (its stress and volume to the other core, then back for the next map), and
+    on the 2-core VM the two vCPUs sat on cores with a ~60 ns and, every other second or
+    so, a ~350-700 ns core-to-core round trip (measured with a ping-pong between two
+    pinned threads); with the blocks dealt out from one shared queue the map to nodes of
+    the other thread's points doubled (10.5 -> 22 ns per point), and two threads on case
+    (i) ran at 42.5-59.1 ns per point-step (median 56.3, 6 runs) against 46.7-59.9
+    (median 51.3) with the halves kept, interleaved with one thread at 73.3-87.8 (median
+    81.4).  Why the other half after: the halves' stress passes differ by up to ~13 %
+    (one thread, case (i): 265 / 280 us at t = 15 s, 332 / 293 us at t = 8 s), and a worker
+    done first took nothing before; taking the other half's last blocks cut two threads
+    on case (i) from 27.4-27.9 to 26.6-26.9 ns per point-step (6 interleaved pairs,
+    0.964-0.984x the time), bitwise the same run.  Which worker takes a block changes
+    nothing in it: every block is computed by this one compiled function, maxima and
+    counts combine exactly, so any thread count and any interleaving give bitwise the
+    same result (``tests/test_threads.py``, with a half switched off so that one worker
+    takes most of the other's blocks).  ``version`` and
     ``only`` are literals (one compile and cache entry per pair); not inlined into the
     threaded loop: numba's parfor passes, run over the inlined model update, changed the
     result (1 vs 2 threads differed in tests/test_threads.py once the dispatch was
@@ -161,10 +171,14 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     bounds = (0, half_split(n) // BLOCK, (n + BLOCK - 1) // BLOCK)   # blocks of the halves
     c2max = 0.0
     n_bad = 0
-    if nodal_in_pass(o, S):
+    in_pass = nodal_in_pass(o, S)
+    if in_pass:
         nodal_velocity_half(M, T, H, c)
-    for r in range(1 if workers(o, S) == 2 else 2):  # its own half (c % 2), then the other's
+        take_ticket(S.queue[QUEUE_STRIDE * c + 1:])
+    for r in range(2):                       # its own half (c % 2), then the other's
         h = (c + r) % 2
+        if r == 1 and in_pass and read_flag(S.queue[QUEUE_STRIDE * h + 1:]) == 0:
+            break
         vn = T.v_musl if h == 0 else H.v_musl
         while True:                  # (one call site: one inlined copy of the model update)
             k = bounds[h] + take_ticket(S.queue[QUEUE_STRIDE * h:])
