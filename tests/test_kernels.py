@@ -43,6 +43,23 @@ def _random_points(grid, n, rng, margin=0.0):
     return lo + rng.random((n, 2)) * (hi - lo)
 
 
+def test_cell_index_is_the_clamped_floor():
+    """:func:`fem_rmpm.kernels.basis.cell_index` truncates instead of taking the floor; the
+    two clamped to the grid's cells are the same number (a formula: they differ only for
+    negative non-integers, which clamp to 0).  Checked on the integers and halves around
+    both grid edges, on negative zero, far outside, and on 20 000 random coordinates."""
+    from numba import njit
+
+    from fem_rmpm.kernels.basis import cell_index
+    n = 7
+    index = njit(lambda s: cell_index(s, n))
+    edges = np.array([-1e15, -3.0, -1.5, -1.0, -0.5, -1e-300, -0.0, 0.0, 1e-300, 0.5, 1.0,
+                      n - 1.5, n - 1.0, n - 0.5, n - 1e-12, float(n), n + 0.5, n + 2.0, 1e15])
+    s = np.concatenate([edges, np.random.default_rng(3).uniform(-3 * n, 4 * n, 20_000)])
+    expected = np.clip(np.floor(s), 0, n - 1).astype(np.int64)
+    assert [index(v) for v in s] == expected.tolist()
+
+
 def test_q4_kernel_equals_scikit_fem_basis(meshes):
     """Reference: scikit-fem ElementQuad1 evaluated at the points (skfem_point_basis)."""
     grid = make_grid(load_scene(meshes / "slope_elastic.toml"))

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from .basis import gimp, q4
+from .basis import cell_index, gimp, q4
 from .common import BLOCK, half_split, inline, kernel, xy
 from .hencky import exp_block, log_block
 
@@ -285,8 +285,8 @@ def fbar_gradient_pass(P, M, N, S, o):
     for i in range(x_old.shape[0]):
         if not P.active[i]:
             continue
-        ci = min(max(int(math.floor((x_old[i, 0] - M.o0) * M.ih0)), 0), M.nx - 1)
-        cj = min(max(int(math.floor((x_old[i, 1] - M.o1) * M.ih1)), 0), M.ny - 1)
+        ci = cell_index((x_old[i, 0] - M.o0) * M.ih0, M.nx)
+        cj = cell_index((x_old[i, 1] - M.o1) * M.ih1, M.ny)
         c = cj * M.nx + ci
         host[i] = c
         cv[c] = 0.0
