@@ -73,9 +73,9 @@ grid; ``q4_ll`` (n,) int64 and ``q4_st`` (n, 2): each point's Q4 cell (lower-lef
 local coordinates, found by the map to nodes and reused by the later passes of the step (the
 points have not moved in between); ``queue`` (2 QUEUE_STRIDE,) int64: at 0 and
 :data:`.common.QUEUE_STRIDE` the next block of the stress pass's two work queues, one per
-half of the points, and at 1 and QUEUE_STRIDE + 1 the flags of the halves' published nodal
-velocities (:func:`.stress._stress_queue_call`; the padding puts each queue on a cache line
-of its own)."""
+half of the points, and :data:`.common.QUEUE_FLAG` after each the flag of that half's
+published nodal velocities (:func:`.stress._stress_queue_call`; the padding puts each
+queue on a cache line of its own)."""
 
 StepOptions = namedtuple("StepOptions",
                          "dt gx gy damping flip geostatic gimp fbar threads model",

@@ -61,9 +61,10 @@ kernel_parallel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="n
 # so that blocks, halves and every point's code do not depend on the thread count.
 BLOCK = 128
 # The stress pass's two work queues (one per half of the points): counters at elements 0
-# and QUEUE_STRIDE of an int64 array, so that each sits on a cache line of its own (with
-# its half's nodal-velocity flag next to it, at 1 and QUEUE_STRIDE + 1).
+# and QUEUE_STRIDE of an int64 array, so that each sits on a cache line of its own, each
+# with its half's nodal-velocity flag QUEUE_FLAG elements after it.
 QUEUE_STRIDE = 8
+QUEUE_FLAG = 1
 
 
 @inline

@@ -38,8 +38,8 @@ from numba import prange
 from ..materials import registry
 from ..materials.dispatch import point_dispatch
 from .arrays import top_of
-from .common import (BLOCK, QUEUE_STRIDE, half_split, inline, jit, kernel, kernel_parallel,
-                     read_flag, take_ticket)
+from .common import (BLOCK, QUEUE_FLAG, QUEUE_STRIDE, half_split, inline, jit, kernel,
+                     kernel_parallel, read_flag, take_ticket)
 from .hencky import exp_block, log_block
 from .transfer import nodal_velocities, nodal_velocities_parallel, nodal_velocity_half
 from .transfer import _top as top
@@ -125,10 +125,9 @@ def nodal_in_pass(o, S):
 def _reset_queues(S):
     """Both work queues of the stress pass back to their first block, both halves' nodal
     velocities unpublished (:func:`nodal_in_pass`)."""
-    S.queue[0] = 0
-    S.queue[1] = 0
-    S.queue[QUEUE_STRIDE] = 0
-    S.queue[QUEUE_STRIDE + 1] = 0
+    for h in range(2):
+        S.queue[QUEUE_STRIDE * h] = 0
+        S.queue[QUEUE_STRIDE * h + QUEUE_FLAG] = 0
 
 
 @kernel
@@ -140,7 +139,7 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     :func:`.common.take_ticket`), each block with the nodal velocities of its half, the
     scratch row ``c``; its statistics into ``S.parts[c]``.  Where :func:`nodal_in_pass`
     (two workers), first the nodal velocities of its own half, then their flag
-    (``S.queue[QUEUE_STRIDE c + 1]``, an atomic add); it takes blocks of the other half
+    (``S.queue[QUEUE_STRIDE c + QUEUE_FLAG]``, an atomic add); it takes blocks of the other half
     only once that half's flag is set (:func:`.common.read_flag`), else it stops (it never
     waits: a numba pool of one thread runs the workers one after the other).
     Why its own half first: a block the other thread took crosses between the cores twice
@@ -174,10 +173,10 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     in_pass = nodal_in_pass(o, S)
     if in_pass:
         nodal_velocity_half(M, T, H, c)
-        take_ticket(S.queue[QUEUE_STRIDE * c + 1:])
+        take_ticket(S.queue[QUEUE_STRIDE * c + QUEUE_FLAG:])
     for r in range(2):                       # its own half (c % 2), then the other's
         h = (c + r) % 2
-        if r == 1 and in_pass and read_flag(S.queue[QUEUE_STRIDE * h + 1:]) == 0:
+        if r == 1 and in_pass and read_flag(S.queue[QUEUE_STRIDE * h + QUEUE_FLAG:]) == 0:
             break
         vn = T.v_musl if h == 0 else H.v_musl
         while True:                  # (one call site: one inlined copy of the model update)
