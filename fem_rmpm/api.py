@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import platform
 import sys
 import time
 from dataclasses import dataclass
@@ -38,6 +37,7 @@ from .materials import invalid_points
 from .run import RunRecord, SimulationError
 from .fem import FemResult, solve_static
 from .grid import Grid, make_grid
+from .machine import describe as describe_machine
 from .implicit import run_implicit
 from .measures import compute_measures, excluded_summary
 from .output import PvdSeries, write_grid, write_json
@@ -157,7 +157,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
         if vtk:
             write_grid(out / "grid.vtu", grid, np.nonzero(soil_cells(scene, grid) >= 0)[0])
     bar = _Bar(scene) if progress else None
-    wall0, cpu0 = time.perf_counter(), time.process_time()
+    machine, wall0, cpu0 = describe_machine(), time.perf_counter(), time.process_time()
     error = None
     try:
         with threads_from_auto(solved is not scene):      # auto: no busy-cores warning
@@ -179,7 +179,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
                                 snapshots=snapshots, grid=grid,
                                 mechanism_time=MECHANISM_TIME + rec.solver.get("geostatic_end_time", 0.0),
                                 intact_block_area=scene.montecarlo.intact_block_area)
-    summary = {**_summary(scene, seed, pts, rec, measures), "estimate": estimate.to_dict()}
+    summary = _summary(scene, seed, pts, rec, measures, machine, estimate)
     if out is not None:
         if figures and snapshots and error is None:
             who = label or (f"{scene.scene.name}, seed {seed}" if seed is not None
@@ -277,7 +277,7 @@ def compile_notice(scene: Scene) -> str | None:
             "cached on disk after)")
 
 
-def _summary(scene, seed, pts, rec, measures) -> dict:
+def _summary(scene, seed, pts, rec, measures, machine: dict, estimate) -> dict:
     return {
         "scene": scene_to_dict(scene), "scene_file": scene.source, "seed": seed,
         "scheme": rec.scheme, "status": "failed" if rec.error else "ok", "error": rec.error,
@@ -293,7 +293,8 @@ def _summary(scene, seed, pts, rec, measures) -> dict:
         "measures": measures, "excluded_points": excluded_summary(measures),
         "solver": rec.solver,
         "kinetic_energy": rec.energy[:: max(1, len(rec.energy) // 400)],
-        "machine": {"python": platform.python_version(), "node": platform.machine()},
+        "machine": machine,         # (fem_rmpm.machine.describe at the run's start)
+        "estimate": estimate.to_dict(),
     }
 
 

@@ -47,6 +47,7 @@ from .grid import Grid
 from .kernels import Workspace
 from .kernels.advance import RECORD_EVERY, RunControl, record_limit, step_drivers
 from .locking import bbar_gradient, fbar_increment, host_cells
+from .machine import usable_cores as _cores
 from .materials import hughes_winget_increment, small_strain_update, stress_update
 from .particles import Particles
 from .point_order import SORT_EVERY, PointOrder
@@ -421,14 +422,6 @@ def _run_threads(threads: int, kernel: str) -> int:
     if threads > 1 and kernel == "numba":
         _warn_busy_threads(threads)
     return threads or auto_threads()
-
-
-def _cores() -> int:
-    """Cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
 
 
 def _runnable_others(samples: int = 3, pause: float = 0.001) -> int | None:

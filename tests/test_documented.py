@@ -405,8 +405,8 @@ def test_particle_and_grid_fields_are_the_documented_ones(tmp_path):
 def test_summary_json_holds_the_documented_keys(tmp_path):
     """README "Outputs": summary.json holds the scene, seed, scheme, status, steps, simulated
     time, wall time, particle count, ns per point-step, the measures (the documented ones),
-    frozen points, solver statistics and the kinetic-energy history, each with the value of
-    the run."""
+    frozen points, solver statistics, the kinetic-energy history and the machine, each with
+    the value of the run."""
     res = api.run(_falling_block(), out=tmp_path / "o", seed=4)
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
     rec, p = res.record, res.particles
@@ -423,6 +423,9 @@ def test_summary_json_holds_the_documented_keys(tmp_path):
     assert isinstance(s["solver"], dict)
     ke = np.array(s["kinetic_energy"])
     assert ke.shape[1] == 2 and np.all(np.diff(ke[:, 0]) > 0) and ke[:, 1].max() > 0
+    mach = s["machine"]                  # the machine its ns per point-step come from
+    assert mach["cpu_model"] and 1 <= mach["usable_cores"] <= mach["logical_cores"]
+    assert mach["numba"] and mach["numpy"] == np.__version__
     for key in ("sliding_area", "failed", "runout_distance", "retrogression_distance",
                 "time_to_rest", "final_profile"):
         assert key in s["measures"], key

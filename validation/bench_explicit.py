@@ -44,7 +44,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
 import subprocess
 import sys
@@ -64,6 +63,7 @@ from fem_rmpm.kernels.common import kernel  # noqa: E402
 from fem_rmpm.explicit import (Workspace, explicit_step, map_to_nodes, run_explicit,  # noqa: E402
                                solve_on_mesh, stable_time_step)
 from fem_rmpm.grid import make_grid  # noqa: E402
+from fem_rmpm.machine import describe  # noqa: E402
 from fem_rmpm.materials import hughes_winget_increment, stress_update  # noqa: E402
 from fem_rmpm.particles import seed_particles  # noqa: E402
 from fem_rmpm.scene import load_scene, with_values  # noqa: E402
@@ -81,17 +81,10 @@ SCALING = {"1e4": (1 / 3, 40.0), "1e5": (0.1, 1.0), "1e6": (1 / 30, 0.25)}
 
 
 def machine() -> dict:
-    """CPU model (lscpu), cores, load average: which machine the figures come from."""
-    model = platform.processor() or "?"
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
-        model = next(ln.split(":", 1)[1].strip() for ln in out.splitlines()
-                     if ln.startswith("Model name"))
-    except (OSError, subprocess.CalledProcessError, StopIteration):
-        pass
-    return {"cpu_model": model, "cores": os.cpu_count(), "platform": platform.platform(),
-            "python": platform.python_version(), "numpy": np.__version__,
-            "numba": __import__("numba").__version__, "load_avg_start": os.getloadavg()}
+    """Which machine the figures come from (:func:`fem_rmpm.machine.describe`, as in every
+    run's ``summary.json``): CPU model, cores, load average at the start, versions."""
+    m = describe()
+    return {**m, "cores": m["logical_cores"], "load_avg_start": m["load_average"]}
 
 
 def whole_run(threads: int, changes=()) -> dict:

@@ -40,13 +40,13 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 from fem_rmpm.grid import make_grid  # noqa: E402
+from fem_rmpm.machine import describe  # noqa: E402
 from fem_rmpm.implicit import (StepSystem, finite_strain_tangent, run_implicit,  # noqa: E402
                                skfem_assemble)
 from fem_rmpm.particles import seed_particles, soil_cells  # noqa: E402
@@ -189,8 +189,7 @@ def main():
           f"per step), skfem.asm {comp['skfem_asm_ms']:.1f} ms; max relative difference "
           f"{comp['max_rel_difference']:.1e} (K), {comp['force_rel_difference']:.1e} (f)")
     result = {"cases": rows, "skfem_vs_vectorised": comp,
-              "machine": {"python": platform.python_version(), "node": platform.machine(),
-                          "cpus": os.cpu_count(), "load_average": os.getloadavg(),
+              "machine": {**describe(),
                           "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS")}}
     (OUT / "bench_implicit.json").write_text(json.dumps(result, indent=2))
     print(f"wrote {OUT / 'bench_implicit.json'}")

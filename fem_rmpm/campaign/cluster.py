@@ -9,6 +9,7 @@ import os
 import dask
 from distributed import Client, LocalCluster
 
+from ..machine import usable_cores as _usable_cpus
 from .cases import CampaignError
 from .task import MALLOC_THRESHOLDS
 
@@ -26,13 +27,6 @@ def worker_environment(threads: int = 1) -> dict[str, str]:
     env["NUMBA_NUM_THREADS"] = str(max(1, int(threads)))
     env.update({k: str(v) for k, v in MALLOC_THRESHOLDS.items()})
     return env
-
-
-def _usable_cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover
-        return os.cpu_count() or 1
 
 
 def local_worker_count(workers: int | None, n_tasks: int, threads: int = 1) -> int:

@@ -1,0 +1,60 @@
+"""Which machine a run's speed figures come from.
+
+A figure in ns per point-step means little without the machine: the same run of the
+reference slope takes ~48 ns on one 2-core VM and ~70-80 ns on another.  :func:`describe`
+names it in every run's ``summary.json`` (key ``machine``), taken when the run starts:
+the CPU model, the cores the process may use, the load average (a run on a loaded machine
+is slower and says so), the platform and the versions of Python, numpy and numba.
+"""
+from __future__ import annotations
+
+import os
+import platform
+from importlib import metadata
+
+__all__ = ["describe", "cpu_model", "usable_cores"]
+
+
+def cpu_model(cpuinfo: str = "/proc/cpuinfo") -> str:
+    """The CPU's model name (Linux: the first ``model name`` of ``/proc/cpuinfo``), else
+    what :mod:`platform` knows (``processor()``, then ``machine()``)."""
+    try:
+        with open(cpuinfo, encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                key, sep, value = line.partition(":")
+                if sep and key.strip() == "model name" and value.strip():
+                    return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown"
+
+
+def usable_cores() -> int:
+    """Cores this process may run on (its CPU affinity; else all the machine's)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):           # (not on every platform)
+        return os.cpu_count() or 1
+
+
+def _version(package: str) -> str | None:
+    try:
+        return metadata.version(package)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def describe() -> dict:
+    """The machine as a JSON-ready dict: ``cpu_model``, ``logical_cores`` (the machine's),
+    ``usable_cores`` (this process's affinity), ``load_average`` (1, 5, 15 minutes; None
+    where the platform has none), ``platform``, ``node`` (the architecture), ``python``,
+    ``numpy``, ``numba``."""
+    try:
+        load = [round(v, 2) for v in os.getloadavg()]
+    except (AttributeError, OSError):
+        load = None
+    return {"cpu_model": cpu_model(), "logical_cores": os.cpu_count(),
+            "usable_cores": usable_cores(), "load_average": load,
+            "platform": platform.platform(), "node": platform.machine(),
+            "python": platform.python_version(), "numpy": _version("numpy"),
+            "numba": _version("numba")}

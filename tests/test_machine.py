@@ -1,0 +1,33 @@
+"""The machine named in a run's ``summary.json`` (:mod:`fem_rmpm.machine`)."""
+from __future__ import annotations
+
+import json
+import os
+import platform
+
+from fem_rmpm.machine import cpu_model, describe, usable_cores
+
+
+def test_cpu_model_is_the_first_model_name_of_cpuinfo(tmp_path):
+    """Linux's ``/proc/cpuinfo`` format: ``key<TAB>: value`` per line, one block per logical
+    CPU; the first non-empty ``model name`` is the machine's CPU."""
+    f = tmp_path / "cpuinfo"
+    f.write_text("processor\t: 0\nvendor_id\t: AuthenticAMD\nmodel name\t: \n"
+                 "model name\t: AMD EPYC 7B13\nflags\t\t: fpu: vme\n\n"
+                 "processor\t: 1\nmodel name\t: other\n")
+    assert cpu_model(str(f)) == "AMD EPYC 7B13"
+
+
+def test_cpu_model_without_cpuinfo_falls_back_to_platform(tmp_path):
+    got = cpu_model(str(tmp_path / "missing"))
+    assert got == (platform.processor() or platform.machine() or "unknown") and got
+
+
+def test_describe_is_json_and_names_cores_load_and_versions():
+    m = json.loads(json.dumps(describe()))
+    assert set(m) == {"cpu_model", "logical_cores", "usable_cores", "load_average", "platform",
+                      "node", "python", "numpy", "numba"}
+    assert m["usable_cores"] == usable_cores() and 1 <= m["usable_cores"] <= os.cpu_count()
+    assert m["load_average"] is None or (len(m["load_average"]) == 3
+                                         and min(m["load_average"]) >= 0)
+    assert m["python"] == platform.python_version() and m["node"] == platform.machine()
