@@ -1,7 +1,8 @@
 """Which machine a run's speed figures come from.
 
-A figure in ns per point-step means little without the machine: the same run of the
-reference slope takes ~48 ns on one 2-core VM and ~70-80 ns on another.  :func:`describe`
+A figure in ns per point-step means little without the machine: the same kernels ran the
+reference slope at 48 ns per point-step on one 2-core VM and at 70 ns on another (an Intel
+Xeon and an AMD EPYC VM, one thread each, measured).  :func:`describe`
 names it in every run's ``summary.json`` (key ``machine``), taken when the run starts:
 the CPU model, the cores the process may use, the load average (a run on a loaded machine
 is slower and says so), the platform and the versions of Python, numpy and numba.
