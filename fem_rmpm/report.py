@@ -149,7 +149,23 @@ def _provenance(summary: dict, campaign: dict, records: list[dict]) -> str:
         ("last command", f"computed {_esc(this_run.get('computed', '?'))} realization(s) on "
                          f"{_esc(this_run.get('workers', '?'))} in {_num(this_run.get('wall_time'))} s"),
     ]
+    if this_run.get("machine"):
+        rows.append(("machine of the last command", _machine_text(this_run["machine"])))
     return "<h2>Scene and provenance</h2>" + _table(("", ""), rows, "kv")
+
+
+def _machine_text(m: dict) -> str:
+    """The campaign process's machine (``summary.json`` ``this_run.machine``, as
+    :func:`fem_rmpm.machine.describe` gave it at the campaign's end), escaped: local
+    workers ran on it; cluster workers on their own nodes."""
+    load = m.get("load_average")
+    text = (f"{m.get('cpu_model', '?')}, {m.get('usable_cores', '?')} of "
+            f"{m.get('logical_cores', '?')} cores usable"
+            + (f", load average {load[0]} at the end" if isinstance(load, list) and load else "")
+            + f"; Python {m.get('python', '?')}, numpy {m.get('numpy', '?')}, "
+              f"numba {m.get('numba', '?')} (local workers ran here, cluster workers on "
+              "their own nodes)")
+    return _esc(text)
 
 
 #: Units of the measures the campaign records (shown in the measures table).

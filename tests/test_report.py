@@ -9,6 +9,7 @@ developer machine without Chromium it is skipped with the reason.
 """
 from __future__ import annotations
 
+import html
 import json
 import os
 import re
@@ -85,6 +86,9 @@ def test_report_content(campaign):
     assert page.count("data:image/png;base64,") >= len(pngs)
     assert not re.search(r'<img src="(?!data:)', page), "an image refers to a file"
     assert 'href="vtk/realization_00000/particles.pvd"' in page
+    machine = summary["this_run"]["machine"]          # the machine of the campaign process
+    assert f"machine of the last command</td><td>{html.escape(machine['cpu_model'])}" in page
+    assert f"{machine['usable_cores']} of {machine['logical_cores']} cores usable" in page
 
 
 def test_report_escapes_messages(campaign, tmp_path):

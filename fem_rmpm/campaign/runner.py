@@ -14,6 +14,7 @@ from distributed import as_completed
 from tqdm import tqdm
 
 from ..campaign_plots import campaign_figures
+from ..machine import describe as describe_machine
 from ..output import write_json
 from ..report import write_report
 from ..scene import Scene
@@ -320,7 +321,8 @@ def _finish(out, scene, cases, counts, lay, finished, computed, skipped, lost, d
         "this_run": {"computed": computed, "skipped_finished": skipped, "lost": lost,
                      "workers": desc, "compute_wall_time": compute_time,
                      "wall_time": res.wall_time,
-                     "realizations_per_hour": res.realizations_per_hour},
+                     "realizations_per_hour": res.realizations_per_hour,
+                     "machine": describe_machine()},     # (the campaign process's)
         "realization_wall_time": {"mean": float(np.mean(walls)) if walls else None,
                                   "total": float(np.sum(walls)) if walls else None},
         "realization_cpu_time": {"mean": float(np.mean(cpus)) if cpus else None,

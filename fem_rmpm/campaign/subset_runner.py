@@ -62,6 +62,7 @@ from tqdm import tqdm
 
 from .. import api
 from ..grid import make_grid
+from ..machine import describe as describe_machine
 from ..output import _atomic_write_bytes, write_json
 from ..report import write_report
 from ..run import SimulationError
@@ -462,7 +463,7 @@ def _finish(res: SubsetCampaignResult, scene: Scene, method: SubsetSimulation,
                    "levels": [_level_dict(lv, resp) for lv in r.levels]},
         "this_run": {"computed": res.computed, "reused_records": res.reused,
                      "workers": res.workers, "compute_wall_time": res.compute_time,
-                     "wall_time": res.wall_time},
+                     "wall_time": res.wall_time, "machine": describe_machine()},
         "realization_wall_time": {"mean": float(np.mean(walls)) if walls else None,
                                   "total": float(np.sum(walls)) if walls else None},
         "realization_cpu_time": {"mean": float(np.mean(cpus)) if cpus else None,
