@@ -79,10 +79,10 @@ from distributed.core import Status
 from tornado.ioloop import PeriodicCallback
 
 from ..budget import estimate_run
+from ..machine import usable_cores
 
 from .cases import CampaignError
-from .cluster import (_usable_cpus, local_worker_count, local_workers_text, start_client,
-                      worker_environment)
+from .cluster import local_worker_count, local_workers_text, start_client, worker_environment
 from .task import campaign_threads
 
 __all__ = ["CLUSTER_KINDS", "ClusterError", "ClusterSpec", "Backend", "open_backend",
@@ -267,7 +267,7 @@ class LocalBackend(_ClientBackend):
         k = self._count(n_tasks)
         return {"kind": "local", "workers": k, "cores_per_worker": self.threads,
                 "description": f"{local_workers_text(k, self.threads)} "
-                               f"({_usable_cpus()} usable CPUs)"}
+                               f"({usable_cores()} usable CPUs)"}
 
 
 class SchedulerBackend(_ClientBackend):
