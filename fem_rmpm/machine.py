@@ -6,14 +6,19 @@ Xeon and an AMD EPYC VM, one thread each, measured).  :func:`describe`
 names it in every run's ``summary.json`` (key ``machine``), taken when the run starts:
 the CPU model, the cores the process may use, the load average (a run on a loaded machine
 is slower and says so), the platform and the versions of Python, numpy and numba.
+A campaign's realizations name the host and CPU of the worker that ran them (a record's
+``worker``); :func:`tally` counts them per machine for the campaign's ``summary.json``
+(``worker_machines``) and ``report.html``.
 """
 from __future__ import annotations
 
 import os
 import platform
+from collections import Counter
+from collections.abc import Iterable
 from importlib import metadata
 
-__all__ = ["describe", "cpu_model", "usable_cores"]
+__all__ = ["describe", "cpu_model", "usable_cores", "tally"]
 
 
 def cpu_model(cpuinfo: str = "/proc/cpuinfo") -> str:
@@ -59,3 +64,13 @@ def describe() -> dict:
             "platform": platform.platform(), "node": platform.machine(),
             "python": platform.python_version(), "numpy": _version("numpy"),
             "numba": _version("numba")}
+
+
+def tally(workers: Iterable[dict | None]) -> list[dict]:
+    """The machines a set of runs ran on, from their workers' descriptions (dicts with
+    ``host`` and ``cpu_model``; None and non-dicts are skipped, a missing field is "?"):
+    ``[{"host", "cpu_model", "runs"}]``, most runs first, then by host and CPU."""
+    counts = Counter((str(w.get("host", "?")), str(w.get("cpu_model", "?")))
+                     for w in workers if isinstance(w, dict))
+    order = sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))
+    return [{"host": h, "cpu_model": c, "runs": n} for (h, c), n in order]

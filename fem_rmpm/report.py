@@ -7,7 +7,8 @@ realization), the figures (``*.png``) and the kept VTK (``vtk/...``) — and wri
 ``DIR/report.html``:
 
 * **Provenance**: scene, fem_rmpm version(s) of the records, campaign seed and seed
-  rule, realizations per case, cost (wall and CPU time, core-hours), workers;
+  rule, realizations per case, cost (wall and CPU time, core-hours), workers, the
+  machine of the last command and the machines (host, CPU) the realizations ran on;
 * **Results per case**: N, P(failure) with its standard error and Wilson 95 % interval,
   and mean / standard error / 5-50-95 % quantiles of every measure the summary holds
   (run-out, retrogression, sliding area, ..., factor of safety when computed);
@@ -33,6 +34,7 @@ import math
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from .machine import tally
 from .output import _atomic_write_bytes
 
 __all__ = ["write_report", "report_html", "ReportError"]
@@ -151,6 +153,9 @@ def _provenance(summary: dict, campaign: dict, records: list[dict]) -> str:
     ]
     if this_run.get("machine"):
         rows.append(("machine of the last command", _machine_text(this_run["machine"])))
+    ran_on = tally(r.get("worker") for r in records)
+    if ran_on:
+        rows.append(("realizations ran on", _workers_text(ran_on)))
     return "<h2>Scene and provenance</h2>" + _table(("", ""), rows, "kv")
 
 
@@ -166,6 +171,16 @@ def _machine_text(m: dict) -> str:
               f"numba {m.get('numba', '?')} (local workers ran here, cluster workers on "
               "their own nodes)")
     return _esc(text)
+
+
+def _workers_text(machines: list[dict], shown: int = 6) -> str:
+    """The machines the records ran on (:func:`fem_rmpm.machine.tally`), most runs first,
+    the first ``shown`` by name, escaped."""
+    parts = [f"{m['host']} ({m['cpu_model']}): {m['runs']}" for m in machines[:shown]]
+    if len(machines) > shown:
+        rest = sum(m["runs"] for m in machines[shown:])
+        parts.append(f"{len(machines) - shown} more machines: {rest}")
+    return _esc("; ".join(parts) + " realization(s)")
 
 
 #: Units of the measures the campaign records (shown in the measures table).

@@ -5,7 +5,7 @@ import json
 import os
 import platform
 
-from fem_rmpm.machine import cpu_model, describe, usable_cores
+from fem_rmpm.machine import cpu_model, describe, tally, usable_cores
 
 
 def test_cpu_model_is_the_first_model_name_of_cpuinfo(tmp_path):
@@ -31,3 +31,15 @@ def test_describe_is_json_and_names_cores_load_and_versions():
     assert m["load_average"] is None or (len(m["load_average"]) == 3
                                          and min(m["load_average"]) >= 0)
     assert m["python"] == platform.python_version() and m["node"] == platform.machine()
+
+
+def test_tally_counts_runs_per_host_and_cpu():
+    """Worker descriptions (a campaign record's ``worker``) counted per (host, CPU), most
+    runs first; records without a worker are skipped, an old worker without a CPU is "?"."""
+    a = {"host": "node1", "cpu_model": "AMD EPYC 9B14", "pid": 1}
+    b = {"host": "node2", "cpu_model": "Intel Xeon", "pid": 2}
+    got = tally([a, b, dict(a, pid=3), None, "x", {"host": "node3"}, dict(b, pid=4), a])
+    assert got == [{"host": "node1", "cpu_model": "AMD EPYC 9B14", "runs": 3},
+                   {"host": "node2", "cpu_model": "Intel Xeon", "runs": 2},
+                   {"host": "node3", "cpu_model": "?", "runs": 1}]
+    assert tally([]) == [] and tally([None]) == []

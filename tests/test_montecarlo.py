@@ -30,6 +30,7 @@ from fem_rmpm import api
 from fem_rmpm import cli
 from fem_rmpm import campaign as mc
 from fem_rmpm.campaign import store
+from fem_rmpm.machine import cpu_model
 
 DATA = Path(__file__).resolve().parent / "data"
 TINY = DATA / "mc_tiny.toml"
@@ -207,8 +208,13 @@ def test_one_and_two_workers_give_identical_tables(tmp_path, client):
         assert {"sliding_area", "runout_distance", "retrogression_distance"} <= set(scalars)
         for key, value in scalars.items():
             assert r[key] == value, key
-    pids = {json.loads(p.read_text())["worker"]["pid"] for p in _records(tmp_path / "w2")}
-    assert len(pids) == 2, "both workers of the 2-worker cluster computed realizations"
+    workers = [json.loads(p.read_text())["worker"] for p in _records(tmp_path / "w2")]
+    assert len({w["pid"] for w in workers}) == 2, "both workers computed realizations"
+    # each record names its worker's machine; the summary counts them (here: this one)
+    assert {w["cpu_model"] for w in workers} == {cpu_model()}
+    summary = json.loads((tmp_path / "w2" / "summary.json").read_text())
+    assert summary["worker_machines"] == [{"host": socket.gethostname(),
+                                           "cpu_model": cpu_model(), "runs": 6}]
 
 
 # --------------------------------------------------------------------------- acceptance 2

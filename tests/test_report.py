@@ -89,6 +89,11 @@ def test_report_content(campaign):
     machine = summary["this_run"]["machine"]          # the machine of the campaign process
     assert f"machine of the last command</td><td>{html.escape(machine['cpu_model'])}" in page
     assert f"{machine['usable_cores']} of {machine['logical_cores']} cores usable" in page
+    ran_on = summary["worker_machines"]         # the machines the records name, counted
+    assert sum(m["runs"] for m in ran_on) == len(list((campaign / "records").glob("*.json")))
+    first = ran_on[0]
+    assert (f"realizations ran on</td><td>{html.escape(first['host'])} "
+            f"({html.escape(first['cpu_model'])}): {first['runs']}") in page
 
 
 def test_report_escapes_messages(campaign, tmp_path):

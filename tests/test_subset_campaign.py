@@ -56,8 +56,10 @@ def reference(tmp_path_factory) -> Path:
                         str(out), "--workers", "1", *ARGS], env=_env(), capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
-    run = json.loads((out / "summary.json").read_text())["this_run"]
+    summary = json.loads((out / "summary.json").read_text())
+    run = summary["this_run"]
     assert run["computed"] == 190 and run["workers"] == "1 local worker process"
+    assert [m["runs"] for m in summary["worker_machines"]] == [190]    # all on this machine
     assert len(_subset(out)["levels"]) == 2
     return out
 

@@ -14,7 +14,7 @@ from distributed import as_completed
 from tqdm import tqdm
 
 from ..campaign_plots import campaign_figures
-from ..machine import describe as describe_machine
+from ..machine import describe as describe_machine, tally
 from ..output import write_json
 from ..report import write_report
 from ..scene import Scene
@@ -323,6 +323,7 @@ def _finish(out, scene, cases, counts, lay, finished, computed, skipped, lost, d
                      "wall_time": res.wall_time,
                      "realizations_per_hour": res.realizations_per_hour,
                      "machine": describe_machine()},     # (the campaign process's)
+        "worker_machines": tally(r.get("worker") for r in records),   # (the records')
         "realization_wall_time": {"mean": float(np.mean(walls)) if walls else None,
                                   "total": float(np.sum(walls)) if walls else None},
         "realization_cpu_time": {"mean": float(np.mean(cpus)) if cpus else None,

@@ -62,7 +62,7 @@ from tqdm import tqdm
 
 from .. import api
 from ..grid import make_grid
-from ..machine import describe as describe_machine
+from ..machine import describe as describe_machine, tally
 from ..output import _atomic_write_bytes, write_json
 from ..report import write_report
 from ..run import SimulationError
@@ -464,6 +464,7 @@ def _finish(res: SubsetCampaignResult, scene: Scene, method: SubsetSimulation,
         "this_run": {"computed": res.computed, "reused_records": res.reused,
                      "workers": res.workers, "compute_wall_time": res.compute_time,
                      "wall_time": res.wall_time, "machine": describe_machine()},
+        "worker_machines": tally(x.get("worker") for x in recs),
         "realization_wall_time": {"mean": float(np.mean(walls)) if walls else None,
                                   "total": float(np.sum(walls)) if walls else None},
         "realization_cpu_time": {"mean": float(np.mean(cpus)) if cpus else None,

@@ -13,6 +13,7 @@ import numba
 import numpy as np
 
 from .. import api
+from ..machine import cpu_model
 from ..run import SimulationError
 from .decide import DECIDED, FailureWatch
 from .factor_of_safety import fs_measures
@@ -86,7 +87,7 @@ def run_realization(task: dict) -> dict:
         "format": FORMAT, "case": task["case"], "index": int(task["index"]),
         "seed": None if task["seed"] is None else int(task["seed"]), "scheme": task["scene"].solver.scheme, "status": "ok",
         "error": None, "vtk": task.get("vtk_rel"),
-        "worker": {"host": socket.gethostname(), "pid": os.getpid(),
+        "worker": {"host": socket.gethostname(), "cpu_model": cpu_model(), "pid": os.getpid(),
                    "threads": numba.get_num_threads()},
         "fem_rmpm": _version(),
     }
