@@ -58,14 +58,26 @@ class Grid:
         return self.origin + self.cell * np.array(self.shape)
 
     def cell_centres(self, cells: np.ndarray | None = None) -> np.ndarray:
-        c = self.nodes[self.cells].mean(axis=1)
-        return c if cells is None else c[cells]
+        """(n, 2) centres of ``cells`` (all cells if None), m: the mean of each cell's four
+        nodes, summed in the order of :attr:`cells` (bitwise ``nodes[cells].mean(axis=1)``),
+        from the grid's axes rather than an (n, 4, 2) gather (5 M cells: 0.05 s, not 0.8 s)."""
+        nx, ny = self.shape
+        idx = np.arange(nx * ny) if cells is None else np.asarray(cells)
+        i, j = idx % nx, idx // nx
+        xs, ys = _axes(self.origin, self.cell, self.shape)
+        x0, x1, y0, y1 = xs[i], xs[i + 1], ys[j], ys[j + 1]
+        return np.stack([(((x0 + x1) + x1) + x0) / 4, (((y0 + y0) + y1) + y1) / 4], axis=1)
+
+
+def _axes(origin, cell, shape) -> tuple[np.ndarray, np.ndarray]:
+    """The node coordinates along x (nx + 1,) and y (ny + 1,), m."""
+    return (origin[0] + cell[0] * np.arange(shape[0] + 1),
+            origin[1] + cell[1] * np.arange(shape[1] + 1))
 
 
 def _structured_mesh(origin, cell, shape) -> MeshQuad:
     nx, ny = shape
-    xs = origin[0] + cell[0] * np.arange(nx + 1)
-    ys = origin[1] + cell[1] * np.arange(ny + 1)
+    xs, ys = _axes(origin, cell, shape)
     X, Y = np.meshgrid(xs, ys)                      # (ny+1, nx+1), x fastest
     p = np.vstack([X.ravel(), Y.ravel()])
     i, j = np.meshgrid(np.arange(nx), np.arange(ny))  # (ny, nx)
@@ -106,28 +118,48 @@ def _grid_from_file(path: str, source: str) -> tuple[np.ndarray, np.ndarray, tup
     return np.array([xs[0], ys[0]]), np.array([dx[0], dy[0]]), (nx, ny)
 
 
+def _near(points: np.ndarray, poly: np.ndarray, margin: float) -> np.ndarray:
+    """Indices of the ``points`` within ``margin`` (plus a rounding allowance) of the
+    bounding box of ``poly``: every point of the polygon or within ``margin`` of it is
+    among them, so the tests below need to look at these only."""
+    lo, hi = poly.min(axis=0), poly.max(axis=0)
+    pad = margin + 1e-9 * (float(np.max(hi - lo)) + float(np.max(np.abs(poly))))
+    lo, hi = lo - pad, hi + pad
+    return np.flatnonzero((points[:, 0] >= lo[0]) & (points[:, 0] <= hi[0])
+                          & (points[:, 1] >= lo[1]) & (points[:, 1] <= hi[1]))
+
+
 def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """Even-odd rule: which of ``points`` (n, 2) lie inside ``polygon`` (k, 2)."""
-    x, y = points[:, 0], points[:, 1]
-    inside = np.zeros(len(points), dtype=bool)
+    """Even-odd rule: which of ``points`` (n, 2) lie inside ``polygon`` (k, 2).  Only the
+    points near the polygon's bounding box are tested (outside it the rule gives False:
+    no crossing, or an even number of them)."""
     poly = np.asarray(polygon, dtype=float)
+    inside = np.zeros(len(points), dtype=bool)
+    near = _near(points, poly, 0.0)
+    x, y = points[near, 0], points[near, 1]
+    hit = np.zeros(len(near), dtype=bool)
     for (x1, y1), (x2, y2) in zip(poly, np.roll(poly, -1, axis=0)):
         crosses = (y1 > y) != (y2 > y)
         with np.errstate(divide="ignore", invalid="ignore"):
             xc = x1 + (y - y1) * (x2 - x1) / (y2 - y1)
-        inside ^= crosses & (x < xc)
+        hit ^= crosses & (x < xc)
+    inside[near] = hit
     return inside
 
 
 def _on_or_in_polygon(points: np.ndarray, polygon: np.ndarray, tol: float) -> np.ndarray:
     """Points inside the polygon or within ``tol`` of one of its edges."""
-    res = points_in_polygon(points, polygon)
     poly = np.asarray(polygon, dtype=float)
+    near = _near(points, poly, tol)
+    q = points[near]
+    hit = points_in_polygon(q, poly)
     for a, b in zip(poly, np.roll(poly, -1, axis=0)):
         ab = b - a
-        t = np.clip(((points - a) @ ab) / max(ab @ ab, 1e-300), 0.0, 1.0)
-        d = np.linalg.norm(points - (a + t[:, None] * ab), axis=1)
-        res |= d <= tol
+        t = np.clip(((q - a) @ ab) / max(ab @ ab, 1e-300), 0.0, 1.0)
+        d = np.linalg.norm(q - (a + t[:, None] * ab), axis=1)
+        hit |= d <= tol
+    res = np.zeros(len(points), dtype=bool)
+    res[near] = hit
     return res
 
 
