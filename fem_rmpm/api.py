@@ -124,9 +124,9 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     ``out`` must be a new or empty directory, or ``force=True`` replaces the run in it
     (:mod:`fem_rmpm.rundir`: ``summary.json`` says ``"running"`` until the run's
     output is complete).  ``label`` names the run in figure titles (e.g. case and
-    realization; default: the scene name and, with a random field, the seed).  Raises :class:`RunDirError` or :class:`BudgetError` (bad
-    input, nothing written) and :class:`SimulationError` when the run cannot go on
-    (after writing what it has, with the error, to ``out``).
+    realization; default: the scene name, and the seed of a random field).  Raises
+    :class:`RunDirError` or :class:`BudgetError` (bad input, nothing written) and
+    :class:`SimulationError` when the run cannot go on (after writing what it has to ``out``).
     """
     out = check_run_dir(out, force) if out is not None else None
     check_seed(seed)
@@ -173,12 +173,12 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
         if bar:
             bar.close()
     rec.wall_time, rec.cpu_time = time.perf_counter() - wall0, time.process_time() - cpu0
-    measures = compute_measures(pts, scene.scene.frame_angle_deg,
-                                scene.montecarlo.failure_displacement, grid.cell,
-                                rec.time if rec.stop_reason == "at rest" else None,
+    mc, t0 = scene.montecarlo, rec.solver.get("geostatic_end_time", 0.0)   # t0: motion starts
+    measures = compute_measures(pts, scene.scene.frame_angle_deg, mc.failure_displacement,
+                                grid.cell, rec.time if rec.stop_reason == "at rest" else None,
                                 snapshots=snapshots, grid=grid,
-                                mechanism_time=MECHANISM_TIME + rec.solver.get("geostatic_end_time", 0.0),
-                                intact_block_area=scene.montecarlo.intact_block_area)
+                                mechanism_time=MECHANISM_TIME + t0,
+                                intact_block_area=mc.intact_block_area)
     summary = _summary(scene, seed, pts, rec, measures, machine, estimate)
     if out is not None:
         if figures and snapshots and error is None:
@@ -351,8 +351,8 @@ def factor_of_safety(scene: Scene, seed: int | None = None, out: str | Path | No
     ``fs_displacement.png`` and the mechanism (``mechanism.vtu``/``.png``) to ``out`` if
     given.  Returns an :class:`~fem_rmpm.strength_reduction.FSResult` (``.fs``, ``.text``)."""
     grid, pts = prepare(scene, seed)
-    res = strength_reduction.factor_of_safety(scene, seed=seed, options=strength_reduction.FSOptions(**options),
-                                             grid=grid, pts=pts)
+    res = strength_reduction.factor_of_safety(
+        scene, seed=seed, options=strength_reduction.FSOptions(**options), grid=grid, pts=pts)
     if out is not None:
         strength_reduction.write_outputs(res, scene, out)
     return res
@@ -365,7 +365,8 @@ class _Bar:
         self.drawn = -float("inf")
         self.t_end = scene.solver.t_end
         self.bar = tqdm(total=round(self.t_end, 6), unit="s sim", desc=scene.scene.name,
-                        bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s [{elapsed}<{remaining}] {postfix}")
+                        bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s "
+                                   "[{elapsed}<{remaining}] {postfix}")
 
     def update_to(self, t: float, step: int) -> None:
         """Show time ``t`` (s) and ``step``; drawn at most every ``REFRESH`` s of wall time

@@ -110,8 +110,8 @@ def _grid_from_file(path: str, source: str) -> tuple[np.ndarray, np.ndarray, tup
     xs, ys = np.unique(np.round(used[:, 0], 9)), np.unique(np.round(used[:, 1], 9))
     dx, dy = np.diff(xs), np.diff(ys)
     nx, ny = len(xs) - 1, len(ys) - 1
-    if (nx < 1 or ny < 1 or not np.allclose(dx, dx[0], rtol=1e-6) or not np.allclose(dy, dy[0], rtol=1e-6)
-            or len(q) != nx * ny):
+    if (nx < 1 or ny < 1 or not np.allclose(dx, dx[0], rtol=1e-6)
+            or not np.allclose(dy, dy[0], rtol=1e-6) or len(q) != nx * ny):
         raise SceneError(f"{source}: [grid.file] {path} is not a complete axis-aligned grid of "
                          "equal cells; allowed: a structured quad mesh (the MPM locates points "
                          "arithmetically)")

@@ -26,7 +26,8 @@ MALLOC_THRESHOLDS = {"MALLOC_TRIM_THRESHOLD_": 2**30, "MALLOC_MMAP_THRESHOLD_": 
 
 
 def _raise_malloc_thresholds() -> None:
-    """glibc: raise the mmap and trim thresholds in this process (see :mod:`fem_rmpm.campaign`, "Dask")."""
+    """glibc: raise the mmap and trim thresholds in this process (see
+    :mod:`fem_rmpm.campaign`, "Dask")."""
     if not sys.platform.startswith("linux"):
         return
     try:
@@ -85,7 +86,8 @@ def run_realization(task: dict) -> dict:
     numba.set_num_threads(min(campaign_threads(task["scene"]), numba.config.NUMBA_NUM_THREADS))
     rec: dict[str, Any] = {
         "format": FORMAT, "case": task["case"], "index": int(task["index"]),
-        "seed": None if task["seed"] is None else int(task["seed"]), "scheme": task["scene"].solver.scheme, "status": "ok",
+        "seed": None if task["seed"] is None else int(task["seed"]),
+        "scheme": task["scene"].solver.scheme, "status": "ok",
         "error": None, "vtk": task.get("vtk_rel"),
         "worker": {"host": socket.gethostname(), "cpu_model": cpu_model(), "pid": os.getpid(),
                    "threads": numba.get_num_threads()},
@@ -110,7 +112,8 @@ def run_realization(task: dict) -> dict:
         res = api.run(task["scene"], out=vtk_dir, seed=rec["seed"], progress=False,
                       vtk=vtk_dir is not None, figures=vtk_dir is not None, force=True,
                       noise=task.get("noise"), stop_when=watch,
-                      label=f"case {task['case']}, realization {task['index']} (seed {rec['seed']})")
+                      label=f"case {task['case']}, realization {task['index']} "
+                            f"(seed {rec['seed']})")
     except Exception as exc:       # noqa: BLE001 - every failure is data, recorded
         msg = str(exc) if isinstance(exc, SimulationError) else f"{type(exc).__name__}: {exc}"
         rec.update(status="failed", error=" ".join(msg.split()) or type(exc).__name__,
