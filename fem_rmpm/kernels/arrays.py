@@ -114,12 +114,20 @@ def mesh_of(grid) -> Mesh:
 
 
 def point_arrays(pts, fallback_half_width: np.ndarray) -> PointArrays:
-    """The :class:`PointArrays` view of a :class:`fem_rmpm.particles.Particles` (no copy)."""
+    """The :class:`PointArrays` view of a :class:`fem_rmpm.particles.Particles` (no copy).
+    Raises ValueError unless every array has the column count the kernels assume
+    (:func:`.common.fixed_columns`)."""
     lp = pts.half_width if pts.half_width is not None else fallback_half_width
     s = pts.soil
-    return PointArrays(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.stress,
-                       pts.active, lp, pts.log_strain, pts.state, pts.u_geostatic,
-                       s.model, s.params)
+    P = PointArrays(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.stress,
+                    pts.active, lp, pts.log_strain, pts.state, pts.u_geostatic,
+                    s.model, s.params)
+    for name, cols in FIXED_COLUMNS.items():
+        a = getattr(P, name)
+        if a.ndim != 2 or a.shape[1] != cols:
+            raise ValueError(f"point array {name} has shape {a.shape}; the compiled step "
+                             f"needs (n, {cols})")
+    return P
 
 
 #: Rows of the step driver's energy record (:mod:`.advance`): record steps per call at most.
@@ -207,6 +215,12 @@ def _page_rows(shape: tuple, offset: int) -> np.ndarray:
     buf = np.zeros(size + 4096 // 8)
     start = (offset - buf.ctypes.data) % 4096 // 8
     return buf[start:start + size].reshape(shape)
+
+
+#: The column counts of the point arrays that :func:`.common.fixed_columns` promises the
+#: compiler (checked by :func:`point_arrays`; the scratch's are made so by
+#: :func:`scratch_for`: ``x_old``, ``q4_st`` (n, 2), ``W`` rows of :data:`W_COLUMNS`).
+FIXED_COLUMNS = {"x": 2, "v": 2, "half_width": 2, "u_geo": 2, "stress": 4, "log_strain": 4}
 
 
 def scratch_for(n: int, n_cells: int) -> Scratch:

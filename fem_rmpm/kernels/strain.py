@@ -22,8 +22,9 @@ import math
 
 import numpy as np
 
+from .arrays import W_COLUMNS
 from .basis import cell_index, gimp, q4
-from .common import BLOCK, half_split, inline, kernel, xy
+from .common import BLOCK, assume_columns, fixed_columns, half_split, inline, kernel, xy
 from .hencky import exp_block, log_block
 
 __all__ = ["kinematics_points", "fbar_gradient_pass", "fbar_apply_points", "log_args",
@@ -193,6 +194,8 @@ def kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e):
     micro-benchmark, 8 interleaved rounds).  The velocity gradient has one call site: with
     a second one for the geostatic path (the uGIMP basis is compiled for Q4 runs too, the
     basis being a runtime option) the stress pass's first compile took 15-35 s longer."""
+    fixed_columns(P, S)
+    assume_columns(W, W_COLUMNS)
     _gather_points(P, M, vn, S, o, tb, tc, W, b, e)
     n = e - b
     if o.geostatic:

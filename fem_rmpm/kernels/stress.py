@@ -37,9 +37,9 @@ from numba import prange
 
 from ..materials import registry
 from ..materials.dispatch import point_dispatch
-from .arrays import top_of
-from .common import (BLOCK, QUEUE_FLAG, QUEUE_STRIDE, half_split, inline, jit, kernel,
-                     kernel_parallel, read_flag, take_ticket)
+from .arrays import W_COLUMNS, top_of
+from .common import (BLOCK, QUEUE_FLAG, QUEUE_STRIDE, assume_columns, fixed_columns,
+                     half_split, inline, jit, kernel, kernel_parallel, read_flag, take_ticket)
 from .hencky import exp_block, log_block
 from .transfer import nodal_velocities, nodal_velocities_parallel, nodal_velocity_half
 from .transfer import _top as top
@@ -167,6 +167,7 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     uuid, so a threaded pass closing over this dispatcher missed the cache in every new
     process (1.6 s of compile at every start with threads = 2, measured)."""
     n = P.x.shape[0]
+    fixed_columns(P, S)
     bounds = (0, half_split(n) // BLOCK, (n + BLOCK - 1) // BLOCK)   # blocks of the halves
     c2max = 0.0
     n_bad = 0
@@ -218,6 +219,7 @@ def _stress_points(version, only, P, M, vn, S, o, start, stop, row):
     numba 0.68 lost the kinematics' writes to them when the two sat in the branches of an
     ``if``; they are called kernels now, see the module docstring.)"""
     W, ta, tb, tc = S.W[row], S.ta[row], S.tb[row], S.tc[row]
+    assume_columns(W, W_COLUMNS)
     c2max = 0.0
     n_bad = 0
     stop_ = np.uint64(stop)

@@ -36,7 +36,8 @@ from numba import prange
 
 from .arrays import NodeArrays
 from .basis import gimp, q4_at, q4_cell
-from .common import MASS_TOL, half_split, inline, kernel, kernel_exact, kernel_parallel, xy
+from .common import (MASS_TOL, fixed_columns, half_split, inline, kernel, kernel_exact,
+                     kernel_parallel, xy)
 
 __all__ = ["map_to_nodes", "map_to_nodes_parallel", "solve_and_move", "solve_and_move_parallel",
            "nodal_velocity", "nodal_velocities", "nodal_velocities_parallel", "half_range"]
@@ -130,6 +131,7 @@ def _map_half(P, M, T, H, S, o, c):
     ``half``: the second), after clearing them at the nodes of its previous step.  The two
     halves touch disjoint arrays, so they can run at the same time (a compiled function,
     called from the threads' loop: numba's parfor analysis crashed on this body inline)."""
+    fixed_columns(P, S)
     A = _own(T, H, c)
     start, stop = half_range(P.x.shape[0], c)
     _clear(A)
@@ -307,6 +309,7 @@ def _solve_half(M, T, H, S, o, c):
 
 @kernel
 def _move_points_half(P, M, T, H, S, o, c):
+    fixed_columns(P, S)
     _move_points(P, M, T, H, S, o, c)
 
 
