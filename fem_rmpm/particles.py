@@ -83,7 +83,7 @@ class Particles:
     def copy(self) -> "Particles":
         """A deep copy (the material's arrays too: the explicit time loop reorders them in
         place, :mod:`fem_rmpm.point_order`)."""
-        arrays = {k: (v.copy() if isinstance(v, np.ndarray) else v)
+        arrays = {k: (v.copy(order="K") if isinstance(v, np.ndarray) else v)
                   for k, v in self.__dict__.items()}
         arrays["soil"] = self.soil.replace()
         return Particles(**arrays)

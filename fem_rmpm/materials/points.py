@@ -35,8 +35,10 @@ def material_points(soils, soil_id: np.ndarray) -> MaterialPoints:
 
 
 def new_state(soil: MaterialPoints) -> np.ndarray:
-    """Zero state (n, S) for the models of ``soil`` (S >= 1: plastic shear strain first)."""
-    return np.zeros((len(soil), registry.n_state(np.unique(soil.model))))
+    """Zero state (n, S) for the models of ``soil`` (S >= 1: plastic shear strain first),
+    column-major as the parameter rows (:class:`MaterialPoints`): a model update reads one
+    or two columns of it per point."""
+    return np.zeros((len(soil), registry.n_state(np.unique(soil.model))), order="F")
 
 
 def cohesion(state: np.ndarray, soil: MaterialPoints) -> np.ndarray:
