@@ -127,9 +127,9 @@ def read_flag(typingctx, counter):
 # pass spilled most of them to the stack).  The point arrays' column counts never change
 # (2 for positions and velocities, 4 for stress and log strain, W_COLUMNS for the block
 # scratch), so the kernels state them (:func:`assume_columns`) and LLVM indexes with
-# constants: case (i), one thread, 4 interleaved pairs against the same code without
-# them: 0.92-0.93x the time, bitwise the same run (run-out 63.72968029438788 m, 11 724
-# steps); the stress pass's integer multiplies 15 -> 10.
+# constants: case (i), one thread, 7 interleaved pairs against the same code without
+# them: 0.90-0.93x the time, bitwise the same run (run-out 63.72968029438788 m, 11 724
+# steps); the stress pass's integer multiplies 15 -> 10, the map's 12 -> 4.
 
 
 @intrinsic
