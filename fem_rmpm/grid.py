@@ -129,6 +129,18 @@ def _near(points: np.ndarray, poly: np.ndarray, margin: float) -> np.ndarray:
                           & (points[:, 1] >= lo[1]) & (points[:, 1] <= hi[1]))
 
 
+def _even_odd(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Even-odd rule over all ``points`` (n, 2): inside ``poly`` (k, 2)."""
+    x, y = points[:, 0], points[:, 1]
+    hit = np.zeros(len(points), dtype=bool)
+    for (x1, y1), (x2, y2) in zip(poly, np.roll(poly, -1, axis=0)):
+        crosses = (y1 > y) != (y2 > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xc = x1 + (y - y1) * (x2 - x1) / (y2 - y1)
+        hit ^= crosses & (x < xc)
+    return hit
+
+
 def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     """Even-odd rule: which of ``points`` (n, 2) lie inside ``polygon`` (k, 2).  Only the
     points near the polygon's bounding box are tested (outside it the rule gives False:
@@ -136,14 +148,7 @@ def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     poly = np.asarray(polygon, dtype=float)
     inside = np.zeros(len(points), dtype=bool)
     near = _near(points, poly, 0.0)
-    x, y = points[near, 0], points[near, 1]
-    hit = np.zeros(len(near), dtype=bool)
-    for (x1, y1), (x2, y2) in zip(poly, np.roll(poly, -1, axis=0)):
-        crosses = (y1 > y) != (y2 > y)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            xc = x1 + (y - y1) * (x2 - x1) / (y2 - y1)
-        hit ^= crosses & (x < xc)
-    inside[near] = hit
+    inside[near] = _even_odd(points[near], poly)
     return inside
 
 
@@ -152,7 +157,7 @@ def _on_or_in_polygon(points: np.ndarray, polygon: np.ndarray, tol: float) -> np
     poly = np.asarray(polygon, dtype=float)
     near = _near(points, poly, tol)
     q = points[near]
-    hit = points_in_polygon(q, poly)
+    hit = _even_odd(q, poly)
     for a, b in zip(poly, np.roll(poly, -1, axis=0)):
         ab = b - a
         t = np.clip(((q - a) @ ab) / max(ab @ ab, 1e-300), 0.0, 1.0)
