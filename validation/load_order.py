@@ -1,0 +1,86 @@
+"""A run is the same whether its kernels were compiled in the process or loaded from
+numba's cache, on 1 and on 2 threads (a realization is a pure function of the scene).
+
+Why this can fail.  numba compiles every function into a code library of its own, and a
+caller's library gets a copy of each compiled callee it calls (``linkonce_odr``, a weak
+symbol), optimized a second time inside the caller.  Which copy of a shared kernel a run
+executes depends on what the process loaded first: a process that *compiles* the serial
+driver compiles (and loads) the callees first, so calls go to the callees' own libraries;
+a process that *loads* the drivers from the cache loads the drivers' copies first; a
+process on two threads loads the threaded driver's copies.  The copies run the same
+arithmetic only if the second optimization does not change it.  With numba's default
+passes it does not (every kernel's copies compute bitwise the same: this script); with
+LLVM's SLP vectorizer switched on (``NUMBA_SLP_VECTORIZE=1``, which numba leaves off) and
+FMA contraction, the copies pack and fuse differently, and a run compiled in its process
+and the same run from the cache took 2 115 and 2 114 steps to t = 6 s (``--slp`` shows it).
+
+The check runs case (i) of the reference slope to ``--t-end`` in child processes sharing a
+numba cache directory of their own (empty at the start): on 1 thread compiled, then from
+the cache; on 2 threads with the threaded driver compiled (its callees from the cache),
+then all from the cache; and compares a sha1 of the points' positions, velocities,
+stresses, log strains and material states and the step counts.  ~20 s of compile, then a
+few seconds per run at ``--t-end 2``.  Exit status 0 when all agree, 1 otherwise.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "meshes" / "slope_reference.toml"
+
+# The child: one run, then "<steps> <sha1>" on its last line.
+_CHILD = """
+import hashlib, sys
+import numpy as np
+from fem_rmpm import api
+from fem_rmpm.explicit import run_explicit
+from fem_rmpm.scene import load_scene, with_values
+scene = with_values(load_scene(sys.argv[1]), {"solver.t_end": float(sys.argv[2]),
+                                              "solver.threads": int(sys.argv[3])})
+grid, pts = api.prepare(scene)
+rec = run_explicit(scene, grid, pts)
+h = hashlib.sha1()
+for a in (pts.x, pts.velocity, pts.stress, pts.log_strain, pts.state):
+    h.update(np.ascontiguousarray(a).tobytes())
+print(rec.steps, h.hexdigest())
+"""
+
+
+def child_run(cache: Path, t_end: float, threads: int, slp: bool) -> tuple:
+    """(steps, sha1) of one run in a fresh interpreter using numba cache ``cache``."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONPATH=str(ROOT))
+    env.pop("NUMBA_SLP_VECTORIZE", None)
+    if slp:
+        env["NUMBA_SLP_VECTORIZE"] = "1"
+    out = subprocess.run([sys.executable, "-c", _CHILD, str(SCENE), repr(t_end), str(threads)],
+                         env=env, cwd=ROOT, check=True, capture_output=True, text=True)
+    steps, digest = out.stdout.split()[-2:]
+    return int(steps), digest
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--t-end", type=float, default=2.0, help="simulated seconds per run")
+    ap.add_argument("--slp", action="store_true",
+                    help="with numba's SLP vectorizer on (expected to DIFFER: module docstring)")
+    a = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="fem-rmpm-load-order-") as tmp:
+        cache = Path(tmp)
+        runs = {name: child_run(cache, a.t_end, th, a.slp)
+                for name, th in (("compiled, 1 thread", 1), ("cached, 1 thread", 1),
+                                 ("compiled, 2 threads", 2), ("cached, 2 threads", 2))}
+    for name, (steps, digest) in runs.items():
+        print(f"{name:21s} {steps:6d} steps  {digest}")
+    same = len(set(runs.values())) == 1
+    print(f"load order {'does not change' if same else 'CHANGES'} the run "
+          f"(t = {a.t_end:g} s{', SLP on' if a.slp else ''})")
+    return 0 if same else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
