@@ -25,6 +25,11 @@ FASTMATH = {"contract", "arcp", "nsz"}
 # (t = 25 s, 1 thread): map to nodes ~18.5 -> ~14.5 ns per point, the map back ~12.3 -> ~10.3
 # (with gravity moved onto the mesh, :func:`.transfer._solve_nodes`).
 jit = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy")
+# Each caller's compiled code holds a copy of every compiled (not inlined) callee, optimized
+# again there; which copy a call runs depends on what the process loaded first (compiled in
+# the process: the callee's own; from the cache: the caller's).  The copies must compute
+# the same: ``validation/load_order.py`` checks that they do (with LLVM's SLP vectorizer
+# on, numba's default off, they did not).
 # The step kernels allocate nothing, so they run without numba's reference counting
 # (NRT): with it, every array handed to an inlined per-point helper is incref'd and
 # decref'd (atomic operations) once per point, which made G2P ~4x slower (56 vs 13
