@@ -1,7 +1,7 @@
 """A run does not depend on which compiled copy of a shared kernel its process loaded
 first (``validation/load_order.py``: compiled in the process or loaded from numba's cache,
-on 1 and on 2 threads).  Slow: one cold compile of the kernels (~20 s) in a cache
-directory of its own, then three more runs to t = 1 s."""
+on 1 and on 2 threads).  Slow: each case compiles the kernels cold (~20 s) in a cache
+directory of its own, then runs three more times."""
 from __future__ import annotations
 
 import pytest
@@ -10,7 +10,19 @@ from validation_module import load
 
 
 @pytest.mark.slow
-def test_compiled_and_cached_kernels_give_the_same_run():
+@pytest.mark.parametrize("args", [
+    ["--t-end", "4"],                                                   # case (i): Q4
+    ["--t-end", "1", "--set", "solver.shape=gimp", "--set", "solver.fbar=true"],
+    ["--t-end", "2", "--scene", "meshes/slope_drained.toml"],          # Mohr-Coulomb
+])
+def test_compiled_and_cached_kernels_give_the_same_run(args):
     """The four runs' step counts and state hashes are equal (exit status 0).  The check
     fails with numba's SLP vectorizer on (``--slp``: measured, module docstring)."""
-    assert load("load_order").main(["--t-end", "1"]) == 0
+    assert load("load_order").main(args) == 0
+
+
+@pytest.mark.slow
+def test_bad_setting_is_refused_in_one_line(capsys):
+    """A ``--set`` that is not KEY=VALUE: exit status 2, one line on stderr, no run."""
+    assert load("load_order").main(["--set", "solver.shape"]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1

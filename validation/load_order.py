@@ -14,7 +14,8 @@ LLVM's SLP vectorizer switched on (``NUMBA_SLP_VECTORIZE=1``, which numba leaves
 FMA contraction, the copies pack and fuse differently, and a run compiled in its process
 and the same run from the cache took 2 115 and 2 114 steps to t = 6 s (``--slp`` shows it).
 
-The check runs case (i) of the reference slope to ``--t-end`` in child processes sharing a
+The check runs case (i) of the reference slope (or ``--scene`` with ``--set`` changes,
+e.g. ``--set solver.shape=gimp --set solver.fbar=true``) to ``--t-end`` in child processes sharing a
 numba cache directory of their own (empty at the start): on 1 thread compiled, then from
 the cache; on 2 threads with the threaded driver compiled (its callees from the cache),
 then all from the cache; and compares a sha1 of the points' positions, velocities,
@@ -24,24 +25,29 @@ few seconds per run at ``--t-end 2``.  Exit status 0 when all agree, 1 otherwise
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+from fem_rmpm.cli import parse_settings
+from fem_rmpm.errors import InputError
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "meshes" / "slope_reference.toml"
 
 # The child: one run, then "<steps> <sha1>" on its last line.
 _CHILD = """
-import hashlib, sys
+import hashlib, json, sys
 import numpy as np
 from fem_rmpm import api
 from fem_rmpm.explicit import run_explicit
 from fem_rmpm.scene import load_scene, with_values
-scene = with_values(load_scene(sys.argv[1]), {"solver.t_end": float(sys.argv[2]),
-                                              "solver.threads": int(sys.argv[3])})
+changes = dict(json.loads(sys.argv[4]), **{"solver.t_end": float(sys.argv[2]),
+                                            "solver.threads": int(sys.argv[3])})
+scene = with_values(load_scene(sys.argv[1]), changes)
 grid, pts = api.prepare(scene)
 rec = run_explicit(scene, grid, pts)
 h = hashlib.sha1()
@@ -51,13 +57,16 @@ print(rec.steps, h.hexdigest())
 """
 
 
-def child_run(cache: Path, t_end: float, threads: int, slp: bool) -> tuple:
-    """(steps, sha1) of one run in a fresh interpreter using numba cache ``cache``."""
+def child_run(cache: Path, scene: Path, changes: dict, t_end: float, threads: int,
+              slp: bool) -> tuple:
+    """(steps, sha1) of one run of ``scene`` (with ``changes``, dotted keys) in a fresh
+    interpreter using numba cache ``cache``."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONPATH=str(ROOT))
     env.pop("NUMBA_SLP_VECTORIZE", None)
     if slp:
         env["NUMBA_SLP_VECTORIZE"] = "1"
-    out = subprocess.run([sys.executable, "-c", _CHILD, str(SCENE), repr(t_end), str(threads)],
+    out = subprocess.run([sys.executable, "-c", _CHILD, str(scene), repr(t_end), str(threads),
+                          json.dumps(changes)],
                          env=env, cwd=ROOT, check=True, capture_output=True, text=True)
     steps, digest = out.stdout.split()[-2:]
     return int(steps), digest
@@ -65,19 +74,33 @@ def child_run(cache: Path, t_end: float, threads: int, slp: bool) -> tuple:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", type=Path, default=SCENE, help="scene file (TOML)")
+    ap.add_argument("--set", action="append", metavar="KEY=VALUE",
+                    help="as fem-rmpm run --set, e.g. solver.shape=gimp (repeatable)")
     ap.add_argument("--t-end", type=float, default=2.0, help="simulated seconds per run")
     ap.add_argument("--slp", action="store_true",
                     help="with numba's SLP vectorizer on (expected to DIFFER: module docstring)")
     a = ap.parse_args(argv)
+    try:
+        changes = parse_settings(a.set, str(a.scene))
+    except InputError as exc:
+        print(f"load_order: {exc}", file=sys.stderr)
+        return 2
     with tempfile.TemporaryDirectory(prefix="fem-rmpm-load-order-") as tmp:
         cache = Path(tmp)
-        runs = {name: child_run(cache, a.t_end, th, a.slp)
-                for name, th in (("compiled, 1 thread", 1), ("cached, 1 thread", 1),
-                                 ("compiled, 2 threads", 2), ("cached, 2 threads", 2))}
+        try:
+            runs = {name: child_run(cache, a.scene, changes, a.t_end, th, a.slp)
+                    for name, th in (("compiled, 1 thread", 1), ("cached, 1 thread", 1),
+                                     ("compiled, 2 threads", 2), ("cached, 2 threads", 2))}
+        except subprocess.CalledProcessError as exc:
+            last = (exc.stderr or "").strip().splitlines()[-1:] or ["(no message)"]
+            print(f"load_order: the run failed: {last[0]}", file=sys.stderr)
+            return 2
     for name, (steps, digest) in runs.items():
         print(f"{name:21s} {steps:6d} steps  {digest}")
     same = len(set(runs.values())) == 1
-    print(f"load order {'does not change' if same else 'CHANGES'} the run "
+    what = " ".join([a.scene.name, *(a.set or [])])
+    print(f"load order {'does not change' if same else 'CHANGES'} the run of {what} "
           f"(t = {a.t_end:g} s{', SLP on' if a.slp else ''})")
     return 0 if same else 1
 
