@@ -9,14 +9,15 @@ driver compiles (and loads) the callees first, so calls go to the callees' own l
 a process that *loads* the drivers from the cache loads the drivers' copies first; a
 process on two threads loads the threaded driver's copies.  The copies run the same
 arithmetic only if the second optimization does not change it.  With numba's default
-passes it does not (every kernel's copies compute bitwise the same: this script); with
+passes it does not (the runs this script compares are bitwise the same); with
 LLVM's SLP vectorizer switched on (``NUMBA_SLP_VECTORIZE=1``, which numba leaves off) and
 FMA contraction, the copies pack and fuse differently, and a run compiled in its process
 and the same run from the cache took 2 115 and 2 114 steps to t = 6 s (``--slp`` shows it).
 
 The check runs case (i) of the reference slope (or ``--scene`` with ``--set`` changes,
-e.g. ``--set solver.shape=gimp --set solver.fbar=true``) to ``--t-end`` in child processes sharing a
-numba cache directory of their own (empty at the start): on 1 thread compiled, then from
+e.g. ``--set solver.shape=gimp --set solver.fbar=true``) to ``--t-end`` in child
+processes sharing a numba cache directory of their own (empty at the start): on 1 thread
+compiled, then from
 the cache; on 2 threads with the threaded driver compiled (its callees from the cache),
 then all from the cache; and compares a sha1 of the points' positions, velocities,
 stresses, log strains and material states and the step counts.  ~20 s of compile, then a
