@@ -1,7 +1,7 @@
 """A run does not depend on which compiled copy of a shared kernel its process loaded
 first (``validation/load_order.py``: compiled in the process or loaded from numba's cache,
-on 1 and on 2 threads).  Slow: each case compiles the kernels cold (~20 s) in a cache
-directory of its own, then runs three more times."""
+on 1 and on 2 threads).  The comparisons are slow: each compiles the kernels cold (~20 s)
+in a cache directory of its own, then runs three more times."""
 from __future__ import annotations
 
 import pytest
@@ -21,8 +21,8 @@ def test_compiled_and_cached_kernels_give_the_same_run(args):
     assert load("load_order").main(args) == 0
 
 
-@pytest.mark.slow
 def test_bad_setting_is_refused_in_one_line(capsys):
-    """A ``--set`` that is not KEY=VALUE: exit status 2, one line on stderr, no run."""
+    """A ``--set`` that is not KEY=VALUE: exit status 2, one line on stderr, no run (not
+    slow: refused before any child process starts)."""
     assert load("load_order").main(["--set", "solver.shape"]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
