@@ -26,6 +26,10 @@ the same run (``tests/test_threads.py``).  Against the single point-order sum of
 ``np.bincount`` (the numpy path) this only regroups the sums at nodes both halves touch
 (round-off, ~1e-16 relative per step).  The grid kinetic energy is summed over the first
 half's nodes, then the second half's that the first did not touch.
+
+**Pairs.**  A point's or a node's x and y components (velocity, momentum, force,
+acceleration) are read, combined and written as one 2-wide vector (:mod:`.pairs`:
+explicit vector operations and fused multiply-adds, so every caller rounds alike).
 """
 from __future__ import annotations
 
@@ -38,6 +42,7 @@ from .arrays import NodeArrays
 from .basis import gimp, q4_at, q4_cell
 from .common import (MASS_TOL, fixed_columns, half_split, inline, kernel, kernel_exact,
                      kernel_parallel, xy)
+from .pairs import fma2, fma2_to, load2, mul2, sub2_from
 
 __all__ = ["map_to_nodes", "map_to_nodes_parallel", "solve_and_move", "solve_and_move_parallel",
            "nodal_velocity", "nodal_velocities", "nodal_velocities_parallel", "half_range"]
@@ -82,12 +87,13 @@ def _scatter(sh, i, P, N, nt):
     nodes, w, dx, dy = sh
     m, p, f, flag, touched = N.m, N.p, N.f, N.flag, N.touched
     mp = P.mass[i]
-    mv0 = mp * P.v[i, 0]
-    mv1 = mp * P.v[i, 1]
+    mv = mul2(mp, (P.v[i, 0], P.v[i, 1]))
     vol = P.vol[i]
     sx = P.stress[i, 0] * vol
     sy = P.stress[i, 1] * vol
     sxy = P.stress[i, 3] * vol
+    s_x = (sx, sxy)                  # the stress's rows (times volume): the force at a
+    s_y = (sxy, sy)                  # node with gradient (dx, dy) is dx s_x + dy s_y
     for k in range(len(nodes)):
         a = nodes[k]
         if flag[a] == 0:
@@ -97,10 +103,8 @@ def _scatter(sh, i, P, N, nt):
         wk = w[k]
         m[a] += wk * mp
         ax, ay = xy(a)
-        p[ax] += wk * mv0
-        p[ay] += wk * mv1
-        f[ax] -= sx * dx[k] + sxy * dy[k]
-        f[ay] -= sxy * dx[k] + sy * dy[k]
+        fma2_to(p, ax, wk, mv)
+        sub2_from(f, ax, fma2(dx[k], s_x, mul2(dy[k], s_y)))
     return nt
 
 
@@ -209,18 +213,15 @@ def _solve_nodes(M, T, H, o, c):
 def _g2p_point(sh, i, P, N, v_remap, S, o):
     nodes, w, _, _ = sh
     v_new, acc, p2, v, x, dt, flip = N.v_new, N.acc, v_remap, P.v, P.x, o.dt, o.flip
-    vp0 = 0.0
-    vp1 = 0.0
-    ap0 = 0.0
-    ap1 = 0.0
+    vp = (0.0, 0.0)
+    ap = (0.0, 0.0)
     for k in range(len(nodes)):
-        ax, ay = xy(nodes[k])
-        vp0 += w[k] * v_new[ax]
-        vp1 += w[k] * v_new[ay]
-        ap0 += w[k] * acc[ax]
-        ap1 += w[k] * acc[ay]
-    v0 = flip * (v[i, 0] + dt * ap0) + (1.0 - flip) * vp0
-    v1 = flip * (v[i, 1] + dt * ap1) + (1.0 - flip) * vp1
+        ax, _ = xy(nodes[k])
+        vp = fma2(w[k], load2(v_new, ax), vp)
+        ap = fma2(w[k], load2(acc, ax), ap)
+    vp0, vp1 = vp
+    # FLIP / PIC blend: v <- flip (v + dt a_pic) + (1 - flip) v_pic
+    v0, v1 = fma2(flip, fma2(dt, ap, (v[i, 0], v[i, 1])), mul2(1.0 - flip, vp))
     v[i, 0] = v0
     v[i, 1] = v1
     x0 = x[i, 0]
@@ -232,15 +233,11 @@ def _g2p_point(sh, i, P, N, v_remap, S, o):
         P.u_geo[i, 0] += dt * vp0
         P.u_geo[i, 1] += dt * vp1
     else:
-        x[i, 0] = x0 + dt * vp0
-        x[i, 1] = x1 + dt * vp1
-    mp = P.mass[i]
-    mv0 = mp * v0
-    mv1 = mp * v1
+        x[i, 0], x[i, 1] = fma2(dt, vp, (x0, x1))
+    mv = mul2(P.mass[i], (v0, v1))
     for k in range(len(nodes)):
-        ax, ay = xy(nodes[k])
-        p2[ax] += w[k] * mv0
-        p2[ay] += w[k] * mv1
+        ax, _ = xy(nodes[k])
+        fma2_to(p2, ax, w[k], mv)
     return vp0 * vp0 + vp1 * vp1
 
 
