@@ -17,7 +17,8 @@ from validation_module import load
 ])
 def test_compiled_and_cached_kernels_give_the_same_run(args):
     """The four runs' step counts and state hashes are equal (exit status 0).  The check
-    fails with numba's SLP vectorizer on (``--slp``: measured, module docstring)."""
+    failed with numba's SLP vectorizer on before the map's pair intrinsics (``--slp`` on
+    c8efb93: two hashes at t = 2 s, measured; the script's module docstring)."""
     assert load("load_order").main(args) == 0
 
 

@@ -29,7 +29,8 @@ jit = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy")
 # again there; which copy a call runs depends on what the process loaded first (compiled in
 # the process: the callee's own; from the cache: the caller's).  The copies must compute
 # the same: ``validation/load_order.py`` checks that they do (with LLVM's SLP vectorizer
-# on, numba's default off, they did not).
+# on, numba's default off, the map's copies did not until its x, y twins were written as
+# explicit vector operations, :mod:`.pairs`).
 # The step kernels allocate nothing, so they run without numba's reference counting
 # (NRT): with it, every array handed to an inlined per-point helper is incref'd and
 # decref'd (atomic operations) once per point, which made G2P ~4x slower (56 vs 13
