@@ -20,11 +20,11 @@ vector operations and fused multiply-adds out (``fem_rmpm/kernels/pairs.py``): w
 The check runs case (i) of the reference slope (or ``--scene`` with ``--set`` changes,
 e.g. ``--set solver.shape=gimp --set solver.fbar=true``) to ``--t-end`` in child
 processes sharing a numba cache directory of their own (empty at the start): on 1 thread
-compiled, then from
-the cache; on 2 threads with the threaded driver compiled (its callees from the cache),
-then all from the cache; and compares a sha1 of the points' positions, velocities,
-stresses, log strains and material states and the step counts.  ~20 s of compile, then a
-few seconds per run at ``--t-end 2``.  Exit status 0 when all agree, 1 otherwise.
+compiled, then from the cache; on 2 threads with the threaded driver compiled (its
+callees from the cache), then all from the cache; and compares a sha1 of the points'
+positions, velocities, stresses, log strains and material states and the step counts.
+~20 s of compile, then a few seconds per run at ``--t-end 2``.  Exit status 0 when all
+agree, 1 otherwise.
 """
 from __future__ import annotations
 

@@ -3,17 +3,18 @@
 numba compiles scalar code: ``p[2a] += w mv_x; p[2a + 1] += w mv_y`` is two loads, two
 fused multiply-adds and two stores.  LLVM's SLP vectorizer would pack such twins into
 one vector operation, but numba turns it off (it miscompiled), and where it ran it
-packed and fused a kernel differently in each caller, so that a run loaded from numba's
-cache differed from the same run compiled in its process (``validation/load_order.py
---slp``).  These intrinsics write the packing out.  Each takes and returns pairs as
-``(x, y)`` tuples of float64 and does its arithmetic as one ``<2 x double>`` operation:
-a product that is added is an explicit ``llvm.fma`` (one rounding per component, as
-IEEE 754's fusedMultiplyAdd), and no operation carries a fast-math flag, so LLVM cannot
-fuse, split or regroup them differently in different callers: every caller computes the
-same bits, on one thread or two, compiled or cached.  LLVM folds the tuples away (the
-pairs stay in vector registers between intrinsics).  A nodal vector array (interleaved
-x, y: :func:`.common.xy`) is read and written at ``a[i], a[i + 1]`` as one pair; ``i``
-is not bounds-checked (the kernels' node numbers are valid, as for every kernel access).
+packed and fused the map's kernels differently in each caller, so that a run loaded from
+numba's cache differed from the same run compiled in its process
+(``validation/load_order.py --slp`` before these intrinsics; it agrees since).  These
+intrinsics write the packing out.  Each takes and returns pairs as ``(x, y)`` tuples of
+float64 and does its arithmetic as one ``<2 x double>`` operation: a product that is
+added is an explicit ``llvm.fma`` (one rounding per component, as IEEE 754's
+fusedMultiplyAdd), and no operation carries a fast-math flag, so LLVM cannot fuse, split
+or regroup them differently in different callers: every caller computes the same bits,
+on one thread or two, compiled or cached.  LLVM folds the tuples away (the pairs stay in
+vector registers between intrinsics).  A nodal vector array (interleaved x, y:
+:func:`.common.xy`) is read and written at ``a[i], a[i + 1]`` as one pair; ``i`` is not
+bounds-checked (the kernels' node numbers are valid, as for every kernel access).
 
 Used by the map to nodes and the map back (:mod:`.transfer`): case (i), one thread,
 0.92-0.95x the time of the scalar code (9 interleaved pairs; the README's
