@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import typeof
 
-from .common import BLOCK, QUEUE_STRIDE
+from .common import BLOCK, BLOCK_COLUMNS, BLOCK_ROWS, QUEUE_STRIDE
 
 CHUNKS = 64          # the most chunks (threads) of the stress pass
 
@@ -57,7 +57,7 @@ does without (seen in the map's machine code; case (i), one thread: 0.95-0.98x t
 in 7 interleaved pairs, the run bitwise the same)."""
 
 Scratch = namedtuple("Scratch",
-                     "x_old W ta tb tc host D cell_v cell_vdj out parts halves q4_ll q4_st queue")
+                     "x_old W ta tb tc host D cell_v cell_vdj out parts halves q4_ll q4_st queue Z")
 Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the block scratch of the
 stress pass, one row per chunk (thread) of :data:`CHUNKS`: W (CHUNKS, 8, :data:`W_COLUMNS`),
 per point of a block (its first BLOCK columns) the trial state in rows 0-3 and the
@@ -75,7 +75,9 @@ points have not moved in between); ``queue`` (2 QUEUE_STRIDE,) int64: at 0 and
 :data:`.common.QUEUE_STRIDE` the next block of the stress pass's two work queues, one per
 half of the points, and :data:`.common.QUEUE_FLAG` after each the flag of that half's
 published nodal velocities (:func:`.stress._stress_queue_call`; the padding puts each
-queue on a cache line of its own)."""
+queue on a cache line of its own); ``Z`` (CHUNKS, :data:`.common.BLOCK_ROWS`,
+:data:`.common.BLOCK_COLUMNS`): per chunk the block scratch of a material's vectorised
+update (trial strains in, strains and Kirchhoff stress out; :mod:`.stress`)."""
 
 StepOptions = namedtuple("StepOptions",
                          "dt gx gy damping flip geostatic gimp fbar threads model",
@@ -230,4 +232,5 @@ def scratch_for(n: int, n_cells: int) -> Scratch:
                    np.zeros(n, np.int64), np.zeros((n, 4)),
                    np.zeros(n_cells), np.zeros(n_cells), np.zeros(4), np.zeros((CHUNKS, 2)),
                    np.zeros((2, 5)), np.zeros(n, np.int64), np.zeros((n, 2)),
-                   np.zeros(2 * QUEUE_STRIDE, np.int64))
+                   np.zeros(2 * QUEUE_STRIDE, np.int64),
+                   _page_rows((CHUNKS, BLOCK_ROWS, BLOCK_COLUMNS), 1024))

@@ -67,6 +67,12 @@ kernel_parallel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="n
 # halves split at a block boundary (the scatters: .transfer); whole blocks from point 0,
 # so that blocks, halves and every point's code do not depend on the thread count.
 BLOCK = 128
+# The block scratch of a material's vectorised update (``block_update`` of
+# :mod:`fem_rmpm.materials.protocol`): per chunk (thread) BLOCK_ROWS rows of BLOCK_COLUMNS
+# (>= BLOCK) float64, the columns promised to LLVM (:func:`assume_columns`), so that it can
+# tell the rows apart and vectorise a loop that reads some and writes others.
+BLOCK_ROWS = 16
+BLOCK_COLUMNS = 192
 # The stress pass's two work queues (one per half of the points): counters at elements 0
 # and QUEUE_STRIDE of an int64 array, so that each sits on a cache line of its own, each
 # with its half's nodal-velocity flag QUEUE_FLAG elements after it.

@@ -24,6 +24,12 @@ the version number (:func:`fem_rmpm.kernels.material_kernels`): numba's cache ke
 includes a closure's values, and the overload sees ``version`` as a literal, so a new
 model or an edited model file gives a new key and one fresh compile (~1 s), never a
 stale chain.  An unknown id returns NaN (caught by the run's non-finite guard).
+
+``has_block_update(version, only)`` and ``block_dispatch(version, only, Z, state, params,
+active, b, m)``: a kernel restricted to one model (``only`` >= 0) whose module has the
+optional vectorised ``block_update`` (:mod:`.protocol`) runs it on whole blocks of points
+(:func:`fem_rmpm.kernels.stress`'s finish pass); the first is a compile-time constant, so
+the other kernels compile no block code.
 """
 from __future__ import annotations
 
@@ -34,7 +40,7 @@ from numba.extending import overload
 
 from . import registry
 
-__all__ = ["point_dispatch"]
+__all__ = ["point_dispatch", "block_dispatch", "has_block_update"]
 
 
 def point_dispatch(version, only, model, e0, e1, e2, e3, state, params, i):
@@ -60,3 +66,45 @@ def _point_dispatch(version, only, model, e0, e1, e2, e3, state, params, i):
     scope = dict(fns, np=np)
     exec("\n".join(lines), scope)    # generated from the registry above, no user input
     return scope["impl"]
+
+
+def _literals(version, only):
+    if not (isinstance(version, types.IntegerLiteral) and isinstance(only, types.IntegerLiteral)):
+        raise TypingError("the block dispatch needs the registry version and the model "
+                          "restriction as literals (closure values of the calling kernel)")
+    return only.literal_value
+
+
+def _block_update_of(only: int):
+    """The ``block_update`` of model ``only`` (None: any model, or it has none)."""
+    return getattr(registry.models()[only], "block_update", None) if only >= 0 else None
+
+
+def has_block_update(version, only):
+    """Placeholder called from numba code only: whether the one model of a restricted
+    kernel (``only`` >= 0) has a vectorised ``block_update`` (a compile-time constant)."""
+    raise NotImplementedError("has_block_update runs inside numba kernels only")
+
+
+@overload(has_block_update, inline="always")
+def _has_block_update(version, only):
+    if _block_update_of(_literals(version, only)) is None:
+        return lambda version, only: False
+    return lambda version, only: True
+
+
+def block_dispatch(version, only, Z, state, params, active, b, m):
+    """Placeholder called from numba code only: the ``block_update`` of the one model of
+    a restricted kernel (see :func:`has_block_update`; False where there is none)."""
+    raise NotImplementedError("block_dispatch runs inside numba kernels only")
+
+
+@overload(block_dispatch, inline="always")
+def _block_dispatch(version, only, Z, state, params, active, b, m):
+    fn = _block_update_of(_literals(version, only))
+    if fn is None:
+        return lambda version, only, Z, state, params, active, b, m: False
+
+    def impl(version, only, Z, state, params, active, b, m):
+        return fn(Z, state, params, active, b, m)
+    return impl
