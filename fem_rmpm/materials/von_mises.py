@@ -287,17 +287,37 @@ def block_update(Z, state, params, active, b, m):
     active points updated.  Each point's result is bitwise :func:`point_update`'s: the same
     operations, with both branches computed and one selected, so that LLVM's loop
     vectorizer takes four or eight points per instruction (the branches on "yields" and
-    on the softening branch went either way from point to point).  False, with nothing
-    written, when a point of the block softens exponentially or non-locally (its Newton
-    iteration or frozen strength: :func:`point_update`)."""
-    assume_columns(Z, BLOCK_COLUMNS)
+    on the softening branch went either way from point to point).  Two passes: the elastic
+    trial of every point (:func:`_elastic_trial`), then, only if a point of the block
+    yields, the return (:func:`_radial_return`).  False, with nothing written, when a
+    point of the block softens exponentially or non-locally (its Newton iteration or
+    frozen strength: :func:`point_update`)."""
     nonlocal_column = params.shape[1] > _REG
     for j in range(m):
         i = b + j
         if params[i, _EXP] != 0.0 or (nonlocal_column and params[i, _REG] == _NONLOCAL):
             return False
     soft = 1 if state.shape[1] > 1 else 0          # the softening variable's column
-    for j in range(m):                              # (vectorised: writes Z only)
+    if _elastic_trial(Z, state, params, soft, b, m) == 0:
+        return True
+    _radial_return(Z, state, params, soft, b, m)
+    for j in range(m):                              # the state, point by point
+        i = b + j
+        if active[i] and Z[13, j] != 0.0:
+            gam = state[i, soft]
+            state[i, 0] += Z[12, j]
+            state[i, soft] = gam + Z[12, j]
+    return True
+
+
+@jit
+def _elastic_trial(Z, state, params, soft, b, m):
+    """Pass 1 of :func:`block_update` (vectorised): the elastic result into ``Z[4:12]``,
+    ``q = sqrt(J2)`` of the trial stress into ``Z[12]`` and the cohesion into ``Z[13]``;
+    returns the number of yielding points."""
+    assume_columns(Z, BLOCK_COLUMNS)
+    n_plastic = 0
+    for j in range(m):
         i = b + j
         e0, e1, e2, e3 = Z[0, j], Z[1, j], Z[2, j], Z[3, j]
         G, K = params[i, 0], params[i, 1]
@@ -315,7 +335,29 @@ def block_update(Z, state, params, active, b, m):
         s2 = t2 - pm
         q = math.sqrt(0.5 * (s0 * s0 + s1 * s1 + s2 * s2) + t3 * t3)
         c0 = cp - (cp - cr) * gam / gs if gam < gs else cr
+        Z[4, j], Z[5, j], Z[6, j], Z[7, j] = e0, e1, e2, e3
+        Z[8, j], Z[9, j], Z[10, j], Z[11, j] = t0, t1, t2, t3
+        Z[12, j] = q
+        Z[13, j] = c0
+        n_plastic += q > c0 * (1 + 1e-12)
+    return n_plastic
+
+
+@jit
+def _radial_return(Z, state, params, soft, b, m):
+    """Pass 2 of :func:`block_update` (vectorised): the yielding points' return into
+    ``Z[4:12]`` (the others keep pass 1's), their plastic multiplier into ``Z[12]`` (else
+    0) and 1 into ``Z[13]`` (else 0)."""
+    assume_columns(Z, BLOCK_COLUMNS)
+    for j in range(m):
+        i = b + j
+        e0, e1, e2, e3 = Z[0, j], Z[1, j], Z[2, j], Z[3, j]
+        q, c0 = Z[12, j], Z[13, j]
         plastic = q > c0 * (1 + 1e-12)
+        G, K = params[i, 0], params[i, 1]
+        cp, cr, gs = params[i, _CP], params[i, _CR], params[i, _GS]
+        gam = state[i, soft]
+        lam = K - 2 / 3 * G
         hs = (cp - cr) / gs                         # the softening branch ...
         num = q - c0
         r = 1.0 / ((G - hs) * q)
@@ -330,23 +372,16 @@ def block_update(Z, state, params, active, b, m):
         n2 = (e2 - vol3) * scale + vol3
         n3 = e3 * scale
         vn = n0 + n1 + n2
-        Z[4, j] = n0 if plastic else e0
-        Z[5, j] = n1 if plastic else e1
-        Z[6, j] = n2 if plastic else e2
-        Z[7, j] = n3 if plastic else e3
-        Z[8, j] = 2 * G * n0 + lam * vn if plastic else t0
-        Z[9, j] = 2 * G * n1 + lam * vn if plastic else t1
-        Z[10, j] = 2 * G * n2 + lam * vn if plastic else t2
-        Z[11, j] = 2 * G * n3 if plastic else t3
+        Z[4, j] = n0 if plastic else Z[4, j]
+        Z[5, j] = n1 if plastic else Z[5, j]
+        Z[6, j] = n2 if plastic else Z[6, j]
+        Z[7, j] = n3 if plastic else Z[7, j]
+        Z[8, j] = 2 * G * n0 + lam * vn if plastic else Z[8, j]
+        Z[9, j] = 2 * G * n1 + lam * vn if plastic else Z[9, j]
+        Z[10, j] = 2 * G * n2 + lam * vn if plastic else Z[10, j]
+        Z[11, j] = 2 * G * n3 if plastic else Z[11, j]
         Z[12, j] = dg if plastic else 0.0
         Z[13, j] = 1.0 if plastic else 0.0
-    for j in range(m):                              # the state, point by point
-        i = b + j
-        if active[i] and Z[13, j] != 0.0:
-            gam = state[i, soft]
-            state[i, 0] += Z[12, j]
-            state[i, soft] = gam + Z[12, j]
-    return True
 
 
 # --------------------------------------------------------------- consistent tangent (implicit)
