@@ -253,7 +253,7 @@ def _finish_points(version, only, P, o, W, ta, tb, b, e):
     largest squared P-wave speed sqrt((K + 4/3 G) V / m) (for the next CFL step) and the
     number of points with a non-finite stress (for the guards; their positions and
     velocities are checked by the map back)."""
-    ls, stress, params = P.log_strain, P.stress, P.params
+    ls, params = P.log_strain, P.params
     c2max = 0.0
     n_bad = 0
     for i in range(b, e):
@@ -261,25 +261,34 @@ def _finish_points(version, only, P, o, W, ta, tb, b, e):
             continue
         e0, e1, e2, e3 = _trial_strain(o.geostatic, i, i - b, W, ta, tb, ls)
         r = point_dispatch(version, only, P.model[i], e0, e1, e2, e3, P.state, params, i)
-        ls[i, 0] = r[0]
-        ls[i, 1] = r[1]
-        ls[i, 2] = r[2]
-        ls[i, 3] = r[3]
-        V = P.vol[i]
-        ratio = P.vol0[i] / V
-        s0 = r[4] * ratio
-        s1 = r[5] * ratio
-        s2 = r[6] * ratio
-        s3 = r[7] * ratio
-        stress[i, 0] = s0
-        stress[i, 1] = s1
-        stress[i, 2] = s2
-        stress[i, 3] = s3
-        # for the next CFL step (max of sqrt = sqrt of max) and the guards
-        c2max = max(c2max, (params[i, 1] + 4.0 / 3.0 * params[i, 0]) * V / P.mass[i])
-        if not math.isfinite(s0 + s1 + s2 + s3):
-            n_bad += 1
+        c2, bad = _store(P, i, r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7])
+        c2max = max(c2max, c2)
+        n_bad += bad
     return c2max, n_bad
+
+
+@inline
+def _store(P, i, e0, e1, e2, e3, t0, t1, t2, t3):
+    """Point ``i``'s returned log strain and its Cauchy stress ``tau V0 / V``; returns its
+    squared P-wave speed (K + 4/3 G) V / m (for the next CFL step: max of sqrt = sqrt of
+    max) and 1 if its stress is not finite (for the guards), else 0."""
+    ls, stress, params = P.log_strain, P.stress, P.params
+    ls[i, 0] = e0
+    ls[i, 1] = e1
+    ls[i, 2] = e2
+    ls[i, 3] = e3
+    V = P.vol[i]
+    ratio = P.vol0[i] / V
+    s0 = t0 * ratio
+    s1 = t1 * ratio
+    s2 = t2 * ratio
+    s3 = t3 * ratio
+    stress[i, 0] = s0
+    stress[i, 1] = s1
+    stress[i, 2] = s2
+    stress[i, 3] = s3
+    bad = 0 if math.isfinite(s0 + s1 + s2 + s3) else 1
+    return (params[i, 1] + 4.0 / 3.0 * params[i, 0]) * V / P.mass[i], bad
 
 
 @inline
@@ -288,35 +297,22 @@ def _finish_block(version, only, P, o, W, ta, tb, Z, b, e):
     strains into ``Z[0:4]``, the model's strains and Kirchhoff stress from ``Z[4:12]``):
     ``(True, c2max, n_bad)``, or ``(False, 0, 0)`` with nothing written where the model
     declines the block (then :func:`_finish_points`; the same results either way)."""
-    ls, stress, params = P.log_strain, P.stress, P.params
     for i in range(b, e):
         j = i - b
-        Z[0, j], Z[1, j], Z[2, j], Z[3, j] = _trial_strain(o.geostatic, i, j, W, ta, tb, ls)
+        Z[0, j], Z[1, j], Z[2, j], Z[3, j] = _trial_strain(o.geostatic, i, j, W, ta, tb,
+                                                           P.log_strain)
     c2max = 0.0
     n_bad = 0
-    if not block_dispatch(version, only, Z, P.state, params, P.active, b, e - b):
+    if not block_dispatch(version, only, Z, P.state, P.params, P.active, b, e - b):
         return False, c2max, n_bad
     for i in range(b, e):
         if not P.active[i]:
             continue
         j = i - b
-        ls[i, 0] = Z[4, j]
-        ls[i, 1] = Z[5, j]
-        ls[i, 2] = Z[6, j]
-        ls[i, 3] = Z[7, j]
-        V = P.vol[i]
-        ratio = P.vol0[i] / V
-        s0 = Z[8, j] * ratio
-        s1 = Z[9, j] * ratio
-        s2 = Z[10, j] * ratio
-        s3 = Z[11, j] * ratio
-        stress[i, 0] = s0
-        stress[i, 1] = s1
-        stress[i, 2] = s2
-        stress[i, 3] = s3
-        c2max = max(c2max, (params[i, 1] + 4.0 / 3.0 * params[i, 0]) * V / P.mass[i])
-        if not math.isfinite(s0 + s1 + s2 + s3):
-            n_bad += 1
+        c2, bad = _store(P, i, Z[4, j], Z[5, j], Z[6, j], Z[7, j], Z[8, j], Z[9, j], Z[10, j],
+                         Z[11, j])
+        c2max = max(c2max, c2)
+        n_bad += bad
     return True, c2max, n_bad
 
 

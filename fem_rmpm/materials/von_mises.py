@@ -216,12 +216,8 @@ def _cohesion(gam, cp, cr, gs, expo):
 
 
 @njit(inline="always", fastmath=False, error_model="numpy")
-def point_update(e0, e1, e2, e3, state, params, i):
-    """:func:`update` for point ``i`` (writes ``state[i, 0]``)."""
-    G, K = params[i, 0], params[i, 1]
-    cp, cr, gs, expo = params[i, _CP], params[i, _CR], params[i, _GS], params[i, _EXP] == 1.0
-    soft = 1 if state.shape[1] > 1 else 0          # the softening variable's column
-    gam = state[i, soft]
+def _trial(e0, e1, e2, e3, G, K):
+    """Lame's lambda, the Kirchhoff stress of the log strain and its ``sqrt(J2)`` (kPa)."""
     lam = K - 2 / 3 * G
     vol = e0 + e1 + e2
     t0 = 2 * G * e0 + lam * vol
@@ -232,7 +228,30 @@ def point_update(e0, e1, e2, e3, state, params, i):
     s0 = t0 - pm
     s1 = t1 - pm
     s2 = t2 - pm
-    q = math.sqrt(0.5 * (s0 * s0 + s1 * s1 + s2 * s2) + t3 * t3)
+    return lam, t0, t1, t2, t3, math.sqrt(0.5 * (s0 * s0 + s1 * s1 + s2 * s2) + t3 * t3)
+
+
+@njit(inline="always", fastmath=False, error_model="numpy")
+def _returned(e0, e1, e2, e3, scale, G, lam):
+    """The log strain with its deviator scaled by ``scale``, and its Kirchhoff stress."""
+    vol3 = (e0 + e1 + e2) / 3
+    n0 = (e0 - vol3) * scale + vol3
+    n1 = (e1 - vol3) * scale + vol3
+    n2 = (e2 - vol3) * scale + vol3
+    n3 = e3 * scale
+    vn = n0 + n1 + n2
+    return n0, n1, n2, n3, 2 * G * n0 + lam * vn, 2 * G * n1 + lam * vn, \
+        2 * G * n2 + lam * vn, 2 * G * n3
+
+
+@njit(inline="always", fastmath=False, error_model="numpy")
+def point_update(e0, e1, e2, e3, state, params, i):
+    """:func:`update` for point ``i`` (writes ``state[i, 0]``)."""
+    G, K = params[i, 0], params[i, 1]
+    cp, cr, gs, expo = params[i, _CP], params[i, _CR], params[i, _GS], params[i, _EXP] == 1.0
+    soft = 1 if state.shape[1] > 1 else 0          # the softening variable's column
+    gam = state[i, soft]
+    lam, t0, t1, t2, t3, q = _trial(e0, e1, e2, e3, G, K)
     c0, _ = _cohesion(gam, cp, cr, gs, expo)
     if not q > c0 * (1 + 1e-12):
         return e0, e1, e2, e3, t0, t1, t2, t3
@@ -266,17 +285,10 @@ def point_update(e0, e1, e2, e3, state, params, i):
         if not soft_branch:
             dg = (q - cr) / G
             scale = cr / q
-    vol3 = (e0 + e1 + e2) / 3
-    e0 = (e0 - vol3) * scale + vol3
-    e1 = (e1 - vol3) * scale + vol3
-    e2 = (e2 - vol3) * scale + vol3
-    e3 = e3 * scale
-    vol = e0 + e1 + e2
     state[i, 0] += dg
     if not frozen:
         state[i, soft] = gam + dg
-    return (e0, e1, e2, e3, 2 * G * e0 + lam * vol, 2 * G * e1 + lam * vol,
-            2 * G * e2 + lam * vol, 2 * G * e3)
+    return _returned(e0, e1, e2, e3, scale, G, lam)
 
 
 @jit
@@ -323,17 +335,7 @@ def _elastic_trial(Z, state, params, soft, b, m):
         G, K = params[i, 0], params[i, 1]
         cp, cr, gs = params[i, _CP], params[i, _CR], params[i, _GS]
         gam = state[i, soft]
-        lam = K - 2 / 3 * G
-        vol = e0 + e1 + e2
-        t0 = 2 * G * e0 + lam * vol
-        t1 = 2 * G * e1 + lam * vol
-        t2 = 2 * G * e2 + lam * vol
-        t3 = 2 * G * e3
-        pm = (t0 + t1 + t2) / 3
-        s0 = t0 - pm
-        s1 = t1 - pm
-        s2 = t2 - pm
-        q = math.sqrt(0.5 * (s0 * s0 + s1 * s1 + s2 * s2) + t3 * t3)
+        _, t0, t1, t2, t3, q = _trial(e0, e1, e2, e3, G, K)
         c0 = cp - (cp - cr) * gam / gs if gam < gs else cr
         Z[4, j], Z[5, j], Z[6, j], Z[7, j] = e0, e1, e2, e3
         Z[8, j], Z[9, j], Z[10, j], Z[11, j] = t0, t1, t2, t3
@@ -360,26 +362,15 @@ def _radial_return(Z, state, params, soft, b, m):
         lam = K - 2 / 3 * G
         hs = (cp - cr) / gs                         # the softening branch ...
         num = q - c0
-        r = 1.0 / ((G - hs) * q)
-        dg_soft = num * q * r
-        scale_soft = 1 - G * num * r
+        rec = 1.0 / ((G - hs) * q)
+        dg_soft = num * q * rec
+        scale_soft = 1 - G * num * rec
         on_slope = (gam < gs) & (gam + dg_soft <= gs)
         dg = dg_soft if on_slope else (q - cr) / G  # ... or the residual one
         scale = scale_soft if on_slope else cr / q
-        vol3 = (e0 + e1 + e2) / 3
-        n0 = (e0 - vol3) * scale + vol3
-        n1 = (e1 - vol3) * scale + vol3
-        n2 = (e2 - vol3) * scale + vol3
-        n3 = e3 * scale
-        vn = n0 + n1 + n2
-        Z[4, j] = n0 if plastic else Z[4, j]
-        Z[5, j] = n1 if plastic else Z[5, j]
-        Z[6, j] = n2 if plastic else Z[6, j]
-        Z[7, j] = n3 if plastic else Z[7, j]
-        Z[8, j] = 2 * G * n0 + lam * vn if plastic else Z[8, j]
-        Z[9, j] = 2 * G * n1 + lam * vn if plastic else Z[9, j]
-        Z[10, j] = 2 * G * n2 + lam * vn if plastic else Z[10, j]
-        Z[11, j] = 2 * G * n3 if plastic else Z[11, j]
+        r = _returned(e0, e1, e2, e3, scale, G, lam)
+        for k in range(8):
+            Z[4 + k, j] = r[k] if plastic else Z[4 + k, j]
         Z[12, j] = dg if plastic else 0.0
         Z[13, j] = 1.0 if plastic else 0.0
 
