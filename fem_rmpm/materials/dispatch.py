@@ -50,11 +50,9 @@ def point_dispatch(version, only, model, e0, e1, e2, e3, state, params, i):
 
 @overload(point_dispatch, inline="always")
 def _point_dispatch(version, only, model, e0, e1, e2, e3, state, params, i):
-    if not (isinstance(version, types.IntegerLiteral) and isinstance(only, types.IntegerLiteral)):
-        raise TypingError("point_dispatch needs the registry version and the model "
-                          "restriction as literals (closure values of the calling kernel)")
     models = registry.models()
-    ids = range(len(models)) if only.literal_value < 0 else [only.literal_value]
+    only = _literals("point_dispatch", version, only)
+    ids = range(len(models)) if only < 0 else [only]
     fns = {f"_f{k}": models[k].point_update for k in ids}
     lines = ["def impl(version, only, model, e0, e1, e2, e3, state, params, i):"]
     for k, name in zip(ids, fns):
@@ -68,9 +66,10 @@ def _point_dispatch(version, only, model, e0, e1, e2, e3, state, params, i):
     return scope["impl"]
 
 
-def _literals(version, only):
+def _literals(name: str, version, only) -> int:
+    """The model restriction ``only`` of a dispatch ``name``'s literal arguments."""
     if not (isinstance(version, types.IntegerLiteral) and isinstance(only, types.IntegerLiteral)):
-        raise TypingError("the block dispatch needs the registry version and the model "
+        raise TypingError(f"{name} needs the registry version and the model "
                           "restriction as literals (closure values of the calling kernel)")
     return only.literal_value
 
@@ -88,7 +87,7 @@ def has_block_update(version, only):
 
 @overload(has_block_update, inline="always")
 def _has_block_update(version, only):
-    if _block_update_of(_literals(version, only)) is None:
+    if _block_update_of(_literals("has_block_update", version, only)) is None:
         return lambda version, only: False
     return lambda version, only: True
 
@@ -101,7 +100,7 @@ def block_dispatch(version, only, Z, state, params, active, b, m):
 
 @overload(block_dispatch, inline="always")
 def _block_dispatch(version, only, Z, state, params, active, b, m):
-    fn = _block_update_of(_literals(version, only))
+    fn = _block_update_of(_literals("block_dispatch", version, only))
     if fn is None:
         return lambda version, only, Z, state, params, active, b, m: False
 
