@@ -7,7 +7,7 @@ form radial return in ``tests/test_material_exact.py``) — the block update mus
 bitwise its strains, Kirchhoff stresses and state on every branch (elastic, the linear
 softening branch, the residual branch, a step that crosses from one to the other), so a
 run is bitwise the one before; and the numpy ``update`` (Simo & Hughes 1998, sec. 3.3)
-within 1e-12 of the largest stress.  A block holding a point the block update does not
+within 2e-15 of the largest stress and strain (measured: 2.9e-16 and 4.0e-16, round-off).  A block holding a point the block update does not
 take (exponential softening, non-local) must be declined with nothing written.
 """
 from __future__ import annotations
@@ -80,8 +80,8 @@ def test_block_update_is_bitwise_the_point_update(state_columns):
     assert elastic.sum() > 100 and (plastic & (gam + dg <= GS)).sum() > 50
     assert (plastic & (gam >= GS)).sum() > 100 and crossed.sum() > 20
     eps, _, tau = von_mises.update(E, state.copy(), params)
-    assert np.abs(got[:, 4:] - tau).max() < 1e-12 * np.abs(tau).max()
-    assert np.abs(got[:, :4] - eps).max() < 1e-12 * np.abs(eps).max()
+    assert np.abs(got[:, 4:] - tau).max() < 2e-15 * np.abs(tau).max()
+    assert np.abs(got[:, :4] - eps).max() < 2e-15 * np.abs(eps).max()
 
 
 def test_inactive_points_keep_their_state():
