@@ -34,7 +34,7 @@ PACKAGE = Path(__file__).resolve().parent
 #: The package's compiled (numba) code, relative to the package directory: folders
 #: (every ``.py`` in them) or files.  ``tests/test_numba_cache.py`` checks that every
 #: module using numba is listed here.
-COMPILED_SOURCES = ("kernels", "materials", "implicit", "regularisation.py")
+COMPILED_SOURCES = ("compiled.py", "kernels", "materials", "implicit", "regularisation.py")
 
 
 @functools.lru_cache(maxsize=None)

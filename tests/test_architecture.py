@@ -2,7 +2,10 @@
 
 * The import graph of ``fem_rmpm`` (every ``import`` / ``from ... import`` in every
   module, at top level or inside a function) has no cycle, and no module of the package
-  imports the command line ``fem_rmpm.cli`` (the CLI is the top layer).
+  imports the command line ``fem_rmpm.cli`` (the CLI is the top layer).  The material
+  models (``fem_rmpm.materials``) and the numba decorators (``fem_rmpm.compiled``) do not
+  import the explicit kernels (``fem_rmpm.kernels``): the kernels are built on the models,
+  and a new model is written against the protocol, not the kernels' internals.
 * No module has more than 600 lines; no function more than 80 lines unless a comment
   ``# long function: <why>`` on its ``def`` line, the line above it or the first line of
   its body says why.
@@ -154,6 +157,28 @@ def test_import_graph_has_no_cycle():
     assert len(graph) > 20 and "fem_rmpm.api" in graph["fem_rmpm.campaign.task"]
     cycle = find_cycle(graph)
     assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def layering_violations(graph: dict[str, set[str]]) -> list[str]:
+    """``["a -> b"]`` for each import of the kernels by a material model or by
+    ``fem_rmpm.compiled``."""
+    lower = [m for m in graph if m.startswith("fem_rmpm.materials") or m == "fem_rmpm.compiled"]
+    return sorted(f"{m} -> {d}" for m in lower for d in graph[m]
+                  if d == "fem_rmpm.kernels" or d.startswith("fem_rmpm.kernels."))
+
+
+def test_materials_and_decorators_do_not_import_the_kernels():
+    graph = import_graph()
+    assert "fem_rmpm.compiled" in graph["fem_rmpm.materials.von_mises"]
+    bad = layering_violations(graph)
+    assert not bad, "imports of the kernels below them: " + ", ".join(bad)
+
+
+def test_the_layering_check_finds_an_import_of_the_kernels():
+    """The check can fail: a hand-made graph where a model imports a kernel module."""
+    graph = {"fem_rmpm.materials.x": {"fem_rmpm.kernels.common", "fem_rmpm.compiled"},
+             "fem_rmpm.compiled": set(), "fem_rmpm.kernels.common": {"fem_rmpm.compiled"}}
+    assert layering_violations(graph) == ["fem_rmpm.materials.x -> fem_rmpm.kernels.common"]
 
 
 def test_the_cycle_finder_finds_a_cycle():

@@ -15,7 +15,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fem_rmpm.kernels.common import BLOCK, BLOCK_COLUMNS, BLOCK_ROWS, jit
+from fem_rmpm.compiled import jit
+from fem_rmpm.kernels.common import BLOCK
+from fem_rmpm.materials.protocol import BLOCK_COLUMNS, BLOCK_ROWS
 from fem_rmpm.materials import von_mises
 
 G, K, GS = 375.0, 1000.0, 0.5

@@ -184,7 +184,7 @@ def test_run_explicit_numba_equals_numpy_run(meshes):
     """Reference: run_explicit(kernel="numpy") on the column under self-weight (the damped
     gravity phase, first 1.5 s): same steps, same stop, same state.
 
-    Not to 4 s as before the kernels were compiled with FMA contraction (kernels/common.py):
+    Not to 4 s as before the kernels were compiled with FMA contraction (fem_rmpm/compiled.py):
     this run amplifies round-off — the compiled run against itself with ONE point's x moved
     by one ulp differs in stress by 3e-16 at 0.5 s, 7.5e-14 at 1.5 s, 1.6e-12 at 2 s, 3.4e-7
     at 3 s and 2.6e-4 at 4 s (measured) — so to 4 s only bitwise-equal arithmetic agreed

@@ -1,5 +1,5 @@
 """The memory layouts the explicit kernels are compiled for: the column counts they promise
-the compiler (``kernels.common.assume_columns``, undefined behaviour if false, so checked
+the compiler (``fem_rmpm.compiled.assume_columns``, undefined behaviour if false, so checked
 when the arrays are bound) and the column-major material rows and state."""
 from __future__ import annotations
 

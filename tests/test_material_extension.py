@@ -226,7 +226,7 @@ def test_explicit_run_numba_equals_numpy(tresca):
     steps), run by the compiled kernels and by the numpy reference step: the same run up
     to round-off grown by the failing slope (achieves 3.4e-7 relative on the velocities,
     1.9e-7 on the stresses; 4e-9 before the kernels were compiled with FMA contraction
-    (kernels/common.py): a fused multiply-add rounds once where numpy rounds twice, in
+    (fem_rmpm/compiled.py): a fused multiply-add rounds once where numpy rounds twice, in
     every point at every step, and the failing slope grows those differences by ~1e8 over
     the run; asserts 2e-6, an error in either implementation shows as 1e-3 or more), and
     the slope yields (Taylor's stability number

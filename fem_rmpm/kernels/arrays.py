@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import typeof
 
-from .common import BLOCK, BLOCK_COLUMNS, BLOCK_ROWS, QUEUE_STRIDE
+from ..materials.protocol import BLOCK_COLUMNS, BLOCK_ROWS
+from .common import BLOCK, QUEUE_STRIDE
 
 CHUNKS = 64          # the most chunks (threads) of the stress pass
 
@@ -75,8 +76,8 @@ points have not moved in between); ``queue`` (2 QUEUE_STRIDE,) int64: at 0 and
 :data:`.common.QUEUE_STRIDE` the next block of the stress pass's two work queues, one per
 half of the points, and :data:`.common.QUEUE_FLAG` after each the flag of that half's
 published nodal velocities (:func:`.stress._stress_queue_call`; the padding puts each
-queue on a cache line of its own); ``Z`` (CHUNKS, :data:`.common.BLOCK_ROWS`,
-:data:`.common.BLOCK_COLUMNS`): per chunk the block scratch of a material's vectorised
+queue on a cache line of its own); ``Z`` (CHUNKS, BLOCK_ROWS, BLOCK_COLUMNS of
+:mod:`fem_rmpm.materials.protocol`): per chunk the block scratch of a material's vectorised
 update (trial strains in, strains and Kirchhoff stress out; :mod:`.stress`)."""
 
 StepOptions = namedtuple("StepOptions",
@@ -208,7 +209,7 @@ def node_arrays(nn: int, half: NodeArrays | None = None) -> NodeArrays:
 W_COLUMNS = 192                      # 8 x 192 x 8 bytes = 3 pages per chunk
 SERIES_COLUMNS = 512                 # one page per chunk
 SERIES_AT = (256, 1792, 3328)        # ta, tb, tc: offsets (bytes) in their pages
-assert BLOCK <= W_COLUMNS and BLOCK <= SERIES_COLUMNS     # a block fits in a row
+assert BLOCK <= min(W_COLUMNS, SERIES_COLUMNS, BLOCK_COLUMNS)     # a block fits in a row
 
 
 def _page_rows(shape: tuple, offset: int) -> np.ndarray:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .arrays import Mesh
-from .common import inline, jit, kernel
+from ..compiled import inline, jit, kernel
 
 __all__ = ["q4", "q4_cell", "q4_at", "gimp", "q4_shape", "gimp_shape"]
 

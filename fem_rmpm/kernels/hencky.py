@@ -55,7 +55,7 @@ from __future__ import annotations
 import math
 from fractions import Fraction
 
-from .common import assume_columns, inline, kernel
+from ..compiled import assume_columns, inline, kernel
 
 __all__ = ["Y2_MAX", "Z_MAX", "exp_block", "log_block", "exp_parts", "log_parts",
            "cosh_series", "sinhc_series", "atanhc_series"]

@@ -24,7 +24,8 @@ import numpy as np
 
 from .arrays import W_COLUMNS
 from .basis import cell_index, gimp, q4
-from .common import BLOCK, assume_columns, fixed_columns, half_split, inline, kernel, xy
+from ..compiled import assume_columns, inline, kernel
+from .common import BLOCK, fixed_columns, half_split, xy
 from .hencky import exp_block, log_block
 
 __all__ = ["kinematics_points", "fbar_gradient_pass", "fbar_apply_points", "log_args",

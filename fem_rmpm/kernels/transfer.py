@@ -40,8 +40,8 @@ from numba import prange
 
 from .arrays import NodeArrays
 from .basis import gimp, q4_at, q4_cell
-from .common import (MASS_TOL, fixed_columns, half_split, inline, kernel, kernel_exact,
-                     kernel_parallel, xy)
+from ..compiled import inline, kernel, kernel_exact, kernel_parallel
+from .common import MASS_TOL, fixed_columns, half_split, xy
 from .pairs import fma2, fma2_to, load2, mul2, sub2_from
 
 __all__ = ["map_to_nodes", "map_to_nodes_parallel", "solve_and_move", "solve_and_move_parallel",
@@ -314,7 +314,7 @@ def _move_points_half(P, M, T, H, S, o, c):
 def _move_half(P, M, T, H, S, o, c):
     """Half ``c``: stage 2 on its nodes, then stage 3a for its points (the threaded
     kernel's task; the serial kernel calls the same two functions, both halves' nodes
-    first).  The solve is compiled without FMA contraction (:data:`.common.kernel_exact`):
+    first).  The solve is compiled without FMA contraction (:data:`fem_rmpm.compiled.kernel_exact`):
     LLVM inlines it into both callers and contracted the kinetic-energy sum differently in
     each (1 ulp, measured)."""
     _solve_half(M, T, H, S, o, c)

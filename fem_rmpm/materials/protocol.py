@@ -42,8 +42,8 @@ bool`` (``point_update`` of the points ``b .. b + m - 1`` at once, written witho
 branches so that LLVM vectorises it: the trial strains of point ``b + j`` in ``Z[0:4, j]``,
 its strains into ``Z[4:8, j]`` and Kirchhoff stress into ``Z[8:12, j]`` (rows 12-15 are its
 own), the state of the ``active`` points updated; ``Z`` is the kernels' block scratch,
-:data:`fem_rmpm.kernels.common.BLOCK_ROWS` x ``BLOCK_COLUMNS``, compiled with
-:data:`fem_rmpm.kernels.common.jit`; False with nothing written for a block it does not
+:data:`BLOCK_ROWS` x :data:`BLOCK_COLUMNS`, compiled with
+:data:`fem_rmpm.compiled.jit`; False with nothing written for a block it does not
 take; the results must be bitwise ``point_update``'s: the kernels use it where all points
 have the model, else ``point_update``).
 """
@@ -57,7 +57,15 @@ import numpy as np
 
 from . import registry
 
-__all__ = ["Parameter", "MaterialPoints", "ELASTIC_COLUMNS"]
+__all__ = ["Parameter", "MaterialPoints", "ELASTIC_COLUMNS", "BLOCK_ROWS", "BLOCK_COLUMNS"]
+
+# The block scratch ``Z`` a model's ``block_update`` gets (per chunk, i.e. per thread, of
+# the kernels): BLOCK_ROWS rows of BLOCK_COLUMNS float64, at least the kernels' block of
+# points (128).  The update may promise the width to LLVM
+# (:func:`fem_rmpm.compiled.assume_columns`), so that it can tell the rows apart and
+# vectorise a loop that reads some and writes others.
+BLOCK_ROWS = 16
+BLOCK_COLUMNS = 192
 
 ELASTIC_COLUMNS = ("shear_modulus", "bulk_modulus")   # columns 0 and 1 of every row
 

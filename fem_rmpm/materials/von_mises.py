@@ -34,9 +34,9 @@ import math
 import numpy as np
 from numba import njit
 
-from ..kernels.common import BLOCK_COLUMNS, assume_columns, jit
+from ..compiled import assume_columns, jit
 from .hencky import hencky_stress, sqrt_j2
-from .protocol import Parameter
+from .protocol import BLOCK_COLUMNS, Parameter
 
 NAME = "von_mises_softening"
 PARAMETERS = (
