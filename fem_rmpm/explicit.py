@@ -176,7 +176,7 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     (P, M), N, S, call = w.bind(grid, pts), w.nodes, w.scratch, w.call
     o = K.StepOptions(float(dt), float(gravity[0]), float(gravity[1]), float(damping),
                       float(flip), bool(geostatic), shape == "gimp", bool(fbar), int(threads),
-                      w.model)
+                      w.model, w.block)
     # each stage per half of the points, the halves on two threads (kernels.transfer)
     if threads > 1:     # (the threaded loops take the nodes' half apart: kernels.arrays.top_of)
         T = K.top_of(N)
@@ -400,7 +400,7 @@ def _advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, t
         S.out[:2] = _cfl_speeds(pts)
     clock, count = work.clock, work.count
     o = K.StepOptions(0.0, 0.0, 0.0, 0.0, float(sv.flip), bool(geostatic), sv.shape == "gimp",
-                      bool(sv.fbar), int(threads), work.model)
+                      bool(sv.fbar), int(threads), work.model, work.block)
     clock[:4] = clock0[0], clock0[2], rec.dt_min, rec.dt_max
     count[0], count[2] = clock0[1], 0
     serial, parallel = step_drivers(o.model)

@@ -7,8 +7,9 @@ form radial return in ``tests/test_material_exact.py``) — the block update mus
 bitwise its strains, Kirchhoff stresses and state on every branch (elastic, the linear
 softening branch, the residual branch, a step that crosses from one to the other), so a
 run is bitwise the one before; and the numpy ``update`` (Simo & Hughes 1998, sec. 3.3)
-within 2e-15 of the largest stress and strain (measured: 2.9e-16 and 4.0e-16, round-off).  A block holding a point the block update does not
-take (exponential softening, non-local) must be declined with nothing written.
+within 2e-15 of the largest stress and strain (measured: 2.9e-16 and 4.0e-16, round-off).
+Points the block update does not compute (exponential softening, non-local) must keep a
+run on the per-point path: ``block_eligible`` and ``takes_blocks``, asked once per run.
 """
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ import pytest
 from fem_rmpm.compiled import jit
 from fem_rmpm.kernels.common import BLOCK
 from fem_rmpm.materials.protocol import BLOCK_COLUMNS, BLOCK_ROWS
-from fem_rmpm.materials import von_mises
+from fem_rmpm.materials import model_id, mohr_coulomb, von_mises
+from fem_rmpm.materials.dispatch import takes_blocks
 
 G, K, GS = 375.0, 1000.0, 0.5
 _EXP, _REG = 5, 6                        # the law's and the regularisation's columns
@@ -58,7 +60,7 @@ def _block_path(E, state, params, active):
     for b in range(0, len(E), BLOCK):
         m = min(BLOCK, len(E) - b)
         Z[:4, :m] = E[b:b + m].T
-        assert von_mises.block_update(Z, state, params, active, np.uint64(b), np.uint64(m))
+        von_mises.block_update(Z, state, params, active, np.uint64(b), np.uint64(m))
         out[b:b + m] = Z[4:12, :m].T
     return out
 
@@ -97,16 +99,26 @@ def test_inactive_points_keep_their_state():
 
 
 @pytest.mark.parametrize("column, value", [(_EXP, 1.0), (_REG, 1.0)])
-def test_a_block_needing_the_point_update_is_declined_untouched(column, value):
+def test_one_point_needing_the_point_update_keeps_the_run_off_the_block_path(column, value):
     """Exponential softening (a Newton iteration) and non-local softening (a frozen
-    strength) are left to ``point_update``: False, nothing written."""
+    strength) are left to ``point_update``: one such point among 1 000 and the run's
+    points are not eligible; linear, local or displacement-regularised points are."""
     rng = np.random.default_rng(9)
-    E, params, state = _points(BLOCK, rng, 3)
-    params[37, column] = value
-    Z = np.full((BLOCK_ROWS, BLOCK_COLUMNS), -7.0)
-    Z[:4, :BLOCK] = E.T
-    before_z, before_state = Z.copy(), state.copy(order="F")
-    ok = von_mises.block_update(Z, state, params, np.ones(BLOCK, dtype=bool), np.uint64(0),
-                                np.uint64(BLOCK))
-    assert not ok
-    assert np.array_equal(Z, before_z) and np.array_equal(state, before_state)
+    _, params, _ = _points(1000, rng, 3)
+    vm = model_id("von_mises_softening")
+    assert von_mises.block_eligible(params) and takes_blocks(vm, params)
+    params[:, _REG] = 2.0                          # "displacement": a local softening strain
+    assert von_mises.block_eligible(params) and takes_blocks(vm, params)
+    params[:, _REG] = 0.0
+    params[637, column] = value
+    assert not von_mises.block_eligible(params) and not takes_blocks(vm, params)
+
+
+def test_only_a_one_model_run_of_a_model_with_a_block_update_takes_blocks():
+    """Mixed models (-1) and a model without ``block_update`` (Mohr-Coulomb) run point
+    by point."""
+    rng = np.random.default_rng(10)
+    _, params, _ = _points(10, rng, 3)
+    assert not takes_blocks(-1, params)
+    assert not hasattr(mohr_coulomb, "block_update")
+    assert not takes_blocks(model_id(mohr_coulomb.NAME), params)

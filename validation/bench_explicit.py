@@ -59,7 +59,7 @@ sys.path.insert(0, str(ROOT))
 
 from fem_rmpm import kernels as K  # noqa: E402
 from fem_rmpm.kernels import hencky as H, strain as KS  # noqa: E402
-from fem_rmpm.kernels.common import kernel  # noqa: E402
+from fem_rmpm.compiled import kernel  # noqa: E402
 from fem_rmpm.explicit import (Workspace, explicit_step, map_to_nodes, run_explicit,  # noqa: E402
                                solve_on_mesh, stable_time_step)
 from fem_rmpm.grid import make_grid  # noqa: E402
@@ -239,7 +239,7 @@ def stages_numba(scene, grid, pts, geostatic, steps):
     for _ in range(steps):
         dt = stable_time_step(pts, grid.cell, sv.cfl)
         o = K.StepOptions(dt, float(g[0]), float(g[1]), sv.damping, sv.flip, geostatic, False,
-                          False, 1, w.model)
+                          False, 1, w.model, w.block)
         spans = []                     # (start, end) of each stage, in the order of names
         t0 = clk()
         call(K.map_to_nodes, P, M, N, S, o)
@@ -262,7 +262,7 @@ def stages_numba(scene, grid, pts, geostatic, steps):
         if not geostatic:
             call(_log_stage, *blk)
         t3 = clk()
-        call(finish, P, o, *blk)
+        call(finish, P, o, *blk, S.Z[0])
         spans += [(t0, t1), (t1, t2), (t2, t3), (t3, clk())]
         for f in saved:
             getattr(pts, f)[...] = after[f]
@@ -275,16 +275,23 @@ _FINISH = {}
 
 
 def _finish_stage(only):
-    """The stress pass's material model + stress part alone (the model dispatch needs the
-    registry version and the model as literals: a kernel made per pair)."""
+    """The stress pass's material model + stress part alone, through the model's block
+    update where the run's points take it (``o.block``), as in the pass (the model
+    dispatch needs the registry version and the model as literals: a kernel made per
+    pair)."""
     version = K.stress.registry.version()
     if (version, only) not in _FINISH:
         @kernel
-        def finish(P, o, W, ta, tb, tc):
+        def finish(P, o, W, ta, tb, tc, Z):
             n = np.uint64(P.x.shape[0])
             for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
                 e = min(b + np.uint64(K.BLOCK), n)
-                K.stress._finish_points(version, only, P, o, W[:, b:e], ta[b:e], tb[b:e], b, e)
+                if K.stress.has_block_update(version, only) and o.block:
+                    K.stress._finish_block(version, only, P, o, W[:, b:e], ta[b:e], tb[b:e], Z,
+                                           b, e)
+                else:
+                    K.stress._finish_points(version, only, P, o, W[:, b:e], ta[b:e], tb[b:e],
+                                            b, e)
         _FINISH[(version, only)] = finish
     return _FINISH[(version, only)]
 

@@ -54,7 +54,7 @@ def stage_times(t_state: float, threads: int, steps: int = 300, sort: bool = Tru
     clk = time.perf_counter
     for _ in range(steps):
         o = K.StepOptions(dt, float(g[0]), float(g[1]), 0.0, sv.flip, False, False, False,
-                          threads, w.model)
+                          threads, w.model, w.block)
         t = [clk()]
         if threads > 1:
             top = K.top_of(N)

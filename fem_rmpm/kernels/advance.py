@@ -84,7 +84,7 @@ def _options(o, c, t, wave_speed, point_speed):
     ramp = 1.0 if c.ramp_time <= 0 else min(1.0, (t + dt) / c.ramp_time)
     damping = c.damping if (o.geostatic or t < c.damping_time) else 0.0
     return StepOptions(dt, ramp * c.g0, ramp * c.g1, damping, o.flip, o.geostatic, o.gimp,
-                       o.fbar, o.threads, o.model)
+                       o.fbar, o.threads, o.model, o.block)
 
 
 @exact_inline

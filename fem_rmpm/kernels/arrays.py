@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import typeof
 
+from ..materials.dispatch import takes_blocks
 from ..materials.protocol import BLOCK_COLUMNS, BLOCK_ROWS
 from .common import BLOCK, QUEUE_STRIDE
 
@@ -81,14 +82,15 @@ queue on a cache line of its own); ``Z`` (CHUNKS, BLOCK_ROWS, BLOCK_COLUMNS of
 update (trial strains in, strains and Kirchhoff stress out; :mod:`.stress`)."""
 
 StepOptions = namedtuple("StepOptions",
-                         "dt gx gy damping flip geostatic gimp fbar threads model",
-                         defaults=(1, -1))
+                         "dt gx gy damping flip geostatic gimp fbar threads model block",
+                         defaults=(1, -1, False))
 StepOptions.__doc__ = """One step: dt (s), gravity (m/s2), local damping (-), FLIP fraction
 (-), geostatic (small strain, points fixed), gimp (uGIMP basis), fbar (F-bar remedy),
 threads (2 or more: the two halves of the points on two threads, the stress pass in up
 to that many chunks), model (the one material model id of all points, -1 if they mix
 models: selects the stress pass compiled for that model alone,
-:func:`.stress.material_kernels`)."""
+:func:`.stress.material_kernels`), block (that model's vectorised ``block_update`` takes
+the points: :func:`fem_rmpm.materials.dispatch.takes_blocks`)."""
 
 
 _TOP = (None, None)
@@ -148,7 +150,8 @@ class Workspace:
     then calls the compiled entry point directly (~3x cheaper), as long as :meth:`bind`
     sees the same point arrays (a new array drops the resolved calls).  ``model``: the
     one model id of the bound points (-1: several), found at :meth:`bind` (a point's
-    model is set when the points are made and never changes during a run).  ``clock``,
+    model is set when the points are made and never changes during a run), and
+    ``block``: whether its ``block_update`` takes them (:func:`.takes_blocks`, once).  ``clock``,
     ``count``, ``energy``: the step driver's time, step and energy record buffers
     (:mod:`.advance`)."""
     nodes: NodeArrays
@@ -157,6 +160,7 @@ class Workspace:
     points: PointArrays | None = None
     calls: dict = field(default_factory=dict)
     model: int = -1
+    block: bool = False
     clock: np.ndarray = field(default_factory=lambda: np.zeros(7))
     count: np.ndarray = field(default_factory=lambda: np.zeros(3, np.int64))
     energy: np.ndarray = field(default_factory=lambda: np.zeros((RECORD_BUFFER, 2)))
@@ -169,6 +173,7 @@ class Workspace:
             self.calls.clear()
             m = P.model
             self.model = int(m[0]) if len(m) and bool((m == m[0]).all()) else -1
+            self.block = takes_blocks(self.model, P.params)
         return self.points, self.mesh
 
     def call(self, kernel, *args):

@@ -238,10 +238,9 @@ def _stress_points(version, only, P, M, vn, S, o, start, stop, row):
             kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e)
         if not o.geostatic:
             log_block(W, ta, tb, tc, e - b)
-        done, c2, nb = False, 0.0, 0
-        if has_block_update(version, only):
-            done, c2, nb = _finish_block(version, only, P, o, W, ta, tb, Z, b, e)
-        if not done:                 # (one call site: one inlined copy of the model update)
+        if has_block_update(version, only) and o.block:
+            c2, nb = _finish_block(version, only, P, o, W, ta, tb, Z, b, e)
+        else:                        # (one call site: one inlined copy of the model update)
             c2, nb = _finish_points(version, only, P, o, W, ta, tb, b, e)
         c2max = max(c2max, c2)
         n_bad += nb
@@ -295,17 +294,16 @@ def _store(P, i, e0, e1, e2, e3, t0, t1, t2, t3):
 @inline
 def _finish_block(version, only, P, o, W, ta, tb, Z, b, e):
     """:func:`_finish_points` through the model's vectorised ``block_update`` (the trial
-    strains into ``Z[0:4]``, the model's strains and Kirchhoff stress from ``Z[4:12]``):
-    ``(True, c2max, n_bad)``, or ``(False, 0, 0)`` with nothing written where the model
-    declines the block (then :func:`_finish_points`; the same results either way)."""
+    strains into ``Z[0:4]``, the model's strains and Kirchhoff stress from ``Z[4:12]``;
+    the same results), for a run whose points it takes (``o.block``,
+    :func:`fem_rmpm.materials.dispatch.takes_blocks`)."""
     for i in range(b, e):
         j = i - b
         Z[0, j], Z[1, j], Z[2, j], Z[3, j] = _trial_strain(o.geostatic, i, j, W, ta, tb,
                                                            P.log_strain)
+    block_dispatch(version, only, Z, P.state, P.params, P.active, b, e - b)
     c2max = 0.0
     n_bad = 0
-    if not block_dispatch(version, only, Z, P.state, P.params, P.active, b, e - b):
-        return False, c2max, n_bad
     for i in range(b, e):
         if not P.active[i]:
             continue
@@ -314,7 +312,7 @@ def _finish_block(version, only, P, o, W, ta, tb, Z, b, e):
                          Z[11, j])
         c2max = max(c2max, c2)
         n_bad += bad
-    return True, c2max, n_bad
+    return c2max, n_bad
 
 
 def _make_material_pass(version):

@@ -29,7 +29,8 @@ stale chain.  An unknown id returns NaN (caught by the run's non-finite guard).
 active, b, m)``: a kernel restricted to one model (``only`` >= 0) whose module has the
 optional vectorised ``block_update`` (:mod:`.protocol`) runs it on whole blocks of points
 (:func:`fem_rmpm.kernels.stress`'s finish pass); the first is a compile-time constant, so
-the other kernels compile no block code.
+the other kernels compile no block code.  Whether a run's points take the block path is
+decided once per run, in Python, by :func:`takes_blocks` (the kernels' ``StepOptions.block``).
 """
 from __future__ import annotations
 
@@ -40,7 +41,7 @@ from numba.extending import overload
 
 from . import registry
 
-__all__ = ["point_dispatch", "block_dispatch", "has_block_update"]
+__all__ = ["point_dispatch", "block_dispatch", "has_block_update", "takes_blocks"]
 
 
 def point_dispatch(version, only, model, e0, e1, e2, e3, state, params, i):
@@ -79,6 +80,20 @@ def _block_update_of(only: int):
     return getattr(registry.models()[only], "block_update", None) if only >= 0 else None
 
 
+def takes_blocks(model: int, params: np.ndarray) -> bool:
+    """Whether the points of a run, all of model id ``model`` (-1: several models) with the
+    parameter rows ``params`` (n, P), go through that model's ``block_update``: it has one,
+    and its optional ``block_eligible(params)`` (default: True) accepts them.  Decided once
+    per run: a point's model and parameters never change during a run."""
+    if model < 0:
+        return False
+    m = registry.models()[model]
+    if getattr(m, "block_update", None) is None:
+        return False
+    eligible = getattr(m, "block_eligible", None)
+    return True if eligible is None else bool(eligible(params))
+
+
 def has_block_update(version, only):
     """Placeholder called from numba code only: whether the one model of a restricted
     kernel (``only`` >= 0) has a vectorised ``block_update`` (a compile-time constant)."""
@@ -94,7 +109,7 @@ def _has_block_update(version, only):
 
 def block_dispatch(version, only, Z, state, params, active, b, m):
     """Placeholder called from numba code only: the ``block_update`` of the one model of
-    a restricted kernel (see :func:`has_block_update`; False where there is none)."""
+    a restricted kernel (see :func:`has_block_update`; nothing where there is none)."""
     raise NotImplementedError("block_dispatch runs inside numba kernels only")
 
 
@@ -102,8 +117,8 @@ def block_dispatch(version, only, Z, state, params, active, b, m):
 def _block_dispatch(version, only, Z, state, params, active, b, m):
     fn = _block_update_of(_literals("block_dispatch", version, only))
     if fn is None:
-        return lambda version, only, Z, state, params, active, b, m: False
+        return lambda version, only, Z, state, params, active, b, m: None
 
     def impl(version, only, Z, state, params, active, b, m):
-        return fn(Z, state, params, active, b, m)
+        fn(Z, state, params, active, b, m)
     return impl

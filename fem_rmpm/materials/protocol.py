@@ -37,15 +37,16 @@ peak; a model without it has its ``STRENGTHS`` names, or the default table of
 ``tangent(eps_tr, state, params) -> D`` (the consistent tangent ``d tau / d eps_tr``
 (n, 4, 4) of ``update`` at the trial log strains, columns ``[xx, yy, zz, xy]``; the
 implicit scheme uses it instead of the complex step of ``update``, which is ~10x slower;
-a test must show the two agree), and ``block_update(Z, state, params, active, b, m) ->
-bool`` (``point_update`` of the points ``b .. b + m - 1`` at once, written without
-branches so that LLVM vectorises it: the trial strains of point ``b + j`` in ``Z[0:4, j]``,
-its strains into ``Z[4:8, j]`` and Kirchhoff stress into ``Z[8:12, j]`` (rows 12-15 are its
+a test must show the two agree), and ``block_update(Z, state, params, active, b, m)``
+(``point_update`` of the points ``b .. b + m - 1`` at once, written without branches so
+that LLVM vectorises it: the trial strains of point ``b + j`` in ``Z[0:4, j]``, its
+strains into ``Z[4:8, j]`` and Kirchhoff stress into ``Z[8:12, j]`` (rows 12-15 are its
 own), the state of the ``active`` points updated; ``Z`` is the kernels' block scratch,
-:data:`BLOCK_ROWS` x :data:`BLOCK_COLUMNS`, compiled with
-:data:`fem_rmpm.compiled.jit`; False with nothing written for a block it does not
-take; the results must be bitwise ``point_update``'s: the kernels use it where all points
-have the model, else ``point_update``).
+:data:`BLOCK_ROWS` x :data:`BLOCK_COLUMNS`, compiled with :data:`fem_rmpm.compiled.jit`;
+the results must be bitwise ``point_update``'s: the kernels use it where all points have
+the model, else ``point_update``) with ``block_eligible(params) -> bool`` (whether
+``block_update`` computes points with these parameter rows (n, P), e.g. not a law it
+leaves to ``point_update``; asked once per run, for all its points; default: True).
 """
 from __future__ import annotations
 

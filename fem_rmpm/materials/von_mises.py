@@ -301,6 +301,14 @@ def point_update(e0, e1, e2, e3, state, params, i):
     return _returned(e0, e1, e2, e3, scale, G, lam)
 
 
+def block_eligible(params: np.ndarray) -> bool:
+    """Whether :func:`block_update` computes points with the parameter rows ``params``
+    (n, P): all soften linearly and none non-locally (the exponential law's Newton
+    iteration and the non-local frozen strength are :func:`point_update`'s alone)."""
+    nonlocal_ = params.shape[1] > _REG and bool((params[:, _REG] == _NONLOCAL).any())
+    return not nonlocal_ and not bool((params[:, _EXP] != 0.0).any())
+
+
 @jit
 def block_update(Z, state, params, active, b, m):
     """:func:`point_update` of points ``b .. b + m - 1`` at once (the protocol's optional
@@ -311,17 +319,12 @@ def block_update(Z, state, params, active, b, m):
     vectorizer takes four or eight points per instruction (the branches on "yields" and
     on the softening branch went either way from point to point).  Two passes: the elastic
     trial of every point (:func:`_elastic_trial`), then, only if a point of the block
-    yields, the return (:func:`_radial_return`).  False, with nothing written, when a
-    point of the block softens exponentially or non-locally (its Newton iteration or
-    frozen strength: :func:`point_update`)."""
-    nonlocal_column = params.shape[1] > _REG
-    for j in range(m):
-        i = b + j
-        if params[i, _EXP] != 0.0 or (nonlocal_column and params[i, _REG] == _NONLOCAL):
-            return False
+    yields, the return (:func:`_radial_return`).  Only for points that
+    :func:`block_eligible` accepts (linear, local softening): the kernels ask it once per
+    run."""
     soft = 1 if state.shape[1] > 1 else 0          # the softening variable's column
     if _elastic_trial(Z, state, params, soft, b, m) == 0:
-        return True
+        return
     _radial_return(Z, state, params, soft, b, m)
     for j in range(m):                              # the state, point by point
         i = b + j
@@ -329,7 +332,6 @@ def block_update(Z, state, params, active, b, m):
             gam = state[i, soft]
             state[i, 0] += Z[12, j]
             state[i, soft] = gam + Z[12, j]
-    return True
 
 
 @jit
