@@ -21,20 +21,13 @@ from numba.extending import intrinsic
 # 25 s, 1 thread): kinematics 22.1 -> 19.3 ns per point, finish pass 24.6 -> 21.5 ns with
 # 74 % of the points plastic.
 FASTMATH = {"contract", "arcp", "nsz"}
-# Indices: numba reads a negative signed index ``i`` as ``i + n`` (a compare and a select at
-# every array access), which LLVM can drop only where it proves ``i >= 0`` (a loop from the
-# constant 0).  So node numbers are uint64 (:mod:`.basis`, ``NodeArrays.touched``) and
-# every point loop runs over ``range(np.uint64(start), np.uint64(stop))``; a uint64 index
-# must not meet an int64 in arithmetic (numba makes that float64).  Measured on case (i)
-# (t = 25 s, 1 thread): map to nodes ~18.5 -> ~14.5 ns per point, the map back ~12.3 -> ~10.3
-# (with gravity moved onto the mesh, :func:`.transfer._solve_nodes`).
 jit = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy")
 # Each caller's compiled code holds a copy of every compiled (not inlined) callee, optimized
 # again there; which copy a call runs depends on what the process loaded first (compiled in
 # the process: the callee's own; from the cache: the caller's).  The copies must compute
 # the same: ``validation/load_order.py`` checks that they do (with LLVM's SLP vectorizer
 # on, numba's default off, the map's copies did not until its x, y twins were written as
-# explicit vector operations, :mod:`.pairs`).
+# explicit vector operations, :mod:`fem_rmpm.kernels.pairs`).
 # The step kernels allocate nothing, so they run without numba's reference counting
 # (NRT): with it, every array handed to an inlined per-point helper is incref'd and
 # decref'd (atomic operations) once per point, which made G2P ~4x slower (56 vs 13
@@ -85,7 +78,7 @@ def assume_columns(typingctx, a, k):
     so ``a[i, j]`` indexes ``k i + j`` without loading the shape and multiplying by it.
     ``llvm.assume``: a false promise is undefined behaviour (a run with the block scratch's
     width promised wrong took another path, measured), so only shapes the callers check or
-    make are promised (:data:`.arrays.FIXED_COLUMNS`); a strided view promises nothing."""
+    make are promised (:data:`fem_rmpm.kernels.arrays.FIXED_COLUMNS`); a strided view promises nothing."""
     if not (isinstance(a, types.Array) and a.ndim == 2 and isinstance(k, types.IntegerLiteral)):
         return None
     sig = types.none(a, k)
