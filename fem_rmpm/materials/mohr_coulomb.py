@@ -285,6 +285,28 @@ def _edge(t1, t2, t3, upper, gn, sps, lam, G, cp, cr, php, phr, gs, expo):
 
 
 @njit(cache=True)
+def _surely_elastic(t1, t3, gam, cp, cr, php, phr, gs):
+    """True only where the yield test of :func:`_mc_return` finds the trial stresses
+    ``t1 >= t3`` (kPa) elastic, decided without a sine or cosine (linear softening): the
+    cohesion c and friction angle x (rad) at ``gam`` as :func:`_strengths` computes them,
+    and bounds that hold for 0 <= x <= pi / 2: x - x^3 / 6 <= sin x <= x and
+    cos x >= 1 - x^2 / 2.  So ``f_up`` >= f = t1 - t3 + (t1 + t3) sin x - 2 c cos x, and
+    f_up < 0 (less a margin for its own round-off) means f < 0, where the yield test
+    (f > 1e-12 of the stresses) finds the point elastic.  False also where it cannot
+    tell (close to yield, NaN): the exact test decides."""
+    w = 1.0 - gam / gs if gam < gs else 0.0
+    c = cr + (cp - cr) * w
+    x = (phr + (php - phr) * w) * _DEG
+    if not (0.0 <= x <= 1.5 and c >= 0.0):
+        return False
+    s = t1 + t3
+    x2 = x * x
+    sin_bound = x - x * x2 / 6.0 if s <= 0.0 else x
+    f_up = (t1 - t3) + s * sin_bound - 2.0 * c * (1.0 - 0.5 * x2)
+    return f_up < -1e-9 * (abs(t1) + abs(t3) + c)
+
+
+@njit(cache=True)
 def _mc_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo):
     """Mohr-Coulomb return of ordered principal trial log strains e1 >= e2 >= e3 (no
     tension cut-off): new principal elastic log strains and gamma_p.  Elastic: the inputs
@@ -292,6 +314,8 @@ def _mc_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo):
     lam = K - 2.0 / 3.0 * G
     vol = e1 + e2 + e3
     t1, t2, t3 = lam * vol + 2 * G * e1, lam * vol + 2 * G * e2, lam * vol + 2 * G * e3
+    if not expo and _surely_elastic(t1.real, t3.real, gn.real, cp, cr, php, phr, gs):
+        return e1, e2, e3, gn
     c, sph, ccp, _, _, _ = _strengths(gn, cp, cr, php, phr, gs, expo)
     f_tr = t1 - t3 + (t1 + t3) * sph - 2 * ccp
     scale = abs(t1.real) + abs(t3.real) + abs(ccp.real) + 1e-300
