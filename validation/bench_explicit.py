@@ -388,6 +388,35 @@ def child_process(cache_dir):
             "imports_and_setup_s": t_setup, "first_step_s": t_first}
 
 
+def issue13_verdicts(res: dict) -> list[str]:
+    """Issue 13's acceptance points that this run measured, each with its figure, its
+    target and ``met`` / ``NOT met`` on this machine (one run each: a ratio near its
+    target needs interleaved pairs before a decision).  Not here: the 1e-10 clause of
+    point 1 (``validation/explicit_reference.py``), the identical ``results.csv`` of
+    point 2 (``validation/threads_campaign.py``) and the implicit cost of point 5
+    (``validation/bench_implicit.py``)."""
+    def verdict(ok: bool) -> str:
+        return "met" if ok else "NOT met"
+    runs = {r["threads"]: r for r in res["whole_run"]["case_i"]}
+    ns1 = runs[1]["ns_per_point_step"]
+    out = [f"1. case (i) whole run, 1 thread: {ns1:.1f} ns per point-step (<= 67): "
+           f"{verdict(ns1 <= 67.0)}"]
+    if 2 in runs:
+        r_ref = ns1 / runs[2]["ns_per_point_step"]
+        big = {r["threads"]: r["ns_per_point_step"] for r in res["scaling"]["1e6"]}
+        r_big = big[1] / big[2]
+        out.append(f"2. two threads: case (i) {r_ref:.2f}x, ~1e6 points {r_big:.2f}x (>= 1.8): "
+                   f"{verdict(min(r_ref, r_big) >= 1.8)}")
+        spread = res["scaling_spread"]
+        out.append(f"3. 1e4 / 1e5 / 1e6 points, largest / smallest - 1 = {spread:.1%} (<= 25 %): "
+                   f"{verdict(spread <= 0.25)}")
+    warm = res["compile"]["warm_cache"]
+    first = warm["imports_and_setup_s"] + warm["first_step_s"]
+    out.append(f"4. a fresh process's imports, setup and first step, kernels from numba's cache: "
+               f"{first:.2f} s (<= 3 s warm): {verdict(first <= 3.0)}")
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="reference slope only, fewer repeats")
@@ -506,6 +535,9 @@ def main(argv=None):
           f"{ref['mpups_wall']:.2f} MPUPS wall, {ref['mpups_cpu']:.2f} cpu (median of "
           f"{repeats}).  {m['cpu_model']}, {m['cores']} cores, load average "
           f"{m['load_avg_start'][0]:.2f} at start, {m['load_avg_end'][0]:.2f} at end")
+    res["issue_13"] = issue13_verdicts(res)
+    print(f"ISSUE 13 on this machine ({m['cpu_model']}, {m['cores']} cores):\n  "
+          + "\n  ".join(res["issue_13"]))
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(res, indent=1))
     print(f"wrote {args.out}")
