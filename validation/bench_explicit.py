@@ -286,12 +286,7 @@ def _finish_stage(only):
             n = np.uint64(P.x.shape[0])
             for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
                 e = min(b + np.uint64(K.BLOCK), n)
-                if K.stress.has_block_update(version, only) and o.block:
-                    K.stress._finish_block(version, only, P, o, W[:, b:e], ta[b:e], tb[b:e], Z,
-                                           b, e)
-                else:
-                    K.stress._finish_points(version, only, P, o, W[:, b:e], ta[b:e], tb[b:e],
-                                            b, e)
+                K.stress._finish(version, only, P, o, W[:, b:e], ta[b:e], tb[b:e], Z, b, e)
         _FINISH[(version, only)] = finish
     return _FINISH[(version, only)]
 

@@ -238,13 +238,21 @@ def _stress_points(version, only, P, M, vn, S, o, start, stop, row):
             kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e)
         if not o.geostatic:
             log_block(W, ta, tb, tc, e - b)
-        if has_block_update(version, only) and o.block:
-            c2, nb = _finish_block(version, only, P, o, W, ta, tb, Z, b, e)
-        else:                        # (one call site: one inlined copy of the model update)
-            c2, nb = _finish_points(version, only, P, o, W, ta, tb, b, e)
+        c2, nb = _finish(version, only, P, o, W, ta, tb, Z, b, e)
         c2max = max(c2max, c2)
         n_bad += nb
     return c2max, n_bad
+
+
+@inline
+def _finish(version, only, P, o, W, ta, tb, Z, b, e):
+    """Points ``b:e`` after the log series: the model update and the Cauchy stress,
+    through the model's block update where the run's points take it (``o.block``), else
+    point by point; returns (largest squared P-wave speed, non-finite points)."""
+    if has_block_update(version, only) and o.block:
+        return _finish_block(version, only, P, o, W, ta, tb, Z, b, e)
+    # (one call site: one inlined copy of the model update)
+    return _finish_points(version, only, P, o, W, ta, tb, b, e)
 
 
 @inline

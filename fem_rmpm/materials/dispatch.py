@@ -85,12 +85,9 @@ def takes_blocks(model: int, params: np.ndarray) -> bool:
     parameter rows ``params`` (n, P), go through that model's ``block_update``: it has one,
     and its optional ``block_eligible(params)`` (default: True) accepts them.  Decided once
     per run: a point's model and parameters never change during a run."""
-    if model < 0:
+    if _block_update_of(model) is None:
         return False
-    m = registry.models()[model]
-    if getattr(m, "block_update", None) is None:
-        return False
-    eligible = getattr(m, "block_eligible", None)
+    eligible = getattr(registry.models()[model], "block_eligible", None)
     return True if eligible is None else bool(eligible(params))
 
 

@@ -305,8 +305,7 @@ def block_eligible(params: np.ndarray) -> bool:
     """Whether :func:`block_update` computes points with the parameter rows ``params``
     (n, P): all soften linearly and none non-locally (the exponential law's Newton
     iteration and the non-local frozen strength are :func:`point_update`'s alone)."""
-    nonlocal_ = params.shape[1] > _REG and bool((params[:, _REG] == _NONLOCAL).any())
-    return not nonlocal_ and not bool((params[:, _EXP] != 0.0).any())
+    return not bool(_frozen(params).any() or (params[:, _EXP] != 0.0).any())
 
 
 @jit
