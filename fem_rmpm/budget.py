@@ -16,7 +16,8 @@ real ones):
   so the count is within one cell row of the boundary of this);
 * nodes = (nx + 1)(ny + 1), cells = nx ny: the whole rectangle is allocated;
 * memory = :data:`BASE_BYTES` (the interpreter with numpy, scipy, numba, scikit-fem)
-  + :data:`BYTES_PER_CELL` x cells + :data:`BYTES_PER_POINT` x points + 24 B per
+  + :data:`BYTES_PER_CELL` x cells + :data:`BYTES_PER_POINT` x points (uGIMP:
+  + :data:`BYTES_PER_POINT_GIMP`, the factors its basis keeps) + 24 B per
   point per kept snapshot (position and plastic strain, one snapshot per
   ``output_interval`` up to ``t_end``).  The two per-item constants were fitted to
   ``tracemalloc`` peaks of seeding plus the explicit workspace on the reference
@@ -58,6 +59,7 @@ BYTES_PER_CELL = 277.0      # mesh nodes and cells, node flags, seeding temporar
 BYTES_PER_POINT = 324.0     # point state (Particles) + explicit workspace per point (the
 #                             stress pass's scratch is per block, not per point)
 BYTES_PER_POINT_SNAPSHOT = 24.0
+BYTES_PER_POINT_GIMP = 112.0  # uGIMP: each point's basis factors kept from the map to nodes
 #: Whole-run cost per point-step (ns) by (scheme, kernel or shape); see the module docstring.
 NS_PER_POINT_STEP = {"explicit": 65.0, "explicit_gimp_factor": 2.1, "explicit_fbar_factor": 1.05,
                      "explicit_numpy": 2700.0, "implicit": 35000.0}
@@ -178,7 +180,8 @@ def estimate_run(scene: Scene) -> RunEstimate:
         steps = math.ceil(sv.t_end / dt)
     snapshots = (math.floor(sv.t_end / sv.output_interval) + 2) if sv.scheme == "explicit" \
         or sv.dynamic else steps + 1
-    memory = (BASE_BYTES + BYTES_PER_CELL * cells + BYTES_PER_POINT * points
+    per_point = BYTES_PER_POINT + (BYTES_PER_POINT_GIMP if sv.shape == "gimp" else 0.0)
+    memory = (BASE_BYTES + BYTES_PER_CELL * cells + per_point * points
               + BYTES_PER_POINT_SNAPSHOT * points * snapshots)
     ns = _cost(scene)
     return RunEstimate(scheme=sv.scheme, points=points, cells=cells, nodes=nodes,

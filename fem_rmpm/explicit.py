@@ -173,7 +173,7 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     if kernel != "numba":
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
     w = work if work is not None else Workspace.for_grid(grid, pts.n)
-    (P, M), N, S, call = w.bind(grid, pts), w.nodes, w.scratch, w.call
+    (P, M), N, S, call = w.bind(grid, pts, shape == "gimp"), w.nodes, w.scratch, w.call
     o = K.StepOptions(float(dt), float(gravity[0]), float(gravity[1]), float(damping),
                       float(flip), bool(geostatic), shape == "gimp", bool(fbar), int(threads),
                       w.model, w.block)
@@ -395,7 +395,8 @@ def _advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, t
     runs through the driver too, so a run with local soils needs no other compiled kernel;
     loading the driver from the numba cache takes about what the Python step's six
     kernels took: a first step of 0.21-0.32 s against 0.20-0.25 s, case (i), measured.)"""
-    (P, M), N, S, call = work.bind(grid, pts), work.nodes, work.scratch, work.call
+    (P, M), N, S, call = (work.bind(grid, pts, sv.shape == "gimp"), work.nodes, work.scratch,
+                          work.call)
     if stats is None or stats.wave_speed is None:
         S.out[:2] = _cfl_speeds(pts)
     clock, count = work.clock, work.count

@@ -59,7 +59,8 @@ does without (seen in the map's machine code; case (i), one thread: 0.95-0.98x t
 in 7 interleaved pairs, the run bitwise the same)."""
 
 Scratch = namedtuple("Scratch",
-                     "x_old W ta tb tc host D cell_v cell_vdj out parts halves q4_ll q4_st queue Z")
+                     "x_old W ta tb tc host D cell_v cell_vdj out parts halves q4_ll q4_st queue Z "
+                     "gimp_ij gimp_w")
 Scratch.__doc__ = """Work arrays: positions before the move (n, 2); the block scratch of the
 stress pass, one row per chunk (thread) of :data:`CHUNKS`: W (CHUNKS, 8, :data:`W_COLUMNS`),
 per point of a block (its first BLOCK columns) the trial state in rows 0-3 and the
@@ -79,7 +80,9 @@ half of the points, and :data:`.common.QUEUE_FLAG` after each the flag of that h
 published nodal velocities (:func:`.stress._stress_queue_call`; the padding puts each
 queue on a cache line of its own); ``Z`` (CHUNKS, BLOCK_ROWS, BLOCK_COLUMNS of
 :mod:`fem_rmpm.materials.protocol`): per chunk the block scratch of a material's vectorised
-update (trial strains in, strains and Kirchhoff stress out; :mod:`.stress`)."""
+update (trial strains in, strains and Kirchhoff stress out; :mod:`.stress`); ``gimp_ij``
+(n, 2) int64 and ``gimp_w`` (n, 12): each point's uGIMP basis factors from the map to
+nodes (:func:`.basis.gimp_store`; none in a Q4 run: :meth:`Workspace.bind`)."""
 
 StepOptions = namedtuple("StepOptions",
                          "dt gx gy damping flip geostatic gimp fbar threads model block",
@@ -165,8 +168,14 @@ class Workspace:
     count: np.ndarray = field(default_factory=lambda: np.zeros(3, np.int64))
     energy: np.ndarray = field(default_factory=lambda: np.zeros((RECORD_BUFFER, 2)))
 
-    def bind(self, grid, pts) -> tuple[PointArrays, Mesh]:
-        """The point and mesh groups of ``pts`` and ``grid`` (kept while the arrays are)."""
+    def bind(self, grid, pts, gimp: bool = True) -> tuple[PointArrays, Mesh]:
+        """The point and mesh groups of ``pts`` and ``grid`` (kept while the arrays are).
+        ``gimp``: the step may use the uGIMP basis, whose factors the scratch keeps per
+        point (``gimp_ij``, ``gimp_w``: allocated at the first such call, 112 bytes a
+        point; a Q4 run does without them)."""
+        if gimp and self.scratch.gimp_w.shape[0] != pts.n:
+            self.scratch = self.scratch._replace(gimp_ij=np.zeros((pts.n, 2), np.int64),
+                                                 gimp_w=np.zeros((pts.n, 12)))
         P = point_arrays(pts, self.scratch.x_old)
         if self.points is None or any(a is not b for a, b in zip(P, self.points)):
             self.points, self.mesh = P, mesh_of(grid)
@@ -227,16 +236,19 @@ def _page_rows(shape: tuple, offset: int) -> np.ndarray:
 
 #: The column counts of the point arrays that :func:`.common.fixed_columns` promises the
 #: compiler (checked by :func:`point_arrays`; the scratch's are made so by
-#: :func:`scratch_for`: ``x_old``, ``q4_st`` (n, 2), ``W`` rows of :data:`W_COLUMNS`).
+#: :func:`scratch_for`: ``x_old``, ``q4_st``, ``gimp_ij`` (n, 2), ``gimp_w`` (n, 12), ``W``
+#: rows of :data:`W_COLUMNS`).
 FIXED_COLUMNS = {"x": 2, "v": 2, "half_width": 2, "u_geo": 2, "stress": 4, "log_strain": 4}
 
 
 def scratch_for(n: int, n_cells: int) -> Scratch:
-    """The :class:`Scratch` of ``n`` points on a grid of ``n_cells`` cells (zeros)."""
+    """The :class:`Scratch` of ``n`` points on a grid of ``n_cells`` cells (zeros; the uGIMP
+    factors with no rows until :meth:`Workspace.bind` needs them)."""
     ta, tb, tc = (_page_rows((CHUNKS, SERIES_COLUMNS), at) for at in SERIES_AT)
     return Scratch(np.zeros((n, 2)), _page_rows((CHUNKS, 8, W_COLUMNS), 0), ta, tb, tc,
                    np.zeros(n, np.int64), np.zeros((n, 4)),
                    np.zeros(n_cells), np.zeros(n_cells), np.zeros(4), np.zeros((CHUNKS, 2)),
                    np.zeros((2, 5)), np.zeros(n, np.int64), np.zeros((n, 2)),
                    np.zeros(2 * QUEUE_STRIDE, np.int64),
-                   _page_rows((CHUNKS, BLOCK_ROWS, BLOCK_COLUMNS), 1024))
+                   _page_rows((CHUNKS, BLOCK_ROWS, BLOCK_COLUMNS), 1024),
+                   np.zeros((0, 2), np.int64), np.zeros((0, 12)))

@@ -6,7 +6,8 @@ import numpy as np
 from .arrays import Mesh
 from ..compiled import inline, jit, kernel
 
-__all__ = ["q4", "q4_cell", "q4_at", "gimp", "q4_shape", "gimp_shape"]
+__all__ = ["q4", "q4_cell", "q4_at", "gimp", "gimp_factors", "gimp_at", "gimp_store",
+           "gimp_kept", "q4_shape", "gimp_shape"]
 
 
 @inline
@@ -88,14 +89,16 @@ def _gimp_1d(d, h, lp):
 
 
 @inline
-def gimp(x0, x1, lp0, lp1, M):
-    """uGIMP basis at one point: the 3 x 3 nodes around it as tuples of 9, as
-    :func:`fem_rmpm.shape.gimp_at_points` (y-major, nodes beyond the edge clipped onto it)."""
-    o0, o1, h0, h1, nx, ny = M.o0, M.o1, M.h0, M.h1, M.nx, M.ny
+def gimp_factors(x0, x1, lp0, lp1, M):
+    """The factors of the uGIMP basis at one point: the column ``fi`` and the row ``fj`` of
+    the lower left of its 3 x 3 nodes (-1 left of or below the grid: clipped by
+    :func:`gimp_at`) and the 1-D weights and derivatives ``(w, dw/dx)`` (-, 1/m) of the
+    three node columns ``X0, X1, X2`` and rows ``Y0, Y1, Y2``."""
+    o0, o1, h0, h1 = M.o0, M.o1, M.h0, M.h1
     s0 = (x0 - o0) * M.ih0
     s1 = (x1 - o1) * M.ih1
-    i = cell_index(s0, nx)
-    j = cell_index(s1, ny)
+    i = cell_index(s0, M.nx)
+    j = cell_index(s1, M.ny)
     fi = i - 1 if s0 - i < 0.5 else i
     fj = j - 1 if s1 - j < 0.5 else j
     X0 = _gimp_1d(x0 - (o0 + fi * h0), h0, lp0)
@@ -104,6 +107,14 @@ def gimp(x0, x1, lp0, lp1, M):
     Y0 = _gimp_1d(x1 - (o1 + fj * h1), h1, lp1)
     Y1 = _gimp_1d(x1 - (o1 + (fj + 1) * h1), h1, lp1)
     Y2 = _gimp_1d(x1 - (o1 + (fj + 2) * h1), h1, lp1)
+    return fi, fj, X0, X1, X2, Y0, Y1, Y2
+
+
+@inline
+def gimp_at(fi, fj, X0, X1, X2, Y0, Y1, Y2, M):
+    """uGIMP basis (nodes, N, dN/dx, dN/dy; tuples of 9, y-major, nodes beyond the edge
+    clipped onto it) from the factors of :func:`gimp_factors`."""
+    nx, ny = M.nx, M.ny
     c0 = min(max(fi, 0), nx)
     c1 = min(max(fi + 1, 0), nx)
     c2 = min(max(fi + 2, 0), nx)
@@ -120,6 +131,40 @@ def gimp(x0, x1, lp0, lp1, M):
     dy = (X0[0] * Y0[1], X1[0] * Y0[1], X2[0] * Y0[1], X0[0] * Y1[1], X1[0] * Y1[1],
           X2[0] * Y1[1], X0[0] * Y2[1], X1[0] * Y2[1], X2[0] * Y2[1])
     return nodes, N, dx, dy
+
+
+@inline
+def gimp(x0, x1, lp0, lp1, M):
+    """uGIMP basis at one point: the 3 x 3 nodes around it as tuples of 9, as
+    :func:`fem_rmpm.shape.gimp_at_points` (y-major, nodes beyond the edge clipped onto it)."""
+    fi, fj, X0, X1, X2, Y0, Y1, Y2 = gimp_factors(x0, x1, lp0, lp1, M)
+    return gimp_at(fi, fj, X0, X1, X2, Y0, Y1, Y2, M)
+
+
+# The step evaluates a point's basis three times at one position: in the map to nodes,
+# the map back and the kinematics (at the position before the move).  Q4 keeps the cell
+# and local coordinates of the first (``q4_ll``, ``q4_st``); uGIMP keeps its factors
+# (``gimp_ij`` (n, 2), ``gimp_w`` (n, 12) of :class:`.Scratch`), and the later passes
+# rebuild the basis from them with the same products: bitwise the basis they recomputed.
+@inline
+def gimp_store(i, x0, x1, lp0, lp1, M, ij, wd):
+    """:func:`gimp` of point ``i``, its factors kept in row ``i`` of ``ij`` and ``wd``."""
+    fi, fj, X0, X1, X2, Y0, Y1, Y2 = gimp_factors(x0, x1, lp0, lp1, M)
+    ij[i, 0] = fi
+    ij[i, 1] = fj
+    wd[i, 0], wd[i, 1], wd[i, 2], wd[i, 3], wd[i, 4], wd[i, 5] = X0[0], X0[1], X1[0], X1[1], \
+        X2[0], X2[1]
+    wd[i, 6], wd[i, 7], wd[i, 8], wd[i, 9], wd[i, 10], wd[i, 11] = Y0[0], Y0[1], Y1[0], \
+        Y1[1], Y2[0], Y2[1]
+    return gimp_at(fi, fj, X0, X1, X2, Y0, Y1, Y2, M)
+
+
+@inline
+def gimp_kept(i, ij, wd, M):
+    """The uGIMP basis of point ``i`` from the factors :func:`gimp_store` kept."""
+    return gimp_at(ij[i, 0], ij[i, 1], (wd[i, 0], wd[i, 1]), (wd[i, 2], wd[i, 3]),
+                   (wd[i, 4], wd[i, 5]), (wd[i, 6], wd[i, 7]), (wd[i, 8], wd[i, 9]),
+                   (wd[i, 10], wd[i, 11]), M)
 
 
 def _mesh(org, h, nx, ny) -> Mesh:

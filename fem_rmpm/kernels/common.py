@@ -86,13 +86,16 @@ def read_flag(typingctx, counter):
 def fixed_columns(P, S):
     """The column counts every kernel may assume (:func:`assume_columns`; checked when the
     arrays are bound, :func:`.arrays.point_arrays`): positions, velocities, half widths,
-    geostatic displacements, the positions before the move and the Q4 local coordinates
-    (2); stress and log strain (4)."""
+    geostatic displacements, the positions before the move, the Q4 local coordinates and
+    the uGIMP factors' node column and row (2); stress and log strain (4); the uGIMP
+    weights and derivatives (12)."""
     assume_columns(P.x, 2)
     assume_columns(P.v, 2)
     assume_columns(P.half_width, 2)
     assume_columns(P.u_geo, 2)
     assume_columns(S.x_old, 2)
     assume_columns(S.q4_st, 2)
+    assume_columns(S.gimp_ij, 2)
+    assume_columns(S.gimp_w, 12)
     assume_columns(P.stress, 4)
     assume_columns(P.log_strain, 4)

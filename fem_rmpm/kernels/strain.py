@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from .arrays import W_COLUMNS
-from .basis import cell_index, gimp, q4
+from .basis import cell_index, gimp_kept, q4_at
 from ..compiled import assume_columns, inline, kernel
 from .common import BLOCK, fixed_columns, half_split, xy
 from .hencky import exp_block, log_block
@@ -161,12 +161,13 @@ def _apply_increment(i, j, f00, f01, f10, f11, e0, e1, e3, P, W, ta, tb, tc):
 
 
 @inline
-def _point_velocity_gradient(i, x, lp, M, vn, gimp_basis):
-    """Velocity gradient at point ``i`` at ``x[i]`` from nodal velocities ``vn`` (Q4 or
-    uGIMP basis)."""
+def _kept_velocity_gradient(i, S, M, vn, gimp_basis):
+    """Velocity gradient at point ``i`` from nodal velocities ``vn`` in the basis the map
+    to nodes computed at the same position (uGIMP: its factors, Q4: its cell and local
+    coordinates; :mod:`.basis`)."""
     if gimp_basis:
-        return _velocity_gradient(gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M), vn)
-    return _velocity_gradient(q4(x[i, 0], x[i, 1], M), vn)
+        return _velocity_gradient(gimp_kept(i, S.gimp_ij, S.gimp_w, M), vn)
+    return _velocity_gradient(q4_at(S.q4_ll[i], S.q4_st[i, 0], S.q4_st[i, 1], M), vn)
 
 
 @inline
@@ -229,14 +230,13 @@ def _gather_points(P, M, vn, S, o, tb, tc, W, b, e):
     for i in range(b, e):
         j = i - b
         if P.active[i]:
-            # velocity gradient before the move: uGIMP at x_old, Q4 in the cell and local
-            # coordinates of the map to nodes.  Written out here, not through two levels of
+            # velocity gradient before the move: in the basis of the map to nodes (uGIMP
+            # its factors, Q4 its cell and local coordinates).  Written out here, not through two levels of
             # inlined helpers: numba's inliner took 3.9-4.3 s of each stress-pass compile
             # for kinematics_points that way, 2.1-2.4 s now (case (i), cold, traced)
             if o.gimp:
-                x, lp = S.x_old, P.half_width
-                L00, L01, L10, L11 = _velocity_gradient(gimp(x[i, 0], x[i, 1], lp[i, 0],
-                                                             lp[i, 1], M), vn)
+                L00, L01, L10, L11 = _velocity_gradient(gimp_kept(i, S.gimp_ij, S.gimp_w, M),
+                                                        vn)
             else:
                 L00, L01, L10, L11 = _q4_velocity_gradient(S.q4_ll[i], S.q4_st[i, 0],
                                                            S.q4_st[i, 1], M, vn)
@@ -283,7 +283,9 @@ def fbar_gradient_pass(P, M, N, S, o):
     increment ``D`` (n, 4) — finite strain: the Hughes-Winget dF; geostatic: grad(du) =
     L dt — and per cell the sums of ``V`` and ``V dJ`` (geostatic: ``V tr grad(du)``),
     in point order as ``np.bincount``.  ``vol`` is read, not changed.  Each point's
-    nodal velocities are those of its half (``N.v_musl``, ``N.half.v_musl``)."""
+    nodal velocities are those of its half (``N.v_musl``, ``N.half.v_musl``), its basis
+    the one the map to nodes kept (:func:`_kept_velocity_gradient`; ``x_old`` is where the
+    map found it)."""
     x_old, host, D, cv, cvj, vol, dt = S.x_old, S.host, S.D, S.cell_v, S.cell_vdj, P.vol, o.dt
     split = half_split(x_old.shape[0])
     for i in range(x_old.shape[0]):
@@ -299,7 +301,7 @@ def fbar_gradient_pass(P, M, N, S, o):
         if not P.active[i]:
             continue
         vn = N.v_musl if i < split else N.half.v_musl
-        L00, L01, L10, L11 = _point_velocity_gradient(i, x_old, P.half_width, M, vn, o.gimp)
+        L00, L01, L10, L11 = _kept_velocity_gradient(i, S, M, vn, o.gimp)
         if o.geostatic:
             g00, g01, g10, g11 = L00 * dt, L01 * dt, L10 * dt, L11 * dt
             j = g00 + g11

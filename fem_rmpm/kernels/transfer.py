@@ -39,7 +39,7 @@ import numpy as np
 from numba import prange
 
 from .arrays import NodeArrays
-from .basis import gimp, q4_at, q4_cell
+from .basis import gimp_kept, gimp_store, q4_at, q4_cell
 from ..compiled import inline, kernel, kernel_exact, kernel_parallel
 from .common import MASS_TOL, fixed_columns, half_split, xy
 from .pairs import fma2, fma2_to, load2, mul2, sub2_from
@@ -111,14 +111,15 @@ def _scatter(sh, i, P, N, nt):
 @inline
 def _scatter_points(P, M, N, S, o, start, stop):
     """Points ``start:stop`` (active ones) into the arrays of ``N``, from cleared ones;
-    Q4: each point's cell and local coordinates into ``S.q4_ll``, ``S.q4_st``."""
+    Q4: each point's cell and local coordinates into ``S.q4_ll``, ``S.q4_st``; uGIMP: its
+    basis factors into ``S.gimp_ij``, ``S.gimp_w`` (:func:`.basis.gimp_store`)."""
     nt = 0
     x, lp, cell, st = P.x, P.half_width, S.q4_ll, S.q4_st
     for i in range(np.uint64(start), np.uint64(stop)):
         if not P.active[i]:
             continue
         if o.gimp:
-            sg = gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M)
+            sg = gimp_store(i, x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M, S.gimp_ij, S.gimp_w)
             nt = _scatter(sg, i, P, N, nt)
         else:
             ll, s, t = q4_cell(x[i, 0], x[i, 1], M)
@@ -226,7 +227,7 @@ def _g2p_point(sh, i, P, N, v_remap, S, o):
     v[i, 1] = v1
     x0 = x[i, 0]
     x1 = x[i, 1]
-    if o.gimp or o.fbar:             # (Q4 alone: the stress pass reuses the map's cell)
+    if o.fbar:                       # (F-bar's host cells; the basis is the map's)
         S.x_old[i, 0] = x0
         S.x_old[i, 1] = x1
     if o.geostatic:
@@ -257,9 +258,8 @@ def _g2p_points(P, M, A, S, o, start, stop, row):
     for i in range(np.uint64(start), np.uint64(stop)):
         if not P.active[i]:
             continue
-        if o.gimp:
-            sg = gimp(x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M)
-            s2 = _g2p_point(sg, i, P, A, A.v_remap, S, o)
+        if o.gimp:                   # the basis of the map to nodes (same position)
+            s2 = _g2p_point(gimp_kept(i, S.gimp_ij, S.gimp_w, M), i, P, A, A.v_remap, S, o)
         else:                        # the cell of the map to nodes (same position)
             sq = q4_at(S.q4_ll[i], S.q4_st[i, 0], S.q4_st[i, 1], M)
             s2 = _g2p_point(sq, i, P, A, A.v_remap, S, o)
@@ -333,8 +333,8 @@ def solve_and_move(P, M, N, S, o):
     """Stage 2, solve on the mesh (the nodes' ``v_new``, ``acc``), and 3a: FLIP/PIC point
     velocities, positions (geostatic: ``P.u_geo`` instead) and the MUSL re-map of the new
     point momenta into ``v_remap``, per half (module docstring).  The positions before the
-    move are kept in ``S.x_old`` for the stress update (uGIMP or F-bar: the Q4 stress pass
-    takes the cell and local coordinates of the map instead).  Returns the grid kinetic energy
+    move are kept in ``S.x_old`` for F-bar's host cells (the stress pass takes the basis
+    the map to nodes kept: Q4 cells and local coordinates, uGIMP factors).  Returns the grid kinetic energy
     1/2 sum m_I |v_I|^2 and the largest |v_pic| (the motion as the grid sees it)."""
     T = _top(N)                      # (both halves' nodes, then both halves' points)
     _solve_half(M, T, N.half, S, o, np.int64(0))
