@@ -29,12 +29,16 @@ real ones):
   (0.25 m) this gives 8 628 steps against 11 560 taken in 34.4 s (at rest);
 * implicit steps = ``load_steps`` (quasi-static) or ``t_end / dt`` (dynamic);
 * wall time = steps x points x the cost per point-step: :data:`NS_PER_POINT_STEP`.
-  The explicit numba figure, 65 ns, is the whole-run figure of the reference slope
-  case (i) (18 260 points, 11 017 steps, 11.7-12.3 s wall, median of six runs 64.5 ns)
-  on an idle 2-core Intel Xeon virtual machine (Python 3.11, numba, one thread; the same
-  code ran ~100 ns on an Emerald Rapids VM and ~140 ns on an AMD EPYC Zen 3 VM, median of
-  six runs each: the estimate says which machine it is for).  uGIMP costs 2.1x, F-bar 1.05x
-  and the numpy kernel about 2.7 us.  The implicit figure, 35 us per point-step, is
+  The explicit numba figure, 39 ns, is the whole-run figure of the reference slope
+  case (i) (18 260 points, 11 944 steps, 8.2-8.5 s wall, 37.4-39.7 ns in 14 runs, median
+  38.7) on an idle 2-core Intel Xeon virtual machine (Python 3.11, numba, one thread;
+  the estimate says which machine it is for: an AMD EPYC Zen 3 VM ran the code of the
+  same era ~1.5-1.7x slower).  From the same runs' ``summary.json``: uGIMP costs 2.3x
+  (88.3-90.5 ns), F-bar 1.4x (53-57 ns), a Mohr-Coulomb soil 1.8x (the drained slope,
+  ``meshes/slope_drained.toml``: 68 ns; most of its points yield) and the numpy kernel
+  about 2.7 us.  The steps are those at rest: moving points shorten the step, so a
+  failing slope takes more (case (i): 11 944 against 8 627 estimated; the drained
+  slope: 29 351, its step down to 0.17x at the fastest).  The implicit figure, 35 us per point-step, is
   the README's dynamic implicit run of the reference slope (1 788 Newmark steps in
   about 19 minutes on a shared core), so it may be 2x high on an idle machine.
   The numba compile of a first run (about 1-1.5 minutes, cached on disk) is not included.
@@ -61,8 +65,9 @@ BYTES_PER_POINT = 324.0     # point state (Particles) + explicit workspace per p
 BYTES_PER_POINT_SNAPSHOT = 24.0
 BYTES_PER_POINT_GIMP = 112.0  # uGIMP: each point's basis factors kept from the map to nodes
 #: Whole-run cost per point-step (ns) by (scheme, kernel or shape); see the module docstring.
-NS_PER_POINT_STEP = {"explicit": 65.0, "explicit_gimp_factor": 2.1, "explicit_fbar_factor": 1.05,
-                     "explicit_numpy": 2700.0, "implicit": 35000.0}
+NS_PER_POINT_STEP = {"explicit": 39.0, "explicit_gimp_factor": 2.3, "explicit_fbar_factor": 1.4,
+                     "explicit_mohr_coulomb_factor": 1.8, "explicit_numpy": 2700.0,
+                     "implicit": 35000.0}
 COST_MACHINE = {"explicit": "idle 2-core Intel Xeon VM",
                 "implicit": "shared 2-core AMD EPYC VM"}
 
@@ -160,6 +165,8 @@ def _cost(scene: Scene) -> float:
         ns *= NS_PER_POINT_STEP["explicit_gimp_factor"]
     if sv.fbar:
         ns *= NS_PER_POINT_STEP["explicit_fbar_factor"]
+    if any(s.model.startswith("mohr_coulomb") for s in scene.soils):
+        ns *= NS_PER_POINT_STEP["explicit_mohr_coulomb_factor"]
     return ns
 
 

@@ -74,3 +74,19 @@ def test_estimate_scales_with_refinement(meshes):
     assert b.points == pytest.approx(4 * a.points, rel=0.01)
     assert b.nodes == pytest.approx(4 * a.nodes, rel=0.01)
     assert b.dt == pytest.approx(a.dt / 2, rel=1e-12)
+
+
+def test_cost_per_point_step_composes_basis_remedy_and_model(meshes):
+    """The explicit cost per point-step is the Q4 von Mises figure times the factors of
+    what the scene adds (uGIMP, F-bar, a Mohr-Coulomb soil), each measured on the same
+    machine (module docstring of fem_rmpm.budget)."""
+    c = budget.NS_PER_POINT_STEP
+    ref = load_scene(meshes / "slope_reference.toml")
+    assert budget.estimate_run(ref).ns_per_point_step == c["explicit"]
+    both = with_value(with_value(ref, "solver.shape", "gimp"), "solver.fbar", True)
+    assert budget.estimate_run(both).ns_per_point_step == pytest.approx(
+        c["explicit"] * c["explicit_gimp_factor"] * c["explicit_fbar_factor"], rel=1e-15)
+    drained = load_scene(meshes / "slope_drained.toml")
+    assert drained.soils[0].model == "mohr_coulomb_softening"
+    assert budget.estimate_run(drained).ns_per_point_step == pytest.approx(
+        c["explicit"] * c["explicit_mohr_coulomb_factor"], rel=1e-15)
