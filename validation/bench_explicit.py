@@ -398,11 +398,12 @@ def issue13_verdicts(res: dict) -> list[str]:
            f"{verdict(ns1 <= 67.0)}"]
     if 2 in runs:
         r_ref = ns1 / runs[2]["ns_per_point_step"]
-        big = {r["threads"]: r["ns_per_point_step"] for r in res["scaling"]["1e6"]}
+        scaling = res["whole_run"]          # (the full run's scaling runs: whole_runs)
+        big = {r["threads"]: r["ns_per_point_step"] for r in scaling["scaling"]["1e6"]}
         r_big = big[1] / big[2]
         out.append(f"2. two threads: case (i) {r_ref:.2f}x, ~1e6 points {r_big:.2f}x (>= 1.8): "
                    f"{verdict(min(r_ref, r_big) >= 1.8)}")
-        spread = res["scaling_spread"]
+        spread = scaling["scaling_spread"]
         out.append(f"3. 1e4 / 1e5 / 1e6 points, largest / smallest - 1 = {spread:.1%} (<= 25 %): "
                    f"{verdict(spread <= 0.25)}")
     warm = res["compile"]["warm_cache"]
