@@ -36,7 +36,7 @@ from ..materials import registry
 from .arrays import RECORD_BUFFER, StepOptions
 from .stress import (_combine, _reset_queues, _stress_queue_call, nodal_in_pass,
                      serial_stress_pass, workers)
-from .strain import fbar_gradient_pass
+from .strain import fbar_gradient_pass, fbar_gradient_pass_parallel
 from .transfer import (map_to_nodes, map_to_nodes_parallel, nodal_velocities,
                        nodal_velocities_parallel, solve_and_move, solve_and_move_parallel)
 
@@ -166,7 +166,7 @@ def _make_drivers(version, only):
             if not nodal_in_pass(op, S):                      # (else in the stress pass)
                 nodal_velocities_parallel(M, T, H)
             if op.fbar:
-                fbar_gradient_pass(P, M, N, S, op)
+                fbar_gradient_pass_parallel(P, M, T, H, S, op)
             _reset_queues(S)
             for ch in prange(nch):
                 _stress_queue_call(version, only, P, M, T, H, S, op, np.int64(ch))

@@ -22,13 +22,16 @@ import math
 
 import numpy as np
 
+from numba import prange
+
 from .arrays import W_COLUMNS
 from .basis import cell_index, gimp_kept, q4_at
-from ..compiled import assume_columns, inline, kernel
+from ..compiled import assume_columns, inline, kernel, kernel_parallel
 from .common import BLOCK, fixed_columns, half_split, xy
 from .hencky import exp_block, log_block
 
-__all__ = ["kinematics_points", "fbar_gradient_pass", "fbar_apply_points", "log_args",
+__all__ = ["kinematics_points", "fbar_gradient_pass", "fbar_gradient_pass_parallel",
+           "fbar_increments", "fbar_apply_points", "log_args",
            "log_sym2_from", "hencky_trial_pass", "inactive_row"]
 
 
@@ -278,43 +281,78 @@ def _increment_rows(W, ta, tb, tc, dt, n):
 
 
 @kernel
-def fbar_gradient_pass(P, M, N, S, o):
-    """F-bar pass 1 (:mod:`fem_rmpm.locking`): per point the host cell at ``x_old`` and the
-    increment ``D`` (n, 4) — finite strain: the Hughes-Winget dF; geostatic: grad(du) =
-    L dt — and per cell the sums of ``V`` and ``V dJ`` (geostatic: ``V tr grad(du)``),
-    in point order as ``np.bincount``.  ``vol`` is read, not changed.  Each point's
-    nodal velocities are those of its half (``N.v_musl``, ``N.half.v_musl``), its basis
-    the one the map to nodes kept (:func:`_kept_velocity_gradient`; ``x_old`` is where the
-    map found it)."""
-    x_old, host, D, cv, cvj, vol, dt = S.x_old, S.host, S.D, S.cell_v, S.cell_vdj, P.vol, o.dt
-    split = half_split(x_old.shape[0])
-    for i in range(x_old.shape[0]):
+def fbar_increments(P, M, vn, S, o, start, stop):
+    """F-bar pass 1, per point of ``start:stop`` (one half of the points, ``vn`` its nodal
+    velocities): the host cell at ``x_old`` into ``S.host`` and the increment into ``S.D``
+    (n, 4) — finite strain: the Hughes-Winget dF; geostatic: grad(du) = L dt — from the
+    basis the map to nodes kept (:func:`_kept_velocity_gradient`; ``x_old`` is where the
+    map found it).  Each point on its own: the halves can run at the same time."""
+    fixed_columns(P, S)
+    x_old, host, D, dt = S.x_old, S.host, S.D, o.dt
+    for i in range(start, stop):
         if not P.active[i]:
             continue
         ci = cell_index((x_old[i, 0] - M.o0) * M.ih0, M.nx)
         cj = cell_index((x_old[i, 1] - M.o1) * M.ih1, M.ny)
-        c = cj * M.nx + ci
-        host[i] = c
-        cv[c] = 0.0
-        cvj[c] = 0.0
-    for i in range(x_old.shape[0]):
-        if not P.active[i]:
-            continue
-        vn = N.v_musl if i < split else N.half.v_musl
+        host[i] = cj * M.nx + ci
         L00, L01, L10, L11 = _kept_velocity_gradient(i, S, M, vn, o.gimp)
         if o.geostatic:
             g00, g01, g10, g11 = L00 * dt, L01 * dt, L10 * dt, L11 * dt
-            j = g00 + g11
         else:
             g00, g01, g10, g11 = _hughes_winget(L00, L01, L10, L11, dt)
-            j = g00 * g11 - g01 * g10
         D[i, 0] = g00
         D[i, 1] = g01
         D[i, 2] = g10
         D[i, 3] = g11
+
+
+@inline
+def _fbar_cell_sums(P, S, o):
+    """F-bar pass 1, per cell: the sums of ``V`` and ``V dJ`` (geostatic: ``V tr
+    grad(du)``) of its points, in point order as ``np.bincount`` (one thread: the order
+    of the sums is the run's on any thread count).  ``vol`` is read, not changed."""
+    host, D, cv, cvj, vol = S.host, S.D, S.cell_v, S.cell_vdj, P.vol
+    for i in range(host.shape[0]):
+        if P.active[i]:
+            c = host[i]
+            cv[c] = 0.0
+            cvj[c] = 0.0
+    for i in range(host.shape[0]):
+        if not P.active[i]:
+            continue
+        if o.geostatic:
+            j = D[i, 0] + D[i, 3]
+        else:
+            j = D[i, 0] * D[i, 3] - D[i, 1] * D[i, 2]
         c = host[i]
         cv[c] += vol[i]
         cvj[c] += vol[i] * j
+
+
+@kernel
+def fbar_gradient_pass(P, M, N, S, o):
+    """F-bar pass 1 (:mod:`fem_rmpm.locking`): :func:`fbar_increments` of each half of the
+    points with its nodal velocities (``N.v_musl``, ``N.half.v_musl``), then the per-cell
+    sums (:func:`_fbar_cell_sums`)."""
+    n = S.host.shape[0]
+    split = half_split(n)
+    fbar_increments(P, M, N.v_musl, S, o, 0, split)
+    fbar_increments(P, M, N.half.v_musl, S, o, split, n)
+    _fbar_cell_sums(P, S, o)
+
+
+@kernel_parallel
+def fbar_gradient_pass_parallel(P, M, T, H, S, o):
+    """:func:`fbar_gradient_pass` with the halves' increments on two threads (bitwise the
+    same): ``T`` the nodes' arrays without ``half``, ``H`` = ``N.half``."""
+    n = S.host.shape[0]
+    split = half_split(n)
+    for c in prange(2):
+        if c == 0:
+            fbar_increments(P, M, T.v_musl, S, o, 0, split)
+        else:
+            fbar_increments(P, M, H.v_musl, S, o, split, n)
+    _fbar_cell_sums(P, S, o)
 
 
 @kernel

@@ -47,8 +47,8 @@ from .common import BLOCK, QUEUE_FLAG, QUEUE_STRIDE, fixed_columns, half_split, 
 from .hencky import exp_block, log_block
 from .transfer import nodal_velocities, nodal_velocities_parallel, nodal_velocity_half
 from .transfer import _top as top
-from .strain import (fbar_apply_points, fbar_gradient_pass, hencky_trial_pass, kinematics_points,
-                     log_sym2_from)
+from .strain import (fbar_apply_points, fbar_gradient_pass, fbar_gradient_pass_parallel,
+                     hencky_trial_pass, kinematics_points, log_sym2_from)
 
 __all__ = ["update_stress", "material_kernels", "stress_update_points",
            "small_strain_update_points"]
@@ -379,7 +379,7 @@ def update_stress(P, M, N, S, o, call=_direct) -> None:
     if o.fbar or min(o.threads, S.parts.shape[0]) != 2:      # (else: nodal_in_pass)
         call(nodal_velocities_parallel, M, T, N.half)
     if o.fbar:
-        call(fbar_gradient_pass, P, M, N, S, o)
+        call(fbar_gradient_pass_parallel, P, M, T, N.half, S, o)
     call(parallel, P, M, T, N.half, S, o)
 
 
