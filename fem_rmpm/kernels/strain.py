@@ -289,7 +289,7 @@ def fbar_increments(P, M, vn, S, o, start, stop):
     map found it).  Each point on its own: the halves can run at the same time."""
     fixed_columns(P, S)
     x_old, host, D, dt = S.x_old, S.host, S.D, o.dt
-    for i in range(start, stop):
+    for i in range(np.uint64(start), np.uint64(stop)):      # (unsigned: no negative-index fix-up)
         if not P.active[i]:
             continue
         ci = cell_index((x_old[i, 0] - M.o0) * M.ih0, M.nx)
@@ -336,8 +336,9 @@ def fbar_gradient_pass(P, M, N, S, o):
     sums (:func:`_fbar_cell_sums`)."""
     n = S.host.shape[0]
     split = half_split(n)
-    fbar_increments(P, M, N.v_musl, S, o, 0, split)
-    fbar_increments(P, M, N.half.v_musl, S, o, split, n)
+    for c in range(2):               # (one call site: the drivers inline this kernel)
+        vn = N.v_musl if c == 0 else N.half.v_musl
+        fbar_increments(P, M, vn, S, o, 0 if c == 0 else split, split if c == 0 else n)
     _fbar_cell_sums(P, S, o)
 
 
@@ -348,10 +349,8 @@ def fbar_gradient_pass_parallel(P, M, T, H, S, o):
     n = S.host.shape[0]
     split = half_split(n)
     for c in prange(2):
-        if c == 0:
-            fbar_increments(P, M, T.v_musl, S, o, 0, split)
-        else:
-            fbar_increments(P, M, H.v_musl, S, o, split, n)
+        vn = T.v_musl if c == 0 else H.v_musl
+        fbar_increments(P, M, vn, S, o, 0 if c == 0 else split, split if c == 0 else n)
     _fbar_cell_sums(P, S, o)
 
 
