@@ -51,6 +51,13 @@ def half_split(n):
     return block_bounds(n, 2, 1)[0]
 
 
+@inline
+def half_range(n, c):
+    """Points ``start:stop`` of half ``c`` (0 or 1) of ``n`` points."""
+    s = half_split(n)
+    return (0, s) if c == 0 else (s, n)
+
+
 @intrinsic
 def take_ticket(typingctx, counter):
     """``counter[0] += 1`` as one atomic operation (any thread), returning the value before:

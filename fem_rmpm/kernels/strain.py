@@ -27,7 +27,7 @@ from numba import prange
 from .arrays import W_COLUMNS
 from .basis import cell_index, gimp_kept, q4_at
 from ..compiled import assume_columns, inline, kernel, kernel_parallel
-from .common import BLOCK, fixed_columns, half_split, xy
+from .common import BLOCK, fixed_columns, half_range, xy
 from .hencky import exp_block, log_block
 
 __all__ = ["kinematics_points", "fbar_gradient_pass", "fbar_gradient_pass_parallel",
@@ -234,9 +234,10 @@ def _gather_points(P, M, vn, S, o, tb, tc, W, b, e):
         j = i - b
         if P.active[i]:
             # velocity gradient before the move: in the basis of the map to nodes (uGIMP
-            # its factors, Q4 its cell and local coordinates).  Written out here, not through two levels of
-            # inlined helpers: numba's inliner took 3.9-4.3 s of each stress-pass compile
-            # for kinematics_points that way, 2.1-2.4 s now (case (i), cold, traced)
+            # its factors, Q4 its cell and local coordinates).  Written out here, not
+            # through two levels of inlined helpers: numba's inliner took 3.9-4.3 s of each
+            # stress-pass compile for kinematics_points that way, 2.1-2.4 s now (case (i),
+            # cold, traced)
             if o.gimp:
                 L00, L01, L10, L11 = _velocity_gradient(gimp_kept(i, S.gimp_ij, S.gimp_w, M),
                                                         vn)
@@ -334,11 +335,9 @@ def fbar_gradient_pass(P, M, N, S, o):
     """F-bar pass 1 (:mod:`fem_rmpm.locking`): :func:`fbar_increments` of each half of the
     points with its nodal velocities (``N.v_musl``, ``N.half.v_musl``), then the per-cell
     sums (:func:`_fbar_cell_sums`)."""
-    n = S.host.shape[0]
-    split = half_split(n)
     for c in range(2):               # (one call site: the drivers inline this kernel)
-        vn = N.v_musl if c == 0 else N.half.v_musl
-        fbar_increments(P, M, vn, S, o, 0 if c == 0 else split, split if c == 0 else n)
+        start, stop = half_range(S.host.shape[0], c)
+        fbar_increments(P, M, N.v_musl if c == 0 else N.half.v_musl, S, o, start, stop)
     _fbar_cell_sums(P, S, o)
 
 
@@ -346,11 +345,9 @@ def fbar_gradient_pass(P, M, N, S, o):
 def fbar_gradient_pass_parallel(P, M, T, H, S, o):
     """:func:`fbar_gradient_pass` with the halves' increments on two threads (bitwise the
     same): ``T`` the nodes' arrays without ``half``, ``H`` = ``N.half``."""
-    n = S.host.shape[0]
-    split = half_split(n)
     for c in prange(2):
-        vn = T.v_musl if c == 0 else H.v_musl
-        fbar_increments(P, M, vn, S, o, 0 if c == 0 else split, split if c == 0 else n)
+        start, stop = half_range(S.host.shape[0], c)
+        fbar_increments(P, M, T.v_musl if c == 0 else H.v_musl, S, o, start, stop)
     _fbar_cell_sums(P, S, o)
 
 

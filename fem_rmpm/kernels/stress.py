@@ -362,10 +362,10 @@ def _direct(kernel, *args):
 def update_stress(P, M, N, S, o, call=_direct) -> None:
     """Stage 3b and 3c: the MUSL nodal velocities from the re-mapped momenta, then per
     point the velocity gradient at the positions before the move (in the basis the map
-    to nodes kept there), deformation increment (geostatic: small strain, J = 1), volume, the material
-    update, Cauchy stress, and ``S.out`` (4,) = the largest P-wave speed and point speed,
-    the non-finite and the outside points — one stress pass per half of the points, on
-    ``o.threads`` threads.  ``o.fbar`` (the F-bar remedy, :mod:`fem_rmpm.locking`): the
+    to nodes kept there), deformation increment (geostatic: small strain, J = 1),
+    volume, the material update, Cauchy stress, and ``S.out`` (4,) = the largest P-wave
+    speed and point speed, the non-finite and the outside points — one stress pass per
+    half of the points, on ``o.threads`` threads.  ``o.fbar`` (the F-bar remedy, :mod:`fem_rmpm.locking`): the
     nodal velocities and :func:`.strain.fbar_gradient_pass` first.  ``call(kernel,
     *args)`` runs a kernel (e.g. :meth:`.Workspace.call`)."""
     serial, _, parallel = material_kernels(o.model)

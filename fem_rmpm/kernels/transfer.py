@@ -41,18 +41,11 @@ from numba import prange
 from .arrays import NodeArrays
 from .basis import gimp_kept, gimp_store, q4_at, q4_cell
 from ..compiled import inline, kernel, kernel_exact, kernel_parallel
-from .common import MASS_TOL, fixed_columns, half_split, xy
+from .common import MASS_TOL, fixed_columns, half_range, xy
 from .pairs import fma2, fma2_to, load2, mul2, sub2_from
 
 __all__ = ["map_to_nodes", "map_to_nodes_parallel", "solve_and_move", "solve_and_move_parallel",
-           "nodal_velocity", "nodal_velocities", "nodal_velocities_parallel", "half_range"]
-
-
-@inline
-def half_range(n, c):
-    """Points ``start:stop`` of half ``c`` (0 or 1) of ``n`` points."""
-    s = half_split(n)
-    return (0, s) if c == 0 else (s, n)
+           "nodal_velocity", "nodal_velocities", "nodal_velocities_parallel"]
 
 
 @inline
@@ -254,7 +247,7 @@ def _g2p_points(P, M, A, S, o, start, stop, row):
     v2max = 0.0
     n_bad = 0
     n_out = 0
-    x, v, lp, lo, hi = P.x, P.v, P.half_width, M.lo, M.hi
+    x, v, lo, hi = P.x, P.v, M.lo, M.hi
     for i in range(np.uint64(start), np.uint64(stop)):
         if not P.active[i]:
             continue
@@ -334,8 +327,9 @@ def solve_and_move(P, M, N, S, o):
     velocities, positions (geostatic: ``P.u_geo`` instead) and the MUSL re-map of the new
     point momenta into ``v_remap``, per half (module docstring).  The positions before the
     move are kept in ``S.x_old`` for F-bar's host cells (the stress pass takes the basis
-    the map to nodes kept: Q4 cells and local coordinates, uGIMP factors).  Returns the grid kinetic energy
-    1/2 sum m_I |v_I|^2 and the largest |v_pic| (the motion as the grid sees it)."""
+    the map to nodes kept: Q4 cells and local coordinates, uGIMP factors).  Returns the
+    grid kinetic energy 1/2 sum m_I |v_I|^2 and the largest |v_pic| (the motion as the
+    grid sees it)."""
     T = _top(N)                      # (both halves' nodes, then both halves' points)
     _solve_half(M, T, N.half, S, o, np.int64(0))
     _solve_half(M, T, N.half, S, o, np.int64(1))
