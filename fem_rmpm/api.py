@@ -130,8 +130,8 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     """
     out = check_run_dir(out, force) if out is not None else None
     check_seed(seed)
-    estimate = check_budget(scene)
-    solved = with_run_threads(scene)     # the notice and the run use the same thread count
+    solved = with_run_threads(scene)     # the notice, estimate and run use one thread count
+    estimate = check_budget(solved)
     if progress:
         print(f"{scene.scene.name}: {estimate.describe()}", file=sys.stderr, flush=True)
         notice = compile_notice(solved)

@@ -28,7 +28,9 @@ real ones):
   the step and a run that comes to rest stops early: on the reference slope
   (0.25 m) this gives 8 628 steps against 11 560 taken in 34.4 s (at rest);
 * implicit steps = ``load_steps`` (quasi-static) or ``t_end / dt`` (dynamic);
-* wall time = steps x points x the cost per point-step: :data:`NS_PER_POINT_STEP`.
+* wall time = steps x :data:`STEPS_FACTOR` (explicit) x points x the cost per
+  point-step (:data:`NS_PER_POINT_STEP`, one thread) / the threads' speed-up
+  (:data:`THREAD_EFFICIENCY` x threads, for more than one; the explicit numba step only).
   The explicit numba figure, 39 ns, is the whole-run figure of the reference slope
   case (i) (18 260 points, 11 944 steps, 8.2-8.5 s wall, 37.4-39.7 ns in 14 runs, median
   38.7) on an idle 2-core Intel Xeon virtual machine (Python 3.11, numba, one thread;
@@ -36,9 +38,13 @@ real ones):
   same era ~1.5-1.7x slower).  From the same runs' ``summary.json``: uGIMP costs 2.3x
   (88.3-90.5 ns), F-bar 1.4x (53-57 ns), a Mohr-Coulomb soil 1.8x (the drained slope,
   ``meshes/slope_drained.toml``: 68 ns; most of its points yield) and the numpy kernel
-  about 2.7 us.  The steps are those at rest: moving points shorten the step, so a
-  failing slope takes more (case (i): 11 944 against 8 627 estimated; the drained
-  slope: 29 351, its step down to 0.17x at the fastest).  The implicit figure, 35 us per point-step, is
+  about 2.7 us.  The CFL count is that of the step at rest: moving points shorten the
+  step, so a failing slope takes more, and :data:`STEPS_FACTOR` (1.30) is the mean ratio
+  measured on the reference slope (1.21-1.40 in six realizations; case (i): 11 944
+  against 8 627).  The drained Mohr-Coulomb slope took 3.4x (29 351 steps): from
+  t = 3 s its step is 0.17x the one at rest, set by 18 of its 18 260 points, strongly
+  sheared (plastic shear strain 11-20), whose volume grew 6- to 33-fold, so that their
+  P-wave speed sqrt(M V / m) is up to 5.7x the soil's at rest.  The implicit figure, 35 us per point-step, is
   the README's dynamic implicit run of the reference slope (1 788 Newmark steps in
   about 19 minutes on a shared core), so it may be 2x high on an idle machine.
   The numba compile of a first run (about 1-1.5 minutes, cached on disk) is not included.
@@ -53,7 +59,7 @@ from .grid import _grid_from_file
 from .scene import Scene, SceneError
 
 __all__ = ["RunEstimate", "BudgetError", "estimate_run", "check_budget",
-           "memory_limit_bytes", "MEMORY_LIMIT_ENV"]
+           "memory_limit_bytes", "MEMORY_LIMIT_ENV", "STEPS_FACTOR", "THREAD_EFFICIENCY"]
 
 #: Environment variable that sets the memory limit in GiB (default: 75 % of the RAM).
 MEMORY_LIMIT_ENV = "FEM_RMPM_MEMORY_LIMIT_GB"
@@ -68,6 +74,14 @@ BYTES_PER_POINT_GIMP = 112.0  # uGIMP: each point's basis factors kept from the 
 NS_PER_POINT_STEP = {"explicit": 39.0, "explicit_gimp_factor": 2.3, "explicit_fbar_factor": 1.4,
                      "explicit_mohr_coulomb_factor": 1.8, "explicit_numpy": 2700.0,
                      "implicit": 35000.0}
+#: Steps taken / the CFL count at rest (t_end / dt), reference slope, literature cases, six
+#: realizations: 12 077, 11 410, 11 096, 11 032, 10 466 and 11 560 steps against 8 628
+#: (1.21-1.40; mean 1.30).  Explicit runs only.
+STEPS_FACTOR = 1.30
+#: Wall-time speed-up of one explicit realization per numba thread, for N > 1 threads: two
+#: threads ran case (i) 1.83-1.90x (2-core Intel Xeon VM, session 29) and the scene's
+#: 10-realization campaign 1.77x faster than one (1.70x on an AMD EPYC VM).
+THREAD_EFFICIENCY = 0.9
 COST_MACHINE = {"explicit": "idle 2-core Intel Xeon VM",
                 "implicit": "shared 2-core AMD EPYC VM"}
 
@@ -85,17 +99,23 @@ class RunEstimate:
     nodes: int
     memory_bytes: float      # peak, B
     dt: float                # s, explicit CFL step at rest (implicit: the step)
-    steps: int               # upper bound: runs that come to rest stop earlier
-    ns_per_point_step: float
-    wall_time: float         # s, approximate (steps x points x cost)
+    steps: int               # t_end / dt at rest (implicit: the steps); see steps_factor
+    ns_per_point_step: float  # one thread
+    wall_time: float         # s, approximate (steps x steps_factor x points x cost / speed-up)
     machine: str = ""        # where the cost per point-step was measured
+    threads: int = 1         # numba threads the wall time is for (explicit numba step)
+    steps_factor: float = 1.0  # steps taken per step counted at rest (explicit: STEPS_FACTOR)
 
     def describe(self) -> str:
         """One line for the start of a run."""
+        moving = (f" at rest, x{self.steps_factor:.3g} on a failing slope"
+                  if self.steps_factor != 1.0 else "")
+        on = f" on {self.threads} threads" if self.threads > 1 else ""
         return (f"estimate: {self.points:,} material points, {self.nodes:,} grid nodes, "
-                f"{_fmt_bytes(self.memory_bytes)} memory, up to {self.steps:,} {self.scheme} "
-                f"steps of {self.dt:.3g} s, about {_fmt_time(self.wall_time)} wall "
-                f"({self.ns_per_point_step:.0f} ns per point-step, {self.machine})")
+                f"{_fmt_bytes(self.memory_bytes)} memory, {self.steps:,} {self.scheme} "
+                f"steps of {self.dt:.3g} s{moving}, about {_fmt_time(self.wall_time)} wall"
+                f"{on} ({self.ns_per_point_step:.0f} ns per point-step on one thread, "
+                f"{self.machine})")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -170,6 +190,15 @@ def _cost(scene: Scene) -> float:
     return ns
 
 
+def _threads(scene: Scene) -> int:
+    """The numba threads of an explicit numba run, ``[solver] threads`` (1 when 0, auto:
+    a run resolves it before estimating; elsewhere 1)."""
+    sv = scene.solver
+    if sv.scheme != "explicit" or getattr(sv, "kernel", "numba") == "numpy":
+        return 1
+    return max(int(getattr(sv, "threads", 0)), 1)
+
+
 def estimate_run(scene: Scene) -> RunEstimate:
     """Estimate points, nodes, memory, steps and wall time of one run of ``scene``."""
     origin, cell, (nx, ny) = _grid_geometry(scene)
@@ -191,10 +220,13 @@ def estimate_run(scene: Scene) -> RunEstimate:
     memory = (BASE_BYTES + BYTES_PER_CELL * cells + per_point * points
               + BYTES_PER_POINT_SNAPSHOT * points * snapshots)
     ns = _cost(scene)
+    threads, factor = _threads(scene), (STEPS_FACTOR if sv.scheme == "explicit" else 1.0)
+    speed_up = THREAD_EFFICIENCY * threads if threads > 1 else 1.0
     return RunEstimate(scheme=sv.scheme, points=points, cells=cells, nodes=nodes,
                        memory_bytes=float(memory), dt=float(dt), steps=int(steps),
-                       ns_per_point_step=ns, wall_time=steps * points * ns * 1e-9,
-                       machine=COST_MACHINE[sv.scheme])
+                       ns_per_point_step=ns,
+                       wall_time=steps * factor * points * ns * 1e-9 / speed_up,
+                       machine=COST_MACHINE[sv.scheme], threads=threads, steps_factor=factor)
 
 
 def memory_limit_bytes() -> float:

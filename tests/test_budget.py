@@ -28,15 +28,38 @@ def test_estimate_counts_points_and_nodes(meshes, name):
 
 def test_estimate_cfl_step_and_steps(meshes):
     """The explicit step at rest is cfl h / c_p with c_p = sqrt(M / rho) (26.96 m/s for
-    the seed clay), and steps = ceil(t_end / dt)."""
+    the seed clay), steps = ceil(t_end / dt), and the wall time counts the failing slope's
+    extra steps (STEPS_FACTOR) on one thread (threads = 0, auto, is resolved by a run)."""
     scene = load_scene(meshes / "slope_reference.toml")
     so = scene.soils[0]
     cp = math.sqrt(so.constrained_modulus / (so.unit_weight / scene.scene.gravity))
     est = budget.estimate_run(scene)
     assert est.dt == pytest.approx(0.5 * 0.25 / cp, rel=1e-12)
     assert est.steps == math.ceil(scene.solver.t_end / est.dt)
-    assert est.wall_time == pytest.approx(
-        est.steps * est.points * budget.NS_PER_POINT_STEP["explicit"] * 1e-9, rel=1e-12)
+    assert est.threads == 1 and est.steps_factor == budget.STEPS_FACTOR
+    assert est.wall_time == pytest.approx(est.steps * budget.STEPS_FACTOR * est.points
+                                          * budget.NS_PER_POINT_STEP["explicit"] * 1e-9,
+                                          rel=1e-12)
+
+
+def test_estimate_on_two_threads_and_its_line(meshes):
+    """Two threads divide the wall time by 2 x THREAD_EFFICIENCY (the per-point-step cost
+    stays the one-thread figure), the numpy kernel runs on one thread, and the printed
+    line says the steps are counted at rest and how many threads the wall time is for
+    (it said "up to" N steps, which a failing slope exceeds: 11 944 against 8 627)."""
+    scene = load_scene(meshes / "slope_reference.toml")
+    one = budget.estimate_run(with_value(scene, "solver.threads", 1))
+    two = budget.estimate_run(with_value(scene, "solver.threads", 2))
+    assert two.threads == 2 and two.ns_per_point_step == one.ns_per_point_step
+    assert two.wall_time == pytest.approx(one.wall_time / (2 * budget.THREAD_EFFICIENCY),
+                                          rel=1e-12)
+    line = two.describe()
+    assert "up to" not in line and f"{two.steps:,} explicit steps" in line
+    assert "at rest, x1.3 on a failing slope" in line and "wall on 2 threads" in line
+    assert "on 1 thread" not in one.describe()
+    numpy = budget.estimate_run(with_value(with_value(scene, "solver.threads", 2), "solver.kernel",
+                                                "numpy"))
+    assert numpy.threads == 1
 
 
 def test_fine_reference_slope_refused_with_estimate(tmp_path, capsys):

@@ -16,7 +16,8 @@ import pytest
 from fem_rmpm import cli
 from fem_rmpm.campaign import backends as B
 from fem_rmpm.campaign import run_campaign
-from fem_rmpm.campaign.estimate import STEPS_FACTOR, estimate_campaign, records_calibration
+from fem_rmpm.budget import STEPS_FACTOR, THREAD_EFFICIENCY
+from fem_rmpm.campaign.estimate import estimate_campaign, records_calibration
 from fem_rmpm.budget import estimate_run
 from fem_rmpm.scene import load_scene
 
@@ -210,7 +211,6 @@ def test_dry_run_estimate_adds_up(tmp_path):
     assert not (tmp_path / "c").exists()
     # threads = 2: one local worker of two threads runs each realization THREAD_EFFICIENCY
     # x 2 times faster (no probe: the budget's constant)
-    from fem_rmpm.campaign.estimate import THREAD_EFFICIENCY
     from fem_rmpm.scene import with_values
     two = estimate_campaign(with_values(scene, {"solver.threads": 2}), tmp_path / "c",
                             realizations=3, workers=1, probe=False)

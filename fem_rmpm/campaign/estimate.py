@@ -7,8 +7,9 @@ and the CFL step count of one run from :func:`fem_rmpm.budget.estimate_run`, and
 * **steps** = the budget's count (``t_end`` over the CFL step at rest) x a *steps
   factor*: moving points shorten the step and a run that comes to rest stops early.
   From the ok records of this campaign when there are some (their mean ratio of steps
-  taken to the budget's count); else :data:`STEPS_FACTOR`, the ratio measured on the
-  reference slope (six realizations of the four literature cases: 1.21-1.40, mean 1.30);
+  taken to the budget's count); else :data:`fem_rmpm.budget.STEPS_FACTOR`, the ratio
+  measured on the reference slope (six realizations of the four literature cases:
+  1.21-1.40, mean 1.30);
 * **CPU per realization** = setup + points x steps x the cost per point-step, with the
   cost per point-step and the setup (random field, seeding, measures) *measured on this
   machine*: from the records of this campaign (their CPU time over their point-steps)
@@ -21,8 +22,8 @@ and the CFL step count of one run from :func:`fem_rmpm.budget.estimate_run`, and
 * **memory per worker** = the budget's peak memory of one realization (largest case);
 * **wall time** = the start of one worker + the realizations spread over the workers
   (``ceil(to_run / workers)`` realizations in a row per worker, each on the local
-  workers' ``[solver] threads`` at :data:`THREAD_EFFICIENCY`; queue waits of a batch
-  system are not included).
+  workers' ``[solver] threads`` at :data:`fem_rmpm.budget.THREAD_EFFICIENCY`; queue
+  waits of a batch system are not included).
 
 Measured on the reference slope main job (``fem-rmpm mc --out DIR``: 10 realizations):
 see README "Running a campaign on a SLURM cluster" for the estimate against the
@@ -37,24 +38,15 @@ from pathlib import Path
 from typing import Sequence
 
 from ..api import run as run_one
-from ..budget import RunEstimate, estimate_run
+from ..budget import STEPS_FACTOR, THREAD_EFFICIENCY, RunEstimate, estimate_run
 from ..scene import Scene, with_value
 from .backends import ClusterSpec, campaign_backend
 from .cases import Case, CampaignError
 from .runner import pending_work
 
-#: wall-time speed-up of one realization per numba thread, for N > 1 threads: two threads
-#: ran case (i) 1.84-1.92x and the scene's 10-realization campaign 1.77x faster than one
-#: (2-core Intel Xeon VM, 2026-12-05; 1.70x on an AMD EPYC VM)
-THREAD_EFFICIENCY = 0.9
-
 __all__ = ["STEPS_FACTOR", "CaseEstimate", "CampaignEstimate", "Calibration",
            "estimate_campaign", "probe_calibration", "records_calibration", "estimate_text"]
 
-#: Steps taken / the budget's CFL count (t_end / dt at rest), reference slope, literature
-#: cases, 6 realizations: 12 077, 11 410, 11 096, 11 032, 10 466 and 11 560 steps against
-#: 8 628 (1.21-1.40; mean 1.30).  Used when the campaign has no record yet.
-STEPS_FACTOR = 1.30
 #: CPU of point-steps the probe aims at (s): long enough to time, short enough for a dry run.
 PROBE_SECONDS = 2.0
 
