@@ -81,3 +81,30 @@ def test_package_locators_are_first():
     from numba.core.caching import CacheImpl
     assert numba_cache.install()
     assert CacheImpl._locator_classes[0].__name__.startswith("FemRmpm")
+
+
+def test_functions_the_kernels_can_call_set_their_own_flags():
+    """Every numba function of ``fem_rmpm.materials`` and ``fem_rmpm.kernels`` that is
+    called rather than inlined sets ``fastmath`` and ``error_model`` itself.  numba
+    compiles a function without them with the flags of the caller that compiles it
+    first, and caches that: the Mohr-Coulomb helpers (plain ``njit``) took the explicit
+    kernels' multiply-add contraction when a run compiled them and none when a test or
+    the implicit scheme's numpy-level update did, so the drained slope's state at t = 3 s
+    (1 146 steps) had two hashes by which came first, and a cached run kept either
+    (measured before the fix).  They now set the kernels' flags: one hash in both orders
+    and on two threads, the one a kernel-first compile gave (explicit runs unchanged)."""
+    import importlib
+    import pkgutil
+
+    from numba.core.registry import CPUDispatcher
+    unset = []
+    for pkg in ("fem_rmpm.materials", "fem_rmpm.kernels"):
+        root = importlib.import_module(pkg)
+        for info in pkgutil.iter_modules(root.__path__, pkg + "."):
+            mod = importlib.import_module(info.name)
+            for name, f in vars(mod).items():
+                if (isinstance(f, CPUDispatcher) and f.__module__ == mod.__name__
+                        and f.targetoptions.get("inline", "never") != "always"
+                        and not {"fastmath", "error_model"} <= set(f.targetoptions)):
+                    unset.append(f"{mod.__name__}.{name}")
+    assert not unset, f"numba functions that would take their caller's flags: {unset}"

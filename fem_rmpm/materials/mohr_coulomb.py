@@ -34,8 +34,10 @@
   a point is valid and associated.
 * **Tangent**: the implicit scheme differentiates :func:`update` by the complex step;
   the update is one numba function for real and complex numbers (branch tests on real
-  parts), so the numpy reference and the explicit kernels run the same arithmetic.
-  No tension cut-off yet: the apex return is the tensile limit.
+  parts), so the numpy reference and the explicit kernels run the same arithmetic: its
+  functions carry the kernels' flags (:data:`_compiled`) whoever compiles them first.
+* **Tension cut-off** ``tension_cutoff`` (kPa, default none: the apex is the tensile
+  limit): no principal stress above it (Rankine planes, returned with Mohr-Coulomb's).
 
 Parameter row ``[G, K, cohesion_peak, cohesion_residual, friction_angle_peak,
 friction_angle_residual, dilation_angle_peak, dilation_angle_residual, softening_strain,
@@ -49,6 +51,7 @@ import math
 import numpy as np
 from numba import njit
 
+from ..compiled import FASTMATH
 from .protocol import Parameter
 
 NAME = "mohr_coulomb_softening"
@@ -160,13 +163,15 @@ def _weight_np(gamma_p, params):
 
 
 # --------------------------------------------------------------- strengths (one point)
-# The helpers are compiled once per argument type and called, not inlined by numba
-# (``inline="always"``): numba repeats its pipeline and copies the IR at each of their
-# ~40 call sites, which made the first compile of the update 4.6 s (real) and 7.1 s
-# (complex step) instead of 3.0 and 4.3 s (cold, numba 0.68).  Bitwise the same results
-# and the same speed (200 000 points, 3 interleaved runs: 340-344 ns against
-# 344-345 ns per point).
-@njit(cache=True)
+# The helpers are compiled once per type and called, not inlined (inlined, the first
+# compile took 4.6 / 7.1 s real / complex, not 3.0 / 4.3).  They set the kernels' fastmath
+# and error model: numba gives a function without them the flags of the caller compiling
+# it first (the kernels contract multiply-adds), so the drained slope's state at t = 3 s
+# depended on whether a kernel or a numpy-level call came first, and the cache kept it.
+_compiled = njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+
+
+@_compiled
 def _strengths(gam, cp, cr, php, phr, gs, expo):
     """c, sin(phi), c cos(phi) at gamma_p and their derivatives d/dgamma_p."""
     if expo:
@@ -186,7 +191,7 @@ def _strengths(gam, cp, cr, php, phr, gs, expo):
     return c, sphi, c * cphi, dc, cphi * dphi, dc * cphi - c * sphi * dphi
 
 
-@njit(cache=True)
+@_compiled
 def _sin_angle(gam, pk, rs, gs, expo):
     """sin of an angle (deg) softening from pk to rs with gamma_p, as in _strengths."""
     if pk == rs:
@@ -200,7 +205,7 @@ def _sin_angle(gam, pk, rs, gs, expo):
     return np.sin((rs + (pk - rs) * w) * _DEG)
 
 
-@njit(cache=True)
+@_compiled
 def _dev_norm(a, b, c):
     """sqrt(2 dev(x) : dev(x)) of a diagonal (principal) increment x = (a, b, c)."""
     m = (a + b + c) / 3.0
@@ -208,7 +213,7 @@ def _dev_norm(a, b, c):
 
 
 # --------------------------------------------------------------- the three returns
-@njit(cache=True)
+@_compiled
 def _main_plane(t1, t3, gn, sps, sph, ccp, lam, G, cp, cr, php, phr, gs, expo):
     """Multiplier of the main-plane return (plane 1-3), Newton on f(dg) = 0; ``sph``,
     ``ccp``: sin(phi) and c cos(phi) at the start of the step."""
@@ -232,7 +237,7 @@ def _main_plane(t1, t3, gn, sps, sph, ccp, lam, G, cp, cr, php, phr, gs, expo):
     return dg, gn + k * dg
 
 
-@njit(cache=True)
+@_compiled
 def _edge(t1, t2, t3, upper, gn, sps, lam, G, cp, cr, php, phr, gs, expo):
     """Multipliers of an edge return: planes 1-3 and 2-3 on the edge tau_1 = tau_2
     (``upper``), planes 1-3 and 1-2 on the edge tau_2 = tau_3."""
@@ -284,7 +289,7 @@ def _edge(t1, t2, t3, upper, gn, sps, lam, G, cp, cr, php, phr, gs, expo):
     return ga, gb, x, gn + _dev_norm(x[0], x[1], x[2])
 
 
-@njit(cache=True)
+@_compiled
 def _surely_elastic(t1, t3, gam, cp, cr, php, phr, gs):
     """True only where the yield test of :func:`_mc_return` finds the trial stresses
     ``t1 >= t3`` (kPa) elastic, decided without a sine or cosine (linear softening): the
@@ -306,7 +311,7 @@ def _surely_elastic(t1, t3, gam, cp, cr, php, phr, gs):
     return f_up < -1e-9 * (abs(t1) + abs(t3) + c)
 
 
-@njit(cache=True)
+@_compiled
 def _mc_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo):
     """Mohr-Coulomb return of ordered principal trial log strains e1 >= e2 >= e3 (no
     tension cut-off): new principal elastic log strains and gamma_p.  Elastic: the inputs
@@ -356,7 +361,7 @@ _SETS = ((0, -1, -1, 1), (0, 3, -1, 2), (0, 1, -1, 2), (0, 3, 4, 3), (0, 1, 3, 3
          (0, 1, 5, 3), (0, 3, 5, 3), (0, 1, 2, 3))
 
 
-@njit(cache=True)
+@_compiled
 def _ij(code):
     if code == 3:
         return 0, 2
@@ -367,7 +372,7 @@ def _ij(code):
     return code, code
 
 
-@njit(cache=True)
+@_compiled
 def _plane_vec(code, sa, z):
     """Gradient (sa = sin phi) or flow direction (sa = sin psi) of plane ``code``; zero
     for an unused code (-1).  ``z``: a zero of the working type."""
@@ -382,7 +387,7 @@ def _plane_vec(code, sa, z):
             (a if i == 2 else z) + (b if j == 2 else z))
 
 
-@njit(cache=True)
+@_compiled
 def _plane_f(code, s, sph, ccp, dsph, dccp, tc):
     """Value of plane ``code`` at the principal stresses s and its derivative with
     respect to gamma_p (zero for the tension planes and an unused code)."""
@@ -395,19 +400,19 @@ def _plane_f(code, s, sph, ccp, dsph, dccp, tc):
     return s[i] - s[j] + (s[i] + s[j]) * sph - 2 * ccp, (s[i] + s[j]) * dsph - 2 * dccp
 
 
-@njit(cache=True)
+@_compiled
 def _dot3(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-@njit(cache=True)
+@_compiled
 def _c_times(n, lam, G):
     """Elastic stiffness times a principal strain (lam tr(n) + 2 G n_i)."""
     tr = lam * (n[0] + n[1] + n[2])
     return tr + 2 * G * n[0], tr + 2 * G * n[1], tr + 2 * G * n[2]
 
 
-@njit(cache=True)
+@_compiled
 def _dgam(p, n, dg):
     """d dev_norm(p) / d multiplier of flow n (0 at p = 0)."""
     if not dg.real > 0:
@@ -417,7 +422,7 @@ def _dgam(p, n, dg):
                 + (p[2] - mp) * (n[2] - mn)) / dg
 
 
-@njit(cache=True)
+@_compiled
 def _corner(t, codes, gn, sps, lam, G, tc, cp, cr, php, phr, gs, expo):
     """Return onto the active planes ``codes`` (up to three, see ``_SETS``) of the
     ordered principal trial stresses t: Newton on the multipliers with c, phi at the new
@@ -468,7 +473,7 @@ def _corner(t, codes, gn, sps, lam, G, tc, cp, cr, php, phr, gs, expo):
     return (l0, l1, l2), p, s, gn + _dev_norm(p[0], p[1], p[2])
 
 
-@njit(cache=True)
+@_compiled
 def _cutoff_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo, tc):
     """Return with the tension cut-off active (the Mohr-Coulomb return left tau_1 > t_c):
     the first active set of ``_SETS`` whose multipliers are >= 0 and whose stress
@@ -495,7 +500,7 @@ def _cutoff_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo, t
     return e1 - p[0], e2 - p[1], e3 - p[2], gam
 
 
-@njit(cache=True)
+@_compiled
 def _principal_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo, tc):
     """Return of ordered principal trial log strains e1 >= e2 >= e3: new principal
     elastic log strains and gamma_p (elastic: the inputs unchanged).  The Mohr-Coulomb
@@ -513,7 +518,7 @@ def _principal_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo
     return _cutoff_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo, tc)
 
 
-@njit(cache=True)
+@_compiled
 def _update_point(e0, e1, e2, e3, gn, prm):
     """One point: trial log strain [xx, yy, zz, xy] -> (new strain, gamma_p)."""
     G, K = prm[0], prm[1]
@@ -537,7 +542,7 @@ def _update_point(e0, e1, e2, e3, gn, prm):
     return na, nb, nz, 0.0 * e3, gam           # isotropic in-plane trial: any axes are principal
 
 
-@njit(cache=True)
+@_compiled
 def _update_all(eps_tr, state, params, eps, st, tau):
     for i in range(eps_tr.shape[0]):
         e0, e1, e2, e3, gam = _update_point(eps_tr[i, 0], eps_tr[i, 1], eps_tr[i, 2],

@@ -404,7 +404,7 @@ def tangent(eps_tr: np.ndarray, state: np.ndarray, params: np.ndarray) -> np.nda
                            np.empty((len(eps), 4, 4)))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, fastmath=False, error_model="numpy")
 def _tangent_points(eps, state, params, D):
     for i in range(eps.shape[0]):
         G, K = params[i, 0], params[i, 1]
