@@ -36,17 +36,19 @@ real ones):
   38.7) on an idle 2-core Intel Xeon virtual machine (Python 3.11, numba, one thread;
   the estimate says which machine it is for: an AMD EPYC Zen 3 VM ran the code of the
   same era ~1.5-1.7x slower).  From the same runs' ``summary.json``: uGIMP costs 2.3x
-  (88.3-90.5 ns), F-bar 1.4x (53-57 ns), a Mohr-Coulomb soil 1.8x (the drained slope,
-  ``meshes/slope_drained.toml``: 68 ns; most of its points yield) and the numpy kernel
+  (88.3-90.5 ns), F-bar 1.4x (53-57 ns), a Mohr-Coulomb soil 1.7x (the drained slope,
+  ``meshes/slope_drained.toml``: 68 ns, then 0.89-0.98x that with the closed-form return
+  past the residual; most of its points yield) and the numpy kernel
   about 2.7 us.  The CFL count is that of the step at rest: moving points shorten the
   step, so a failing slope takes more, and :data:`STEPS_FACTOR` (1.30) is the mean ratio
   measured on the reference slope (1.21-1.40 in six realizations; case (i): 11 944
-  against 8 627).  The drained Mohr-Coulomb slope took 3.4x (29 351 steps): from
-  t = 3 s its step is 0.17x the one at rest, set by 18 of its 18 260 points, strongly
-  sheared (plastic shear strain 11-20), whose volume grew 6- to 33-fold, so that their
-  P-wave speed sqrt(M V / m) is up to 5.7x the soil's at rest.  The implicit figure, 35 us per point-step, is
-  the README's dynamic implicit run of the reference slope (1 788 Newmark steps in
-  about 19 minutes on a shared core), so it may be 2x high on an idle machine.
+  against 8 627).  The drained Mohr-Coulomb slope took 3.0x (25 491 steps): from
+  t = 3 s its step is 0.18x the one at rest, set by about 20 of its 18 260 points,
+  strongly sheared (plastic shear strain 12-21), whose volume grew 6- to 31-fold, so
+  that their P-wave speed sqrt(M V / m) is up to 5.6x the soil's at rest.  The implicit
+  figure, 35 us per point-step, is the README's dynamic implicit run of the reference
+  slope (1 788 Newmark steps in about 19 minutes on a shared core), so it may be 2x high
+  on an idle machine.
   The numba compile of a first run (about 1-1.5 minutes, cached on disk) is not included.
 """
 from __future__ import annotations
@@ -72,7 +74,7 @@ BYTES_PER_POINT_SNAPSHOT = 24.0
 BYTES_PER_POINT_GIMP = 112.0  # uGIMP: each point's basis factors kept from the map to nodes
 #: Whole-run cost per point-step (ns) by (scheme, kernel or shape); see the module docstring.
 NS_PER_POINT_STEP = {"explicit": 39.0, "explicit_gimp_factor": 2.3, "explicit_fbar_factor": 1.4,
-                     "explicit_mohr_coulomb_factor": 1.8, "explicit_numpy": 2700.0,
+                     "explicit_mohr_coulomb_factor": 1.7, "explicit_numpy": 2700.0,
                      "implicit": 35000.0}
 #: Steps taken / the CFL count at rest (t_end / dt), reference slope, literature cases, six
 #: realizations: 12 077, 11 410, 11 096, 11 032, 10 466 and 11 560 steps against 8 628

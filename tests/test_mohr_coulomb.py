@@ -408,3 +408,35 @@ def test_the_elastic_precheck_never_passes_a_yielding_trial_stress():
     assert not (sure & (f_rel > 1e-12)).any()
     clear = f_rel < -0.01
     assert clear.sum() > 50_000 and sure[clear].mean() > 0.99
+
+
+def test_softened_points_return_onto_the_surface_at_their_new_strength():
+    """Linear softening (c 10 -> 2 kPa, phi 30 -> 20 deg, psi 5 -> 0 deg, residual at
+    gamma_p = 0.5): 4 000 random trial states (main plane, edges, apex) of points before
+    and past the residual (gamma_p in [0, 1.5]).  Every plastic point ends on the yield
+    surface of c and phi at its *new* gamma_p, evaluated here in numpy (|f| <= 1e-9 of the
+    stresses; achieves 2.8e-14), gamma_p never falls, and a point past the residual
+    (whose return the update solves in closed form, without Newton) gives the update of
+    the perfectly plastic soil with the residual strength (c 2 kPa, phi 20, psi 0 deg) to
+    1e-12: the closed form of the plateau is that soil's return, not the peak's."""
+    rng = np.random.default_rng(5)
+    n = 4000
+    trial = rng.normal(0.0, 0.01, (n, 4)) + np.array([-0.002, -0.006, -0.004, 0.0])
+    apex = rng.random(n) < 0.1                    # far in tension: the apex return
+    trial[apex, :3] = 0.02 + rng.normal(0.0, 0.002, (apex.sum(), 3))
+    gamma = rng.uniform(0.0, 1.5, (n, 1))
+    prm = np.repeat(_params(10.0, 30.0, 5.0, 2.0, 20.0, 0.0, gs=0.5), n, axis=0)
+    eps, st, tau = mc.update(trial, gamma, prm)
+    plastic = st[:, 0] > gamma[:, 0]
+    assert (st[:, 0] >= gamma[:, 0]).all() and 0.2 * n < plastic.sum() < 0.9 * n
+    w = np.clip(1.0 - st[:, 0] / 0.5, 0.0, None)
+    c, phi = 2.0 + 8.0 * w, 20.0 + 10.0 * w
+    s = _principal(tau)
+    f = s[:, 0] - s[:, 2] + (s[:, 0] + s[:, 2]) * np.sin(np.radians(phi)) \
+        - 2 * c * np.cos(np.radians(phi))
+    assert (np.abs(f[plastic]) <= 1e-9 * np.abs(s[plastic]).max(axis=1)).all()
+    past = gamma[:, 0] >= 0.5
+    residual = np.repeat(_params(2.0, 20.0, 0.0), n, axis=0)
+    eps_r, st_r, tau_r = mc.update(trial[past], gamma[past], residual[past])
+    np.testing.assert_allclose(tau[past], tau_r, rtol=0, atol=1e-12 * np.abs(tau_r).max())
+    np.testing.assert_allclose(st[past], st_r, rtol=1e-12)

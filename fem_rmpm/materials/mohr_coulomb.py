@@ -26,7 +26,9 @@
   ``tau_1 = tau_2 = tau_3 = c cot(phi)`` when the edge return is not admissible either
   (``phi > 0``; all trial deviatoric strain becomes plastic).  With softening, each
   branch is a Newton iteration on its plastic multipliers with ``c, phi`` at the new
-  ``gamma_p``; the flow direction uses ``psi`` at the start of the step.
+  ``gamma_p``; the flow direction uses ``psi`` at the start of the step.  Past the
+  residual of linear softening (``gamma_p >= softening_strain``) ``c, phi`` are
+  constant: each branch is solved in closed form, as without softening.
 * **psi <= phi at every point**: a scene's ``[[soil]]`` must have psi <= phi (peak and
   residual, :func:`check`), but a random field may draw a friction angle below the soil's
   dilation angle; there the flow uses ``psi = phi`` (the dilation angle is capped at the
@@ -192,6 +194,21 @@ def _strengths(gam, cp, cr, php, phr, gs, expo):
 
 
 @_compiled
+def _constant_strength(gn, cp, cr, php, phr, gs, expo):
+    """Whether c, phi stay constant from ``gn`` on: no softening, or linear past gs."""
+    return (cp == cr and php == phr) or (not expo and gn.real >= gs)
+
+
+@_compiled
+def _strengths_after(gam, gn, at_gn, cp, cr, php, phr, gs, expo):
+    """:func:`_strengths` at ``gam >= gn`` given ``at_gn`` (its value at ``gn``), which
+    it is past the residual of linear softening (a sine and cosine per step, not iteration)."""
+    if not expo and gn.real >= gs and gam.real >= gs:
+        return at_gn
+    return _strengths(gam, cp, cr, php, phr, gs, expo)
+
+
+@_compiled
 def _sin_angle(gam, pk, rs, gs, expo):
     """sin of an angle (deg) softening from pk to rs with gamma_p, as in _strengths."""
     if pk == rs:
@@ -214,17 +231,19 @@ def _dev_norm(a, b, c):
 
 # --------------------------------------------------------------- the three returns
 @_compiled
-def _main_plane(t1, t3, gn, sps, sph, ccp, lam, G, cp, cr, php, phr, gs, expo):
-    """Multiplier of the main-plane return (plane 1-3), Newton on f(dg) = 0; ``sph``,
-    ``ccp``: sin(phi) and c cos(phi) at the start of the step."""
+def _main_plane(t1, t3, gn, sps, at_gn, lam, G, cp, cr, php, phr, gs, expo):
+    """Multiplier of the main-plane return (plane 1-3), Newton on f(dg) = 0; ``at_gn``:
+    :func:`_strengths` at the start of the step."""
+    sph, ccp = at_gn[1], at_gn[2]
     dn1 = lam * 2 * sps + 2 * G * (1 + sps)
     dn3 = lam * 2 * sps - 2 * G * (1 - sps)
     k = 2.0 * (1.0 + sps * sps / 3.0) ** 0.5          # d gamma_p / d dg on this plane
     dg = (t1 - t3 + (t1 + t3) * sph - 2 * ccp) / (4 * G + 4 * sps * sph * (lam + G))
-    if cp == cr and php == phr:                     # no softening: f is linear in dg
+    if _constant_strength(gn, cp, cr, php, phr, gs, expo):   # f is linear in dg: exact
         return dg, gn + k * dg
     for it in range(60):
-        c, sph, ccp, dc, dsph, dccp = _strengths(gn + k * dg, cp, cr, php, phr, gs, expo)
+        c, sph, ccp, dc, dsph, dccp = _strengths_after(gn + k * dg, gn, at_gn, cp, cr, php,
+                                                       phr, gs, expo)
         s1, s3 = t1 - dg * dn1, t3 - dg * dn3
         f = s1 - s3 + (s1 + s3) * sph - 2 * ccp
         df = -(dn1 - dn3) - (dn1 + dn3) * sph + ((s1 + s3) * dsph - 2 * dccp) * k
@@ -238,9 +257,9 @@ def _main_plane(t1, t3, gn, sps, sph, ccp, lam, G, cp, cr, php, phr, gs, expo):
 
 
 @_compiled
-def _edge(t1, t2, t3, upper, gn, sps, lam, G, cp, cr, php, phr, gs, expo):
+def _edge(t1, t2, t3, upper, gn, sps, at_gn, lam, G, cp, cr, php, phr, gs, expo):
     """Multipliers of an edge return: planes 1-3 and 2-3 on the edge tau_1 = tau_2
-    (``upper``), planes 1-3 and 1-2 on the edge tau_2 = tau_3."""
+    (``upper``), planes 1-3 and 1-2 on the edge tau_2 = tau_3; ``at_gn``: c, phi at gn."""
     z = 0.0 * sps                                   # a zero of the type of sps
     na = (1 + sps, z, -(1 - sps))
     nb = (z, 1 + sps, -(1 - sps)) if upper else (1 + sps, -(1 - sps), z)
@@ -250,13 +269,13 @@ def _edge(t1, t2, t3, upper, gn, sps, lam, G, cp, cr, php, phr, gs, expo):
     # plane b: f_b = s_i - s_j + (s_i + s_j) sin(phi) - 2 c cos(phi) with (i, j)
     i, j = (1, 2) if upper else (0, 1)
     ga, gb = 0.0 * t1, 0.0 * t1
-    c, sph, ccp, _, _, _ = _strengths(gn, cp, cr, php, phr, gs, expo)
     for it in range(60):
         s = (t1 - ga * da[0] - gb * db[0], t2 - ga * da[1] - gb * db[1],
              t3 - ga * da[2] - gb * db[2])
         x = (ga * na[0] + gb * nb[0], ga * na[1] + gb * nb[1], ga * na[2] + gb * nb[2])
         inv = _dev_norm(x[0], x[1], x[2])
-        c, sph, ccp, dc, dsph, dccp = _strengths(gn + inv, cp, cr, php, phr, gs, expo)
+        c, sph, ccp, dc, dsph, dccp = _strengths_after(gn + inv, gn, at_gn, cp, cr, php, phr,
+                                                       gs, expo)
         fa = s[0] - s[2] + (s[0] + s[2]) * sph - 2 * ccp
         fb = s[i] - s[j] + (s[i] + s[j]) * sph - 2 * ccp
         # d gamma_p / d ga, d gb (zero at the first, perfectly plastic, iteration)
@@ -279,7 +298,7 @@ def _edge(t1, t2, t3, upper, gn, sps, lam, G, cp, cr, php, phr, gs, expo):
         sa = (fa * a22 - fb * a12) / det
         sb = (a11 * fb - a21 * fa) / det
         ga, gb = ga - sa, gb - sb
-        if cp == cr and php == phr:                 # no softening: linear, exact at once
+        if _constant_strength(gn, cp, cr, php, phr, gs, expo):   # linear, exact at once
             break
         sc = abs(s[0].real) + abs(s[1].real) + abs(s[2].real) + abs(ccp.real)
         if abs(fa.real) + abs(fb.real) <= _NEWTON * sc or (
@@ -321,7 +340,8 @@ def _mc_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo):
     t1, t2, t3 = lam * vol + 2 * G * e1, lam * vol + 2 * G * e2, lam * vol + 2 * G * e3
     if not expo and _surely_elastic(t1.real, t3.real, gn.real, cp, cr, php, phr, gs):
         return e1, e2, e3, gn
-    c, sph, ccp, _, _, _ = _strengths(gn, cp, cr, php, phr, gs, expo)
+    at_gn = _strengths(gn, cp, cr, php, phr, gs, expo)
+    c, sph, ccp, _, _, _ = at_gn
     f_tr = t1 - t3 + (t1 + t3) * sph - 2 * ccp
     scale = abs(t1.real) + abs(t3.real) + abs(ccp.real) + 1e-300
     if not f_tr.real > _REL * scale:
@@ -329,7 +349,7 @@ def _mc_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo):
     sps = _sin_angle(gn, psp, psr, gs, expo)       # sin(psi) at the start of the step
     if sps.real > sph.real:                         # psi capped at phi (a drawn phi < psi)
         sps = sph
-    dg, gam = _main_plane(t1, t3, gn, sps, sph, ccp, lam, G, cp, cr, php, phr, gs, expo)
+    dg, gam = _main_plane(t1, t3, gn, sps, at_gn, lam, G, cp, cr, php, phr, gs, expo)
     p1, p2, p3 = dg * (1 + sps), 0.0 * dg, -dg * (1 - sps)
     s1 = t1 - lam * 2 * sps * dg - 2 * G * p1
     s2 = t2 - lam * 2 * sps * dg
@@ -338,7 +358,8 @@ def _mc_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo):
     if s1.real + tol >= s2.real and s2.real + tol >= s3.real:
         return e1 - p1, e2 - p2, e3 - p3, gam
     upper = s2.real > s1.real                       # the edge tau_1 = tau_2, else tau_2 = tau_3
-    ga, gb, x, gam = _edge(t1, t2, t3, upper, gn, sps, lam, G, cp, cr, php, phr, gs, expo)
+    ga, gb, x, gam = _edge(t1, t2, t3, upper, gn, sps, at_gn, lam, G, cp, cr, php, phr, gs,
+                           expo)
     n1, n2, n3 = e1 - x[0], e2 - x[1], e3 - x[2]
     v = n1 + n2 + n3
     u1, u2, u3 = lam * v + 2 * G * n1, lam * v + 2 * G * n2, lam * v + 2 * G * n3
@@ -348,7 +369,7 @@ def _mc_return(e1, e2, e3, gn, G, K, cp, cr, php, phr, psp, psr, gs, expo):
         return n1, n2, n3, gam
     # apex: the trial deviator becomes plastic, the pressure goes to c cot(phi)
     gam = gn + _dev_norm(e1, e2, e3)
-    c, sph, ccp, _, _, _ = _strengths(gam, cp, cr, php, phr, gs, expo)
+    c, sph, ccp, _, _, _ = _strengths_after(gam, gn, at_gn, cp, cr, php, phr, gs, expo)
     ev = 3.0 * (c * (1 - sph * sph) ** 0.5 / sph) / (3.0 * K)     # e_vol = p / K
     return ev / 3.0, ev / 3.0, ev / 3.0, gam
 
