@@ -31,7 +31,7 @@ import numpy as np
 from tqdm import tqdm
 
 from . import kernels, strength_reduction
-from .budget import check_budget
+from .budget import check_budget, explicit_numba
 from .explicit import auto_threads, run_explicit, threads_from_auto
 from .materials import invalid_points
 from .run import RunRecord, SimulationError
@@ -247,14 +247,9 @@ def with_run_threads(scene: Scene) -> Scene:
     resolved once, so that the compile notice and the run agree (each asking on its own,
     the count of free cores could change in between: 2 in the notice, 1 in the run)."""
     sv = scene.solver
-    if not _explicit_numba(sv) or int(getattr(sv, "threads", 0)) > 0:
+    if not explicit_numba(sv) or int(getattr(sv, "threads", 0)) > 0:
         return scene
     return with_value(scene, "solver.threads", auto_threads())
-
-
-def _explicit_numba(sv) -> bool:
-    """Whether the ``[solver]`` section ``sv`` runs the explicit scheme's numba kernels."""
-    return sv.scheme == "explicit" and getattr(sv, "kernel", "numba") == "numba"
 
 
 def compile_notice(scene: Scene) -> str | None:
@@ -262,7 +257,7 @@ def compile_notice(scene: Scene) -> str | None:
     the threads it will use (``[solver] threads``, 0: :func:`.explicit.auto_threads`), or
     None when those kernels are cached (or the run is not an explicit numba run)."""
     sv = scene.solver
-    if not _explicit_numba(sv):
+    if not explicit_numba(sv):
         return None
     threads = int(getattr(sv, "threads", 0)) or auto_threads()
     if not kernels_cold(threads):

@@ -61,7 +61,8 @@ from .grid import _grid_from_file
 from .scene import Scene, SceneError
 
 __all__ = ["RunEstimate", "BudgetError", "estimate_run", "check_budget",
-           "memory_limit_bytes", "MEMORY_LIMIT_ENV", "STEPS_FACTOR", "THREAD_EFFICIENCY"]
+           "memory_limit_bytes", "MEMORY_LIMIT_ENV", "STEPS_FACTOR", "THREAD_EFFICIENCY",
+           "explicit_numba", "thread_speed_up"]
 
 #: Environment variable that sets the memory limit in GiB (default: 75 % of the RAM).
 MEMORY_LIMIT_ENV = "FEM_RMPM_MEMORY_LIMIT_GB"
@@ -192,13 +193,21 @@ def _cost(scene: Scene) -> float:
     return ns
 
 
+def explicit_numba(sv) -> bool:
+    """Whether the ``[solver]`` section ``sv`` runs the explicit scheme's numba kernels."""
+    return sv.scheme == "explicit" and getattr(sv, "kernel", "numba") == "numba"
+
+
+def thread_speed_up(threads: int) -> float:
+    """Wall-time speed-up of one explicit realization on ``threads`` numba threads."""
+    return THREAD_EFFICIENCY * threads if threads > 1 else 1.0
+
+
 def _threads(scene: Scene) -> int:
     """The numba threads of an explicit numba run, ``[solver] threads`` (1 when 0, auto:
     a run resolves it before estimating; elsewhere 1)."""
     sv = scene.solver
-    if sv.scheme != "explicit" or getattr(sv, "kernel", "numba") == "numpy":
-        return 1
-    return max(int(getattr(sv, "threads", 0)), 1)
+    return max(int(getattr(sv, "threads", 0)), 1) if explicit_numba(sv) else 1
 
 
 def estimate_run(scene: Scene) -> RunEstimate:
@@ -223,11 +232,10 @@ def estimate_run(scene: Scene) -> RunEstimate:
               + BYTES_PER_POINT_SNAPSHOT * points * snapshots)
     ns = _cost(scene)
     threads, factor = _threads(scene), (STEPS_FACTOR if sv.scheme == "explicit" else 1.0)
-    speed_up = THREAD_EFFICIENCY * threads if threads > 1 else 1.0
     return RunEstimate(scheme=sv.scheme, points=points, cells=cells, nodes=nodes,
                        memory_bytes=float(memory), dt=float(dt), steps=int(steps),
                        ns_per_point_step=ns,
-                       wall_time=steps * factor * points * ns * 1e-9 / speed_up,
+                       wall_time=steps * factor * points * ns * 1e-9 / thread_speed_up(threads),
                        machine=COST_MACHINE[sv.scheme], threads=threads, steps_factor=factor)
 
 

@@ -12,7 +12,7 @@ import pytest
 from fem_rmpm import budget
 from fem_rmpm.api import prepare
 from fem_rmpm.cli import main
-from fem_rmpm.scene import load_scene, with_value
+from fem_rmpm.scene import load_scene, with_value, with_values
 
 
 @pytest.mark.parametrize("name", ["slope_reference", "column", "footing"])
@@ -57,8 +57,8 @@ def test_estimate_on_two_threads_and_its_line(meshes):
     assert "up to" not in line and f"{two.steps:,} explicit steps" in line
     assert "at rest, x1.3 on a failing slope" in line and "wall on 2 threads" in line
     assert "on 1 thread" not in one.describe()
-    numpy = budget.estimate_run(with_value(with_value(scene, "solver.threads", 2), "solver.kernel",
-                                                "numpy"))
+    numpy = budget.estimate_run(with_values(scene, {"solver.threads": 2,
+                                                     "solver.kernel": "numpy"}))
     assert numpy.threads == 1
 
 

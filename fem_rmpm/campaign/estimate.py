@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ..api import run as run_one
-from ..budget import STEPS_FACTOR, THREAD_EFFICIENCY, RunEstimate, estimate_run
+from ..budget import STEPS_FACTOR, RunEstimate, estimate_run, thread_speed_up
 from ..scene import Scene, with_value
 from .backends import ClusterSpec, campaign_backend
 from .cases import Case, CampaignError
@@ -203,8 +203,8 @@ def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = 
     mean = work / max(len(tasks), 1)
     cpu = work + k * cal.worker_start_seconds if tasks else 0.0
     threads = int(plan.get("cores_per_worker") or 1)
-    speed = THREAD_EFFICIENCY * threads if threads > 1 else 1.0
-    wall = (cal.worker_start_seconds + math.ceil(len(tasks) / k) * mean / speed) if tasks else 0.0
+    wall = (cal.worker_start_seconds + math.ceil(len(tasks) / k) * mean
+            / thread_speed_up(threads)) if tasks else 0.0
     memory = max(e.memory_bytes for e in budget.values())
     notes = []
     per_worker = plan.get("memory_per_worker_bytes")

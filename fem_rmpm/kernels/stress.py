@@ -365,9 +365,10 @@ def update_stress(P, M, N, S, o, call=_direct) -> None:
     to nodes kept there), deformation increment (geostatic: small strain, J = 1),
     volume, the material update, Cauchy stress, and ``S.out`` (4,) = the largest P-wave
     speed and point speed, the non-finite and the outside points — one stress pass per
-    half of the points, on ``o.threads`` threads.  ``o.fbar`` (the F-bar remedy, :mod:`fem_rmpm.locking`): the
-    nodal velocities and :func:`.strain.fbar_gradient_pass` first.  ``call(kernel,
-    *args)`` runs a kernel (e.g. :meth:`.Workspace.call`)."""
+    half of the points, on ``o.threads`` threads.  ``o.fbar`` (the F-bar remedy,
+    :mod:`fem_rmpm.locking`): the nodal velocities and
+    :func:`.strain.fbar_gradient_pass` first.  ``call(kernel, *args)`` runs a kernel
+    (e.g. :meth:`.Workspace.call`)."""
     serial, _, parallel = material_kernels(o.model)
     if o.threads <= 1:
         if o.fbar:
