@@ -31,11 +31,16 @@ real ones):
 * wall time = steps x :data:`STEPS_FACTOR` (explicit) x points x the cost per
   point-step (:data:`NS_PER_POINT_STEP`, one thread) / the threads' speed-up
   (:data:`THREAD_EFFICIENCY` x threads, for more than one; the explicit numba step only).
-  The explicit numba figure, 39 ns, is the whole-run figure of the reference slope
-  case (i) (18 260 points, 11 944 steps, 8.2-8.5 s wall, 37.4-39.7 ns in 14 runs, median
-  38.7) on an idle 2-core Intel Xeon virtual machine (Python 3.11, numba, one thread;
-  the estimate says which machine it is for: an AMD EPYC Zen 3 VM ran the code of the
-  same era ~1.5-1.7x slower).  From the same runs' ``summary.json``: uGIMP costs 2.3x
+  The explicit numba figure is the whole-run figure of the reference slope case (i)
+  (one thread, Python 3.11, numba) on the machine of the run's CPU where it was
+  measured (:data:`EXPLICIT_NS_BY_CPU`, chosen by :func:`fem_rmpm.machine.cpu_signature`):
+  39 ns on an idle 2-core Intel Xeon virtual machine (11 944 steps, 8.2-8.5 s wall,
+  37.4-39.7 ns in 14 runs, median 38.7), 104 ns on an idle 2-core AMD EPYC VM of the
+  Zen 1 generation at 2.0 GHz (11 556 steps, 21.4-22.6 s wall, 101-107 ns in 5 runs).
+  On a CPU not in the table the estimate takes the slowest figure and says so (an AMD
+  EPYC Zen 3 VM ran code of an earlier era ~1.5-1.7x slower than the Intel VM: most
+  machines fall between the two).  The factors below were measured on the Intel VM and
+  are applied on every machine.  From the same runs' ``summary.json``: uGIMP costs 2.3x
   (88.3-90.5 ns), F-bar 1.4x (53-57 ns), a Mohr-Coulomb soil 1.7x (the drained slope,
   ``meshes/slope_drained.toml``: 68 ns, then 0.89-0.98x that with the closed-form return
   past the residual; most of its points yield) and the numpy kernel
@@ -58,11 +63,12 @@ import os
 from dataclasses import asdict, dataclass
 
 from .grid import _grid_from_file
+from .machine import cpu_signature
 from .scene import Scene, SceneError
 
 __all__ = ["RunEstimate", "BudgetError", "estimate_run", "check_budget",
            "memory_limit_bytes", "MEMORY_LIMIT_ENV", "STEPS_FACTOR", "THREAD_EFFICIENCY",
-           "explicit_numba", "thread_speed_up"]
+           "explicit_numba", "thread_speed_up", "explicit_cost", "EXPLICIT_NS_BY_CPU"]
 
 #: Environment variable that sets the memory limit in GiB (default: 75 % of the RAM).
 MEMORY_LIMIT_ENV = "FEM_RMPM_MEMORY_LIMIT_GB"
@@ -74,9 +80,17 @@ BYTES_PER_POINT = 324.0     # point state (Particles) + explicit workspace per p
 BYTES_PER_POINT_SNAPSHOT = 24.0
 BYTES_PER_POINT_GIMP = 112.0  # uGIMP: each point's basis factors kept from the map to nodes
 #: Whole-run cost per point-step (ns) by (scheme, kernel or shape); see the module docstring.
-NS_PER_POINT_STEP = {"explicit": 39.0, "explicit_gimp_factor": 2.3, "explicit_fbar_factor": 1.4,
+#: The explicit numba step's own figure depends on the machine: :data:`EXPLICIT_NS_BY_CPU`.
+NS_PER_POINT_STEP = {"explicit_gimp_factor": 2.3, "explicit_fbar_factor": 1.4,
                      "explicit_mohr_coulomb_factor": 1.7, "explicit_numpy": 2700.0,
                      "implicit": 35000.0}
+#: Whole-run ns per point-step of case (i), explicit numba step, one thread, by the CPU's
+#: (vendor_id, cpu family, model) (:func:`fem_rmpm.machine.cpu_signature`), with the
+#: machine it was measured on (each VM names its CPU only "Intel Xeon" or "AMD EPYC").
+EXPLICIT_NS_BY_CPU = {
+    ("GenuineIntel", 6, 167): (39.0, "idle 2-core Intel Xeon VM"),
+    ("AuthenticAMD", 23, 1): (104.0, "idle 2-core AMD EPYC VM, Zen 1"),
+}
 #: Steps taken / the CFL count at rest (t_end / dt), reference slope, literature cases, six
 #: realizations: 12 077, 11 410, 11 096, 11 032, 10 466 and 11 560 steps against 8 628
 #: (1.21-1.40; mean 1.30).  Explicit runs only.
@@ -85,8 +99,8 @@ STEPS_FACTOR = 1.30
 #: threads ran case (i) 1.83-1.90x (2-core Intel Xeon VM, session 29) and the scene's
 #: 10-realization campaign 1.77x faster than one (1.70x on an AMD EPYC VM).
 THREAD_EFFICIENCY = 0.9
-COST_MACHINE = {"explicit": "idle 2-core Intel Xeon VM",
-                "implicit": "shared 2-core AMD EPYC VM"}
+COST_MACHINE = {"implicit": "shared 2-core AMD EPYC VM",
+                "explicit_numpy": "idle 2-core Intel Xeon VM"}
 
 
 class BudgetError(SceneError):
@@ -177,20 +191,30 @@ def _p_wave_speed(scene: Scene) -> float:
     return max(math.sqrt(s.constrained_modulus / (s.unit_weight / g)) for s in scene.soils)
 
 
-def _cost(scene: Scene) -> float:
+def explicit_cost(cpu: tuple[str, int, int] | None) -> tuple[float, str]:
+    """(ns per point-step, machine) of the explicit numba step of case (i) on one thread for
+    a CPU ``cpu`` = (vendor_id, cpu family, model): its measured figure, else the slowest
+    of :data:`EXPLICIT_NS_BY_CPU`, with the machine saying so."""
+    if cpu in EXPLICIT_NS_BY_CPU:
+        return EXPLICIT_NS_BY_CPU[cpu]
+    ns, machine = max(EXPLICIT_NS_BY_CPU.values())
+    return ns, f"the slowest machine measured, an {machine}; this CPU was not measured"
+
+
+def _cost(scene: Scene, cpu) -> tuple[float, str]:
     sv = scene.solver
     if sv.scheme == "implicit":
-        return NS_PER_POINT_STEP["implicit"]
+        return NS_PER_POINT_STEP["implicit"], COST_MACHINE["implicit"]
     if getattr(sv, "kernel", "numba") == "numpy":
-        return NS_PER_POINT_STEP["explicit_numpy"]
-    ns = NS_PER_POINT_STEP["explicit"]
+        return NS_PER_POINT_STEP["explicit_numpy"], COST_MACHINE["explicit_numpy"]
+    ns, machine = explicit_cost(cpu)
     if sv.shape == "gimp":
         ns *= NS_PER_POINT_STEP["explicit_gimp_factor"]
     if sv.fbar:
         ns *= NS_PER_POINT_STEP["explicit_fbar_factor"]
     if any(s.model.startswith("mohr_coulomb") for s in scene.soils):
         ns *= NS_PER_POINT_STEP["explicit_mohr_coulomb_factor"]
-    return ns
+    return ns, machine
 
 
 def explicit_numba(sv) -> bool:
@@ -210,8 +234,10 @@ def _threads(scene: Scene) -> int:
     return max(int(getattr(sv, "threads", 0)), 1) if explicit_numba(sv) else 1
 
 
-def estimate_run(scene: Scene) -> RunEstimate:
-    """Estimate points, nodes, memory, steps and wall time of one run of ``scene``."""
+def estimate_run(scene: Scene, cpu: tuple[str, int, int] | None = None) -> RunEstimate:
+    """Estimate points, nodes, memory, steps and wall time of one run of ``scene`` on a CPU
+    ``cpu`` = (vendor_id, cpu family, model) (default: this machine's,
+    :func:`fem_rmpm.machine.cpu_signature`; it sets the explicit step's cost only)."""
     origin, cell, (nx, ny) = _grid_geometry(scene)
     hi = (origin[0] + cell[0] * nx, origin[1] + cell[1] * ny)
     cell_area = cell[0] * cell[1]
@@ -230,13 +256,13 @@ def estimate_run(scene: Scene) -> RunEstimate:
     per_point = BYTES_PER_POINT + (BYTES_PER_POINT_GIMP if sv.shape == "gimp" else 0.0)
     memory = (BASE_BYTES + BYTES_PER_CELL * cells + per_point * points
               + BYTES_PER_POINT_SNAPSHOT * points * snapshots)
-    ns = _cost(scene)
+    ns, machine = _cost(scene, cpu_signature() if cpu is None else cpu)
     threads, factor = _threads(scene), (STEPS_FACTOR if sv.scheme == "explicit" else 1.0)
     return RunEstimate(scheme=sv.scheme, points=points, cells=cells, nodes=nodes,
                        memory_bytes=float(memory), dt=float(dt), steps=int(steps),
                        ns_per_point_step=ns,
                        wall_time=steps * factor * points * ns * 1e-9 / thread_speed_up(threads),
-                       machine=COST_MACHINE[sv.scheme], threads=threads, steps_factor=factor)
+                       machine=machine, threads=threads, steps_factor=factor)
 
 
 def memory_limit_bytes() -> float:

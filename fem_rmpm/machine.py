@@ -18,21 +18,45 @@ from collections import Counter
 from collections.abc import Iterable
 from importlib import metadata
 
-__all__ = ["describe", "cpu_model", "usable_cores", "tally"]
+__all__ = ["describe", "cpu_model", "cpu_signature", "usable_cores", "tally"]
+
+
+def _first_values(cpuinfo: str, keys: tuple[str, ...]) -> dict[str, str]:
+    """The first non-empty value of each of ``keys`` in ``cpuinfo`` (Linux's
+    ``/proc/cpuinfo``: ``key<TAB>: value`` lines, one block per logical CPU); ``{}`` when
+    the file cannot be read."""
+    found: dict[str, str] = {}
+    try:
+        with open(cpuinfo, encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                key, sep, value = line.partition(":")
+                key = key.strip()
+                if sep and key in keys and key not in found and value.strip():
+                    found[key] = value.strip()
+                    if len(found) == len(keys):
+                        break
+    except OSError:
+        pass
+    return found
 
 
 def cpu_model(cpuinfo: str = "/proc/cpuinfo") -> str:
     """The CPU's model name (Linux: the first ``model name`` of ``/proc/cpuinfo``), else
     what :mod:`platform` knows (``processor()``, then ``machine()``)."""
+    name = _first_values(cpuinfo, ("model name",)).get("model name")
+    return name or platform.processor() or platform.machine() or "unknown"
+
+
+def cpu_signature(cpuinfo: str = "/proc/cpuinfo") -> tuple[str, int, int] | None:
+    """The CPU's ``(vendor_id, cpu family, model)`` from ``/proc/cpuinfo``, e.g.
+    ``("AuthenticAMD", 23, 1)`` for an AMD EPYC of the Zen 1 generation; None where the
+    file or a field is missing.  A virtual machine may name its CPU just "AMD EPYC" for
+    every generation (2 to 3x apart in speed): the family and model tell them apart."""
+    v = _first_values(cpuinfo, ("vendor_id", "cpu family", "model"))
     try:
-        with open(cpuinfo, encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                key, sep, value = line.partition(":")
-                if sep and key.strip() == "model name" and value.strip():
-                    return value.strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine() or "unknown"
+        return v["vendor_id"], int(v["cpu family"]), int(v["model"])
+    except (KeyError, ValueError):
+        return None
 
 
 def usable_cores() -> int:
@@ -54,7 +78,7 @@ def describe() -> dict:
     """The machine as a JSON-ready dict: ``cpu_model``, ``logical_cores`` (the machine's),
     ``usable_cores`` (this process's affinity), ``load_average`` (1, 5, 15 minutes; None
     where the platform has none), ``platform``, ``node`` (the architecture), ``python``,
-    ``numpy``, ``numba``."""
+    ``numpy``, ``numba``, and ``cpu_signature`` (:func:`cpu_signature`, as a list)."""
     try:
         load = [round(v, 2) for v in os.getloadavg()]
     except (AttributeError, OSError):
@@ -63,7 +87,8 @@ def describe() -> dict:
             "usable_cores": usable_cores(), "load_average": load,
             "platform": platform.platform(), "node": platform.machine(),
             "python": platform.python_version(), "numpy": _version("numpy"),
-            "numba": _version("numba")}
+            "numba": _version("numba"),
+            "cpu_signature": list(sig) if (sig := cpu_signature()) else None}
 
 
 def tally(workers: Iterable[dict | None]) -> list[dict]:

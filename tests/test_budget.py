@@ -12,6 +12,7 @@ import pytest
 from fem_rmpm import budget
 from fem_rmpm.api import prepare
 from fem_rmpm.cli import main
+from fem_rmpm.machine import cpu_signature
 from fem_rmpm.scene import load_scene, with_value, with_values
 
 
@@ -37,9 +38,9 @@ def test_estimate_cfl_step_and_steps(meshes):
     assert est.dt == pytest.approx(0.5 * 0.25 / cp, rel=1e-12)
     assert est.steps == math.ceil(scene.solver.t_end / est.dt)
     assert est.threads == 1 and est.steps_factor == budget.STEPS_FACTOR
+    ns, _ = budget.explicit_cost(cpu_signature())
     assert est.wall_time == pytest.approx(est.steps * budget.STEPS_FACTOR * est.points
-                                          * budget.NS_PER_POINT_STEP["explicit"] * 1e-9,
-                                          rel=1e-12)
+                                          * ns * 1e-9, rel=1e-12)
 
 
 def test_estimate_on_two_threads_and_its_line(meshes):
@@ -104,12 +105,32 @@ def test_cost_per_point_step_composes_basis_remedy_and_model(meshes):
     what the scene adds (uGIMP, F-bar, a Mohr-Coulomb soil), each measured on the same
     machine (module docstring of fem_rmpm.budget)."""
     c = budget.NS_PER_POINT_STEP
+    q4 = budget.explicit_cost(cpu_signature())[0]
     ref = load_scene(meshes / "slope_reference.toml")
-    assert budget.estimate_run(ref).ns_per_point_step == c["explicit"]
+    assert budget.estimate_run(ref).ns_per_point_step == q4
     both = with_value(with_value(ref, "solver.shape", "gimp"), "solver.fbar", True)
     assert budget.estimate_run(both).ns_per_point_step == pytest.approx(
-        c["explicit"] * c["explicit_gimp_factor"] * c["explicit_fbar_factor"], rel=1e-15)
+        q4 * c["explicit_gimp_factor"] * c["explicit_fbar_factor"], rel=1e-15)
     drained = load_scene(meshes / "slope_drained.toml")
     assert drained.soils[0].model == "mohr_coulomb_softening"
     assert budget.estimate_run(drained).ns_per_point_step == pytest.approx(
-        c["explicit"] * c["explicit_mohr_coulomb_factor"], rel=1e-15)
+        q4 * c["explicit_mohr_coulomb_factor"], rel=1e-15)
+
+
+def test_explicit_cost_is_the_measured_figure_of_the_runs_cpu(meshes):
+    """The explicit step's cost is the one measured on the run's kind of CPU: case (i),
+    one thread, whole runs from their summary.json: 39 ns on the Intel Xeon VM (family 6,
+    model 167), 104 ns on the AMD EPYC Zen 1 VM (family 23, model 1; 101-107 ns in 5 runs,
+    21.4-22.6 s), both named on the printed line.  A CPU not measured gets the slowest
+    figure, and the line says so.  The estimated wall time of case (i) on the EPYC, 21 s,
+    is within 10 % of the runs'."""
+    ref = load_scene(meshes / "slope_reference.toml")
+    intel = budget.estimate_run(ref, ("GenuineIntel", 6, 167))
+    epyc = budget.estimate_run(ref, ("AuthenticAMD", 23, 1))
+    other = budget.estimate_run(ref, ("AuthenticAMD", 25, 1))
+    assert (intel.ns_per_point_step, epyc.ns_per_point_step) == (39.0, 104.0)
+    assert "Intel Xeon VM" in intel.describe() and "AMD EPYC VM, Zen 1" in epyc.describe()
+    assert other.ns_per_point_step == max(intel.ns_per_point_step, epyc.ns_per_point_step)
+    assert "slowest machine measured" in other.describe()
+    assert budget.explicit_cost(None) == (other.ns_per_point_step, other.machine)
+    assert 0.9 * 21.4 <= epyc.wall_time <= 1.1 * 22.6

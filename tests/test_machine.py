@@ -5,7 +5,7 @@ import json
 import os
 import platform
 
-from fem_rmpm.machine import cpu_model, describe, tally, usable_cores
+from fem_rmpm.machine import cpu_model, cpu_signature, describe, tally, usable_cores
 
 
 def test_cpu_model_is_the_first_model_name_of_cpuinfo(tmp_path):
@@ -18,6 +18,22 @@ def test_cpu_model_is_the_first_model_name_of_cpuinfo(tmp_path):
     assert cpu_model(str(f)) == "AMD EPYC 7B13"
 
 
+def test_cpu_signature_is_vendor_family_and_model(tmp_path):
+    """``vendor_id``, ``cpu family`` and ``model`` of the first CPU block (an AMD EPYC VM
+    of the Zen 1 generation: AuthenticAMD, 23, 1; it names itself just "AMD EPYC"); None
+    where a field is missing or not a number, or there is no file."""
+    f = tmp_path / "cpuinfo"
+    f.write_text("processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 23\n"
+                 "model\t\t: 1\nmodel name\t: AMD EPYC\n\n"
+                 "processor\t: 1\nvendor_id\t: AuthenticAMD\ncpu family\t: 25\nmodel\t\t: 1\n")
+    assert cpu_signature(str(f)) == ("AuthenticAMD", 23, 1)
+    f.write_text("vendor_id\t: GenuineIntel\ncpu family\t: 6\nmodel name\t: Intel Xeon\n")
+    assert cpu_signature(str(f)) is None
+    f.write_text("vendor_id\t: GenuineIntel\ncpu family\t: six\nmodel\t\t: 167\n")
+    assert cpu_signature(str(f)) is None
+    assert cpu_signature(str(tmp_path / "missing")) is None
+
+
 def test_cpu_model_without_cpuinfo_falls_back_to_platform(tmp_path):
     got = cpu_model(str(tmp_path / "missing"))
     assert got == (platform.processor() or platform.machine() or "unknown") and got
@@ -26,7 +42,8 @@ def test_cpu_model_without_cpuinfo_falls_back_to_platform(tmp_path):
 def test_describe_is_json_and_names_cores_load_and_versions():
     m = json.loads(json.dumps(describe()))
     assert set(m) == {"cpu_model", "logical_cores", "usable_cores", "load_average", "platform",
-                      "node", "python", "numpy", "numba"}
+                      "node", "python", "numpy", "numba", "cpu_signature"}
+    assert m["cpu_signature"] == (list(cpu_signature()) if cpu_signature() else None)
     assert m["usable_cores"] == usable_cores() and 1 <= m["usable_cores"] <= os.cpu_count()
     assert m["load_average"] is None or (len(m["load_average"]) == 3
                                          and min(m["load_average"]) >= 0)
