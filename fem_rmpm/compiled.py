@@ -12,15 +12,27 @@ from numba import njit, types
 from numba.extending import intrinsic
 
 # LLVM floating-point flags of every kernel (and of the material point functions inlined
-# into them): "contract" lets a * b + c become one fused multiply-add (one rounding instead
-# of two), "arcp" a division by a constant or a reused divisor a multiplication by its
-# reciprocal, "nsz" ignores the sign of zero.  Each changes round-off only (the numba =
-# numpy tests hold at their 1e-12); never "nnan" / "ninf" / "fast": the run's guards must
-# still see NaN and inf, and never "reassoc": sums would be regrouped differently in the
-# serial and the threaded compiles.  Measured on case (i) (per-kernel probes at t = 8 and
-# 25 s, 1 thread): kinematics 22.1 -> 19.3 ns per point, finish pass 24.6 -> 21.5 ns with
-# 74 % of the points plastic.
-FASTMATH = {"contract", "arcp", "nsz"}
+# into them): "nsz" only (the sign of a zero may be ignored), no flag that changes a
+# value.  Each caller's compiled code holds a copy of every compiled callee, optimized a
+# second time there (below), and a flag that lets LLVM choose the arithmetic lets the
+# copies choose differently: with "contract" (a * b + c as one fused multiply-add where the
+# backend sees fit) the copies of the stress pass fused differently on AVX2 code, so on an
+# AMD EPYC Zen 1 VM a run compiled in its process and the same run loaded from the cache
+# it wrote differed by one ulp (case (i) to t = 2 s: two hashes; 23 of the 190 samples of
+# a subset-simulation campaign of ``tests/data/mc_tiny.toml``; reproduced on a Zen 4 VM
+# with ``NUMBA_CPU_NAME=znver1 NUMBA_CPU_FEATURES=``, ``validation/load_order.py --cpu
+# znver1``).  Without it (and without "arcp": a division by a reused divisor becomes a
+# multiplication by its reciprocal where the backend counts enough of them in one block)
+# every copy rounds every operation as written: one hash, 0 of 190 differ.  The fused
+# multiply-adds the map and the move need are written out (:mod:`fem_rmpm.kernels.pairs`).
+# Cost: none measurable on case (i), one thread, Zen 4 (4 interleaved runs, medians 55.5
+# ns with the three flags, 55.7 ns with "nsz" only; the host's noise was +-15 %).
+# (The solve on the mesh was the first kernel compiled without "contract": LLVM inlines it
+# into the serial and the threaded step and fused the kinetic-energy sum differently where
+# a constant folded a branch away, 1 ulp between 1 and 2 threads, measured.)
+# Never "nnan" / "ninf" / "fast": the run's guards must see NaN and inf; never "reassoc":
+# sums would be regrouped differently in the serial and the threaded compiles.
+FASTMATH = {"nsz"}
 jit = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy")
 # Each caller's compiled code holds a copy of every compiled (not inlined) callee, optimized
 # again there; which copy a call runs depends on what the process loaded first (compiled in
@@ -34,14 +46,6 @@ jit = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy")
 # ns per point, measured).  A kernel that allocated would fail to compile, not misbehave.
 kernel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy", _nrt=False)
 inline = njit(inline="always", fastmath=FASTMATH, error_model="numpy")
-# The solve on the mesh without "contract": its compiled half is called by the serial kernel
-# (with the half's number a constant) and by the threaded one (a variable); LLVM inlines it
-# into both and, with contraction allowed, fused the kinetic-energy sum differently where
-# the constant folded its branch away (1 ulp between 1 and 2 threads, measured).  Without
-# it every product and sum is rounded on its own, whatever the caller.  A node loop: the
-# FMA it loses costs nothing measurable.
-kernel_exact = njit(cache=True, fastmath={"arcp", "nsz"}, nogil=True, error_model="numpy",
-                    _nrt=False)
 # The threaded drivers: a ``prange`` loop over chunks of the points whose body calls a
 # compiled (``kernel``) chunk function, the same one the serial kernel runs, so every point
 # is computed with the same arithmetic and the result is bitwise the serial one.  The loop

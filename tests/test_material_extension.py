@@ -224,11 +224,11 @@ def test_simple_shear_matches_von_mises_where_zz_is_intermediate(tresca):
 def test_explicit_run_numba_equals_numpy(tresca):
     """The tiny slope (152 points) in Tresca clay, 1 s of gravity-driven dynamics (111
     steps), run by the compiled kernels and by the numpy reference step: the same run up
-    to round-off grown by the failing slope (achieves 3.4e-7 relative on the velocities,
-    1.9e-7 on the stresses; 4e-9 before the kernels were compiled with FMA contraction
-    (fem_rmpm/compiled.py): a fused multiply-add rounds once where numpy rounds twice, in
-    every point at every step, and the failing slope grows those differences by ~1e8 over
-    the run; asserts 2e-6, an error in either implementation shows as 1e-3 or more), and
+    to round-off grown by the failing slope (achieves 3.6e-7 relative on the velocities,
+    2.3e-7 on the stresses, session 32, the kernels compiled without FMA contraction; 3.4e-7
+    and 1.9e-7 with it: the two steps round differently in every point at every step, and
+    the failing slope grows those differences by ~1e8 over the run; asserts 2e-6, an error
+    in either implementation shows as 1e-3 or more), and
     the slope yields (Taylor's stability number
     of a 45 degree cut, su / (gamma H) = 4 / 40 = 0.10 < 0.18) with every point on or
     inside the yield surface."""

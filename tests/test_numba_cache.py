@@ -108,3 +108,44 @@ def test_functions_the_kernels_can_call_set_their_own_flags():
                         and not {"fastmath", "error_model"} <= set(f.targetoptions)):
                     unset.append(f"{mod.__name__}.{name}")
     assert not unset, f"numba functions that would take their caller's flags: {unset}"
+
+
+def _fastmath_flags(option) -> set:
+    """The LLVM flags of a numba ``fastmath`` option (bool, set or FastMathOptions)."""
+    if option is True:
+        return {"fast"}
+    if not option:
+        return set()
+    return set(getattr(option, "flags", option))
+
+
+def test_no_compiled_function_lets_llvm_change_a_value():
+    """Every numba function of the package (and the shared decorators' flags) carries at
+    most ``nsz``: no ``contract``, ``arcp``, ``reassoc`` or ``fast``.  numba links a copy of
+    each compiled callee into every caller, optimized again there, and which copy runs
+    depends on what the process loaded first; with FMA contraction allowed the copies of
+    the stress pass fused differently in AVX2 code, and a run compiled in its process and
+    the same run from the cache it wrote differed by one ulp (739f015 on an AMD EPYC Zen 1
+    VM: a subset-simulation sample's ``max_displacement`` ...605 vs ...604;
+    ``validation/load_order.py --cpu znver1``: two hashes).  Fails on 739f015
+    (``FASTMATH = {"contract", "arcp", "nsz"}``)."""
+    import importlib
+    import pkgutil
+
+    from numba.core.registry import CPUDispatcher
+
+    from fem_rmpm import compiled
+    allowed = {"nsz"}
+    bad = [] if compiled.FASTMATH <= allowed else [f"compiled.FASTMATH {compiled.FASTMATH}"]
+    mods = [importlib.import_module(f"fem_rmpm.{m}") for m in ("compiled", "regularisation")]
+    for pkg in ("fem_rmpm.materials", "fem_rmpm.kernels", "fem_rmpm.implicit"):
+        root = importlib.import_module(pkg)
+        mods += [importlib.import_module(i.name)
+                 for i in pkgutil.iter_modules(root.__path__, pkg + ".")]
+    for mod in mods:
+        for name, f in vars(mod).items():
+            if isinstance(f, CPUDispatcher) and f.__module__ == mod.__name__:
+                flags = _fastmath_flags(f.targetoptions.get("fastmath"))
+                if not flags <= allowed:
+                    bad.append(f"{mod.__name__}.{name} {sorted(flags)}")
+    assert not bad, f"numba functions with value-changing fast-math flags: {bad}"

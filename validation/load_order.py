@@ -16,6 +16,11 @@ differently, and a run compiled in its process and the same run from the cache t
 and 2 114 steps to t = 6 s (``--slp`` before 7180213).  Those kernels now write their
 vector operations and fused multiply-adds out (``fem_rmpm/kernels/pairs.py``): with
 ``--slp`` the four runs agree as well (t = 2 and 12 s, measured), but SLP stays off.
+Without SLP the copies still differed where LLVM chose the arithmetic itself: with FMA
+contraction ("contract") allowed, the stress pass's copies fused differently in AVX2 code
+(an AMD EPYC Zen 1 host; ``--cpu znver1`` on a newer host): compiled 1 thread and the three
+others gave two hashes at t = 2 s (478 steps).  The kernels now carry no flag that changes
+a value (``fem_rmpm/compiled.py``): one hash, with and without ``--cpu znver1``.
 
 The check runs case (i) of the reference slope (or ``--scene`` with ``--set`` changes,
 e.g. ``--set solver.shape=gimp --set solver.fbar=true``) to ``--t-end`` in child
@@ -62,13 +67,17 @@ print(rec.steps, h.hexdigest())
 
 
 def child_run(cache: Path, scene: Path, changes: dict, t_end: float, threads: int,
-              slp: bool) -> tuple:
+              slp: bool, cpu: str | None = None) -> tuple:
     """(steps, sha1) of one run of ``scene`` (with ``changes``, dotted keys) in a fresh
-    interpreter using numba cache ``cache``."""
+    interpreter using numba cache ``cache``; ``cpu``: an LLVM CPU name to compile for
+    (its own instruction set, not the host's), None: the host."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONPATH=str(ROOT))
-    env.pop("NUMBA_SLP_VECTORIZE", None)
+    for k in ("NUMBA_SLP_VECTORIZE", "NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES"):
+        env.pop(k, None)
     if slp:
         env["NUMBA_SLP_VECTORIZE"] = "1"
+    if cpu:
+        env.update(NUMBA_CPU_NAME=cpu, NUMBA_CPU_FEATURES="")
     out = subprocess.run([sys.executable, "-c", _CHILD, str(scene), repr(t_end), str(threads),
                           json.dumps(changes)],
                          env=env, cwd=ROOT, check=True, capture_output=True, text=True)
@@ -85,6 +94,9 @@ def main(argv=None) -> int:
     ap.add_argument("--slp", action="store_true",
                     help="with numba's SLP vectorizer on (differed before the pair "
                          "intrinsics: module docstring)")
+    ap.add_argument("--cpu", metavar="NAME",
+                    help="compile for this LLVM CPU (e.g. znver1: AVX2, no AVX-512) instead "
+                         "of the host")
     a = ap.parse_args(argv)
     try:
         changes = parse_settings(a.set, str(a.scene))
@@ -94,7 +106,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="fem-rmpm-load-order-") as tmp:
         cache = Path(tmp)
         try:
-            runs = {name: child_run(cache, a.scene, changes, a.t_end, th, a.slp)
+            runs = {name: child_run(cache, a.scene, changes, a.t_end, th, a.slp, a.cpu)
                     for name, th in (("compiled, 1 thread", 1), ("cached, 1 thread", 1),
                                      ("compiled, 2 threads", 2), ("cached, 2 threads", 2))}
         except subprocess.CalledProcessError as exc:
@@ -106,7 +118,8 @@ def main(argv=None) -> int:
     same = len(set(runs.values())) == 1
     what = " ".join([a.scene.name, *(a.set or [])])
     print(f"load order {'does not change' if same else 'CHANGES'} the run of {what} "
-          f"(t = {a.t_end:g} s{', SLP on' if a.slp else ''})")
+          f"(t = {a.t_end:g} s{', SLP on' if a.slp else ''}"
+          f"{', compiled for ' + a.cpu if a.cpu else ''})")
     return 0 if same else 1
 
 

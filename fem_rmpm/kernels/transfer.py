@@ -40,7 +40,7 @@ from numba import prange
 
 from .arrays import NodeArrays
 from .basis import gimp_kept, gimp_store, q4_at, q4_cell
-from ..compiled import inline, kernel, kernel_exact, kernel_parallel
+from ..compiled import inline, kernel, kernel_parallel
 from .common import MASS_TOL, fixed_columns, half_range, xy
 from .pairs import fma2, fma2_to, load2, mul2, sub2_from
 
@@ -291,7 +291,7 @@ def _move_points(P, M, T, H, S, o, c):
     _g2p_points(P, M, A, S, o, start, stop, S.halves[c])
 
 
-@kernel_exact
+@kernel
 def _solve_half(M, T, H, S, o, c):
     """Stage 2 on the nodes of half ``c``; their sum of m |v|^2 into ``S.halves[c, 0]``."""
     S.halves[c, 0] = _solve_nodes(M, T, H, o, c)
@@ -307,9 +307,9 @@ def _move_points_half(P, M, T, H, S, o, c):
 def _move_half(P, M, T, H, S, o, c):
     """Half ``c``: stage 2 on its nodes, then stage 3a for its points (the threaded
     kernel's task; the serial kernel calls the same two functions, both halves' nodes
-    first).  The solve is compiled without FMA contraction (:data:`fem_rmpm.compiled.kernel_exact`):
-    LLVM inlines it into both callers and contracted the kinetic-energy sum differently in
-    each (1 ulp, measured)."""
+    first).  LLVM inlines the solve into both callers: it (like every kernel) is compiled
+    without FMA contraction, which fused its kinetic-energy sum differently in each (1 ulp,
+    measured; :data:`fem_rmpm.compiled.FASTMATH`)."""
     _solve_half(M, T, H, S, o, c)
     _move_points_half(P, M, T, H, S, o, c)
 

@@ -168,7 +168,7 @@ def _weight_np(gamma_p, params):
 # The helpers are compiled once per type and called, not inlined (inlined, the first
 # compile took 4.6 / 7.1 s real / complex, not 3.0 / 4.3).  They set the kernels' fastmath
 # and error model: numba gives a function without them the flags of the caller compiling
-# it first (the kernels contract multiply-adds), so the drained slope's state at t = 3 s
+# it first (the kernels then contracted multiply-adds), so the drained slope's state at t = 3 s
 # depended on whether a kernel or a numpy-level call came first, and the cache kept it.
 _compiled = njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 
