@@ -36,7 +36,9 @@ real ones):
   measured (:data:`EXPLICIT_NS_BY_CPU`, chosen by :func:`fem_rmpm.machine.cpu_signature`):
   39 ns on an idle 2-core Intel Xeon virtual machine (11 944 steps, 8.2-8.5 s wall,
   37.4-39.7 ns in 14 runs, median 38.7), 104 ns on an idle 2-core AMD EPYC VM of the
-  Zen 1 generation at 2.0 GHz (11 556 steps, 21.4-22.6 s wall, 101-107 ns in 5 runs).
+  Zen 1 generation at 2.0 GHz (11 556 steps, 21.4-22.6 s wall, 101-107 ns in 5 runs),
+  53 ns on an idle 2-core AMD EPYC VM of the Zen 4 generation at 2.6 GHz (12 617 steps,
+  10.7-14.8 s wall, 46.5-64.1 ns in 7 runs, median 53.0; the host's speed drifts).
   On a CPU not in the table the estimate takes the slowest figure and says so (an AMD
   EPYC Zen 3 VM ran code of an earlier era ~1.5-1.7x slower than the Intel VM: most
   machines fall between the two).  The factors below were measured on the Intel VM and
@@ -90,6 +92,7 @@ NS_PER_POINT_STEP = {"explicit_gimp_factor": 2.3, "explicit_fbar_factor": 1.4,
 EXPLICIT_NS_BY_CPU = {
     ("GenuineIntel", 6, 167): (39.0, "idle 2-core Intel Xeon VM"),
     ("AuthenticAMD", 23, 1): (104.0, "idle 2-core AMD EPYC VM, Zen 1"),
+    ("AuthenticAMD", 25, 17): (53.0, "idle 2-core AMD EPYC VM, Zen 4"),
 }
 #: Steps taken / the CFL count at rest (t_end / dt), reference slope, literature cases, six
 #: realizations: 12 077, 11 410, 11 096, 11 032, 10 466 and 11 560 steps against 8 628

@@ -121,9 +121,10 @@ def test_explicit_cost_is_the_measured_figure_of_the_runs_cpu(meshes):
     """The explicit step's cost is the one measured on the run's kind of CPU: case (i),
     one thread, whole runs from their summary.json: 39 ns on the Intel Xeon VM (family 6,
     model 167), 104 ns on the AMD EPYC Zen 1 VM (family 23, model 1; 101-107 ns in 5 runs,
-    21.4-22.6 s), both named on the printed line.  A CPU not measured gets the slowest
-    figure, and the line says so.  The estimated wall time of case (i) on the EPYC, 21 s,
-    is within 10 % of the runs'."""
+    21.4-22.6 s), 53 ns on the AMD EPYC Zen 4 VM (family 25, model 17; 46.5-64.1 ns in 7
+    runs, 10.7-14.8 s), each named on the printed line.  A CPU not measured gets the
+    slowest figure, and the line says so.  The estimated wall time of case (i) on the Zen 1
+    EPYC, 21 s, is within 10 % of the runs'; on the Zen 4, 10.9 s, within their range."""
     ref = load_scene(meshes / "slope_reference.toml")
     intel = budget.estimate_run(ref, ("GenuineIntel", 6, 167))
     epyc = budget.estimate_run(ref, ("AuthenticAMD", 23, 1))
@@ -134,3 +135,6 @@ def test_explicit_cost_is_the_measured_figure_of_the_runs_cpu(meshes):
     assert "slowest machine measured" in other.describe()
     assert budget.explicit_cost(None) == (other.ns_per_point_step, other.machine)
     assert 0.9 * 21.4 <= epyc.wall_time <= 1.1 * 22.6
+    zen4 = budget.estimate_run(ref, ("AuthenticAMD", 25, 17))
+    assert zen4.ns_per_point_step == 53.0 and "Zen 4" in zen4.describe()
+    assert 10.7 <= zen4.wall_time <= 14.8
