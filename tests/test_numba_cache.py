@@ -93,21 +93,28 @@ def test_functions_the_kernels_can_call_set_their_own_flags():
     (1 146 steps) had two hashes by which came first, and a cached run kept either
     (measured before the fix).  They now set the kernels' flags: one hash in both orders
     and on two threads, the one a kernel-first compile gave (explicit runs unchanged)."""
+    unset = [name for name, f in _dispatchers(("fem_rmpm.materials", "fem_rmpm.kernels"))
+             if (f.targetoptions.get("inline", "never") != "always"
+                 and not {"fastmath", "error_model"} <= set(f.targetoptions))]
+    assert not unset, f"numba functions that would take their caller's flags: {unset}"
+
+
+def _dispatchers(packages, modules=()):
+    """``(qualified name, dispatcher)`` of every numba function defined at module level in
+    the modules of ``packages`` and in ``modules`` (dotted names)."""
     import importlib
     import pkgutil
 
     from numba.core.registry import CPUDispatcher
-    unset = []
-    for pkg in ("fem_rmpm.materials", "fem_rmpm.kernels"):
+    mods = [importlib.import_module(m) for m in modules]
+    for pkg in packages:
         root = importlib.import_module(pkg)
-        for info in pkgutil.iter_modules(root.__path__, pkg + "."):
-            mod = importlib.import_module(info.name)
-            for name, f in vars(mod).items():
-                if (isinstance(f, CPUDispatcher) and f.__module__ == mod.__name__
-                        and f.targetoptions.get("inline", "never") != "always"
-                        and not {"fastmath", "error_model"} <= set(f.targetoptions)):
-                    unset.append(f"{mod.__name__}.{name}")
-    assert not unset, f"numba functions that would take their caller's flags: {unset}"
+        mods += [importlib.import_module(i.name)
+                 for i in pkgutil.iter_modules(root.__path__, pkg + ".")]
+    for mod in mods:
+        for name, f in vars(mod).items():
+            if isinstance(f, CPUDispatcher) and f.__module__ == mod.__name__:
+                yield f"{mod.__name__}.{name}", f
 
 
 def _fastmath_flags(option) -> set:
@@ -129,23 +136,13 @@ def test_no_compiled_function_lets_llvm_change_a_value():
     VM: a subset-simulation sample's ``max_displacement`` ...605 vs ...604;
     ``validation/load_order.py --cpu znver1``: two hashes).  Fails on 739f015
     (``FASTMATH = {"contract", "arcp", "nsz"}``)."""
-    import importlib
-    import pkgutil
-
-    from numba.core.registry import CPUDispatcher
-
     from fem_rmpm import compiled
     allowed = {"nsz"}
     bad = [] if compiled.FASTMATH <= allowed else [f"compiled.FASTMATH {compiled.FASTMATH}"]
-    mods = [importlib.import_module(f"fem_rmpm.{m}") for m in ("compiled", "regularisation")]
-    for pkg in ("fem_rmpm.materials", "fem_rmpm.kernels", "fem_rmpm.implicit"):
-        root = importlib.import_module(pkg)
-        mods += [importlib.import_module(i.name)
-                 for i in pkgutil.iter_modules(root.__path__, pkg + ".")]
-    for mod in mods:
-        for name, f in vars(mod).items():
-            if isinstance(f, CPUDispatcher) and f.__module__ == mod.__name__:
-                flags = _fastmath_flags(f.targetoptions.get("fastmath"))
-                if not flags <= allowed:
-                    bad.append(f"{mod.__name__}.{name} {sorted(flags)}")
+    found = _dispatchers(("fem_rmpm.materials", "fem_rmpm.kernels", "fem_rmpm.implicit"),
+                         ("fem_rmpm.compiled", "fem_rmpm.regularisation"))
+    for name, f in found:
+        flags = _fastmath_flags(f.targetoptions.get("fastmath"))
+        if not flags <= allowed:
+            bad.append(f"{name} {sorted(flags)}")
     assert not bad, f"numba functions with value-changing fast-math flags: {bad}"

@@ -307,9 +307,9 @@ def _move_points_half(P, M, T, H, S, o, c):
 def _move_half(P, M, T, H, S, o, c):
     """Half ``c``: stage 2 on its nodes, then stage 3a for its points (the threaded
     kernel's task; the serial kernel calls the same two functions, both halves' nodes
-    first).  LLVM inlines the solve into both callers: it (like every kernel) is compiled
-    without FMA contraction, which fused its kinetic-energy sum differently in each (1 ulp,
-    measured; :data:`fem_rmpm.compiled.FASTMATH`)."""
+    first).  LLVM inlines the solve into both callers; with FMA contraction allowed it
+    fused the kinetic-energy sum differently in each (1 ulp, measured), so no kernel
+    contracts (:data:`fem_rmpm.compiled.FASTMATH`)."""
     _solve_half(M, T, H, S, o, c)
     _move_points_half(P, M, T, H, S, o, c)
 
