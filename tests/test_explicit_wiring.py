@@ -260,3 +260,24 @@ def test_numpy_step_defaults_and_map_to_nodes_without_halves():
     for x, y in zip(one, two):
         assert len(x) == grid.n_nodes
         assert np.allclose(x, y, rtol=1e-13, atol=1e-13 * np.abs(y).max())
+
+
+def test_the_time_loop_runs_without_automatic_garbage_collection():
+    """Python's automatic collection is off inside :func:`run_explicit` (as the loop's
+    progress calls see it) and back as it was afterwards: on after a run that returns and
+    after one that raises; off if the caller had turned it off.  (Without the pause,
+    loading the driver from numba's cache triggered a full collection in the first step.)"""
+    import gc
+    enabled = []
+    scene, grid, pts = _column(**{"solver.t_end": 0.2})
+    run_explicit(scene, grid, pts, progress=lambda t, s: enabled.append(gc.isenabled()))
+    assert enabled and not any(enabled) and gc.isenabled()
+    with pytest.raises(SimulationError):
+        run_explicit(*_flying_column("stop"))
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        run_explicit(*_column(**{"solver.t_end": 0.05}))
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
