@@ -49,6 +49,7 @@ from .grid import Grid
 from .kernels import Workspace
 from .kernels.advance import RECORD_EVERY, RunControl, record_limit, step_drivers
 from .locking import bbar_gradient, fbar_increment, host_cells
+from .machine import slow_threads_warning, threading_layer
 from .machine import usable_cores as _cores
 from .materials import hughes_winget_increment, small_strain_update, stress_update
 from .particles import Particles
@@ -328,7 +329,7 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
                     grid, pts, sv, kernel, work, threads, geostatic, g_full,
                     _cfl_step(stats, pts, grid, sv.cfl, h_min), (t, step, ke_peak), rec)
             if step == 1:                    # the t = 0 output and the kernels' first calls
-                rec.solver["first_step_time"] = time.perf_counter() - wall0
+                _first_step_done(rec, time.perf_counter() - wall0, threads)
             if (stats.wave_speed is None or stats.n_bad or stats.n_outside) and \
                     not _guards(grid, pts, stats, order, step, t, sv.edge_policy, rec):
                 rec.stop_reason = "all points left the grid"
@@ -362,6 +363,19 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     if on_output and next_out - sv.output_interval < t - 1e-12:
         on_output(t, pts)
     return rec
+
+
+def _first_step_done(rec: RunRecord, seconds: float, threads: int) -> None:
+    """Book the first step's wall time (s) and, on two or more threads, numba's threading
+    layer in ``rec.solver``; warn (once per process) when that layer is the slow one
+    (:func:`fem_rmpm.machine.slow_threads_warning`)."""
+    rec.solver["first_step_time"] = seconds
+    if threads > 1:
+        layer = rec.solver["threading_layer"] = threading_layer()
+        text = slow_threads_warning(layer, threads)
+        if text and "layer" not in _THREADS_WARNED:
+            _THREADS_WARNED.add("layer")
+            print(text, file=sys.stderr, flush=True)
 
 
 def _run_control(sv, h_min: float, g_full: np.ndarray, next_output: float,
@@ -500,7 +514,7 @@ def busy_threads_warning(threads: int) -> str | None:
             "cores)")
 
 
-_THREADS_WARNED: set = set()      # the thread counts already warned about by this process
+_THREADS_WARNED: set = set()      # the thread counts (and "layer") already warned about
 _FROM_AUTO = [False]              # True while a run uses a count resolved from threads = 0
 
 

@@ -60,3 +60,40 @@ def test_tally_counts_runs_per_host_and_cpu():
                    {"host": "node2", "cpu_model": "Intel Xeon", "runs": 2},
                    {"host": "node3", "cpu_model": "?", "runs": 1}]
     assert tally([]) == [] and tally([None]) == []
+
+
+def test_slow_threading_layer_warning_names_the_cause_and_the_remedy(monkeypatch):
+    """Only numba's ``workqueue`` layer on two or more threads is warned about, with what
+    to change: the OpenMP runtime when numba fell back to it, the environment variable
+    when that asked for it."""
+    import numba
+    from fem_rmpm.machine import slow_threads_warning
+    assert slow_threads_warning("omp", 2) is None and slow_threads_warning("tbb", 2) is None
+    assert slow_threads_warning("workqueue", 1) is None and slow_threads_warning(None, 2) is None
+    monkeypatch.setattr(numba.config, "THREADING_LAYER", "default")
+    text = slow_threads_warning("workqueue", 2)
+    assert "\n" not in text and "libgomp.so.1" in text and "apt install libgomp1" in text
+    assert "threads = 1" in text
+    monkeypatch.setattr(numba.config, "THREADING_LAYER", "workqueue")
+    assert "unset NUMBA_THREADING_LAYER" in slow_threads_warning("workqueue", 2)
+
+
+def test_a_threaded_run_records_its_threading_layer_and_warns_once(monkeypatch, capsys):
+    """A two-thread run books numba's layer in ``solver.threading_layer``; on the slow
+    layer it warns on stderr once per process, not at every run; a one-thread run books
+    none."""
+    import fem_rmpm.explicit as ex
+    from fem_rmpm.explicit import run_explicit
+    from fem_rmpm.grid import make_grid
+    from fem_rmpm.particles import seed_particles
+    from fem_rmpm.scene import load_scene, with_values
+    monkeypatch.setattr(ex, "threading_layer", lambda: "workqueue")
+    monkeypatch.setattr(ex, "_THREADS_WARNED", set())
+    base = load_scene(os.path.join(os.path.dirname(__file__), "..", "meshes", "column.toml"))
+    records = []
+    for threads in (2, 2, 1):
+        scene = with_values(base, {"solver.t_end": 0.02, "solver.threads": threads})
+        grid = make_grid(scene)
+        records.append(run_explicit(scene, grid, seed_particles(scene, grid)))
+    assert [r.solver.get("threading_layer") for r in records] == ["workqueue", "workqueue", None]
+    assert capsys.readouterr().err.count("slow 'workqueue' layer") == 1
