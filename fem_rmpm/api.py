@@ -31,6 +31,7 @@ import numpy as np
 from tqdm import tqdm
 
 from . import kernels, strength_reduction
+from .kernels.advance import pair_worker
 from .budget import check_budget, explicit_numba
 from .explicit import auto_threads, run_explicit, threads_from_auto
 from .materials import invalid_points
@@ -217,11 +218,12 @@ COMPILE_SECONDS_THREADED = (10.0, 40.0)
 COMPILE_SECONDS_DRIVERS = ((5.0, 10.0), (10.0, 30.0))
 
 
-#: Explicit kernels every numba run calls, on one thread and on two or more (others, e.g.
-#: uGIMP or F-bar passes, only some; the stress pass is made per model registry version,
-#: :func:`.kernels.material_kernels`).
-_ALWAYS_COMPILED = ("map_to_nodes", "solve_and_move")
-_ALWAYS_COMPILED_THREADED = ("map_to_nodes_parallel", "solve_and_move_parallel")
+#: Explicit kernels every numba run calls on one thread, on two (the one-region driver's
+#: worker, :mod:`.kernels.advance`) and on more (others, e.g. uGIMP or F-bar passes, only
+#: some; the stress pass is made per model registry version, :func:`.kernels.material_kernels`).
+_ALWAYS_COMPILED = (kernels.map_to_nodes, kernels.solve_and_move)
+_ALWAYS_COMPILED_PAIR = (pair_worker,)
+_ALWAYS_COMPILED_THREADED = (kernels.map_to_nodes_parallel, kernels.solve_and_move_parallel)
 
 
 def kernels_cold(threads: int = 1) -> bool:
@@ -230,10 +232,11 @@ def kernels_cold(threads: int = 1) -> bool:
     that run compiles first.  The serial and the threaded drivers are cached apart (a
     two-thread run never compiles the serial ones).  Reads numba's cache index only (no
     compilation); False if that cannot be determined."""
-    names = _ALWAYS_COMPILED if threads <= 1 else _ALWAYS_COMPILED_THREADED
+    compiled = (_ALWAYS_COMPILED if threads <= 1 else
+                _ALWAYS_COMPILED_PAIR if threads == 2 else _ALWAYS_COMPILED_THREADED)
     try:
-        for name in names:
-            cache = getattr(getattr(kernels, name, None), "_cache", None)
+        for dispatcher in compiled:
+            cache = getattr(dispatcher, "_cache", None)
             if hasattr(cache, "_cache_file") and not cache._cache_file._load_index():
                 return True
     except Exception:      # noqa: BLE001 - numba internals moved: no notice, never an error

@@ -47,7 +47,7 @@ from numba.np.ufunc import parallel as numba_parallel
 from . import kernels as K
 from .grid import Grid
 from .kernels import Workspace
-from .kernels.advance import RECORD_EVERY, RunControl, record_limit, step_drivers
+from .kernels.advance import RECORD_EVERY, STALL, RunControl, record_limit, step_drivers
 from .locking import bbar_gradient, fbar_increment, host_cells
 from .machine import slow_threads_warning, threading_layer
 from .machine import usable_cores as _cores
@@ -441,9 +441,16 @@ def _advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, t
                       bool(sv.fbar), int(threads), work.model, work.block)
     clock[:4] = clock0[0], clock0[2], rec.dt_min, rec.dt_max
     count[0], count[2] = clock0[1], 0
-    serial, parallel = step_drivers(o.model)
+    serial, parallel, pair = step_drivers(o.model)
     if threads > 1:
-        call(parallel, P, M, N, K.top_of(N), N.half, S, o, ctl, clock, count, work.energy)
+        both = threads == 2 and not sv.fbar and numba.get_num_threads() >= 2
+        call(pair if both else parallel, P, M, N, K.top_of(N), N.half, S, o, ctl, clock,
+             count, work.energy)
+        if count[1] == STALL:
+            raise SimulationError(
+                f"step {int(count[0]) + 1} (t = {float(clock[0]):.6g} s): one of the two "
+                "threads of the step waited for the other for half a minute (numba's thread "
+                "pool did not run both); set [solver] threads = 1")
     else:
         call(serial, P, M, N, S, o, ctl, clock, count, work.energy)
     out = S.out

@@ -57,11 +57,13 @@ def _run(meshes, values, threads, driven, monkeypatch):
 
 
 @pytest.mark.parametrize("values,threads,extra", [
-    (FAILING, 1, {}), (FAILING, 2, {}),
+    (FAILING, 1, {}), (FAILING, 2, {}), (FAILING, 3, {}),
     (FAILING, 1, {"solver.shape": "gimp", "solver.fbar": True}),
     (FAILING, 2, {"solver.shape": "gimp", "solver.fbar": True}),
     (RESTING, 1, {}), (RESTING, 2, {})])
 def test_driver_is_the_python_loop_bitwise(meshes, monkeypatch, values, threads, extra):
+    """Two threads without F-bar: the one-region driver (``advance_pair``); with F-bar or
+    three threads: the driver with a region per stage (``advance_parallel``)."""
     before = numba.get_num_threads()
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     try:
@@ -95,3 +97,47 @@ def test_nonlocal_soil_steps_from_python(meshes, monkeypatch):
                         lambda grid, pts: calls.append(1) or real(grid, pts))
     pts, rec, _, steps = _run(meshes, values, 1, True, monkeypatch)
     assert steps == rec.steps == len(calls) > 10
+
+
+def test_two_threads_on_a_pool_of_one_take_the_driver_that_never_waits(meshes, monkeypatch):
+    """``threads = 2`` while numba's pool has one thread (e.g. a campaign worker's):
+    ``advance_pair`` would wait at its first barrier for a thread that runs only after it,
+    so the loop takes ``advance_parallel``, whose workers never wait; the run is bitwise
+    the one-thread run.  (With the pair driver this test fails after a stall of minutes.)"""
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        a, ra, _, _ = _run(meshes, RESTING, 2, True, monkeypatch)
+    finally:
+        numba.set_num_threads(before)
+    b, rb, _, _ = _run(meshes, RESTING, 1, True, monkeypatch)
+    assert (ra.steps, ra.time, ra.stop_reason) == (rb.steps, rb.time, rb.stop_reason)
+    for f in FIELDS:
+        assert np.array_equal(getattr(a, f), getattr(b, f)), f
+
+
+def test_a_stalled_two_thread_step_stops_the_run_with_what_to_change(meshes, monkeypatch):
+    """A driver call that returns the event ``stall`` (a thread gave up waiting at a
+    barrier) stops the run with its step and time and the setting that avoids it."""
+    from fem_rmpm.kernels.advance import STALL
+    from fem_rmpm.kernels.arrays import Workspace
+    from fem_rmpm.run import SimulationError
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one core: the one-region driver needs a pool of two threads")
+    call = Workspace.call
+
+    def stalled(self, kernel, *args):
+        if getattr(kernel, "__name__", "") == "advance_pair":
+            args[9][1] = STALL                   # count: the event of the call
+            return None
+        return call(self, kernel, *args)
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    try:
+        monkeypatch.setattr(Workspace, "call", stalled)
+        with pytest.raises(SimulationError, match=r"^step 1 \(t = 0 s\): one of the two "
+                           r"threads .* set \[solver\] threads = 1$"):
+            _run(meshes, RESTING, 2, True, monkeypatch)
+    finally:
+        numba.set_num_threads(before)

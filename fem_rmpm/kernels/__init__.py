@@ -33,8 +33,10 @@ measured ~1e-14).  ``cache=True`` keeps the compiled code on disk
 (``validation/bench_explicit.py`` measures the first compile and the load;
 :mod:`fem_rmpm.numba_cache` keys it on every compiled source file).  Threads
 (``StepOptions.threads`` > 1): the two halves run on two threads — each stage's nodal
-loop over the nodes its half touched, so a step has four parallel regions (map, move,
-nodal velocities, stress) and no serial merge (:mod:`.transfer`); the stress pass hands
+loop over the nodes its half touched, so a step has three parallel regions (map; move;
+nodal velocities and stress) and no serial merge (:mod:`.transfer`), or, with exactly two
+threads and no F-bar, the driver's steps all run in one region whose joins are spin
+barriers (:mod:`.advance`); the stress pass hands
 its blocks of points out from two work queues, one per half, to all threads (a plastic
 point costs more than an elastic one).  Any thread count gives bitwise the single-thread
 result; a Monte Carlo campaign runs one thread per realization.  Each threaded kernel is

@@ -24,6 +24,23 @@ calls them: map to nodes (:func:`.transfer.map_to_nodes`), solve on the mesh and
 (:func:`.transfer.solve_and_move`), then the stress pass (:mod:`.stress`).  The driver
 arithmetic (step size, ramp, damping, the checks) is compiled without any fast-math
 flag: every operation is rounded as Python rounds it.
+
+**Two threads, one parallel region per call.**  The threaded driver opens a parallel
+region (``prange``) for each of the step's three stages, ~4.5 us each on the 2-core AMD
+EPYC VM (the region's ~80 arrays unpacked, the other thread woken, the join): ~3 % of a
+two-thread step of case (i) (~430 us), measured with cycle stamps in each region.  With
+exactly two threads (no F-bar) :func:`step_drivers` also gives ``advance_pair``: one
+region per call, in which each of the two threads runs :func:`pair_worker` over the
+steps, its half of the points in each stage, with a spin barrier (:func:`.common.arrive`)
+where the regions joined, and thread 0 alone books the step (:func:`_tick`).  The same
+functions on the same halves in the same order: bitwise the run of either other driver
+(``tests/test_threads.py``); case (i) from t = 1.5, 8 and 20 s, 8 interleaved pairs each:
+median step 1.06x, 1.09x and 1.08x faster.  It needs the two threads to run at once (a
+barrier waits for the other): the caller uses it only when numba's pool has two threads,
+and a thread that waits :data:`.common.SPIN_LIMIT` spins (34 s) gives up with the event
+``stall`` instead of hanging.  A waiting thread spins without yielding its core; on a
+machine with two other busy processes (``yes``) case (i) to t = 4 s still ran faster than
+with a region per stage: 257 / 317 against 320 / 380 ns per point-step, two pairs.
 """
 from __future__ import annotations
 
@@ -34,14 +51,16 @@ from numba import njit, prange
 
 from ..materials import registry
 from .arrays import RECORD_BUFFER, StepOptions
+from .common import QUEUE_BARRIER, arrive
 from .stress import (_combine, _reset_queues, _stress_queue_call, nodal_in_pass,
                      serial_stress_pass, workers)
 from .strain import fbar_gradient_pass, fbar_gradient_pass_parallel
-from .transfer import (map_to_nodes, map_to_nodes_parallel, nodal_velocities,
-                       nodal_velocities_parallel, solve_and_move, solve_and_move_parallel)
+from .transfer import (_grid_stats, _map_half, _move_half, map_to_nodes, map_to_nodes_parallel,
+                       nodal_velocities, nodal_velocities_parallel, solve_and_move,
+                       solve_and_move_parallel)
 
 __all__ = ["RunControl", "step_drivers", "record_limit", "RECORD_EVERY", "RECORD_BUFFER",
-           "EVENTS"]
+           "EVENTS", "STALL", "pair_worker"]
 
 #: The step numbers at which the loop records the kinetic energy and reports progress.
 RECORD_EVERY = 20
@@ -69,11 +88,13 @@ def record_limit(n_points: int) -> float:
     return float(max(1, min(RECORD_BUFFER, fit)))
 
 #: Why a driver returned (``count[1]``; read by nobody, for debugging).
-EVENTS = ("record", "guard", "jump", "output", "sort", "rest", "geostatic", "end")
+EVENTS = ("record", "guard", "jump", "output", "sort", "rest", "geostatic", "end", "stall")
+STALL = EVENTS.index("stall")
 
 # no fast-math flags: the driver's own arithmetic must round as the Python loop's does
-driver = njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-driver_parallel = njit(cache=True, nogil=True, error_model="numpy", _nrt=False, parallel=True)
+driver = njit(cache=True, fastmath=False, nogil=True, error_model="numpy", _nrt=False)
+driver_parallel = njit(cache=True, fastmath=False, nogil=True, error_model="numpy", _nrt=False,
+                       parallel=True)
 exact_inline = njit(inline="always", error_model="numpy")
 
 
@@ -133,9 +154,42 @@ def _tick(c, op, S, clock, count, energy, ke, vmax):
     return count[1]
 
 
+@driver
+def pair_worker(version, only, P, M, T, H, S, o, c, clock, count, energy, w):
+    """Thread ``w`` (0 or 1) of ``advance_pair`` (module docstring): the steps of
+    ``advance_parallel`` with its half ``w`` in each stage and a barrier after each; thread
+    0 books each step.  On a stalled barrier: ``count[1]`` = :data:`STALL`, return."""
+    bar = S.queue[QUEUE_BARRIER:]
+    k = 0
+    while True:
+        op = _options(o, c, clock[0], S.out[0], S.out[1])
+        if w == 0:
+            _reset_queues(S)          # (the last step's stress pass ended at a barrier)
+        _map_half(P, M, T, H, S, op, w)                         # 1. map to nodes
+        if not arrive(bar, k + 2):
+            break
+        _move_half(P, M, T, H, S, op, w)                        # 2. solve, 3a. map back
+        if not arrive(bar, k + 4):
+            break
+        _stress_queue_call(version, only, P, M, T, H, S, op, w)  # 3b, 3c. stress update
+        if not arrive(bar, k + 6):
+            break
+        if w == 0:
+            _combine(S, 2)
+            ke, vmax = _grid_stats(S)
+            _tick(c, op, S, clock, count, energy, ke, vmax)
+        if not arrive(bar, k + 8):
+            break
+        if count[1] >= 0:
+            return
+        k += 8
+    count[1] = STALL
+
+
 def _make_drivers(version, only):
-    """``(serial, parallel)`` drivers for one registry version and model restriction (the
-    stress pass's, :func:`.stress.material_kernels`).  Both take the step options ``o``
+    """``(serial, parallel, pair)`` drivers for one registry version and model restriction
+    (the stress pass's, :func:`.stress.material_kernels`; ``pair``: exactly two threads, no
+    F-bar, module docstring).  All take the step options ``o``
     of the previous step (their dt, gravity and damping are replaced), a :class:`RunControl`
     ``c``, ``clock`` (float64 (7,): t, peak kinetic energy, smallest and largest dt so far,
     then the last step's kinetic energy, max |v_pic| and dt), ``count`` (int64 (3,): the
@@ -173,15 +227,21 @@ def _make_drivers(version, only):
             _combine(S, nch)
             if _tick(c, op, S, clock, count, energy, ke, vmax) >= 0:
                 break
-    return advance, advance_parallel
+
+    @driver_parallel
+    def advance_pair(P, M, N, T, H, S, o, c, clock, count, energy):
+        S.queue[QUEUE_BARRIER] = 0
+        for w in prange(2):
+            pair_worker(version, only, P, M, T, H, S, o, c, clock, count, energy, np.int64(w))
+    return advance, advance_parallel, advance_pair
 
 
 _BY_VERSION: dict = {}
 
 
 def step_drivers(only: int = -1):
-    """``(advance, advance_parallel)`` compiled for the current model registry and model
-    restriction ``only`` (the one model id of all points, -1: any; see
+    """``(advance, advance_parallel, advance_pair)`` compiled for the current model registry
+    and model restriction ``only`` (the one model id of all points, -1: any; see
     :func:`.stress.material_kernels`)."""
     key = (registry.version(), int(only))
     if key not in _BY_VERSION:

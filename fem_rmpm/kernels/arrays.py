@@ -74,11 +74,12 @@ stress pass: the largest squared P-wave speed and the points with a non-finite s
 largest squared |v_pic| and |v|, the points with a non-finite x or v and those outside the
 grid; ``q4_ll`` (n,) int64 and ``q4_st`` (n, 2): each point's Q4 cell (lower-left node) and
 local coordinates, found by the map to nodes and reused by the later passes of the step (the
-points have not moved in between); ``queue`` (2 QUEUE_STRIDE,) int64: at 0 and
+points have not moved in between); ``queue`` (3 QUEUE_STRIDE,) int64: at 0 and
 :data:`.common.QUEUE_STRIDE` the next block of the stress pass's two work queues, one per
 half of the points, and :data:`.common.QUEUE_FLAG` after each the flag of that half's
-published nodal velocities (:func:`.stress._stress_queue_call`; the padding puts each
-queue on a cache line of its own); ``Z`` (CHUNKS, BLOCK_ROWS, BLOCK_COLUMNS of
+published nodal velocities (:func:`.stress._stress_queue_call`), at
+:data:`.common.QUEUE_BARRIER` the two-thread driver's barrier counter (:mod:`.advance`; the
+padding puts each on a cache line of its own); ``Z`` (CHUNKS, BLOCK_ROWS, BLOCK_COLUMNS of
 :mod:`fem_rmpm.materials.protocol`): per chunk the block scratch of a material's vectorised
 update (trial strains in, strains and Kirchhoff stress out; :mod:`.stress`); ``gimp_ij``
 (n, 2) int64 and ``gimp_w`` (n, 12): each point's uGIMP basis factors from the map to
@@ -249,6 +250,6 @@ def scratch_for(n: int, n_cells: int) -> Scratch:
                    np.zeros(n, np.int64), np.zeros((n, 4)),
                    np.zeros(n_cells), np.zeros(n_cells), np.zeros(4), np.zeros((CHUNKS, 2)),
                    np.zeros((2, 5)), np.zeros(n, np.int64), np.zeros((n, 2)),
-                   np.zeros(2 * QUEUE_STRIDE, np.int64),
+                   np.zeros(3 * QUEUE_STRIDE, np.int64),
                    _page_rows((CHUNKS, BLOCK_ROWS, BLOCK_COLUMNS), 1024),
                    np.zeros((0, 2), np.int64), np.zeros((0, 12)))

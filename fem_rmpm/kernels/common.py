@@ -26,6 +26,12 @@ BLOCK = 128
 # with its half's nodal-velocity flag QUEUE_FLAG elements after it.
 QUEUE_STRIDE = 8
 QUEUE_FLAG = 1
+# The two-thread step driver's barrier counter, on a third cache line of the same array
+# (:func:`arrive`, :mod:`.advance`).
+QUEUE_BARRIER = 2 * QUEUE_STRIDE
+# Spins after which a thread waiting at :func:`arrive` gives up: 34 s on the 2-core AMD
+# EPYC VM (a pool of one thread, the other worker never running), measured.
+SPIN_LIMIT = 20_000_000_000
 
 
 @inline
@@ -87,6 +93,23 @@ def read_flag(typingctx, counter):
         return builder.load_atomic(ary.data, "seq_cst", 8)
     return sig, codegen
 
+
+
+@njit(inline="always")
+def arrive(counter, target):
+    """Arrive at a barrier of two threads: ``counter[0] += 1`` (:func:`take_ticket`), then
+    wait until it reaches ``target`` (2 k at the k-th barrier since the counter was 0: both
+    threads arrived), reading it with :func:`read_flag`, so everything the other thread
+    wrote before it arrived is seen after.  A thread can run at most one barrier ahead (the
+    next needs the other's arrival), so the counter never needs resetting within a call.
+    False when :data:`SPIN_LIMIT` spins pass first (the other thread never came)."""
+    take_ticket(counter)
+    spins = 0
+    while read_flag(counter) < target:
+        spins += 1
+        if spins > SPIN_LIMIT:
+            return False
+    return True
 
 
 @njit(inline="always")
