@@ -27,15 +27,18 @@ flag: every operation is rounded as Python rounds it.
 
 **Two threads, one parallel region per call.**  The threaded driver opens a parallel
 region (``prange``) for each of the step's three stages, ~4.5 us each on the 2-core AMD
-EPYC VM (the region's ~80 arrays unpacked, the other thread woken, the join): ~3 % of a
+EPYC VM (numba setting up the region, the other thread woken, the join): ~3 % of a
 two-thread step of case (i) (~430 us), measured with cycle stamps in each region.  With
 exactly two threads (no F-bar) :func:`step_drivers` also gives ``advance_pair``: one
 region per call, in which each of the two threads runs :func:`pair_worker` over the
 steps, its half of the points in each stage, with a spin barrier (:func:`.common.arrive`)
 where the regions joined, and thread 0 alone books the step (:func:`_tick`).  The same
 functions on the same halves in the same order: bitwise the run of either other driver
-(``tests/test_threads.py``); case (i) from t = 1.5, 8 and 20 s, 8 interleaved pairs each:
-median step 1.06x, 1.09x and 1.08x faster.  It needs the two threads to run at once (a
+(``tests/test_advance.py``).  Case (i) from its state at t = 1.5, 8 and 20 s, 0.2 s of
+steps, 30 alternations of the two drivers each: the pairs' median ratio 1.030x, 1.035x
+and 1.046x (26, 22 and 24 of 29 pairs faster), the fastest runs 1.027x, 1.007x and
+1.051x; whole runs of case (i), 6 interleaved pairs: 5.82-8.23 against 5.85-6.71 s, no
+difference beyond the host's noise.  It needs the two threads to run at once (a
 barrier waits for the other): the caller uses it only when numba's pool has two threads,
 and a thread that waits :data:`.common.SPIN_LIMIT` spins (34 s) gives up with the event
 ``stall`` instead of hanging.  A waiting thread spins without yielding its core; on a
