@@ -82,8 +82,10 @@ def slow_threads_warning(layer: str | None, threads: int) -> str | None:
     ``workqueue`` layer (it found neither the OpenMP runtime, ``libgomp.so.1``, nor TBB,
     ``libtbb.so.12``), else None.  That layer wakes its threads for every parallel loop:
     ~80 us per loop against ~1 us with OpenMP (an empty two-thread loop, measured on a 2-core
-    AMD EPYC VM), and the explicit step has three; two threads made case (i) to t = 10 s
-    only 1.23x faster than one (53 against 65 ns per point-step), against ~1.8x with OpenMP."""
+    AMD EPYC VM).  Case (i) to t = 10 s on that VM, two threads against one: 1.23x with a
+    loop per stage of the step (53 against 65 ns per point-step; F-bar and three or more
+    threads still step so), 1.5-1.7x with the two-thread driver's one loop per call (32.0 /
+    35.4 against 53.8 ns), where OpenMP gave 1.8-2.1x (25.9 / 29.7)."""
     if threads <= 1 or layer != "workqueue":
         return None
     import numba  # lazy: as in threading_layer
@@ -93,8 +95,8 @@ def slow_threads_warning(layer: str | None, threads: int) -> str | None:
         why = "numba found no OpenMP runtime, libgomp.so.1, and no TBB"
         fix = "install the OpenMP runtime (Debian/Ubuntu: apt install libgomp1)"
     return (f"fem-rmpm: warning: the {threads} threads run on numba's slow 'workqueue' layer "
-            f"({why}): each parallel loop costs ~80 us to start, so two threads gain ~1.2x "
-            f"instead of ~1.8x; {fix} or set [solver] threads = 1")
+            f"({why}): each parallel loop costs ~80 us to start, so two threads gain "
+            f"1.2-1.7x instead of ~1.8-2x; {fix} or set [solver] threads = 1")
 
 
 def _version(package: str) -> str | None:
