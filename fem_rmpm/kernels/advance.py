@@ -35,15 +35,17 @@ steps, its half of the points in each stage, with a spin barrier (:func:`.common
 where the regions joined, and thread 0 alone books the step (:func:`_tick`).  The same
 functions on the same halves in the same order: bitwise the run of either other driver
 (``tests/test_advance.py``).  Case (i) from its state at t = 1.5, 8 and 20 s, 0.2 s of
-steps, 30 alternations of the two drivers each: the pairs' median ratio 1.030x, 1.035x
-and 1.046x (26, 22 and 24 of 29 pairs faster), the fastest runs 1.027x, 1.007x and
-1.051x; whole runs of case (i), 6 interleaved pairs: 5.82-8.23 against 5.85-6.71 s, no
-difference beyond the host's noise.  It needs the two threads to run at once (a
-barrier waits for the other): the caller uses it only when numba's pool has two threads,
-and a thread that waits :data:`.common.SPIN_LIMIT` spins (34 s) gives up with the event
-``stall`` instead of hanging.  A waiting thread spins without yielding its core; on a
-machine with two other busy processes (``yes``) case (i) to t = 4 s still ran faster than
-with a region per stage: 257 / 317 against 320 / 380 ns per point-step, two pairs.
+steps, 24-30 alternations of the two drivers: the pairs' median ratio 1.010-1.046x (13-26
+of 24-29 pairs faster); whole runs of case (i), 6 interleaved pairs: no difference beyond
+the host's noise.  It needs the two threads to run at once (a barrier waits for the
+other): the caller uses it only when numba's pool has two threads, and a thread that gives
+up waiting (:func:`.common.arrive`, ~30 s) ends the call with the event ``stall`` instead
+of hanging.  A waiting thread spins, then yields its core: where more threads want to run
+than there are cores it gains most.  Case (i) to t = 2-4 s, ns per point-step, against a
+region per stage: two such runs at once 76-81 against 126-133; beside two busy processes
+(``yes``) 65-77 against 108-362 (pure spinning, no yield: 509-635 against 292-463 and
+257-317 against 320-380; yielding after 4 096 spins: 65-98 against 149-294 and 60-682
+against 111-457).
 """
 from __future__ import annotations
 

@@ -2,8 +2,12 @@
 decorators: :mod:`fem_rmpm.compiled`)."""
 from __future__ import annotations
 
+import sys
+
 import numpy as np
+from llvmlite import ir
 from numba import njit, types
+from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ..compiled import assume_columns, inline
@@ -29,9 +33,11 @@ QUEUE_FLAG = 1
 # The two-thread step driver's barrier counter, on a third cache line of the same array
 # (:func:`arrive`, :mod:`.advance`).
 QUEUE_BARRIER = 2 * QUEUE_STRIDE
-# Spins after which a thread waiting at :func:`arrive` gives up: 34 s on the 2-core AMD
-# EPYC VM (a pool of one thread, the other worker never running), measured.
-SPIN_LIMIT = 20_000_000_000
+# A thread waiting at :func:`arrive` spins SPINS_BEFORE_YIELD times, then gives its core
+# away (:func:`yield_core`) between reads, and gives up after YIELD_LIMIT yields that came
+# straight back (~30 s on the 2-core AMD EPYC VM: the other worker never runs).
+SPINS_BEFORE_YIELD = 200_000
+YIELD_LIMIT = 30_000_000
 
 
 @inline
@@ -95,6 +101,22 @@ def read_flag(typingctx, counter):
 
 
 
+_YIELD = "SwitchToThread" if sys.platform == "win32" else "sched_yield"
+
+
+@intrinsic
+def yield_core(typingctx):
+    """Give this thread's core to another runnable thread, if any (POSIX ``sched_yield``,
+    Windows ``SwitchToThread``; both in every process, resolved by name when the compiled
+    code is loaded)."""
+    sig = types.int32()
+
+    def codegen(context, builder, signature, args):
+        fnty = ir.FunctionType(ir.IntType(32), [])
+        return builder.call(cgutils.get_or_insert_function(builder.module, fnty, _YIELD), [])
+    return sig, codegen
+
+
 @njit(inline="always")
 def arrive(counter, target):
     """Arrive at a barrier of two threads: ``counter[0] += 1`` (:func:`take_ticket`), then
@@ -102,13 +124,17 @@ def arrive(counter, target):
     threads arrived), reading it with :func:`read_flag`, so everything the other thread
     wrote before it arrived is seen after.  A thread can run at most one barrier ahead (the
     next needs the other's arrival), so the counter never needs resetting within a call.
-    False when :data:`SPIN_LIMIT` spins pass first (the other thread never came)."""
+    The wait spins, then yields its core between reads (:data:`SPINS_BEFORE_YIELD`): on a
+    machine with more runnable threads than cores the other thread may be waiting for this
+    very core.  False after :data:`YIELD_LIMIT` yields (the other thread never came)."""
     take_ticket(counter)
     spins = 0
     while read_flag(counter) < target:
         spins += 1
-        if spins > SPIN_LIMIT:
-            return False
+        if spins > SPINS_BEFORE_YIELD:
+            yield_core()
+            if spins > SPINS_BEFORE_YIELD + YIELD_LIMIT:
+                return False
     return True
 
 
