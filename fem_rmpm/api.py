@@ -226,16 +226,23 @@ _ALWAYS_COMPILED_PAIR = (pair_worker,)
 _ALWAYS_COMPILED_THREADED = (kernels.map_to_nodes_parallel, kernels.solve_and_move_parallel)
 
 
-def kernels_cold(threads: int = 1) -> bool:
+def _always_compiled(threads: int, fbar: bool) -> tuple:
+    """The dispatchers whose cache says whether an explicit run on ``threads`` threads
+    (with F-bar or not) compiles: two threads without F-bar run the one-region driver
+    (:func:`.explicit._advance`), F-bar and more threads the driver with a region per stage."""
+    if threads <= 1:
+        return _ALWAYS_COMPILED
+    return _ALWAYS_COMPILED_PAIR if threads == 2 and not fbar else _ALWAYS_COMPILED_THREADED
+
+
+def kernels_cold(threads: int = 1, fbar: bool = False) -> bool:
     """True when numba's on-disk cache holds no valid compiled version of a kernel every
     explicit run on ``threads`` threads calls (first run, or the kernels' sources changed):
     that run compiles first.  The serial and the threaded drivers are cached apart (a
     two-thread run never compiles the serial ones).  Reads numba's cache index only (no
     compilation); False if that cannot be determined."""
-    compiled = (_ALWAYS_COMPILED if threads <= 1 else
-                _ALWAYS_COMPILED_PAIR if threads == 2 else _ALWAYS_COMPILED_THREADED)
     try:
-        for dispatcher in compiled:
+        for dispatcher in _always_compiled(threads, fbar):
             cache = getattr(dispatcher, "_cache", None)
             if hasattr(cache, "_cache_file") and not cache._cache_file._load_index():
                 return True
@@ -263,7 +270,7 @@ def compile_notice(scene: Scene) -> str | None:
     if not explicit_numba(sv):
         return None
     threads = int(getattr(sv, "threads", 0)) or auto_threads()
-    if not kernels_cold(threads):
+    if not kernels_cold(threads, fbar=bool(getattr(sv, "fbar", False))):
         return None
     if not kernels_cold(2 if threads <= 1 else 1):   # the other drivers' shared parts are cached
         lo, hi = COMPILE_SECONDS_DRIVERS[threads > 1]

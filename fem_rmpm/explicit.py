@@ -372,10 +372,7 @@ def _first_step_done(rec: RunRecord, seconds: float, threads: int) -> None:
     rec.solver["first_step_time"] = seconds
     if threads > 1:
         layer = rec.solver["threading_layer"] = threading_layer()
-        text = slow_threads_warning(layer, threads)
-        if text and "layer" not in _THREADS_WARNED:
-            _THREADS_WARNED.add("layer")
-            print(text, file=sys.stderr, flush=True)
+        _print_once("layer", slow_threads_warning(layer, threads))
 
 
 def _run_control(sv, h_min: float, g_full: np.ndarray, next_output: float,
@@ -541,9 +538,13 @@ def threads_from_auto(resolved: bool):
 
 def _warn_busy_threads(threads: int) -> None:
     """Print :func:`busy_threads_warning` to stderr, once per process and thread count."""
-    if _FROM_AUTO[0] or threads in _THREADS_WARNED:
-        return
-    text = busy_threads_warning(threads)
-    if text:
-        _THREADS_WARNED.add(threads)
+    if not (_FROM_AUTO[0] or threads in _THREADS_WARNED):
+        _print_once(threads, busy_threads_warning(threads))
+
+
+def _print_once(key, text: str | None) -> None:
+    """Print the warning ``text`` (None: nothing to say) to stderr unless this process
+    already printed the one filed under ``key`` (a thread count, or ``"layer"``)."""
+    if text and key not in _THREADS_WARNED:
+        _THREADS_WARNED.add(key)
         print(text, file=sys.stderr, flush=True)

@@ -103,7 +103,7 @@ def test_two_threads_on_a_pool_of_one_take_the_driver_that_never_waits(meshes, m
     """``threads = 2`` while numba's pool has one thread (e.g. a campaign worker's):
     ``advance_pair`` would wait at its first barrier for a thread that runs only after it,
     so the loop takes ``advance_parallel``, whose workers never wait; the run is bitwise
-    the one-thread run.  (With the pair driver this test fails after a stall of minutes.)"""
+    the one-thread run.  (With the pair driver this test fails after a ~30 s stall.)"""
     before = numba.get_num_threads()
     numba.set_num_threads(1)
     try:

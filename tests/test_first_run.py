@@ -36,7 +36,7 @@ def test_cold_cache_detected_for_the_threaded_kernels_too(tmp_path):
 def test_notice_asks_about_the_run_s_threads(meshes, monkeypatch):
     """The notice checks the kernels of the thread count the run will use."""
     asked = []
-    monkeypatch.setattr(api, "kernels_cold", lambda threads=1: asked.append(threads) or True)
+    monkeypatch.setattr(api, "kernels_cold", lambda threads=1, fbar=False: asked.append(threads) or True)
     scene = api.load_scene(meshes / "column.toml")
     one = api.compile_notice(api.with_value(scene, "solver.threads", 1))
     two = api.compile_notice(api.with_value(scene, "solver.threads", 2))
@@ -50,7 +50,7 @@ def test_notice_asks_about_the_run_s_threads(meshes, monkeypatch):
 
 def test_notice_when_only_the_drivers_compile(meshes, monkeypatch):
     """After a two-thread run only the serial drivers are missing: a short compile."""
-    monkeypatch.setattr(api, "kernels_cold", lambda threads=1: threads == 1)
+    monkeypatch.setattr(api, "kernels_cold", lambda threads=1, fbar=False: threads == 1)
     scene = api.load_scene(meshes / "column.toml")
     one = api.compile_notice(api.with_value(scene, "solver.threads", 1))
     lo, hi = api.COMPILE_SECONDS_DRIVERS[0]
@@ -59,7 +59,7 @@ def test_notice_when_only_the_drivers_compile(meshes, monkeypatch):
 
 
 def test_notice_printed_when_cold(tmp_path, capsys, meshes, monkeypatch):
-    monkeypatch.setattr(api, "kernels_cold", lambda threads=1: True)
+    monkeypatch.setattr(api, "kernels_cold", lambda threads=1, fbar=False: True)
     assert main(["run", str(meshes / "column.toml"), "--out", str(tmp_path / "o")]) == 0
     err = capsys.readouterr().err
     assert "compiling kernels" in err and "(first run only, " in err
@@ -67,7 +67,7 @@ def test_notice_printed_when_cold(tmp_path, capsys, meshes, monkeypatch):
 
 
 def test_no_notice_when_quiet_or_warm(tmp_path, capsys, meshes, monkeypatch):
-    monkeypatch.setattr(api, "kernels_cold", lambda threads=1: False)
+    monkeypatch.setattr(api, "kernels_cold", lambda threads=1, fbar=False: False)
     assert main(["run", str(meshes / "column.toml"), "--out", str(tmp_path / "o")]) == 0
     assert "compiling" not in capsys.readouterr().err
 
@@ -86,9 +86,19 @@ def test_notice_and_run_use_one_thread_count(tmp_path, capsys, meshes, monkeypat
 
     monkeypatch.setattr(api, "auto_threads", auto_threads)
     monkeypatch.setattr(explicit, "auto_threads", auto_threads)
-    monkeypatch.setattr(api, "kernels_cold", lambda threads=1: True)
+    monkeypatch.setattr(api, "kernels_cold", lambda threads=1, fbar=False: True)
     scene = api.with_value(api.load_scene(meshes / "column.toml"), "solver.t_end", 0.05)
     res = api.run(scene, out=tmp_path / "o", progress=True, vtk=False, figures=False)
     assert "compiling kernels for 2 threads" in capsys.readouterr().err
     assert len(asks) == 1 and res.record.solver["threads"] == 2
     assert res.summary["scene"]["solver"]["threads"] == 0      # the scene as given: auto
+
+
+def test_two_threads_with_f_bar_ask_about_the_driver_they_compile():
+    """Two threads without F-bar run the one-region driver; with F-bar (and on three or
+    more threads) the driver with a region per stage: the notice checks the cache of the
+    one the run will compile."""
+    assert api._always_compiled(1, False) is api._ALWAYS_COMPILED
+    assert api._always_compiled(2, False) is api._ALWAYS_COMPILED_PAIR
+    assert api._always_compiled(2, True) is api._ALWAYS_COMPILED_THREADED
+    assert api._always_compiled(3, False) is api._ALWAYS_COMPILED_THREADED
