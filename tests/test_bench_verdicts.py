@@ -37,3 +37,32 @@ def test_full_run_gives_points_1_to_4_and_says_not_met():
     assert lines[2].endswith("NOT met")
     ok = bench.issue13_verdicts(_result(39.0, 20.8, (44.0, 23.9), 0.22))
     assert all(line.endswith(": met") for line in ok)
+
+
+threads = load("bench_threads")
+
+
+def _pairs(ns: list[tuple[float, float]], same: bool = True) -> list[dict]:
+    return [{"ns_1": a, "ns_2": b, "ratio": a / b, "same_result": same} for a, b in ns]
+
+
+def test_thread_pairs_verdict_is_the_median_pair_ratio():
+    """``validation/bench_threads.py``: three made-up pairs, ratios 2.0, 1.75 and 1.9 (median
+    1.9: met, 2 of 3 at 1.8x); the fastest runs 44 and 23 ns; one thread's median 46 over
+    two's median 44 / 1.9 = 23.16 ns."""
+    s = threads.summarize(_pairs([(46.0, 23.0), (49.0, 28.0), (44.0, 44.0 / 1.9)]))
+    assert abs(s["median_ratio"] - 1.9) < 1e-12 and s["at_target"] == 2
+    assert abs(s["ratio_of_fastest"] - 44.0 / 23.0) < 1e-12
+    assert abs(s["ratio_of_medians"] - 46.0 / (44.0 / 1.9)) < 1e-12
+    m = {"cpu_model": "CPU", "cores": 2}
+    line = threads.report("ref", s, m)
+    assert "median of 3 pair ratios 1.90x" in line and ": met;" in line
+    assert "agree exactly" in line
+
+
+def test_thread_pairs_below_target_or_differing_are_said():
+    """A median pair ratio of 1.75 is NOT met; a pair whose two runs differ is named."""
+    s = threads.summarize(_pairs([(35.0, 20.0), (36.0, 20.0)], same=False) +
+                          _pairs([(34.0, 20.0)]))
+    line = threads.report("1e6", s, {"cpu_model": "CPU", "cores": 2})
+    assert "1.75x" in line and "NOT met" in line and "DIFFER" in line
