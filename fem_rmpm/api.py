@@ -31,7 +31,7 @@ import numpy as np
 from tqdm import tqdm
 
 from . import kernels, strength_reduction
-from .kernels.advance import pair_worker
+from .kernels.advance import pair_driver_fits, pair_worker
 from .budget import check_budget, explicit_numba
 from .explicit import auto_threads, run_explicit, threads_from_auto
 from .materials import invalid_points
@@ -232,7 +232,7 @@ def _always_compiled(threads: int, fbar: bool) -> tuple:
     (:func:`.explicit._advance`), F-bar and more threads the driver with a region per stage."""
     if threads <= 1:
         return _ALWAYS_COMPILED
-    return _ALWAYS_COMPILED_PAIR if threads == 2 and not fbar else _ALWAYS_COMPILED_THREADED
+    return _ALWAYS_COMPILED_PAIR if pair_driver_fits(threads, fbar) else _ALWAYS_COMPILED_THREADED
 
 
 def kernels_cold(threads: int = 1, fbar: bool = False) -> bool:

@@ -47,7 +47,8 @@ from numba.np.ufunc import parallel as numba_parallel
 from . import kernels as K
 from .grid import Grid
 from .kernels import Workspace
-from .kernels.advance import RECORD_EVERY, STALL, RunControl, record_limit, step_drivers
+from .kernels.advance import (RECORD_EVERY, STALL, RunControl, pair_driver_fits, record_limit,
+                              step_drivers)
 from .locking import bbar_gradient, fbar_increment, host_cells
 from .machine import slow_threads_warning, threading_layer
 from .machine import usable_cores as _cores
@@ -440,7 +441,7 @@ def _advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, t
     count[0], count[2] = clock0[1], 0
     serial, parallel, pair = step_drivers(o.model)
     if threads > 1:
-        both = threads == 2 and not sv.fbar and numba.get_num_threads() >= 2
+        both = pair_driver_fits(threads, bool(sv.fbar)) and numba.get_num_threads() >= 2
         call(pair if both else parallel, P, M, N, K.top_of(N), N.half, S, o, ctl, clock,
              count, work.energy)
         if count[1] == STALL:

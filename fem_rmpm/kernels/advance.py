@@ -65,7 +65,7 @@ from .transfer import (_grid_stats, _map_half, _move_half, map_to_nodes, map_to_
                        solve_and_move_parallel)
 
 __all__ = ["RunControl", "step_drivers", "record_limit", "RECORD_EVERY", "RECORD_BUFFER",
-           "EVENTS", "STALL", "pair_worker"]
+           "EVENTS", "STALL", "pair_worker", "pair_driver_fits"]
 
 #: The step numbers at which the loop records the kinetic energy and reports progress.
 RECORD_EVERY = 20
@@ -239,6 +239,13 @@ def _make_drivers(version, only):
         for w in prange(2):
             pair_worker(version, only, P, M, T, H, S, o, c, clock, count, energy, np.int64(w))
     return advance, advance_parallel, advance_pair
+
+
+def pair_driver_fits(threads: int, fbar: bool) -> bool:
+    """Whether a run on ``threads`` threads (with F-bar or not) steps with ``advance_pair``
+    (module docstring: exactly two threads, no F-bar), given a numba pool of two threads;
+    else with ``advance_parallel`` (``threads`` > 1) or ``advance`` (one)."""
+    return threads == 2 and not fbar
 
 
 _BY_VERSION: dict = {}
