@@ -110,11 +110,24 @@ def whole_run(threads: int, changes=()) -> dict:
                                                         "retrogression_distance")}}
 
 
+def fill_cache(threads=(1, 2)) -> None:
+    """Fill numba's cache with a short run on each thread count of ``threads`` (the serial
+    and the threaded drivers are cached apart), so no timed run compiles."""
+    for th in threads:
+        whole_run(th, ["solver.t_end=0.02"])
+
+
+def scaling_changes(name: str) -> list[str]:
+    """The ``--set`` changes of case (i) at the size ``name`` of :data:`SCALING`."""
+    cell, t_end = SCALING[name]
+    return [f"grid.cell=[{cell!r}, {cell!r}]", f"solver.t_end={t_end}"]
+
+
 def whole_runs(quick: bool) -> dict:
     """Case (i) on 1 (and, full, 2) threads; full: the 1e4 / 1e5 / 1e6 scaling runs."""
-    for th in (1,) if quick else (1, 2):      # fill numba's cache (serial / parallel kernels)
-        whole_run(th, ["solver.t_end=0.02"])
-    out = {"case_i": [whole_run(th) for th in ((1,) if quick else (1, 2))]}
+    threads = (1,) if quick else (1, 2)
+    fill_cache(threads)
+    out = {"case_i": [whole_run(th) for th in threads]}
     for r in out["case_i"]:
         print(f"WHOLE RUN case (i) {r['points']} points x {r['steps']} steps, {r['threads']} "
               f"thread(s) (used {r['threads_used']}): {r['mpups']:.2f} MPUPS, "
@@ -133,8 +146,8 @@ def scaling_runs(two_threads: bool) -> dict:
     at 1e5, 0.25 s at 1e6), one thread (and two at 1e6): whole-run wall and CPU ns per
     point-step and their spread."""
     out: dict = {"scaling": {}}
-    for name, (cell, t_end) in SCALING.items():
-        ch = [f"grid.cell=[{cell!r}, {cell!r}]", f"solver.t_end={t_end}"]
+    for name, (_, t_end) in SCALING.items():
+        ch = scaling_changes(name)
         ths = (1, 2) if (name == "1e6" and two_threads) else (1,)
         out["scaling"][name] = [whole_run(th, ch) for th in ths]
         for r in out["scaling"][name]:
@@ -422,7 +435,7 @@ def main(argv=None):
                     help="only the 1e4 / 1e5 / 1e6 whole-run scaling, one thread (~3 CPU-min)")
     args = ap.parse_args(argv)
     if args.scaling_only:
-        whole_run(1, ["solver.t_end=0.02"])       # fill numba's cache
+        fill_cache((1,))
         res = {"machine": machine(), **scaling_runs(two_threads=False)}
         res["machine"]["load_avg_end"] = os.getloadavg()
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)

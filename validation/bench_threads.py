@@ -32,12 +32,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "validation"))
 
-from bench_explicit import SCALING, machine, whole_run  # noqa: E402
+from bench_explicit import fill_cache, machine, scaling_changes, whole_run  # noqa: E402
 
 OUT = ROOT / "validation" / "out"
 TARGET = 1.8                      # issue 13, point 2: two threads >= 1.8x one
-SIZES = {"ref": [], "1e6": [f"grid.cell=[{SCALING['1e6'][0]!r}, {SCALING['1e6'][0]!r}]",
-                            f"solver.t_end={SCALING['1e6'][1]}"]}
+SIZES = {"ref": [], "1e6": scaling_changes("1e6")}
 
 
 def pair(k: int, changes: list[str]) -> dict:
@@ -91,8 +90,7 @@ def main(argv=None) -> dict:
     if args.pairs < 1:
         ap.error("--pairs must be at least 1")
     changes = SIZES[args.size]
-    for th in (1, 2):                        # fill numba's cache (serial / threaded drivers)
-        whole_run(th, ["solver.t_end=0.02"])
+    fill_cache()
     m = machine()
     print(f"machine: {m['cpu_model']}, {m['cores']} cores, load average "
           f"{' '.join(f'{v:.2f}' for v in m['load_avg_start'])} at start", flush=True)
