@@ -36,7 +36,8 @@ def test_cold_cache_detected_for_the_threaded_kernels_too(tmp_path):
 def test_notice_asks_about_the_run_s_threads(meshes, monkeypatch):
     """The notice checks the kernels of the thread count the run will use."""
     asked = []
-    monkeypatch.setattr(api, "kernels_cold", lambda threads=1, fbar=False: asked.append(threads) or True)
+    monkeypatch.setattr(api, "kernels_cold",
+                        lambda threads=1, fbar=False: asked.append(threads) or True)
     scene = api.load_scene(meshes / "column.toml")
     one = api.compile_notice(api.with_value(scene, "solver.threads", 1))
     two = api.compile_notice(api.with_value(scene, "solver.threads", 2))
