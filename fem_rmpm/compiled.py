@@ -82,7 +82,8 @@ def assume_columns(typingctx, a, k):
     so ``a[i, j]`` indexes ``k i + j`` without loading the shape and multiplying by it.
     ``llvm.assume``: a false promise is undefined behaviour (a run with the block scratch's
     width promised wrong took another path, measured), so only shapes the callers check or
-    make are promised (:data:`fem_rmpm.kernels.arrays.FIXED_COLUMNS`); a strided view promises nothing."""
+    make are promised (:data:`fem_rmpm.kernels.arrays.FIXED_COLUMNS`); a strided view
+    promises nothing."""
     if not (isinstance(a, types.Array) and a.ndim == 2 and isinstance(k, types.IntegerLiteral)):
         return None
     sig = types.none(a, k)

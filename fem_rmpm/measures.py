@@ -79,7 +79,8 @@ __all__ = ["compute_measures", "surface_profile", "deposit_points", "excluded_su
 #: Units of the scalar measures (and of the other ``results.csv`` columns).
 UNITS = {"failed": "0/1", "sliding_area": "m2 per m", "runout_distance": "m",
          "retrogression_distance": "m", "max_displacement": "m", "time_to_rest": "s",
-         "slip_surface_height": "m", "intact_blocks": "count", "intact_block_area": "m2", "sliding_area_early": "m2 per m",
+         "slip_surface_height": "m", "intact_blocks": "count", "intact_block_area": "m2",
+         "sliding_area_early": "m2 per m",
          "mechanism_time": "s", "failure_displacement": "m",
          "excluded_frozen_points": "count", "excluded_frozen_volume": "m2 per m (initial)",
          "excluded_stray_points": "count", "excluded_stray_volume": "m2 per m (initial)",

@@ -181,7 +181,8 @@ def write_points_vtu(path: str | Path, points, point_data: dict, check=None,
             raise ValueError(f"point data {name!r} has {len(a)} rows, not {n}")
     sections, offset = {}, 0
     for section, name, a in entries:
-        nc = f' NumberOfComponents="{a.components}"' if a.components > 1 or section == "Points" else ""
+        nc = (f' NumberOfComponents="{a.components}"'
+              if a.components > 1 or section == "Points" else "")
         sections.setdefault(section, []).append(
             f'<DataArray type="{_VTU_TYPES[a.dtype.newbyteorder("=")]}" Name="{name}"{nc} '
             f'format="appended" offset="{offset}"/>')

@@ -51,9 +51,10 @@ Staggered update (both schemes): within a step the return mapping of a non-local
 is perfectly plastic at the strength ``c(gamma*)`` of the step's start (so an implicit
 step is a well-posed perfectly plastic problem: Newton needs no softening tangent);
 :func:`average_softening`, called once after each explicit step and each converged
-implicit step, then adds the step's increment ``d gamma*`` to ``gamma*``.  The softening lags one step (explicit steps are ~1e-3 s).  State columns of the von Mises model: ``[plastic_shear_strain
-(local, for outputs), softening_variable (gamma*), plastic_shear_strain_averaged (the
-local value at the last averaging)]``.
+implicit step, then adds the step's increment ``d gamma*`` to ``gamma*``.  The softening
+lags one step (explicit steps are ~1e-3 s).  State columns of the von Mises model:
+``[plastic_shear_strain (local, for outputs), softening_variable (gamma*),
+plastic_shear_strain_averaged (the local value at the last averaging)]``.
 
 Neighbour search: the points are sorted into the cells of the structured background
 grid (counting sort, O(n)); a point looks only at the cells within ``2 l`` and only
@@ -399,9 +400,10 @@ def nonlocal_average(x, volume, active, state, sel, length, full, factor, origin
 def prepare_softening(scene, grid, soil, soil_id: np.ndarray):
     """Check the regularisation keys against the grid and resolve the displacement-scaled
     softening (``softening_strain = softening_displacement / h``, h the cell size in m).
-    ``soil_id`` (n,): the ``[[soil]]`` index of each point.  Returns the (possibly new) :class:`MaterialPoints`; raises ``SceneError`` naming the
-    ``[[soil]]`` key for an internal length below one cell or a displacement-scaled
-    softening modulus not below the shear modulus."""
+    ``soil_id`` (n,): the ``[[soil]]`` index of each point.  Returns the (possibly new)
+    :class:`MaterialPoints`; raises ``SceneError`` naming the ``[[soil]]`` key for an
+    internal length below one cell or a displacement-scaled softening modulus not below
+    the shear modulus."""
     h_max = float(np.max(grid.cell))
     h = math.sqrt(float(grid.cell[0]) * float(grid.cell[1]))
     params = None

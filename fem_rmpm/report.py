@@ -110,7 +110,8 @@ def _num(x: Any, digits: int = 3) -> str:
         return _esc(v)
     if v != 0 and (abs(v) >= 1e5 or abs(v) < 1e-3):
         return f"{v:.{digits}g}"
-    return f"{v:.{digits}g}" if abs(v) < 1 else f"{v:.{max(digits - 1, 1)}f}".rstrip("0").rstrip(".")
+    return (f"{v:.{digits}g}" if abs(v) < 1
+            else f"{v:.{max(digits - 1, 1)}f}".rstrip("0").rstrip("."))
 
 
 def _png_data_uri(path: Path) -> str:
@@ -145,11 +146,13 @@ def _provenance(summary: dict, campaign: dict, records: list[dict]) -> str:
         ("realizations", _esc(", ".join(f"{c.get('label', c.get('name'))}: {c.get('ok', 0)} ok"
                                          f" of {c.get('requested', c.get('realizations', '?'))}"
                                          for c in summary.get("cases", [])))),
-        ("failure criterion", f"a point moved more than {_num(summary.get('failure_displacement'))} m"),
+        ("failure criterion", "a point moved more than "
+                              f"{_num(summary.get('failure_displacement'))} m"),
         ("cost (all records)", f"{_num(cpu)} s CPU = {_num((cpu or 0) / 3600, 3)} core-hours; "
                                f"{_num(wall)} s wall summed over realizations"),
         ("last command", f"computed {_esc(this_run.get('computed', '?'))} realization(s) on "
-                         f"{_esc(this_run.get('workers', '?'))} in {_num(this_run.get('wall_time'))} s"),
+                         f"{_esc(this_run.get('workers', '?'))} in "
+                         f"{_num(this_run.get('wall_time'))} s"),
     ]
     if this_run.get("machine"):
         rows.append(("machine of the last command", _machine_text(this_run["machine"])))
@@ -261,7 +264,8 @@ def _subset(summary: dict) -> str:
     rows = [("failure", _esc(sub.get("failure", sub.get("response")))),
             ("P(failure)", f"{_num(sub.get('probability'), 4)} (coefficient of variation "
                            f"{_num(sub.get('cov'))}, Au & Beck 2001, chain correlation included)"),
-            ("p0, samples per level", f"{_num(sub.get('p0'))}, {_num(sub.get('samples_per_level'))}"),
+            ("p0, samples per level", f"{_num(sub.get('p0'))}, "
+                                      f"{_num(sub.get('samples_per_level'))}"),
             ("runs", f"{_num(sub.get('total_runs'))} (crude Monte Carlo for the same "
                      f"coefficient of variation: {_num(sub.get('crude_equivalent_runs'))}); "
                      f"{_num(sub.get('failed_runs'))} failed numerically")]

@@ -22,7 +22,8 @@ from .scene_values import _fail
 __all__ = [
     "SceneError", "Scene", "SceneInfo", "GridSpec", "BoundarySpec", "SoilSpec",
     "BedrockSpec", "PrescribedSpec", "RandomFieldSpec", "PropertyFieldSpec", "SolverSpec",
-    "MonteCarloSpec", "OutputSpec", "load_scene", "scene_from_dict", "with_value", "with_values", "scene_to_dict",
+    "MonteCarloSpec", "OutputSpec", "load_scene", "scene_from_dict", "with_value", "with_values",
+    "scene_to_dict",
     "check_seed", "polygon_problem",
 ]
 

@@ -16,7 +16,8 @@ from typing import Any
 
 __all__ = [
     "SceneError", "Scene", "SceneInfo", "GridSpec", "BoundarySpec", "SoilSpec",
-    "BedrockSpec", "PrescribedSpec", "RandomFieldSpec", "PropertyFieldSpec", "SolverSpec", "MonteCarloSpec", "OutputSpec",
+    "BedrockSpec", "PrescribedSpec", "RandomFieldSpec", "PropertyFieldSpec", "SolverSpec",
+    "MonteCarloSpec", "OutputSpec",
     "BOUNDARY_KINDS", "SCHEMES", "SHAPES", "EDGE_POLICIES", "DISTRIBUTIONS", "CORRELATIONS",
 ]
 
@@ -77,8 +78,8 @@ class SoilSpec:
     cohesion_peak: float = math.inf     # kPa (undrained shear strength, sqrt(J2) at yield)
     cohesion_residual: float = math.inf  # kPa
     softening: str = "linear"
-    softening_strain: float = 0.5       # plastic shear strain (-) at which c reaches residual (linear)
-    #                                     or the e-folding strain (exponential)
+    softening_strain: float = 0.5       # plastic shear strain (-) at which c reaches residual
+    #                                     (linear) or the e-folding strain (exponential)
     parameters: tuple = ()              # ((name, value), ...) of other models' parameters
 
     def value(self, name: str, default: Any = None) -> Any:
@@ -195,14 +196,16 @@ class SolverSpec:
     rest_velocity: float = 1e-3          # m/s; at rest when max particle speed below this ...
     rest_energy_ratio: float = 1e-6      # ... and kinetic energy below this fraction of its peak
     output_interval: float = 0.5         # s between particle snapshots
-    flip: float = 1.0                    # FLIP fraction of the particle velocity update (1 = FLIP, 0 = PIC)
+    flip: float = 1.0                    # FLIP fraction of the particle velocity update (1 = FLIP,
+    #                                      0 = PIC)
     kernel: str = "numba"                # explicit step: "numba" (compiled) | "numpy" (reference)
     threads: int = 0                     # explicit numba step: threads (0: auto = the idle cores,
     #                                      1 in a campaign; any count: bitwise the same run)
     edge_policy: str = "freeze"          # what happens to points reaching the grid edge
     # implicit
     load_steps: int = 1                  # quasi-static: number of load steps
-    dynamic: bool = False                # implicit: Newmark trapezoidal dynamics (else quasi-static)
+    dynamic: bool = False                # implicit: Newmark trapezoidal dynamics
+    #                                      (else quasi-static)
     dt: float = 0.05                     # implicit dynamic time step (s)
     max_iterations: int = 15
     tolerance: float = 1e-9              # relative residual
@@ -215,7 +218,8 @@ class SolverSpec:
     dt_max: float = 0.1                  # implicit dynamic: largest adaptive time step (s)
     max_displacement_fraction: float = 0.5   # implicit dynamic: point displacement per step (cells)
     hht_alpha: float = 0.0               # implicit dynamic: HHT-alpha numerical damping, 0 .. 1/3
-    min_mass_fraction: float = 1e-2      # implicit dynamic: nodal mass floor (fraction of rho A_cell)
+    min_mass_fraction: float = 1e-2      # implicit dynamic: nodal mass floor
+    #                                      (fraction of rho A_cell)
 
 
 @dataclass(frozen=True)

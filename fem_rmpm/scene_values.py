@@ -129,7 +129,8 @@ def _coerce(source: str, key: str, value: Any, default: Any, annotation: str,
             raise _fail(source, key, f"expected a list of strings, got {value!r}")
         return tuple(value)
     if ann == "tuple[float,float]":
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and lookup == "grid.cell":
+        if (isinstance(value, (int, float)) and not isinstance(value, bool)
+                and lookup == "grid.cell"):
             value = [value, value]
         if (not isinstance(value, list) or len(value) != 2
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):

@@ -21,11 +21,12 @@ Newton does not converge within ``max_iterations`` iterations in some load step 
 trial (``continuation = True``, the default) starts from the converged state of the
 largest converged ``F`` at full gravity and reduces the strengths further to the trial
 ``F`` in Newton solves (:func:`_continue`); it fails when a solve does not converge
-within ``max_iterations`` even after ``continuation_cuts`` (2) halvings of the change.  Either failure is accompanied by the jump of the maximum point
-displacement, which grows without bound as ``F`` approaches ``FS`` from below (the plot
-``fs_displacement.png`` shows it, the ratio of the last converged maximum displacement to
-that of the smallest trial ``F`` is ``displacement_jump`` in ``fs.json``).  ``FS`` lies in
-the bracket ``[F_lo, F_hi]`` of the largest converged and the smallest failed trial.
+within ``max_iterations`` even after ``continuation_cuts`` (2) halvings of the change.
+Either failure is accompanied by the jump of the maximum point displacement, which grows
+without bound as ``F`` approaches ``FS`` from below (the plot ``fs_displacement.png``
+shows it, the ratio of the last converged maximum displacement to that of the smallest
+trial ``F`` is ``displacement_jump`` in ``fs.json``).  ``FS`` lies in the bracket
+``[F_lo, F_hi]`` of the largest converged and the smallest failed trial.
 
 **Search.**  From ``F = 1`` upwards ``F`` grows by ``march`` (1.25), the step in ``ln F``
 doubling after each converged trial, until a trial fails or ``f_max`` (10) converges
@@ -131,7 +132,8 @@ class Trial:
     cuts: int
     wall_time: float              # s
     reason: str = ""              # why Newton failed ("" when converged)
-    start: float = 0.0            # F of the converged state it continued from (0: gravity from zero)
+    start: float = 0.0            # F of the converged state it continued from (0: gravity
+    #                               from zero)
     reached: float = 0.0          # continuation: F of its last converged solve (= F if converged)
 
 
@@ -378,9 +380,9 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
     """Factor of safety of ``scene`` (realization ``seed`` of its random field, if any).
 
     ``grid``/``pts``: the prepared realization ``seed`` (``api.prepare(scene, seed)``;
-    :func:`fem_rmpm.api.factor_of_safety` does both).  ``progress(trial)`` is called after each static solve.  Raises
-    :class:`SceneError` when no soil has a strength and :class:`NonPhysicalFailure` when
-    Newton fails for a reason other than collapse.
+    :func:`fem_rmpm.api.factor_of_safety` does both).  ``progress(trial)`` is called after
+    each static solve.  Raises :class:`SceneError` when no soil has a strength and
+    :class:`NonPhysicalFailure` when Newton fails for a reason other than collapse.
     """
     o = options or FSOptions()
     wall0 = time.perf_counter()

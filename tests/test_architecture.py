@@ -8,7 +8,7 @@
   and a new model is written against the protocol, not the kernels' internals.
 * No module has more than 600 lines; no function more than 80 lines unless a comment
   ``# long function: <why>`` on its ``def`` line, the line above it or the first line of
-  its body says why.
+  its body says why.  No line is longer than 100 characters.
 * Imports sit at the top of a module.  An import inside a function is allowed only with
   a comment saying why it is lazy (on its line or the line above it, containing
   ``lazy``): an optional or heavy third-party module (matplotlib only for figures,
@@ -27,6 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "fem_rmpm"
 MAX_MODULE_LINES = 600
 MAX_FUNCTION_LINES = 80
+MAX_LINE_COLUMNS = 100
 MARK = "long function:"
 #: Modules and functions over the limit that their owners are still splitting (listed in
 #: the issue 11 closing note); anything else over the limit fails the test.
@@ -234,6 +235,13 @@ def test_no_function_over_80_lines_without_a_reason():
     long = {k: n for k, n in long_functions().items() if k not in KNOWN_LONG}
     assert not long, (f"functions over {MAX_FUNCTION_LINES} lines without a "
                       f"'# {MARK} <why>' comment: {long}")
+
+
+def test_no_line_over_100_columns():
+    long = [f"{p.relative_to(ROOT)}:{i} ({len(line)})" for p in _modules().values()
+            for i, line in enumerate(p.read_text(encoding="utf-8").split("\n"), 1)
+            if len(line) > MAX_LINE_COLUMNS]
+    assert not long, f"lines over {MAX_LINE_COLUMNS} characters:\n" + "\n".join(long)
 
 
 def _readme_map() -> dict[str, str]:

@@ -51,8 +51,9 @@ What a campaign is
   overwritten.  A key that fem_rmpm gained after the campaign started is no
   difference while it holds its default.  The identity is the scene, not the code:
   a campaign resumed after upgrading fem_rmpm mixes versions (each record names
-  its ``fem_rmpm`` version); use ``--force`` or a new directory to recompute.  A lock file stops two commands from working on one directory at
-  the same time (released by the kernel even if the client is killed).
+  its ``fem_rmpm`` version); use ``--force`` or a new directory to recompute.  A lock
+  file stops two commands from working on one directory at the same time (released by
+  the kernel even if the client is killed).
 * **Failures.** A realization that fails (:class:`fem_rmpm.run.SimulationError`:
   unstable, a random-field value the material cannot take, ...; or any other
   exception in the realization) is recorded with ``status = failed`` and its

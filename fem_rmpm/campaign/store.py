@@ -1,4 +1,5 @@
-"""The campaign directory: identity (``campaign.json``), layout, lock, records and ``results.csv``."""
+"""The campaign directory: identity (``campaign.json``), layout, lock, records and
+``results.csv``."""
 from __future__ import annotations
 
 import csv

@@ -85,9 +85,9 @@ elasticity) and a sparse-LU coarse solve; the hierarchy is built once per step
 and reused by its Newton iterations; GMRES takes over if CG fails (softening
 makes the tangent indefinite).  Measured (``validation/bench_implicit.py``, one
 BLAS thread): at 9235 DOFs (case (i)) a CHOLMOD factorization costs about 3 ms CPU
-against 15-20 ms for SuperLU; pyamg is ~2x faster than SuperLU at 10^5 DOFs.  The inner tolerance follows the
-residual (inexact Newton with forcing term ``min(1e-3, max(1e-12, 0.1 r_k))``),
-which keeps the outer convergence quadratic.
+against 15-20 ms for SuperLU; pyamg is ~2x faster than SuperLU at 10^5 DOFs.  The inner
+tolerance follows the residual (inexact Newton with forcing term
+``min(1e-3, max(1e-12, 0.1 r_k))``), which keeps the outer convergence quadratic.
 
 **Volumetric locking** (``[solver] fbar = true``): F-bar with cell averaging
 (:mod:`fem_rmpm.locking`, de Souza Neto et al. 1996): the material sees

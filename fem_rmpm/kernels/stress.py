@@ -43,7 +43,8 @@ from ..compiled import assume_columns, inline, jit, kernel, kernel_parallel
 from ..materials.dispatch import block_dispatch, has_block_update, point_dispatch
 from ..materials.protocol import BLOCK_COLUMNS
 from .arrays import W_COLUMNS, top_of
-from .common import BLOCK, QUEUE_FLAG, QUEUE_STRIDE, fixed_columns, half_split, read_flag, take_ticket
+from .common import (BLOCK, QUEUE_FLAG, QUEUE_STRIDE, fixed_columns, half_split, read_flag,
+                     take_ticket)
 from .hencky import exp_block, log_block
 from .transfer import nodal_velocities, nodal_velocities_parallel, nodal_velocity_half
 from .transfer import _top as top

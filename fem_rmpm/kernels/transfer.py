@@ -25,8 +25,8 @@ spin barrier for each join (:mod:`.advance`), and no serial merge of the nodal l
 one thread the halves run one after the other with the same arithmetic, so 1 and 2
 threads give bitwise the same run (``tests/test_threads.py``).  Against the single
 point-order sum of ``np.bincount`` (the numpy path) this only regroups the sums at nodes
-both halves touch (round-off, ~1e-16 relative per step).  The grid kinetic energy is summed over the first
-half's nodes, then the second half's that the first did not touch.
+both halves touch (round-off, ~1e-16 relative per step).  The grid kinetic energy is
+summed over the first half's nodes, then the second half's that the first did not touch.
 
 **Pairs.**  A point's or a node's x and y components (velocity, momentum, force,
 acceleration) are read, combined and written as one 2-wide vector (:mod:`.pairs`:

@@ -105,10 +105,10 @@ def check(values: dict):
                                  "friction_angle_peak > 0 (no strength at all)")
     h = (values["cohesion_peak"] - values["cohesion_residual"]) / values["softening_strain"]
     if values["softening"] == "linear" and h >= values["shear_modulus"]:
+        allowed = (values["cohesion_peak"] - values["cohesion_residual"]) / values["shear_modulus"]
         return "softening_strain", (f"cohesion softening modulus {h:g} kPa >= shear modulus "
                                     f"{values['shear_modulus']:g} kPa makes the local return "
-                                    "mapping snap back; allowed: softening_strain > "
-                                    f"{(values['cohesion_peak'] - values['cohesion_residual']) / values['shear_modulus']:g}")
+                                    f"mapping snap back; allowed: softening_strain > {allowed:g}")
     return None
 
 
@@ -404,8 +404,8 @@ def _plane_vec(code, sa, z):
         return (z + (1.0 if i == 0 else 0.0), z + (1.0 if i == 1 else 0.0),
                 z + (1.0 if i == 2 else 0.0))
     a, b = 1.0 + sa, -(1.0 - sa)
-    return ((a if i == 0 else z) + (b if j == 0 else z), (a if i == 1 else z) + (b if j == 1 else z),
-            (a if i == 2 else z) + (b if j == 2 else z))
+    return ((a if i == 0 else z) + (b if j == 0 else z), (a if i == 1 else z)
+            + (b if j == 1 else z), (a if i == 2 else z) + (b if j == 2 else z))
 
 
 @_compiled

@@ -31,13 +31,13 @@ because the reference slope's grid frame is aligned with the bedrock):
 bounding box of the soil cells the field applies to; ``cell_size`` gives square
 cells of another size; ``box = [x0, y0, x1, y1]`` with ``cell_size`` fixes the field's
 rectangle, so that realization i has the same field on every grid -- without it the
-bounding box, hence the embedding and the whole field of a seed, moves with the grid cell).  With ``local_averaging = true`` (default, as in LAS-based
-RFEM) the cell value is the *local average* of the point field over the cell, so
-its variance is the variance function ``gamma(T1, T2) < 1`` and its covariance is
-the covariance of local averages; otherwise it is the point value at the cell
-centre.  Each material point takes the value of the field cell it starts in
-(``pts.cell0``; with a ``cell_size`` other than the grid cell, the field cell
-holding its initial position ``x0``).
+bounding box, hence the embedding and the whole field of a seed, moves with the grid
+cell).  With ``local_averaging = true`` (default, as in LAS-based RFEM) the cell value
+is the *local average* of the point field over the cell, so its variance is the variance
+function ``gamma(T1, T2) < 1`` and its covariance is the covariance of local averages;
+otherwise it is the point value at the cell centre.  Each material point takes the value
+of the field cell it starts in (``pts.cell0``; with a ``cell_size`` other than the grid
+cell, the field cell holding its initial position ``x0``).
 
 Marginal transform (per point, ``mu`` = the point's soil ``cohesion_peak``, ``v`` = cov):
 ``normal``: ``c = mu (1 + v Z)``; ``lognormal``: ``c = exp(m_ln + s_ln Z)``,

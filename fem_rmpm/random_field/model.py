@@ -150,6 +150,7 @@ def property_to_gaussian(v, mean, spec) -> np.ndarray:
         a, b = beta_shape(mean, spec.cov, spec.low, spec.high)
         x = (v - spec.low) / (spec.high - spec.low)
         lower = special.betainc(a, b, x)
-        return np.where(lower <= 0.5, special.ndtri(lower), -special.ndtri(special.betaincc(a, b, x)))
+        return np.where(lower <= 0.5, special.ndtri(lower),
+                        -special.ndtri(special.betaincc(a, b, x)))
     s2 = math.log1p(spec.cov ** 2)
     return (np.log(v) - (np.log(mean) - 0.5 * s2)) / math.sqrt(s2)
