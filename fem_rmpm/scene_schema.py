@@ -32,8 +32,8 @@ __all__ = ["load_scene", "scene_from_dict", "scene_to_dict", "check_seed", "poly
 # --------------------------------------------------------------------------- validation
 
 _SECTIONS = {"scene": SceneInfo, "grid": GridSpec, "boundary": BoundarySpec, "soil": SoilSpec,
-             "bedrock": BedrockSpec, "prescribed": PrescribedSpec, "random_field": RandomFieldSpec,
-             "solver": SolverSpec,
+             "bedrock": BedrockSpec, "prescribed": PrescribedSpec,
+             "random_field": RandomFieldSpec, "solver": SolverSpec,
              "montecarlo": MonteCarloSpec, "output": OutputSpec}
 
 _LISTS = ("soil", "bedrock", "prescribed")     # sections that are arrays of tables
@@ -91,10 +91,8 @@ def polygon_problem(poly) -> str | None:
     q = np.roll(p, -1, axis=0)
     short = np.linalg.norm(q - p, axis=1) <= 1e-12 * scale
     if short.any():
-        i = int(np.argmax(short))
-        return f"point {(i + 1) % len(p) + 1} ({p[(i + 1) % len(p)][0]:g}, " \
-               f"{p[(i + 1) % len(p)][1]:g}) " \
-               "repeats the point before it"
+        k = (int(np.argmax(short)) + 1) % len(p)       # the repeated point (0-based)
+        return f"point {k + 1} ({p[k][0]:g}, {p[k][1]:g}) repeats the point before it"
     a, b = p[:, None, :], q[:, None, :]            # edge i: a -> b;  edge j: c -> d
     c, d = p[None, :, :], q[None, :, :]
 
