@@ -30,23 +30,23 @@ import meshio
 import numpy as np
 from tqdm import tqdm
 
-from . import kernels, strength_reduction
-from .kernels.advance import pair_driver_fits, pair_worker
-from .budget import check_budget, explicit_numba
-from .explicit import auto_threads, run_explicit, threads_from_auto
-from .materials import invalid_points
-from .run import RunRecord, SimulationError
-from .fem import FemResult, solve_static
-from .grid import Grid, make_grid
-from .machine import describe as describe_machine
-from .implicit import run_implicit
-from .measures import compute_measures, excluded_summary
-from .output import PvdSeries, write_grid, write_json
-from .particles import Particles, seed_particles, soil_cells
-from .plots import plot_profile, plot_snapshots
-from .random_field import apply_to_points, field_noise, noise_shape, sample_point_properties
-from .rundir import RunDirError, check_run_dir, run_files, start_run_dir
-from .scene import Scene, SceneError, check_seed, load_scene, scene_to_dict, with_value
+from fem_rmpm.discretise.grid import Grid, make_grid
+from fem_rmpm.discretise.points import Particles, seed_particles, soil_cells
+from fem_rmpm.io.output import PvdSeries, write_grid, write_json
+from fem_rmpm.io.plots import plot_profile, plot_snapshots
+from fem_rmpm.io.rundir import RunDirError, check_run_dir, run_files, start_run_dir
+from fem_rmpm.materials import invalid_points
+from fem_rmpm.measures.deposit import compute_measures, excluded_summary
+from fem_rmpm.random_field import apply_to_points, field_noise, noise_shape, sample_point_properties
+from fem_rmpm.runtime.budget import check_budget, explicit_numba
+from fem_rmpm.runtime.machine import describe as describe_machine
+from fem_rmpm.scene import Scene, SceneError, check_seed, load_scene, scene_to_dict, with_value
+from fem_rmpm.schemes.common import RunRecord, SimulationError
+from fem_rmpm.schemes.explicit import kernels
+from fem_rmpm.schemes.explicit.kernels.advance import pair_driver_fits, pair_worker
+from fem_rmpm.schemes.explicit.loop import auto_threads, run_explicit, threads_from_auto
+from fem_rmpm.schemes.fem import FemResult, solve_static
+from fem_rmpm.schemes.implicit import run_implicit, strength_reduction
 
 __all__ = ["load_scene", "with_value", "prepare", "run", "fem", "factor_of_safety", "RunResult",
            "noise_shape", "field_noise", "with_run_threads", "SceneError", "SimulationError",
@@ -123,7 +123,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
     not counted; e.g. a campaign's runs stopped once decided, :mod:`fem_rmpm.campaign`).
 
     ``out`` must be a new or empty directory, or ``force=True`` replaces the run in it
-    (:mod:`fem_rmpm.rundir`: ``summary.json`` says ``"running"`` until the run's
+    (:mod:`fem_rmpm.io.rundir`: ``summary.json`` says ``"running"`` until the run's
     output is complete).  ``label`` names the run in figure titles (e.g. case and
     realization; default: the scene name, and the seed of a random field).  Raises
     :class:`RunDirError` or :class:`BudgetError` (bad input, nothing written) and
@@ -298,7 +298,7 @@ def _summary(scene, seed, pts, rec, measures, machine: dict, estimate) -> dict:
         "measures": measures, "excluded_points": excluded_summary(measures),
         "solver": rec.solver,
         "kinetic_energy": rec.energy[:: max(1, len(rec.energy) // 400)],
-        "machine": machine,         # (fem_rmpm.machine.describe at the run's start)
+        "machine": machine,         # (fem_rmpm.runtime.machine.describe at the run's start)
         "estimate": estimate.to_dict(),
     }
 
@@ -350,11 +350,13 @@ def fem(scene: Scene, out: str | Path | None = None) -> FemResult:
 
 def factor_of_safety(scene: Scene, seed: int | None = None, out: str | Path | None = None,
                      **options):
-    """Factor of safety by strength reduction (:mod:`fem_rmpm.strength_reduction`) of the
-    realization ``seed``; ``options`` are :class:`~fem_rmpm.strength_reduction.FSOptions`
-    fields (``tolerance=0.01``, ``softening=False``, ...).  Writes ``fs.json``,
+    """Factor of safety by strength reduction (:mod:`fem_rmpm.schemes.implicit.strength_reduction`)
+    of the realization ``seed``; ``options`` are
+    :class:`~fem_rmpm.schemes.implicit.strength_reduction.FSOptions` fields (``tolerance=0.01``,
+    ``softening=False``, ...).  Writes ``fs.json``,
     ``fs_displacement.png`` and the mechanism (``mechanism.vtu``/``.png``) to ``out`` if
-    given.  Returns an :class:`~fem_rmpm.strength_reduction.FSResult` (``.fs``, ``.text``)."""
+    given.  Returns an :class:`~fem_rmpm.schemes.implicit.strength_reduction.FSResult` (``.fs``,
+    ``.text``)."""
     grid, pts = prepare(scene, seed)
     res = strength_reduction.factor_of_safety(
         scene, seed=seed, options=strength_reduction.FSOptions(**options), grid=grid, pts=pts)

@@ -17,22 +17,39 @@ from pathlib import Path
 
 import numpy as np
 
-from . import api, materials
-from . import campaign      # its cluster and runner modules (dask, ~0.65 s) load on first use
-from .errors import InputError
-from .field_output import plot_realization, plot_variogram, write_field_vtu
-from .grid import make_grid
-from .output import OutputError, write_json
-from .particles import seed_particles
-from .random_field import (apply_to_points, embeddings_for, field_layout, fit_scales,
-                           point_fields, read_measurements)
-from .random_field.conditioning import resolve_data_path
-from .report import ReportError, write_report
-from .run import SimulationError
-from .rundir import output_dir_for
-from .scene import (RandomFieldSpec, Scene, SceneError, check_seed, load_scene, scene_to_dict,
-                    with_value, with_values)
-from .strength_reduction import fs_cli
+from fem_rmpm import (
+    api,
+    campaign,  # its cluster and runner modules (dask, ~0.65 s) load on first use
+    materials,
+)
+from fem_rmpm.campaign.report import ReportError, write_report
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
+from fem_rmpm.io.field_output import plot_realization, plot_variogram, write_field_vtu
+from fem_rmpm.io.output import OutputError, write_json
+from fem_rmpm.io.rundir import output_dir_for
+from fem_rmpm.random_field import (
+    apply_to_points,
+    embeddings_for,
+    field_layout,
+    fit_scales,
+    point_fields,
+    read_measurements,
+)
+from fem_rmpm.random_field.conditioning import resolve_data_path
+from fem_rmpm.runtime.errors import InputError
+from fem_rmpm.scene import (
+    RandomFieldSpec,
+    Scene,
+    SceneError,
+    check_seed,
+    load_scene,
+    scene_to_dict,
+    with_value,
+    with_values,
+)
+from fem_rmpm.schemes.common import SimulationError
+from fem_rmpm.schemes.implicit.strength_reduction import fs_cli
 
 __all__ = ["main", "default_scene_path", "build_parser", "parse_settings", "summary_text",
            "campaign_cases", "InputError"]

@@ -21,7 +21,7 @@ def column_text() -> str:
 @pytest.fixture(scope="session")
 def meshes_dir_fx():
     """The reference slope grid (shared, read-only)."""
-    from fem_rmpm.grid import make_grid
+    from fem_rmpm.discretise.grid import make_grid
     from fem_rmpm.scene import load_scene
     return make_grid(load_scene(MESHES / "slope_elastic.toml"))
 
@@ -40,10 +40,10 @@ def dask_client():
     workers otherwise compiled the same kernels at the same time as each other and as this
     process (the first campaign test's set-up took 138 s of a 787 s suite at load 3-4)."""
     from fem_rmpm.campaign import start_local_cluster
-    from fem_rmpm.explicit import run_explicit
-    from fem_rmpm.grid import make_grid
-    from fem_rmpm.particles import seed_particles
+    from fem_rmpm.discretise.grid import make_grid
+    from fem_rmpm.discretise.points import seed_particles
     from fem_rmpm.scene import load_scene, with_values
+    from fem_rmpm.schemes.explicit.loop import run_explicit
     scene = with_values(load_scene(ROOT / "tests" / "data" / "mc_tiny.toml"),
                         {"solver.t_end": 0.01, "solver.threads": 1})
     grid = make_grid(scene)

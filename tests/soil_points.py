@@ -13,8 +13,8 @@ import math
 import numpy as np
 
 from fem_rmpm import materials
-from fem_rmpm.implicit import finite_strain_tangent
 from fem_rmpm.materials import MaterialPoints, model_id, von_mises
+from fem_rmpm.schemes.implicit import finite_strain_tangent
 
 
 def vm_points(shear_modulus, bulk_modulus, cohesion_peak, cohesion_residual,
@@ -31,7 +31,7 @@ def vm_points(shear_modulus, bulk_modulus, cohesion_peak, cohesion_residual,
 def tangents_agree(soil: MaterialPoints, rng, eps_scale: float):
     """Random states of ``soil`` (dF = I + 0.01 N(0, 1), elastic log strain eps_scale
     N(0, 1), zero state): the implicit scheme's tangent
-    (:func:`fem_rmpm.implicit.finite_strain_tangent`) equals the independent complex step
+    (:func:`fem_rmpm.schemes.implicit.finite_strain_tangent`) equals the independent complex step
     of the whole update (:func:`fem_rmpm.materials.spatial_tangent`): tau to 1e-12 and A
     to 1e-10 relative.  Returns ``(dF, eps, state, tau)`` for the caller's branch checks."""
     n = len(soil)

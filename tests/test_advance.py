@@ -1,7 +1,7 @@
-"""The compiled step driver (:mod:`fem_rmpm.kernels.advance`) runs the explicit time loop
+"""The compiled step driver (:mod:`fem_rmpm.schemes.explicit.kernels.advance`) runs the explicit time loop
 bitwise as the Python loop steps it.
 
-The driver runs the ordinary steps of :func:`fem_rmpm.explicit.run_explicit` back to back
+The driver runs the ordinary steps of :func:`fem_rmpm.schemes.explicit.loop.run_explicit` back to back
 in one compiled call and returns at the first step the loop must see (records, outputs,
 sorts, guards, rest, the end of the geostatic phase, the end).  The reference is the same
 loop with the driver switched off (every step from Python, as before the driver existed):
@@ -16,11 +16,11 @@ import numba
 import numpy as np
 import pytest
 
-from fem_rmpm import explicit
-from fem_rmpm.explicit import run_explicit
-from fem_rmpm.grid import make_grid
-from fem_rmpm.particles import seed_particles
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
+from fem_rmpm.schemes.explicit import loop as explicit
+from fem_rmpm.schemes.explicit.loop import run_explicit
 
 FIELDS = ("x", "velocity", "stress", "log_strain", "state", "volume", "u_geostatic", "active")
 
@@ -86,7 +86,7 @@ def test_driver_is_the_python_loop_bitwise(meshes, monkeypatch, values, threads,
 
 
 def test_nonlocal_soil_steps_from_python(meshes, monkeypatch):
-    """Non-local softening needs a Python pass (:func:`~fem_rmpm.regularisation.average_softening`)
+    """Non-local softening needs a Python pass (:func:`~fem_rmpm.schemes.regularisation.average_softening`)
     after every step, so a run with a non-local soil takes every step from Python (the
     driver would skip the averaging)."""
     values = dict(FAILING, **{"soil.regularisation": "nonlocal", "soil.internal_length": 2.0,
@@ -119,9 +119,9 @@ def test_two_threads_on_a_pool_of_one_take_the_driver_that_never_waits(meshes, m
 def test_a_stalled_two_thread_step_stops_the_run_with_what_to_change(meshes, monkeypatch):
     """A driver call that returns the event ``stall`` (a thread gave up waiting at a
     barrier) stops the run with its step and time and the setting that avoids it."""
-    from fem_rmpm.kernels.advance import STALL
-    from fem_rmpm.kernels.arrays import Workspace
-    from fem_rmpm.run import SimulationError
+    from fem_rmpm.schemes.common import SimulationError
+    from fem_rmpm.schemes.explicit.kernels.advance import STALL
+    from fem_rmpm.schemes.explicit.kernels.arrays import Workspace
 
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("one core: the one-region driver needs a pool of two threads")

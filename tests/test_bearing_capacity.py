@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fem_rmpm.grid import make_grid
-from fem_rmpm.implicit import run_implicit
-from fem_rmpm.particles import seed_particles
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
+from fem_rmpm.schemes.implicit import run_implicit
 
 SCENE = Path(__file__).resolve().parents[1] / "meshes" / "bearing_capacity.toml"
 

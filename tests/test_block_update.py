@@ -16,11 +16,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fem_rmpm.compiled import jit
-from fem_rmpm.kernels.common import BLOCK
-from fem_rmpm.materials.protocol import BLOCK_COLUMNS, BLOCK_ROWS
 from fem_rmpm.materials import model_id, mohr_coulomb, von_mises
 from fem_rmpm.materials.dispatch import takes_blocks
+from fem_rmpm.materials.protocol import BLOCK_COLUMNS, BLOCK_ROWS
+from fem_rmpm.runtime.compiled import jit
+from fem_rmpm.schemes.explicit.kernels.common import BLOCK
 
 G, K, GS = 375.0, 1000.0, 0.5
 _EXP, _REG = 5, 6                        # the law's and the regularisation's columns

@@ -1,4 +1,4 @@
-"""Run size and cost estimate (fem_rmpm.budget): refuse a run too large before allocating.
+"""Run size and cost estimate (fem_rmpm.runtime.budget): refuse a run too large before allocating.
 
 References are exact counts: the seeded material points of the shipped scenes and the
 grid's node count; the CFL step from its formula dt = cfl h / sqrt(M / rho).
@@ -9,10 +9,10 @@ import math
 
 import pytest
 
-from fem_rmpm import budget
 from fem_rmpm.api import prepare
 from fem_rmpm.cli import main
-from fem_rmpm.machine import cpu_signature
+from fem_rmpm.runtime import budget
+from fem_rmpm.runtime.machine import cpu_signature
 from fem_rmpm.scene import load_scene, with_value, with_values
 
 
@@ -103,7 +103,7 @@ def test_estimate_scales_with_refinement(meshes):
 def test_cost_per_point_step_composes_basis_remedy_and_model(meshes):
     """The explicit cost per point-step is the Q4 von Mises figure times the factors of
     what the scene adds (uGIMP, F-bar, a Mohr-Coulomb soil), each measured on the same
-    machine (module docstring of fem_rmpm.budget)."""
+    machine (module docstring of fem_rmpm.runtime.budget)."""
     c = budget.NS_PER_POINT_STEP
     q4 = budget.explicit_cost(cpu_signature())[0]
     ref = load_scene(meshes / "slope_reference.toml")

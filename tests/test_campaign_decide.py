@@ -18,8 +18,7 @@ import pytest
 from fem_rmpm import api
 from fem_rmpm import campaign as mc
 from fem_rmpm.campaign import store
-from fem_rmpm.campaign.decide import (DECIDED, FailureWatch, decision_check,
-                                      in_measure_sample)
+from fem_rmpm.campaign.decide import DECIDED, FailureWatch, decision_check, in_measure_sample
 
 TINY = Path(__file__).resolve().parent / "data" / "mc_tiny.toml"
 N = 8

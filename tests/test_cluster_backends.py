@@ -16,9 +16,8 @@ import pytest
 from fem_rmpm import cli
 from fem_rmpm.campaign import backends as B
 from fem_rmpm.campaign import run_campaign
-from fem_rmpm.budget import STEPS_FACTOR, THREAD_EFFICIENCY
 from fem_rmpm.campaign.estimate import estimate_campaign, records_calibration
-from fem_rmpm.budget import estimate_run
+from fem_rmpm.runtime.budget import STEPS_FACTOR, THREAD_EFFICIENCY, estimate_run
 from fem_rmpm.scene import load_scene
 
 DATA = Path(__file__).resolve().parent / "data"
@@ -92,6 +91,7 @@ def test_local_workers_get_the_threads_the_scene_asks_for(monkeypatch):
     (Before, every local worker had ``NUMBA_NUM_THREADS=1``, so a campaign asked for two
     threads silently ran on one.)"""
     from types import SimpleNamespace
+
     from fem_rmpm.campaign import cluster
     from fem_rmpm.scene import with_values
     monkeypatch.setattr(cluster, "_usable_cpus", lambda: 4)
@@ -111,6 +111,7 @@ def test_fewer_threads_than_asked_is_one_warning_line():
     cluster keep their own ``NUMBA_NUM_THREADS``) give one warning line naming both counts;
     as many as asked, more, or records without a thread count (older campaigns): none."""
     from types import SimpleNamespace
+
     from fem_rmpm.campaign.runner import thread_shortfall
     from fem_rmpm.scene import with_values
     scene = load_scene(TINY)

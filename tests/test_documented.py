@@ -14,7 +14,7 @@ import pytest
 
 from fem_rmpm import api
 from fem_rmpm.cli import main
-from fem_rmpm.grid import make_grid
+from fem_rmpm.discretise.grid import make_grid
 from fem_rmpm.scene import load_scene, scene_from_dict, scene_to_dict, with_values
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
@@ -58,7 +58,7 @@ def test_interrupt_exits_130_and_keeps_finished_output(tmp_path, capsys, monkeyp
     A KeyboardInterrupt raised while the second snapshot is written (as Ctrl-C would) ends
     `fem-rmpm run` with 130, one line on stderr, and the first snapshot and the .pvd that
     lists it stay readable."""
-    from fem_rmpm.output import PvdSeries
+    from fem_rmpm.io.output import PvdSeries
     original = PvdSeries.add
     calls = []
 
@@ -85,7 +85,7 @@ def test_writer_refuses_nan_and_the_run_exits_3(tmp_path, capsys, monkeypatch):
     the command exits 3 naming the field.  A NaN put into one point's plastic shear strain
     (a field no run-time guard looks at) just before the second snapshot: the snapshot
     file is not written (nor left half-written), the first one is intact."""
-    from fem_rmpm.output import OutputError, PvdSeries, write_particles
+    from fem_rmpm.io.output import OutputError, PvdSeries, write_particles
     original = PvdSeries.add
     calls = []
 
@@ -262,8 +262,8 @@ def test_points_per_cell_dir_seeds_gauss_points_and_integrates_like_the_fem(n):
     sub-cells.  With n = 3 the 3 x 3 Gauss rule integrates the Q4 stiffness and the weight
     exactly, like the FEM's 2 x 2, so one implicit geostatic step is the scikit-fem
     solution (achieves 2.2e-14, asserts 1e-12)."""
-    from fem_rmpm.fem import solve_static
-    from fem_rmpm.shape import q4_at_points
+    from fem_rmpm.discretise.basis import q4_at_points
+    from fem_rmpm.schemes.fem import solve_static
     scene = _column(**{"soil.points_per_cell_dir": n})
     grid, pts = api.prepare(scene)
     g, w = np.polynomial.legendre.leggauss(n)
@@ -280,7 +280,7 @@ def test_points_per_cell_dir_seeds_gauss_points_and_integrates_like_the_fem(n):
                                np.sort([(a, b) for b in sub for a in sub], axis=0), atol=1e-14)
     np.testing.assert_allclose(gimp.volume0, 0.0625 / n ** 2, rtol=1e-14)
     if n == 3:
-        from fem_rmpm.implicit import run_implicit
+        from fem_rmpm.schemes.implicit import run_implicit
         imp = with_values(scene, {"solver.scheme": "implicit", "solver.load_steps": 1})
         grid, pts = api.prepare(imp)
         run_implicit(imp, grid, pts)
@@ -297,7 +297,7 @@ def test_half_cell_motion_guard_stops_a_finite_run():
     CFL step is 0.33 s) in free fall inside an all-free 10 m grid drops 1.05 m in its first
     step: every value stays finite, so only the motion guard can stop it (the non-finite
     guard would let it run on)."""
-    from fem_rmpm.run import SimulationError
+    from fem_rmpm.schemes.common import SimulationError
     scene = _column(**{"grid.size": [10.0, 10.0], "boundary.left": "free",
                        "boundary.right": "free", "boundary.bottom": "free",
                        "boundary.top": "free", "soil.youngs_modulus": 0.2,
@@ -314,7 +314,7 @@ def test_at_rest_needs_both_the_speed_and_the_energy_criterion():
     `rest_velocity` AND the grid kinetic energy is below `rest_energy_ratio` x its peak.
     The shared test function, both ways round; and in a run: the column at rest at 7.4 s
     with the defaults runs on to t_end when either criterion cannot be met."""
-    from fem_rmpm.run import at_rest
+    from fem_rmpm.schemes.common import at_rest
     kw = dict(t=2.0, ramp_time=0.5, rest_velocity=1e-5, rest_energy_ratio=1e-8)
     assert at_rest(max_speed=1e-6, kinetic_energy=1e-9, kinetic_energy_peak=1.0, **kw)
     assert not at_rest(max_speed=1e-6, kinetic_energy=1e-7, kinetic_energy_peak=1.0, **kw)
@@ -460,7 +460,7 @@ def test_line_search_stops_newton_two_cycles():
     the softening law).  On a residual where the full Newton step maps u to -u, Newton with
     the default line search converges (the first halved step hits the root); with the line
     search off (line_search = 0) it cycles and fails with the cycle in its residuals."""
-    from fem_rmpm.implicit import NewtonFailure, newton
+    from fem_rmpm.schemes.implicit import NewtonFailure, newton
     evaluate, tangent = _two_cycle_problem()
     u0 = np.array([0.25, 4.0])                  # powers of 2: every step exact in floating point
     res = newton(evaluate, tangent, u0, _DenseSolver(), max_iterations=10, tol=1e-9)

@@ -10,12 +10,12 @@ import pytest
 
 from fem_rmpm import api
 from fem_rmpm.cli import main
-from fem_rmpm.fem import solve_static
-from fem_rmpm.grid import make_grid
+from fem_rmpm.discretise.basis import q4_at_points
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.materials import hughes_winget_increment, kirchhoff_stress, stress_update
-from fem_rmpm.particles import seed_particles
 from fem_rmpm.scene import load_scene, with_values
-from fem_rmpm.shape import q4_at_points
+from fem_rmpm.schemes.fem import solve_static
 
 
 def _fem_at_points(res, pts, grid):

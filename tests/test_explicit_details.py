@@ -7,7 +7,7 @@ balance ``a = f / m`` with Cundall's local damping ``f - alpha |f| sign(v)``, no
 without mass at rest and prescribed components zero; the point-to-node sums of mass,
 momentum and force (``f = -sigma grad N V + N m g``); the loop's bookkeeping (output at
 t = 0, every ``output_interval`` and at the end; energy every 20 steps; the stop reason;
-the geostatic switch; the at-rest test of :func:`fem_rmpm.run.at_rest`).
+the geostatic switch; the at-rest test of :func:`fem_rmpm.schemes.common.at_rest`).
 """
 from __future__ import annotations
 
@@ -17,12 +17,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fem_rmpm.explicit import (explicit_step, map_to_nodes, run_explicit, solve_on_mesh,
-                               stable_time_step)
-from fem_rmpm.grid import make_grid
-from fem_rmpm.particles import seed_particles
-from fem_rmpm.run import RunRecord, SimulationError, at_rest, check_points
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
+from fem_rmpm.schemes.common import RunRecord, SimulationError, at_rest, check_points
+from fem_rmpm.schemes.explicit.loop import (
+    explicit_step,
+    map_to_nodes,
+    run_explicit,
+    solve_on_mesh,
+    stable_time_step,
+)
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 

@@ -21,14 +21,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import fem_rmpm.explicit as ex
-from fem_rmpm.explicit import (Workspace, explicit_step, explicit_step_numpy, map_to_nodes,
-                               run_explicit, stable_time_step)
-from fem_rmpm.grid import make_grid
-from fem_rmpm.particles import seed_particles
-from fem_rmpm.run import SimulationError, at_rest
+import fem_rmpm.schemes.explicit.loop as ex
+from fem_rmpm.discretise.basis import shape_at_points
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
-from fem_rmpm.shape import shape_at_points
+from fem_rmpm.schemes.common import SimulationError, at_rest
+from fem_rmpm.schemes.explicit.loop import (
+    Workspace,
+    explicit_step,
+    explicit_step_numpy,
+    map_to_nodes,
+    run_explicit,
+    stable_time_step,
+)
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 FIELDS = ("x", "velocity", "stress", "log_strain", "state", "volume")

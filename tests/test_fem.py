@@ -3,11 +3,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from fem_rmpm.fem import _lame, elastic_stiffness, gravity_load, solve_static
-from fem_rmpm.grid import make_grid
-from fem_rmpm.particles import seed_particles, soil_cells
+from fem_rmpm.discretise.basis import skfem_point_basis
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles, soil_cells
 from fem_rmpm.scene import load_scene
-from fem_rmpm.shape import skfem_point_basis
+from fem_rmpm.schemes.fem import _lame, elastic_stiffness, gravity_load, solve_static
 
 
 def _column_closed_form(y, H=5.0, gamma=20.0, E=1000.0, nu=0.33):

@@ -77,7 +77,7 @@ def test_notice_and_run_use_one_thread_count(tmp_path, capsys, meshes, monkeypat
     """``threads = 0`` (auto) is resolved once per run: the free-core count can change
     between two asks (seen: two threads announced, the run then on one), so the notice and
     the run must not ask apart.  The stub answers 2, then 1 to any later ask."""
-    from fem_rmpm import explicit
+    from fem_rmpm.schemes.explicit import loop as explicit
     answers = iter([2, 1, 1, 1])
     asks = []
 

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from fem_rmpm import api
-from fem_rmpm.grid import make_grid
-from fem_rmpm.implicit import prescribed_nodes
+from fem_rmpm.discretise.grid import make_grid
 from fem_rmpm.scene import SceneError, load_scene, with_values
+from fem_rmpm.schemes.implicit import prescribed_nodes
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 PRANDTL = 2.0 + math.pi

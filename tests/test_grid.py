@@ -1,4 +1,4 @@
-"""The background grid's geometry helpers (:mod:`fem_rmpm.grid`): which cells are soil or
+"""The background grid's geometry helpers (:mod:`fem_rmpm.discretise.grid`): which cells are soil or
 bedrock, which nodes are fixed, and the cell centres, on large grids without testing every
 cell against every polygon."""
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.path import Path as MplPath
 
-from fem_rmpm.grid import Grid, _on_or_in_polygon, _structured_mesh, points_in_polygon
+from fem_rmpm.discretise.grid import Grid, _on_or_in_polygon, _structured_mesh, points_in_polygon
 
 #: A concave polygon (an L with a notch), m.
 POLY = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 1.5], [2.0, 1.5], [3.0, 3.0], [0.5, 4.0],

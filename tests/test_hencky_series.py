@@ -1,4 +1,4 @@
-"""The vectorised series of the Hencky update (:mod:`fem_rmpm.kernels.hencky`).
+"""The vectorised series of the Hencky update (:mod:`fem_rmpm.schemes.explicit.kernels.hencky`).
 
 References: the functions themselves in 50-digit decimal arithmetic (``decimal``'s
 ``exp`` and ``ln``: cosh(y) = (e^y + e^-y)/2, sinh(y)/y, atanh(x)/x = ln((1+x)/(1-x))/(2x),
@@ -14,10 +14,10 @@ from decimal import Decimal, getcontext
 import numpy as np
 import pytest
 
-from fem_rmpm.kernels import hencky as H
-from fem_rmpm.kernels.common import BLOCK
-from fem_rmpm.kernels.strain import hencky_trial_pass
 from fem_rmpm.materials.hencky import exp_sym2, log_sym2
+from fem_rmpm.schemes.explicit.kernels import hencky as H
+from fem_rmpm.schemes.explicit.kernels.common import BLOCK
+from fem_rmpm.schemes.explicit.kernels.strain import hencky_trial_pass
 
 getcontext().prec = 50
 ULP = 2.0 ** -52

@@ -16,18 +16,18 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 from scipy.special import lambertw
+from soil_points import vm_points
 
 from fem_rmpm import api
-from fem_rmpm import implicit as imp
 from fem_rmpm.cli import main
-from fem_rmpm.run import SimulationError
-from fem_rmpm.fem import solve_static
-from fem_rmpm.grid import make_grid
+from fem_rmpm.discretise.basis import q4_at_points
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.materials import small_strain_update, spatial_tangent, stress_update
-from fem_rmpm.particles import seed_particles
 from fem_rmpm.scene import load_scene
-from fem_rmpm.shape import q4_at_points
-from soil_points import vm_points
+from fem_rmpm.schemes import implicit as imp
+from fem_rmpm.schemes.common import SimulationError
+from fem_rmpm.schemes.fem import solve_static
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 

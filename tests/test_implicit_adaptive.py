@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 
 from fem_rmpm import api
-from fem_rmpm.grid import make_grid
-from fem_rmpm.implicit import run_implicit
-from fem_rmpm.implicit.control import REJECT_RATIO
-from fem_rmpm.implicit.linear import LinearSolver
-from fem_rmpm.implicit.newton import NewtonFailure, newton
-from fem_rmpm.particles import seed_particles
-from fem_rmpm.run import SimulationError
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene
+from fem_rmpm.schemes.common import SimulationError
+from fem_rmpm.schemes.implicit import run_implicit
+from fem_rmpm.schemes.implicit.control import REJECT_RATIO
+from fem_rmpm.schemes.implicit.linear import LinearSolver
+from fem_rmpm.schemes.implicit.newton import NewtonFailure, newton
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 

@@ -20,11 +20,15 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from fem_rmpm.implicit import LinearSolver
-from fem_rmpm.implicit.tangent import (_derivatives, finite_strain_tangent,
-                                       finite_strain_tangent_reference, small_strain_tangent,
-                                       trial_stiffness)
 from fem_rmpm.materials import MaterialPoints, model, model_id, return_map
+from fem_rmpm.schemes.implicit import LinearSolver
+from fem_rmpm.schemes.implicit.tangent import (
+    _derivatives,
+    finite_strain_tangent,
+    finite_strain_tangent_reference,
+    small_strain_tangent,
+    trial_stiffness,
+)
 
 G, K = 375.0, 980.0
 VM = [20.0, 4.0, 0.5]            # cohesion_peak, cohesion_residual (kPa), softening_strain

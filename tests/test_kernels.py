@@ -1,13 +1,13 @@
-"""The compiled explicit kernels (fem_rmpm.kernels) against their references.
+"""The compiled explicit kernels (fem_rmpm.schemes.explicit.kernels) against their references.
 
 * shape functions: scikit-fem's own ``ElementQuad1`` basis at the points
-  (:func:`fem_rmpm.shape.skfem_point_basis`) and the numpy uGIMP basis
-  (:func:`fem_rmpm.shape.gimp_at_points`);
+  (:func:`fem_rmpm.discretise.basis.skfem_point_basis`) and the numpy uGIMP basis
+  (:func:`fem_rmpm.discretise.basis.gimp_at_points`);
 * material update: :func:`fem_rmpm.materials.stress_update` and
   :func:`fem_rmpm.materials.small_strain_update` (elastic, linear and
   exponential softening, plastic points);
 * whole steps and runs: the numpy reference step
-  :func:`fem_rmpm.explicit.explicit_step_numpy` / ``run_explicit(kernel="numpy")``.
+  :func:`fem_rmpm.schemes.explicit.loop.explicit_step_numpy` / ``run_explicit(kernel="numpy")``.
 
 Equality is to round-off: 1e-12 relative to the largest value of each field.
 No timing here (speed lives in validation/bench_explicit.py).
@@ -16,16 +16,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from fem_rmpm import kernels as K
-from fem_rmpm.explicit import Workspace, explicit_step, run_explicit, stable_time_step
-from fem_rmpm.grid import make_grid
-from fem_rmpm.materials import small_strain_update, stress_update
-from fem_rmpm.particles import seed_particles
-from fem_rmpm.run import SimulationError
-from fem_rmpm.scene import load_scene, with_value, with_values
-from fem_rmpm.shape import gimp_at_points, skfem_point_basis
 from soil_points import vm_points
+
+from fem_rmpm.discretise.basis import gimp_at_points, skfem_point_basis
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
+from fem_rmpm.materials import small_strain_update, stress_update
+from fem_rmpm.scene import load_scene, with_value, with_values
+from fem_rmpm.schemes.common import SimulationError
+from fem_rmpm.schemes.explicit import kernels as K
+from fem_rmpm.schemes.explicit.loop import Workspace, explicit_step, run_explicit, stable_time_step
 
 RTOL = 1e-12
 FIELDS = ("x", "velocity", "stress", "log_strain", "plastic_shear_strain", "volume", "F",
@@ -44,13 +44,13 @@ def _random_points(grid, n, rng, margin=0.0):
 
 
 def test_cell_index_is_the_clamped_floor():
-    """:func:`fem_rmpm.kernels.basis.cell_index` truncates instead of taking the floor; the
+    """:func:`fem_rmpm.schemes.explicit.kernels.basis.cell_index` truncates instead of taking the floor; the
     two clamped to the grid's cells are the same number (a formula: they differ only for
     negative non-integers, which clamp to 0).  Checked on the integers and halves around
     both grid edges, on negative zero, far outside, and on 20 000 random coordinates."""
     from numba import njit
 
-    from fem_rmpm.kernels.basis import cell_index
+    from fem_rmpm.schemes.explicit.kernels.basis import cell_index
     n = 7
     index = njit(lambda s: cell_index(s, n))
     edges = np.array([-1e15, -3.0, -1.5, -1.0, -0.5, -1e-300, -0.0, 0.0, 1e-300, 0.5, 1.0,
@@ -76,7 +76,7 @@ def test_q4_kernel_equals_scikit_fem_basis(meshes):
 
 
 def test_gimp_kernel_equals_numpy_gimp_including_grid_edges(meshes):
-    """Reference: fem_rmpm.shape.gimp_at_points (uGIMP, Bardenhagen & Kober 2004)."""
+    """Reference: fem_rmpm.discretise.basis.gimp_at_points (uGIMP, Bardenhagen & Kober 2004)."""
     grid = make_grid(load_scene(meshes / "slope_elastic.toml"))
     rng = np.random.default_rng(2)
     x = np.vstack([_random_points(grid, 400, rng),

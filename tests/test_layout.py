@@ -1,5 +1,5 @@
 """The memory layouts the explicit kernels are compiled for: the column counts they promise
-the compiler (``fem_rmpm.compiled.assume_columns``, undefined behaviour if false, so checked
+the compiler (``fem_rmpm.runtime.compiled.assume_columns``, undefined behaviour if false, so checked
 when the arrays are bound) and the column-major material rows and state."""
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from fem_rmpm import api
-from fem_rmpm.kernels.arrays import FIXED_COLUMNS, point_arrays
 from fem_rmpm.materials.points import new_state
 from fem_rmpm.scene import load_scene, with_values
+from fem_rmpm.schemes.explicit.kernels.arrays import FIXED_COLUMNS, point_arrays
 
 SCENE = Path(__file__).resolve().parents[1] / "meshes" / "slope_reference.toml"
 

@@ -5,7 +5,6 @@ in a cache directory of its own, then runs three more times."""
 from __future__ import annotations
 
 import pytest
-
 from validation_module import load
 
 

@@ -12,15 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.sparse as sp
-
-from fem_rmpm import implicit as imp
-from fem_rmpm import locking
-from fem_rmpm.explicit import Workspace, explicit_step, run_explicit, stable_time_step
-from fem_rmpm.grid import make_grid
-from fem_rmpm.materials import small_strain_update, stress_update
-from fem_rmpm.particles import seed_particles
-from fem_rmpm.scene import load_scene, with_values
 from soil_points import vm_points
+
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
+from fem_rmpm.materials import small_strain_update, stress_update
+from fem_rmpm.scene import load_scene, with_values
+from fem_rmpm.schemes import implicit as imp
+from fem_rmpm.schemes import locking
+from fem_rmpm.schemes.explicit.loop import Workspace, explicit_step, run_explicit, stable_time_step
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 FIELDS = ("x", "velocity", "stress", "log_strain", "plastic_shear_strain", "volume", "F",
@@ -275,8 +275,8 @@ def _mc_cells(grid, seed):
 def test_cell_pressure_tangent_is_the_derivative_of_its_force(meshes_dir_fx):
     """``[solver] locking_constraint = "pressure"`` (geostatic): each point's strain is
     ``Bbar u + delta / 2 I`` with ``delta`` solved per cell for one in-plane mean stress
-    (:func:`fem_rmpm.locking.uniform_cell_pressure`); the tangent ``K + K_bbar + K_p``
-    (:func:`fem_rmpm.locking.cell_pressure_tangent_correction`) is the directional
+    (:func:`fem_rmpm.schemes.locking.uniform_cell_pressure`); the tangent ``K + K_bbar + K_p``
+    (:func:`fem_rmpm.schemes.locking.cell_pressure_tangent_correction`) is the directional
     derivative of the assembled force ``sum V0 Bbar^T tau``: central differences of 800
     dilatant, partly softening Mohr-Coulomb points agree to 1e-6 (achieves 7e-11); without
     ``K_p`` they do not (achieves 2.2e-2; asserts > 5e-3).  The converged points of a cell share one
@@ -343,14 +343,14 @@ def test_fbar_work_conjugate_force_and_its_tangent(meshes_dir_fx):
     """Finite strain (issue 16): the F-bar force ``sum V0 tau(F_bar) grad_x N`` is not the
     derivative of the F-bar work ``sum_p V0_p W(F_bar_p)`` once the in-plane mean stress
     varies inside a cell (dilatant Mohr-Coulomb flow).  The work-conjugate force
-    (:func:`fem_rmpm.locking.fbar_work_stress`: ``tau + e I``) is: its work increment
+    (:func:`fem_rmpm.schemes.locking.fbar_work_stress`: ``tau + e I``) is: its work increment
     along a path equals the points' stress power ``sum V0 tau : dF_bar F_bar^-1`` to
     1e-6 of it (achieves 1e-9, midpoint rule, 16 substeps), the standard force's misses
     by > 1e-3 (achieves 1e-2).  Its tangent (standard + F-bar coupling + geometric
-    term of ``e`` + :func:`fem_rmpm.locking.fbar_work_tangent_correction`) matches
+    term of ``e`` + :func:`fem_rmpm.schemes.locking.fbar_work_tangent_correction`) matches
     central differences of the force to 1e-6 (achieves 2e-10)."""
-    from fem_rmpm.implicit.tangent import inv2
-    from fem_rmpm.kernels import stress_update_points
+    from fem_rmpm.schemes.explicit.kernels import stress_update_points
+    from fem_rmpm.schemes.implicit.tangent import inv2
     S, soil, ls, gp, V0, Vn, nc, du, v = _mc_cells(meshes_dir_fx, 11)
 
     def state(u):

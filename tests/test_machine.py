@@ -1,11 +1,11 @@
-"""The machine named in a run's ``summary.json`` (:mod:`fem_rmpm.machine`)."""
+"""The machine named in a run's ``summary.json`` (:mod:`fem_rmpm.runtime.machine`)."""
 from __future__ import annotations
 
 import json
 import os
 import platform
 
-from fem_rmpm.machine import cpu_model, cpu_signature, describe, tally, usable_cores
+from fem_rmpm.runtime.machine import cpu_model, cpu_signature, describe, tally, usable_cores
 
 
 def test_cpu_model_is_the_first_model_name_of_cpuinfo(tmp_path):
@@ -67,7 +67,8 @@ def test_slow_threading_layer_warning_names_the_cause_and_the_remedy(monkeypatch
     to change: the OpenMP runtime when numba fell back to it, the environment variable
     when that asked for it."""
     import numba
-    from fem_rmpm.machine import slow_threads_warning
+
+    from fem_rmpm.runtime.machine import slow_threads_warning
     assert slow_threads_warning("omp", 2) is None and slow_threads_warning("tbb", 2) is None
     assert slow_threads_warning("workqueue", 1) is None and slow_threads_warning(None, 2) is None
     monkeypatch.setattr(numba.config, "THREADING_LAYER", "default")
@@ -82,11 +83,11 @@ def test_a_threaded_run_records_its_threading_layer_and_warns_once(monkeypatch, 
     """A two-thread run books numba's layer in ``solver.threading_layer``; on the slow
     layer it warns on stderr once per process, not at every run; a one-thread run books
     none."""
-    import fem_rmpm.explicit as ex
-    from fem_rmpm.explicit import run_explicit
-    from fem_rmpm.grid import make_grid
-    from fem_rmpm.particles import seed_particles
+    import fem_rmpm.schemes.explicit.loop as ex
+    from fem_rmpm.discretise.grid import make_grid
+    from fem_rmpm.discretise.points import seed_particles
     from fem_rmpm.scene import load_scene, with_values
+    from fem_rmpm.schemes.explicit.loop import run_explicit
     monkeypatch.setattr(ex, "threading_layer", lambda: "workqueue")
     monkeypatch.setattr(ex, "_THREADS_WARNED", set())
     base = load_scene(os.path.join(os.path.dirname(__file__), "..", "meshes", "column.toml"))

@@ -8,15 +8,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from fem_rmpm.explicit import map_to_nodes
-from fem_rmpm.grid import make_grid
-from fem_rmpm.materials import (exp_sym2, kirchhoff_stress, log_sym2, spatial_tangent, sqrt_j2,
-                                stress_update)
-from fem_rmpm.particles import seed_particles
-from fem_rmpm.scene import load_scene, with_values
-from fem_rmpm.shape import q4_at_points
 from soil_points import vm_points
+
+from fem_rmpm.discretise.basis import q4_at_points
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
+from fem_rmpm.materials import (
+    exp_sym2,
+    kirchhoff_stress,
+    log_sym2,
+    spatial_tangent,
+    sqrt_j2,
+    stress_update,
+)
+from fem_rmpm.scene import load_scene, with_values
+from fem_rmpm.schemes.explicit.loop import map_to_nodes
 
 E, NU = 1000.0, 0.33
 G, K = E / (2 * (1 + NU)), E / (3 * (1 - 2 * NU))

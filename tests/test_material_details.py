@@ -19,12 +19,24 @@ import math
 import numpy as np
 import pytest
 from scipy.linalg import expm
-
-from fem_rmpm.materials import (MaterialPoints, exp_sym2, hencky, hencky_stress,
-                                hughes_winget_increment, kirchhoff_stress, log_sym2, model_id,
-                                mohr_coulomb, return_map, small_strain_update, sqrt_j2,
-                                stress_update, von_mises)
 from soil_points import vm_points
+
+from fem_rmpm.materials import (
+    MaterialPoints,
+    exp_sym2,
+    hencky,
+    hencky_stress,
+    hughes_winget_increment,
+    kirchhoff_stress,
+    log_sym2,
+    model_id,
+    mohr_coulomb,
+    return_map,
+    small_strain_update,
+    sqrt_j2,
+    stress_update,
+    von_mises,
+)
 
 G, K = 375.0, 1000.0
 CP, CR, GS = 20.0, 4.0, 0.5

@@ -26,8 +26,18 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from fem_rmpm.materials import (MaterialPoints, hencky, hencky_stress, model, model_id,
-                                mohr_coulomb, return_map, sqrt_j2, stress_update, von_mises)
+from fem_rmpm.materials import (
+    MaterialPoints,
+    hencky,
+    hencky_stress,
+    model,
+    model_id,
+    mohr_coulomb,
+    return_map,
+    sqrt_j2,
+    stress_update,
+    von_mises,
+)
 
 G, K = 375.0, 1000.0
 CP, CR, GS = 20.0, 4.0, 0.5

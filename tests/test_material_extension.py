@@ -23,15 +23,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 from numba import njit
-
-from fem_rmpm import kernels as K
-from fem_rmpm import materials
-from fem_rmpm.explicit import run_explicit
-from fem_rmpm.grid import make_grid
-from fem_rmpm.materials import MaterialPoints, Parameter
-from fem_rmpm.particles import seed_particles
-from fem_rmpm.scene import SceneError, load_scene, scene_from_dict, scene_to_dict
 from soil_points import tangents_agree
+
+from fem_rmpm import materials
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
+from fem_rmpm.materials import MaterialPoints, Parameter
+from fem_rmpm.scene import SceneError, load_scene, scene_from_dict, scene_to_dict
+from fem_rmpm.schemes.explicit import kernels as K
+from fem_rmpm.schemes.explicit.loop import run_explicit
 
 NAME = "tresca_test"
 PARAMETERS = (Parameter("undrained_shear_strength", "kPa", 0.0, math.inf,
@@ -249,14 +249,14 @@ def test_explicit_run_numba_equals_numpy(tresca):
 
 def test_implicit_tangent_and_run_use_the_models_update(tresca):
     """The same model through the implicit scheme, with no implicit code knowing it.
-    (a) The scheme's consistent tangent (fem_rmpm.implicit.finite_strain_tangent: complex
+    (a) The scheme's consistent tangent (fem_rmpm.schemes.implicit.finite_strain_tangent: complex
     step of the model's update, spin part analytic) equals materials.spatial_tangent (an
     independent complex step of the whole update in four directions) on elastic, main-plane
     and corner states: achieves ~1e-13 relative; asserts 1e-10.  (b) The tiny Tresca slope,
     1 s of implicit (Newmark) dynamics: the run completes, every step converged to the
     tolerance, the slope yields and every point is on or inside the yield surface
     (relative 1e-9)."""
-    from fem_rmpm.implicit import run_implicit
+    from fem_rmpm.schemes.implicit import run_implicit
     rng = np.random.default_rng(8)
     n = 600
     params = np.stack([np.full(n, 400.0), np.full(n, 900.0), rng.uniform(2.0, 16.0, n)], 1)

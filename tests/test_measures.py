@@ -9,9 +9,9 @@ import pytest
 
 from fem_rmpm import api
 from fem_rmpm.cli import main
-from fem_rmpm.grid import make_grid
-from fem_rmpm.measures import compute_measures, intact_blocks, surface_profile
-from fem_rmpm.particles import seed_particles
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
+from fem_rmpm.measures.deposit import compute_measures, intact_blocks, surface_profile
 from fem_rmpm.scene import load_scene, with_values
 
 
@@ -138,7 +138,7 @@ def test_slip_surface_height_and_intact_blocks_of_prescribed_slides(meshes):
     """A slide of everything above y = 1.5 m has its failure surface at the highest point
     that stayed (the Gauss point just below 1.5 m); two separate, unsheared moved blocks
     count as two intact blocks, and the same blocks fully sheared count as none."""
-    from fem_rmpm.measures import intact_blocks, slip_surface_height
+    from fem_rmpm.measures.deposit import intact_blocks, slip_surface_height
     scene, grid, pts = _slope(meshes)
     upper = (pts.x0[:, 1] > 1.5) & (pts.x0[:, 0] > 10) & (pts.x0[:, 0] < 50)
     pts.x[upper, 0] += 2.0

@@ -1,8 +1,8 @@
 """The deposit and mechanism measures against independent brute-force references, on
-random point sets (issue 21, mutation testing of :mod:`fem_rmpm.measures`).
+random point sets (issue 21, mutation testing of :mod:`fem_rmpm.measures.deposit`).
 
 The references below are written from the definitions in the module docstring of
-:mod:`fem_rmpm.measures`, in plain Python (dicts of cells, breadth-first search), sharing
+:mod:`fem_rmpm.measures.deposit`, in plain Python (dicts of cells, breadth-first search), sharing
 no code with the vectorised module: a point belongs to the cell ``floor((x - origin) /
 cell)``; occupied cells form bodies by 8-neighbour contact (deposit) or 4-neighbour
 contact (intact blocks, cells clipped into the grid); a body counts when it holds at least
@@ -20,8 +20,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fem_rmpm.measures import (compute_measures, deposit_points, excluded_summary,
-                               intact_blocks, slip_surface_height)
+from fem_rmpm.measures.deposit import (
+    compute_measures,
+    deposit_points,
+    excluded_summary,
+    intact_blocks,
+    slip_surface_height,
+)
 from tests.test_measures_details import _points
 
 N8 = [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1) if (a, b) != (0, 0)]

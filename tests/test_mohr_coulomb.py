@@ -14,16 +14,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from soil_points import tangents_agree
 
-from fem_rmpm import api
-from fem_rmpm import kernels as K
-from fem_rmpm import materials
-from fem_rmpm.explicit import run_explicit
+from fem_rmpm import api, materials
 from fem_rmpm.materials import MaterialPoints
 from fem_rmpm.materials import mohr_coulomb as mc
 from fem_rmpm.materials import von_mises as vm
 from fem_rmpm.scene import SceneError, load_scene, scene_from_dict, scene_to_dict
-from soil_points import tangents_agree
+from fem_rmpm.schemes.explicit import kernels as K
+from fem_rmpm.schemes.explicit.loop import run_explicit
 
 E, NU = 1e4, 0.3
 G, KB = E / (2 * (1 + NU)), E / (3 * (1 - 2 * NU))
@@ -354,7 +353,7 @@ def test_implicit_scheme_runs_mohr_coulomb():
     ~1e-13 relative; asserts 1e-10); (b) the tiny cut in a weak Mohr–Coulomb soil, 1 s of
     implicit (Newmark) dynamics: every step converges to the tolerance, the cut yields and
     every point is on or inside the yield surface (relative 1e-9)."""
-    from fem_rmpm.implicit import run_implicit
+    from fem_rmpm.schemes.implicit import run_implicit
     rng = np.random.default_rng(9)
     n = 600
     prm = np.repeat(_params(10.0, 30.0, 10.0), n, axis=0)

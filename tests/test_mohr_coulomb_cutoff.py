@@ -15,10 +15,10 @@ import math
 import numpy as np
 import pytest
 from scipy.optimize import minimize
+from test_mohr_coulomb import _scene, kernel_equals_numpy
 
 from fem_rmpm.materials import mohr_coulomb as mc
 from fem_rmpm.scene import SceneError
-from test_mohr_coulomb import _scene, kernel_equals_numpy
 
 E, NU = 1e4, 0.3
 G, KB = E / (2 * (1 + NU)), E / (3 * (1 - 2 * NU))

@@ -26,11 +26,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fem_rmpm import api
-from fem_rmpm import cli
+from fem_rmpm import api, cli
 from fem_rmpm import campaign as mc
 from fem_rmpm.campaign import store
-from fem_rmpm.machine import cpu_model
+from fem_rmpm.runtime.machine import cpu_model
 
 DATA = Path(__file__).resolve().parent / "data"
 TINY = DATA / "mc_tiny.toml"

@@ -8,10 +8,9 @@ import pytest
 
 from fem_rmpm import api
 from fem_rmpm.campaign import parse_case
-from fem_rmpm.grid import make_grid
-from fem_rmpm.particles import seed_particles
-from fem_rmpm.random_field import (field_noise, gaussian_field, noise_shape,
-                                   sample_point_property)
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
+from fem_rmpm.random_field import field_noise, gaussian_field, noise_shape, sample_point_property
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
 """numba's disk cache stays fresh when a file a kernel inlines changes
-(:mod:`fem_rmpm.numba_cache`).
+(:mod:`fem_rmpm.runtime.numba_cache`).
 
 numba's own rule keys a cached function on its own source file only: the kernel
 ``transfer.map_to_nodes`` inlines ``basis.q4``, so an edit of ``basis.py`` alone used to
@@ -16,13 +16,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-from fem_rmpm import numba_cache
+from fem_rmpm.runtime import numba_cache
 
-PACKAGE = Path(numba_cache.__file__).resolve().parent
+PACKAGE = Path(numba_cache.__file__).resolve().parents[1]
 
 _CHILD = """
 import numpy as np
-from fem_rmpm.kernels import arrays as A, transfer as T
+from fem_rmpm.schemes.explicit.kernels import arrays as A, transfer as T
 M = A.Mesh(0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 2, 2, np.zeros(2), np.full(2, 2.0),
            np.zeros((9, 2), bool))
 z = np.zeros((1, 2))
@@ -53,7 +53,7 @@ def test_edit_of_an_inlined_file_recompiles_the_kernels_using_it(tmp_path):
                     ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc"))
     assert _node_mass(tmp_path) == 0.25
     assert _node_mass(tmp_path) == 0.25          # from the cache this time
-    basis = tmp_path / "fem_rmpm" / "kernels" / "basis.py"
+    basis = tmp_path / "fem_rmpm" / "schemes" / "explicit" / "kernels" / "basis.py"
     src = basis.read_text()
     old = "(fs * ft, s * ft, s * t, fs * t)"
     assert old in src
@@ -84,7 +84,7 @@ def test_package_locators_are_first():
 
 
 def test_functions_the_kernels_can_call_set_their_own_flags():
-    """Every numba function of ``fem_rmpm.materials`` and ``fem_rmpm.kernels`` that is
+    """Every numba function of ``fem_rmpm.materials`` and ``fem_rmpm.schemes.explicit.kernels`` that is
     called rather than inlined sets ``fastmath`` and ``error_model`` itself.  numba
     compiles a function without them with the flags of the caller that compiles it
     first, and caches that: the Mohr-Coulomb helpers (plain ``njit``) took the explicit
@@ -93,7 +93,7 @@ def test_functions_the_kernels_can_call_set_their_own_flags():
     (1 146 steps) had two hashes by which came first, and a cached run kept either
     (measured before the fix).  They now set the kernels' flags: one hash in both orders
     and on two threads, the one a kernel-first compile gave (explicit runs unchanged)."""
-    unset = [name for name, f in _dispatchers(("fem_rmpm.materials", "fem_rmpm.kernels"))
+    unset = [name for name, f in _dispatchers(("fem_rmpm.materials", "fem_rmpm.schemes.explicit.kernels"))
              if (f.targetoptions.get("inline", "never") != "always"
                  and not {"fastmath", "error_model"} <= set(f.targetoptions))]
     assert not unset, f"numba functions that would take their caller's flags: {unset}"
@@ -136,11 +136,11 @@ def test_no_compiled_function_lets_llvm_change_a_value():
     VM: a subset-simulation sample's ``max_displacement`` ...605 vs ...604;
     ``validation/load_order.py --cpu znver1``: two hashes).  Fails on 739f015
     (``FASTMATH = {"contract", "arcp", "nsz"}``)."""
-    from fem_rmpm import compiled
+    from fem_rmpm.runtime import compiled
     allowed = {"nsz"}
     bad = [] if compiled.FASTMATH <= allowed else [f"compiled.FASTMATH {compiled.FASTMATH}"]
-    found = _dispatchers(("fem_rmpm.materials", "fem_rmpm.kernels", "fem_rmpm.implicit"),
-                         ("fem_rmpm.compiled", "fem_rmpm.regularisation"))
+    found = _dispatchers(("fem_rmpm.materials", "fem_rmpm.schemes.explicit.kernels", "fem_rmpm.schemes.implicit"),
+                         ("fem_rmpm.runtime.compiled", "fem_rmpm.schemes.regularisation"))
     for name, f in found:
         flags = _fastmath_flags(f.targetoptions.get("fastmath"))
         if not flags <= allowed:

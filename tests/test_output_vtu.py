@@ -1,4 +1,4 @@
-"""The points' VTU (raw appended data, :func:`fem_rmpm.output.write_points_vtu`): every field
+"""The points' VTU (raw appended data, :func:`fem_rmpm.io.output.write_points_vtu`): every field
 and the positions read back bitwise by meshio and by pyvista (VTK's own XML reader, the one
 ParaView uses), vertex cells, the ``.pvd`` series, and the atomic write."""
 from __future__ import annotations
@@ -10,8 +10,9 @@ import meshio
 import numpy as np
 import pytest
 
-from fem_rmpm import api, output
-from fem_rmpm.output import PvdSeries, particle_fields, write_particles, write_points_vtu
+from fem_rmpm import api
+from fem_rmpm.io import output
+from fem_rmpm.io.output import PvdSeries, particle_fields, write_particles, write_points_vtu
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 
@@ -167,7 +168,7 @@ def test_block_by_block_is_bitwise_the_whole_array_fields(tmp_path, monkeypatch)
 
 
 def test_the_grid_round_trips_in_meshio_and_pyvista(tmp_path):
-    """``grid.vtu`` (:func:`fem_rmpm.output.write_grid`, VTK's XML writer, zlib level 1):
+    """``grid.vtu`` (:func:`fem_rmpm.io.output.write_grid`, VTK's XML writer, zlib level 1):
     the node coordinates bitwise, the quads' node numbers, ``soil_cell`` (1 on the given
     cells) and ``fixed`` read back by meshio and by pyvista, no temporary left behind."""
     import pyvista as pv

@@ -1,4 +1,4 @@
-"""The pair intrinsics of ``fem_rmpm.kernels.pairs`` against exact arithmetic.
+"""The pair intrinsics of ``fem_rmpm.schemes.explicit.kernels.pairs`` against exact arithmetic.
 
 Reference: IEEE 754-2008 (section 5.4.1) defines fusedMultiplyAdd(x, y, z) as x y + z
 computed exactly and rounded once; an ordinary multiply and add round twice.  The exact
@@ -15,7 +15,7 @@ import pytest
 from numba import njit
 from numba.core.errors import TypingError
 
-from fem_rmpm.kernels.pairs import fma2, fma2_to, load2, mul2, sub2_from
+from fem_rmpm.schemes.explicit.kernels.pairs import fma2, fma2_to, load2, mul2, sub2_from
 
 EPS = 2.0 ** -30
 # w x + y with w = x = 1 + 2^-30, y = -(1 + 2^-29): exactly 2^-60, but w x rounds to

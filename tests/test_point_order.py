@@ -1,5 +1,5 @@
 """The explicit time loop sorts the points by host cell and shows them to everyone else in
-their original order (:mod:`fem_rmpm.point_order`, issue 13).
+their original order (:mod:`fem_rmpm.discretise.point_order`, issue 13).
 
 References: a permutation followed by its inverse is the identity (exactly); a sorted run
 and an unsorted run of the same scene differ only by the order of the nodal sums, so by
@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 from fem_rmpm import api
-from fem_rmpm.explicit import run_explicit
-from fem_rmpm.grid import locate, make_grid
-from fem_rmpm.particles import seed_particles
-from fem_rmpm.point_order import PointOrder, permute_points
+from fem_rmpm.discretise.grid import locate, make_grid
+from fem_rmpm.discretise.point_order import PointOrder, permute_points
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
+from fem_rmpm.schemes.explicit.loop import run_explicit
 
 FIELDS = ("x", "x0", "velocity", "mass", "volume", "stress", "log_strain", "state", "F",
           "soil_id", "cell0", "active")

@@ -31,10 +31,10 @@ from scipy import integrate
 
 from fem_rmpm import api
 from fem_rmpm import random_field as rf
-from fem_rmpm.random_field import embedding as rf_embedding
 from fem_rmpm.cli import main as cli_main
-from fem_rmpm.grid import make_grid
-from fem_rmpm.particles import seed_particles
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
+from fem_rmpm.random_field import embedding as rf_embedding
 from fem_rmpm.scene import SceneError, scene_from_dict, with_value
 
 MU, COV, THETA_V = 20.0, 0.25, 0.5
@@ -408,7 +408,7 @@ import numpy as np
 sys.path.insert(0, {tests!r})
 from test_random_field import make_scene
 from fem_rmpm import random_field as rf
-from fem_rmpm.grid import make_grid
+from fem_rmpm.discretise.grid import make_grid
 scene = make_scene((30.0, 5.0), (0.25, 0.25), {{"anisotropy": 12.0}})
 grid = make_grid(scene)
 for s in {seeds!r}:

@@ -22,8 +22,8 @@ from fem_rmpm import api
 from fem_rmpm import campaign as mc
 from fem_rmpm import random_field as rf
 from fem_rmpm.cli import main as cli_main
-from fem_rmpm.grid import make_grid
-from fem_rmpm.particles import seed_particles
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import SceneError, load_scene, scene_from_dict, scene_to_dict, with_value
 
 TINY = "tests/data/mc_tiny.toml"

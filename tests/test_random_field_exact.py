@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from fem_rmpm import random_field as rf
-from fem_rmpm.grid import make_grid
-from fem_rmpm.particles import seed_particles
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.random_field.points import _point_field_index
 from fem_rmpm.scene import scene_from_dict
 

@@ -9,18 +9,20 @@ wide, so the post-peak response follows the mesh).
 from __future__ import annotations
 
 import json
+
 import numpy as np
 import pytest
 from numba import njit
 
-from fem_rmpm import api, regularisation as R
+from fem_rmpm import api
 from fem_rmpm.cli import main
-from fem_rmpm.explicit import run_explicit
-from fem_rmpm.grid import make_grid
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.materials import von_mises
-from fem_rmpm.particles import seed_particles
-from fem_rmpm.run import SimulationError
 from fem_rmpm.scene import SceneError, load_scene, with_values
+from fem_rmpm.schemes import regularisation as R
+from fem_rmpm.schemes.common import SimulationError
+from fem_rmpm.schemes.explicit.loop import run_explicit
 
 
 def _points(n=24, h=0.25, ppc=2):

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from fem_rmpm.report import ReportError, report_html, write_report
+from fem_rmpm.campaign.report import ReportError, report_html, write_report
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -3,7 +3,6 @@ from lambda = 1 and bisection, on a stand/fail rule given in closed form."""
 from __future__ import annotations
 
 import pytest
-
 from validation_module import load
 
 

@@ -5,7 +5,6 @@ import math
 from pathlib import Path
 
 import pytest
-
 from validation_module import load
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,7 +73,7 @@ def test_report_shows_the_risk_study(tmp_path):
     """report.html gains a 'Risk study' section from risk_study.json (the study's output:
     P(failure) with its Wilson interval and the mode split per case); none without it; a
     'Mesh check' table when the study has one."""
-    from fem_rmpm.report import report_html
+    from fem_rmpm.campaign.report import report_html
     s = _study()
     rows = [_row(0, False), _row(1, True, 200, 150, 40, 30, 0.2)]
     (tmp_path / "summary.json").write_text('{"scene": "slope_risk", "cases": []}')
@@ -140,7 +139,8 @@ def test_case_summary_with_runs_stopped_once_decided():
 def test_report_shows_the_decided_check(tmp_path):
     """report.html's risk study shows the decided-only campaign against the runs to rest."""
     import json
-    from fem_rmpm.report import report_html
+
+    from fem_rmpm.campaign.report import report_html
     (tmp_path / "summary.json").write_text('{"scene": "slope_risk", "cases": []}')
     (tmp_path / "risk_study.json").write_text(json.dumps(
         {"rules": {}, "cases": {}, "decided_campaign": "runs/decided",

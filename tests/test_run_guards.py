@@ -1,5 +1,5 @@
 """The run guards' exact thresholds and messages (issue 21, mutation testing of
-:mod:`fem_rmpm.run` and :mod:`fem_rmpm.explicit`).  The expected values follow from the
+:mod:`fem_rmpm.schemes.common` and :mod:`fem_rmpm.schemes.explicit.loop`).  The expected values follow from the
 documented rules: at rest when the kinetic energy is at most ``rest_energy_ratio`` x its
 peak (a peak other than 1 tells a product from a quotient); a point moving more than half
 a cell in a step stops the run; a non-finite point or a point outside the grid is named
@@ -13,12 +13,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import fem_rmpm.explicit as ex
-from fem_rmpm.explicit import _check_jump, run_explicit
-from fem_rmpm.grid import make_grid
-from fem_rmpm.particles import seed_particles
-from fem_rmpm.run import RunRecord, SimulationError, at_rest, check_points
+import fem_rmpm.schemes.explicit.loop as ex
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
+from fem_rmpm.schemes.common import RunRecord, SimulationError, at_rest, check_points
+from fem_rmpm.schemes.explicit.loop import _check_jump, run_explicit
 from tests.test_measures_details import _points
 
 

@@ -119,7 +119,8 @@ def _union_area(polygons, holes, lo, hi, step):
     """Area (m2) of the union of ``polygons`` minus ``holes``, by counting the centres of a
     fine lattice of squares of side ``step`` (error <= perimeter x step / 2)."""
     import numpy as np
-    from fem_rmpm.grid import points_in_polygon
+
+    from fem_rmpm.discretise.grid import points_in_polygon
     xs = np.arange(lo[0] + step / 2, hi[0], step)
     ys = np.arange(lo[1] + step / 2, hi[1], step)
     X, Y = np.meshgrid(xs, ys)
@@ -147,6 +148,7 @@ def test_shipped_scenes_load_and_seed_their_soil(meshes):
     rectangles and 2.4 % of that bound on the slopes, asserts 10 %), and the
     embedded default is byte-identical to meshes/slope_reference.toml (README)."""
     import numpy as np
+
     from fem_rmpm import api
     from fem_rmpm.cli import default_scene_path
     files = sorted(meshes.glob("*.toml"))

@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from fem_rmpm.grid import make_grid
+from fem_rmpm.discretise.basis import gimp_at_points, q4_at_points, skfem_point_basis
+from fem_rmpm.discretise.grid import make_grid
 from fem_rmpm.scene import load_scene
-from fem_rmpm.shape import gimp_at_points, q4_at_points, skfem_point_basis
 
 
 def _grid(meshes):

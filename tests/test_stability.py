@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fem_rmpm.explicit import run_explicit
-from fem_rmpm.grid import make_grid
-from fem_rmpm.implicit import run_implicit
-from fem_rmpm.particles import seed_particles
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
-from fem_rmpm.stability import cfl_limit, spectral_cfl_limit
+from fem_rmpm.schemes.explicit.loop import run_explicit
+from fem_rmpm.schemes.explicit.stability import cfl_limit, spectral_cfl_limit
+from fem_rmpm.schemes.implicit import run_implicit
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 
@@ -40,7 +40,7 @@ def test_cfl_limit_against_theory_and_default():
     * linear elastodynamics (geostatic phase), undamped: MUSL re-maps the velocities before
       the stress update and is stable well beyond cfl = 1; the measured limit agrees within
       3 % with the theory of the scheme itself, the cfl where the spectral radius of the
-      linearised step (fem_rmpm.stability.spectral_cfl_limit) exceeds 1, and the textbook
+      linearised step (fem_rmpm.schemes.explicit.stability.spectral_cfl_limit) exceeds 1, and the textbook
       estimate stays on the safe side;
     * the default cfl = 0.5 is at most half of every limit, damped (0.7, the default) or not.
     """

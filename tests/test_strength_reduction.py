@@ -1,4 +1,4 @@
-"""Factor of safety by strength reduction (fem_rmpm.strength_reduction, issue 15).
+"""Factor of safety by strength reduction (fem_rmpm.schemes.implicit.strength_reduction, issue 15).
 
 References: the undrained infinite slope FS = c / (gamma z sin(beta) cos(beta)) (limit
 equilibrium of a slice; Duncan & Wright 2005, ch. 6) and Taylor's (1937) stability chart
@@ -14,8 +14,14 @@ import pytest
 from fem_rmpm import api
 from fem_rmpm.cli import main
 from fem_rmpm.scene import SceneError, with_values
-from fem_rmpm.strength_reduction import (FSOptions, NonPhysicalFailure, factor_of_safety,
-                                         reduce_strength, stable_at, strength_parameters)
+from fem_rmpm.schemes.implicit.strength_reduction import (
+    FSOptions,
+    NonPhysicalFailure,
+    factor_of_safety,
+    reduce_strength,
+    stable_at,
+    strength_parameters,
+)
 
 
 def fos(scene, seed=None, options=None):

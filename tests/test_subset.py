@@ -12,8 +12,15 @@ import pytest
 from scipy.stats import chi2, norm
 
 from fem_rmpm.campaign.cases import realization_seed
-from fem_rmpm.campaign.subset import (CrudeMonteCarlo, SubsetError, SubsetSimulation, SubsetWarning,
-                             chain_correlation_factor, run_method, subset_simulation)
+from fem_rmpm.campaign.subset import (
+    CrudeMonteCarlo,
+    SubsetError,
+    SubsetSimulation,
+    SubsetWarning,
+    chain_correlation_factor,
+    run_method,
+    subset_simulation,
+)
 
 DIM = 1000
 RUNS = 20            # independent subset runs per case (campaign seeds 0 .. 19)

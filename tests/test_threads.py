@@ -2,7 +2,7 @@
 
 The points are taken in two fixed halves, each scattering into its own nodal arrays and
 solving, moving and re-mapping on its own nodes, with both halves' sums added in a fixed
-order where both touched a node (:mod:`fem_rmpm.kernels.transfer`); the halves run on two
+order where both touched a node (:mod:`fem_rmpm.schemes.explicit.kernels.transfer`); the halves run on two
 threads or one after the other.  The stress pass hands out blocks of points from two work
 queues (one per half) to however many threads there are, in whatever order they come; each block is
 computed by the one compiled function the serial pass also runs, and the step's maxima
@@ -16,12 +16,12 @@ import numba
 import numpy as np
 import pytest
 
-from fem_rmpm.explicit import Workspace, explicit_step, stable_time_step
-from fem_rmpm.grid import make_grid
-from fem_rmpm.kernels import half_split
-from fem_rmpm.particles import seed_particles
-from fem_rmpm.point_order import permute_points
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.point_order import permute_points
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
+from fem_rmpm.schemes.explicit.kernels import half_split
+from fem_rmpm.schemes.explicit.loop import Workspace, explicit_step, stable_time_step
 
 FIELDS = ("x", "velocity", "stress", "log_strain", "state", "volume", "u_geostatic")
 
@@ -71,7 +71,7 @@ def test_two_threads_bitwise_equal_one_thread(meshes, shape, fbar, threads):
 def test_stolen_stress_blocks_bitwise_equal_one_thread(meshes):
     """The threaded stress pass with two workers: a worker done with its own half takes
     blocks from the other half's queue once that half's nodal velocities are published
-    (:func:`fem_rmpm.kernels.stress._stress_queue_call`).  Here the first half of the points
+    (:func:`fem_rmpm.schemes.explicit.kernels.stress._stress_queue_call`).  Here the first half of the points
     is switched off, so the first worker has next to nothing to do and takes blocks of the
     second half on nearly every step; a stolen block computed with the wrong nodal
     velocities, or before they were complete, would show as a difference.  The points are

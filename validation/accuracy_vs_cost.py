@@ -5,7 +5,7 @@
 
 Two problems, each over mesh sizes and points per cell (ppc), for the explicit
 scheme with the numba kernels and with the numpy reference step, uGIMP (numba
-explicit), and the implicit scheme (:func:`fem_rmpm.implicit.run_implicit`, Q4 and
+explicit), and the implicit scheme (:func:`fem_rmpm.schemes.implicit.run_implicit`, Q4 and
 uGIMP):
 
 * **Column compaction** (large deformation; Charlton et al.
@@ -16,7 +16,7 @@ uGIMP):
   gravity ramped over 10 s with local damping 0.7 until at rest (dynamic
   relaxation to the static state); implicit: 50 quasi-static load steps.
 * **Elastic slope** (``meshes/slope_elastic.toml``; small strain, geostatic
-  phase to rest): reference = the static FEM (:func:`fem_rmpm.fem.solve_static`,
+  phase to rest): reference = the static FEM (:func:`fem_rmpm.schemes.fem.solve_static`,
   Q4, scikit-fem) on a fine grid of 1/16 m cells, its stress evaluated at each
   material point (Q4 gradient of the FEM displacement in the fine cell holding
   the point; points whose fine cell is not soil, at the staircase edge, are left
@@ -44,12 +44,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fem_rmpm.explicit import run_explicit  # noqa: E402
-from fem_rmpm.fem import solve_static  # noqa: E402
-from fem_rmpm.grid import locate, make_grid  # noqa: E402
-from fem_rmpm.particles import seed_particles, soil_cells  # noqa: E402
+from fem_rmpm.discretise.basis import q4_values  # noqa: E402
+from fem_rmpm.discretise.grid import locate, make_grid  # noqa: E402
+from fem_rmpm.discretise.points import seed_particles, soil_cells  # noqa: E402
 from fem_rmpm.scene import load_scene, with_values  # noqa: E402
-from fem_rmpm.shape import q4_values  # noqa: E402
+from fem_rmpm.schemes.explicit.loop import run_explicit  # noqa: E402
+from fem_rmpm.schemes.fem import solve_static  # noqa: E402
 
 OUT = ROOT / "validation" / "out"
 L0, E_COL, GAMMA = 50.0, 10.0, 0.8
@@ -57,7 +57,7 @@ L0, E_COL, GAMMA = 50.0, 10.0, 0.8
 
 def _implicit():
     try:
-        from fem_rmpm.implicit import run_implicit
+        from fem_rmpm.schemes.implicit import run_implicit
         return run_implicit
     except ImportError:
         return None
@@ -254,7 +254,7 @@ def main(argv=None):
         row = {"problem": prob, "label": label, "scheme": scheme, "kernel": kernel,
                "shape": shape, "size": size, "ppc": ppc}
         if scheme == "implicit" and not has_implicit:
-            row["error"], row["note"] = None, "fem_rmpm.implicit not available"
+            row["error"], row["note"] = None, "fem_rmpm.schemes.implicit not available"
             res["runs"].append(row)
             continue
         try:

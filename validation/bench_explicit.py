@@ -57,17 +57,24 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fem_rmpm import kernels as K  # noqa: E402
-from fem_rmpm.kernels import hencky as H, strain as KS  # noqa: E402
-from fem_rmpm.compiled import kernel  # noqa: E402
-from fem_rmpm.explicit import (Workspace, explicit_step, map_to_nodes, run_explicit,  # noqa: E402
-                               solve_on_mesh, stable_time_step)
-from fem_rmpm.grid import make_grid  # noqa: E402
-from fem_rmpm.machine import describe  # noqa: E402
+from fem_rmpm.discretise.basis import shape_at_points  # noqa: E402
+from fem_rmpm.discretise.grid import make_grid  # noqa: E402
+from fem_rmpm.discretise.points import seed_particles  # noqa: E402
 from fem_rmpm.materials import hughes_winget_increment, stress_update  # noqa: E402
-from fem_rmpm.particles import seed_particles  # noqa: E402
+from fem_rmpm.runtime.compiled import kernel  # noqa: E402
+from fem_rmpm.runtime.machine import describe  # noqa: E402
 from fem_rmpm.scene import load_scene, with_values  # noqa: E402
-from fem_rmpm.shape import shape_at_points  # noqa: E402
+from fem_rmpm.schemes.explicit import kernels as K  # noqa: E402
+from fem_rmpm.schemes.explicit.kernels import hencky as H  # noqa: E402
+from fem_rmpm.schemes.explicit.kernels import strain as KS
+from fem_rmpm.schemes.explicit.loop import (  # noqa: E402
+    Workspace,
+    explicit_step,
+    map_to_nodes,
+    run_explicit,
+    solve_on_mesh,
+    stable_time_step,
+)
 
 OUT = ROOT / "validation" / "out"
 REFERENCE = ROOT / "meshes" / "slope_elastic.toml"
@@ -81,7 +88,7 @@ SCALING = {"1e4": (1 / 3, 40.0), "1e5": (0.1, 1.0), "1e6": (1 / 30, 0.25)}
 
 
 def machine() -> dict:
-    """Which machine the figures come from (:func:`fem_rmpm.machine.describe`, as in every
+    """Which machine the figures come from (:func:`fem_rmpm.runtime.machine.describe`, as in every
     run's ``summary.json``): CPU model, cores, load average at the start, versions."""
     m = describe()
     return {**m, "cores": m["logical_cores"], "load_avg_start": m["load_average"]}
@@ -368,7 +375,7 @@ t0 = time.perf_counter()
 sys.path.insert(0, {root!r})
 import numpy as np
 from fem_rmpm import api
-from fem_rmpm.explicit import Workspace, explicit_step, stable_time_step
+from fem_rmpm.schemes.explicit.loop import Workspace, explicit_step, stable_time_step
 rss_imports = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 scene = api.load_scene({ref!r})
 grid, pts = api.prepare(scene)

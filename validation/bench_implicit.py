@@ -45,12 +45,16 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from fem_rmpm.grid import make_grid  # noqa: E402
-from fem_rmpm.machine import describe  # noqa: E402
-from fem_rmpm.implicit import (StepSystem, finite_strain_tangent, run_implicit,  # noqa: E402
-                               skfem_assemble)
-from fem_rmpm.particles import seed_particles, soil_cells  # noqa: E402
+from fem_rmpm.discretise.grid import make_grid  # noqa: E402
+from fem_rmpm.discretise.points import seed_particles, soil_cells  # noqa: E402
+from fem_rmpm.runtime.machine import describe  # noqa: E402
 from fem_rmpm.scene import load_scene  # noqa: E402
+from fem_rmpm.schemes.implicit import (  # noqa: E402
+    StepSystem,
+    finite_strain_tangent,
+    run_implicit,
+    skfem_assemble,
+)
 
 HERE = Path(__file__).parent
 OUT = HERE / "out"

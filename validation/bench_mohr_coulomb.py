@@ -19,8 +19,8 @@ from pathlib import Path
 import numba
 
 from fem_rmpm import api
-from fem_rmpm.explicit import run_explicit
 from fem_rmpm.scene import load_scene, scene_from_dict, scene_to_dict
+from fem_rmpm.schemes.explicit.loop import run_explicit
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 SOILS = ("von_mises_softening", "mohr_coulomb_softening")

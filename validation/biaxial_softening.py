@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from fem_rmpm import api
-from fem_rmpm.run import SimulationError
 from fem_rmpm.scene import load_scene, with_values
+from fem_rmpm.schemes.common import SimulationError
 
 HERE = Path(__file__).parent
 ROOT = HERE.parent

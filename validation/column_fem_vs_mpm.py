@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from fem_rmpm import api
-from fem_rmpm.fem import solve_static
 from fem_rmpm.scene import with_values
+from fem_rmpm.schemes.fem import solve_static
 
 HERE = Path(__file__).parent
 OUT = HERE / "out"

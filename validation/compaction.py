@@ -26,10 +26,10 @@ import numpy as np
 from scipy.integrate import quad
 from scipy.special import lambertw
 
-from fem_rmpm.grid import make_grid
-from fem_rmpm.implicit import run_implicit
-from fem_rmpm.particles import seed_particles
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene
+from fem_rmpm.schemes.implicit import run_implicit
 
 HERE = Path(__file__).parent
 OUT = HERE / "out"

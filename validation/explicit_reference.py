@@ -49,7 +49,7 @@ def _scene(**values):
 
 def _run_with_snapshots(scene, pts=None):
     """One run (api.prepare + run_explicit); state copies every output interval."""
-    from fem_rmpm.explicit import run_explicit
+    from fem_rmpm.schemes.explicit.loop import run_explicit
     grid, p = api.prepare(scene)
     if pts is not None:
         pts(p)
@@ -82,7 +82,7 @@ def prefix(t_end: float) -> dict:
     out["snapshots"] = rows
     out["steps"] = {"numba": ra.steps, "numpy": rb.steps}
     out["cpu_s"] = {"numba": ca, "numpy": cb}
-    from fem_rmpm.measures import compute_measures
+    from fem_rmpm.measures.deposit import compute_measures
     sc = _scene()
     ms = [compute_measures(p, sc.scene.frame_angle_deg, sc.montecarlo.failure_displacement,
                            g.cell, None) for g, p, *_ in (runs["numba"], runs["numpy"])]

@@ -31,11 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
-from fem_rmpm.run import SimulationError
-from fem_rmpm.grid import make_grid
-from fem_rmpm.implicit import run_implicit
-from fem_rmpm.particles import seed_particles
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
+from fem_rmpm.schemes.common import SimulationError
+from fem_rmpm.schemes.implicit import run_implicit
 
 HERE = Path(__file__).parent
 OUT = HERE / "out"

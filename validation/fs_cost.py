@@ -22,7 +22,7 @@ from pathlib import Path
 import numba
 
 from fem_rmpm import api
-from fem_rmpm.strength_reduction import FSOptions, factor_of_safety
+from fem_rmpm.schemes.implicit.strength_reduction import FSOptions, factor_of_safety
 
 ROOT = Path(__file__).resolve().parents[1]
 

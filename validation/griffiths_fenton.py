@@ -6,7 +6,7 @@ The slope: ``meshes/griffiths_slope.toml`` (2:1, H = 10 m, D = 2), mean C = c / 
 = 0.25 (homogeneous FS 1.47, Taylor), a lognormal isotropic Markov field of the cohesion
 with theta = Theta H for Theta in {0.5, 1, 2, 4, 1e4} (1e4: one random variable) and COV
 0.1 .. 0.5.  Each realization needs one static solve: whether the slope stands at F = 1
-under full gravity (:func:`fem_rmpm.strength_reduction.stable_at`), exactly the event
+under full gravity (:func:`fem_rmpm.schemes.implicit.strength_reduction.stable_at`), exactly the event
 FS < 1 the strength reduction reports, as RFEM does (Griffiths & Fenton 2004).
 
 Closed form (perfect correlation): FS = FS_hom c / mu, so P(FS < 1) = Phi((ln(mu / FS_hom)
@@ -60,7 +60,7 @@ def _one(job) -> bool:
     """Realization ``index`` of the point (Theta, COV): True if it fails at F = 1."""
     cell, theta, cov, seed = job
     from fem_rmpm import api
-    from fem_rmpm.strength_reduction import stable_at
+    from fem_rmpm.schemes.implicit.strength_reduction import stable_at
     sc = scene_for(cell, theta, cov)
     grid, pts = api.prepare(sc, seed)
     return not stable_at(sc, 1.0, seed=seed, grid=grid, pts=pts).converged
@@ -123,8 +123,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="runs/griffiths_fenton")
     a = ap.parse_args(argv)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    from fem_rmpm.output import write_json
-    from fem_rmpm.strength_reduction import FSOptions, factor_of_safety
+    from fem_rmpm.io.output import write_json
+    from fem_rmpm.schemes.implicit.strength_reduction import FSOptions, factor_of_safety
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     jpath = out / "griffiths_fenton.json"

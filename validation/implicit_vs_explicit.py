@@ -3,7 +3,7 @@
 For each case the explicit run (the scene as shipped) and the implicit dynamic run
 (``solver.scheme = "implicit"``, ``solver.dynamic = true``, every other setting the
 default) are made back to back in this process, and the measures of the outputs
-(:mod:`fem_rmpm.measures`, on the deposit) are compared: run-out, retrogression,
+(:mod:`fem_rmpm.measures.deposit`, on the deposit) are compared: run-out, retrogression,
 sliding area and slip-surface height, with the acceptance of 10 % (a measure whose
 explicit value is below one cell, such as a slip surface at the base, is compared
 absolutely: within one cell, 0.25 m).  Wall time (``perf_counter``) and CPU time
@@ -39,8 +39,8 @@ import numpy as np  # noqa: E402
 
 from fem_rmpm import api  # noqa: E402
 from fem_rmpm.campaign.cases import parse_case, realization_seed  # noqa: E402
-from fem_rmpm.output import to_true_frame  # noqa: E402
-from fem_rmpm.plots import draw_ground, plot_field, strain_norm  # noqa: E402
+from fem_rmpm.io.output import to_true_frame  # noqa: E402
+from fem_rmpm.io.plots import draw_ground, plot_field, strain_norm  # noqa: E402
 from fem_rmpm.scene import load_scene, with_value  # noqa: E402
 
 HERE = Path(__file__).parent

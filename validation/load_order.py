@@ -14,13 +14,13 @@ LLVM's SLP vectorizer switched on (``NUMBA_SLP_VECTORIZE=1``, which numba leaves
 FMA contraction, the copies of the map to nodes and the map back packed and fused
 differently, and a run compiled in its process and the same run from the cache took 2 115
 and 2 114 steps to t = 6 s (``--slp`` before 7180213).  Those kernels now write their
-vector operations and fused multiply-adds out (``fem_rmpm/kernels/pairs.py``): with
+vector operations and fused multiply-adds out (``fem_rmpm/schemes/explicit/kernels/pairs.py``): with
 ``--slp`` the four runs agree as well (t = 2 and 12 s, measured), but SLP stays off.
 Without SLP the copies still differed where LLVM chose the arithmetic itself: with FMA
 contraction ("contract") allowed, the stress pass's copies fused differently in AVX2 code
 (an AMD EPYC Zen 1 host; ``--cpu znver1`` on a newer host): compiled 1 thread and the three
 others gave two hashes at t = 2 s (478 steps).  The kernels now carry no flag that changes
-a value (``fem_rmpm/compiled.py``): one hash, with and without ``--cpu znver1``.
+a value (``fem_rmpm/runtime/compiled.py``): one hash, with and without ``--cpu znver1``.
 
 The check runs case (i) of the reference slope (or ``--scene`` with ``--set`` changes,
 e.g. ``--set solver.shape=gimp --set solver.fbar=true``) to ``--t-end`` in child
@@ -42,7 +42,7 @@ import tempfile
 from pathlib import Path
 
 from fem_rmpm.cli import parse_settings
-from fem_rmpm.errors import InputError
+from fem_rmpm.runtime.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "meshes" / "slope_reference.toml"
@@ -52,7 +52,7 @@ _CHILD = """
 import hashlib, json, sys
 import numpy as np
 from fem_rmpm import api
-from fem_rmpm.explicit import run_explicit
+from fem_rmpm.schemes.explicit.loop import run_explicit
 from fem_rmpm.scene import load_scene, with_values
 changes = dict(json.loads(sys.argv[4]), **{"solver.t_end": float(sys.argv[2]),
                                             "solver.threads": int(sys.argv[3])})

@@ -21,7 +21,7 @@ mutant — which keeps a run bounded on 2 cores.
 
 Numba functions: mutmut 3 never mutates a decorated function (its trampoline would be
 copied through the decorator), so every ``@njit`` function — the explicit kernels in
-``fem_rmpm/kernels/``, the models' ``point_update`` and Mohr–Coulomb's whole return
+``fem_rmpm/schemes/explicit/kernels/``, the models' ``point_update`` and Mohr–Coulomb's whole return
 mapping (``_update_all`` and below, one numba function for the numpy, complex-step and
 kernel paths) — is left out by the tool itself; nothing to configure.  What is mutated is
 the numpy side: von Mises' ``update`` / ``cohesion`` / ``check``, the shared Hencky
@@ -65,7 +65,7 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
                    ["tests/test_montecarlo.py::test_statistics_standard_error_and_wilson_interval",
                     "tests/test_statistics.py",
                     "tests/test_campaign_decide.py::test_measure_sample_is_the_runs_to_rest_below_k"]),
-    "measures": (["fem_rmpm/measures.py"],
+    "measures": (["fem_rmpm/measures/deposit.py"],
                  ["tests/test_measures.py", "tests/test_measures_details.py",
                   "tests/test_measures_reference.py", "-k",
                   "not reference_slope and not leaving and not ends_cleanly and not "
@@ -89,7 +89,7 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
                    "not column and not newton and not nonconvergence and not summary and "
                    "not pyamg and not newmark and not geostatic and not gimp and not q4 and "
                    "not one_static"]),
-    "explicit": (["fem_rmpm/explicit.py", "fem_rmpm/run.py"],
+    "explicit": (["fem_rmpm/schemes/explicit/loop.py", "fem_rmpm/schemes/common.py"],
                  ["tests/test_explicit.py", "tests/test_kernels.py", "tests/test_documented.py",
                   "tests/test_explicit_details.py", "tests/test_run_guards.py",
                   "tests/test_locking.py", "tests/test_explicit_wiring.py",
@@ -97,7 +97,7 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
     # the same files against the fast tests only (one or a few steps, numba = numpy, the
     # run guards, short column runs): the "explicit" selection runs slope columns for every
     # mutant of the step and the CFL step, about a minute each on 2 cores
-    "explicit_step": (["fem_rmpm/explicit.py", "fem_rmpm/run.py"],
+    "explicit_step": (["fem_rmpm/schemes/explicit/loop.py", "fem_rmpm/schemes/common.py"],
                       ["tests/test_kernels.py", "tests/test_locking.py", "tests/test_threads.py",
                        "tests/test_explicit_details.py", "tests/test_stability.py",
                        "tests/test_explicit_wiring.py", "tests/test_run_guards.py"]),
@@ -210,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
                         "(mutmut's default 15; raise it on a loaded machine, where a slow run "
                         "is not a kill)")
     p.add_argument("--only", nargs="*", default=None, metavar="NAME",
-                   help="mutant names (as mutmut lists them, e.g. 'fem_rmpm.explicit.x_stable_time_step"
+                   help="mutant names (as mutmut lists them, e.g. 'fem_rmpm.schemes.explicit.loop.x_stable_time_step"
                         "__mutmut_3') to run instead of all")
     p.add_argument("--rerun", default=None, metavar="JSON",
                    help="an earlier result of this target: run only its survivors and "

@@ -31,11 +31,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fem_rmpm import random_field as rf  # noqa: E402
+from fem_rmpm.discretise.grid import make_grid  # noqa: E402
+from fem_rmpm.discretise.points import seed_particles  # noqa: E402
+from fem_rmpm.io.output import to_true_frame  # noqa: E402
+from fem_rmpm.io.plots import _plt, plot_field  # noqa: E402
 from fem_rmpm.random_field import embedding as rf_embedding  # noqa: E402
-from fem_rmpm.grid import make_grid  # noqa: E402
-from fem_rmpm.output import to_true_frame  # noqa: E402
-from fem_rmpm.particles import seed_particles  # noqa: E402
-from fem_rmpm.plots import _plt, plot_field  # noqa: E402
 from fem_rmpm.scene import load_scene, scene_from_dict, with_value  # noqa: E402
 
 OUT = ROOT / "validation" / "out"

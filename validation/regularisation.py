@@ -70,7 +70,7 @@ from pathlib import Path
 import numpy as np
 
 from fem_rmpm import api
-from fem_rmpm.measures import intact_blocks
+from fem_rmpm.measures.deposit import intact_blocks
 from fem_rmpm.scene import load_scene, with_values
 
 HERE = Path(__file__).parent

@@ -1,4 +1,4 @@
-"""Re-measure a run directory from its VTK with the deposit measures (fem_rmpm.measures).
+"""Re-measure a run directory from its VTK with the deposit measures (fem_rmpm.measures.deposit).
 
     python validation/remeasure_vtk.py RUN_DIR [RUN_DIR ...]
 
@@ -18,7 +18,7 @@ from types import SimpleNamespace
 import meshio
 import numpy as np
 
-from fem_rmpm.measures import compute_measures
+from fem_rmpm.measures.deposit import compute_measures
 
 
 def remeasure(run: Path) -> tuple[dict, dict]:

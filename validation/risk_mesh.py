@@ -43,9 +43,9 @@ import numpy as np
 
 from fem_rmpm import api
 from fem_rmpm.campaign.cases import parse_case, realization_seed
-from fem_rmpm.explicit import run_explicit
-from fem_rmpm.measures import moved_area
+from fem_rmpm.measures.deposit import moved_area
 from fem_rmpm.scene import scene_from_dict, scene_to_dict, with_values
+from fem_rmpm.schemes.explicit.loop import run_explicit
 
 
 class _Decided(Exception):

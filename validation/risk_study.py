@@ -366,7 +366,7 @@ def study(campaign: Path, fs_dir: Path | None = None, report: bool = True,
     plot_exceedance(campaign / "risk_exceedance.png", sample, summary)
     plot_modes(campaign / "risk_modes.png", summary, sample)
     if report:
-        from fem_rmpm.report import write_report
+        from fem_rmpm.campaign.report import write_report
         write_report(campaign)
     return out
 

@@ -6,7 +6,7 @@
     10 gamma H), for linear elastodynamics (geostatic phase, points fixed) and for large
     deformation, undamped and with the default local damping 0.7; a 2-D box (rough
     walls) in the linear regime; and the theory of the scheme itself, the cfl at which
-    the spectral radius of the linearised step exceeds 1 (fem_rmpm/stability.py), for
+    the spectral radius of the linearised step exceeds 1 (fem_rmpm/schemes/explicit/stability.py), for
     FLIP and PIC.
 (b) **Cell crossing.**  The compaction column (Charlton et al. 2017: l0 = 50 m, E = 10 kPa,
     nu = 0; error norm sum_p |sigma_p - sigma_a| V_p / (rho0 g l0 V0)) under refinement,
@@ -17,7 +17,7 @@
     vs F-bar (de Souza Neto et al. 1996): the mean pressure at the points against the
     column's closed form p = (1 + 2 K0) / 3 gamma (H - y), which the box approaches as
     nu -> 0.5 (the deviatoric stress is O(G/K) p), and the in-cell oscillation index
-    (fem_rmpm.locking.checkerboard_index); the laterally restrained 1-D column as the
+    (fem_rmpm.schemes.locking.checkerboard_index); the laterally restrained 1-D column as the
     control that cannot lock.  Implicit geostatic step (one linear solve = the static
     state); explicit runs to rest at nu = 0.499 give the same numbers.
 (d) **Points per cell** 1 / 4 / 9 (points_per_cell_dir 1, 2, 3): compaction error and cost
@@ -41,13 +41,13 @@ from pathlib import Path
 
 import numpy as np
 
-from fem_rmpm.explicit import run_explicit
-from fem_rmpm.grid import make_grid
-from fem_rmpm.implicit import run_implicit
-from fem_rmpm.locking import checkerboard_index, mean_pressure
-from fem_rmpm.particles import seed_particles
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
-from fem_rmpm.stability import cfl_limit, spectral_cfl_limit
+from fem_rmpm.schemes.explicit.loop import run_explicit
+from fem_rmpm.schemes.explicit.stability import cfl_limit, spectral_cfl_limit
+from fem_rmpm.schemes.implicit import run_implicit
+from fem_rmpm.schemes.locking import checkerboard_index, mean_pressure
 
 HERE = Path(__file__).parent
 MESHES = HERE.parent / "meshes"

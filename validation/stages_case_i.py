@@ -25,10 +25,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fem_rmpm import api, kernels as K  # noqa: E402
-from fem_rmpm.explicit import Workspace, explicit_step, run_explicit  # noqa: E402
-from fem_rmpm.point_order import PointOrder  # noqa: E402
+from fem_rmpm import api  # noqa: E402
+from fem_rmpm.discretise.point_order import PointOrder  # noqa: E402
 from fem_rmpm.scene import load_scene, with_values  # noqa: E402
+from fem_rmpm.schemes.explicit import kernels as K
+from fem_rmpm.schemes.explicit.loop import Workspace, explicit_step, run_explicit  # noqa: E402
 
 STAGES = ("map to nodes", "solve + map back", "nodal velocities + stress pass")
 

@@ -13,7 +13,7 @@ sqrt(2 (1 - 0.9865)) = 0.16 of its standard deviation anywhere).  The script che
 the noise has one component and that the cohesion of every material point of a
 realization is the same (to 1e-12 relative).
 
-Every sample's FS is a full strength reduction (:mod:`fem_rmpm.strength_reduction`,
+Every sample's FS is a full strength reduction (:mod:`fem_rmpm.schemes.implicit.strength_reduction`,
 bracket tolerance ``--tolerance``) run by the subset campaign of
 :func:`fem_rmpm.campaign.run_subset_campaign` (``--response factor_of_safety``,
 failure FS < 1, p0 = 0.1, ``-n`` samples per level) on a local Dask cluster: records
@@ -87,7 +87,7 @@ def griffiths_scene(cell: float, cohesion: float, cov: float | None = None, seed
 def critical_cohesion(cell: float, tolerance: float, out: Path) -> dict:
     """c_crit = C0 / FS(C0), every trial from zero; cached in ``out/c_crit.json``."""
     from fem_rmpm import api
-    from fem_rmpm.strength_reduction import FSOptions, factor_of_safety
+    from fem_rmpm.schemes.implicit.strength_reduction import FSOptions, factor_of_safety
     path = out / "c_crit.json"
     if path.exists():
         doc = json.loads(path.read_text())
@@ -109,7 +109,7 @@ def critical_cohesion(cell: float, tolerance: float, out: Path) -> dict:
 def check_single_variable(scene) -> dict:
     """The theta = 1e4 m field is one variable: noise size 1, one cohesion on all points."""
     from fem_rmpm import api
-    from fem_rmpm.grid import make_grid
+    from fem_rmpm.discretise.grid import make_grid
     from fem_rmpm.random_field import noise_shape
     shape = noise_shape(scene, make_grid(scene))
     spread = []
@@ -140,8 +140,8 @@ def tied_at_thresholds(levels) -> list[int]:
 
 def proportionality(scene, out: Path, m_ln: float, s_ln: float, c_crit: float) -> dict:
     """Largest |FS / (c / c_crit) - 1| over the samples with an exact FS ("=")."""
-    from fem_rmpm.campaign.subset_runner import sample_noises
     from fem_rmpm.campaign.store import read_record
+    from fem_rmpm.campaign.subset_runner import sample_noises
     dev, n = 0.0, 0
     for key, noise in sample_noises(scene, out):
         rec = read_record(out / "records" / f"{key}.json")

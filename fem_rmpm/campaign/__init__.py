@@ -35,7 +35,7 @@ What a campaign is
   atomically (temporary file + rename) as ``records/realization_00012.json``
   (``records/<case>/...`` with several cases): case, index, seed, status ``ok`` |
   ``failed``, the error message of a failed realization, scheme, steps,
-  simulated, wall and CPU time, the scalar measures (:mod:`fem_rmpm.measures`) and the
+  simulated, wall and CPU time, the scalar measures (:mod:`fem_rmpm.measures.deposit`) and the
   worker; its final surface profile goes to ``profiles/`` the same way.
   ``results.csv`` is rebuilt from the records (one row per realization, sorted by
   case and index, floats written with ``repr`` so they round-trip bitwise; wall
@@ -54,7 +54,7 @@ What a campaign is
   its ``fem_rmpm`` version); use ``--force`` or a new directory to recompute.  A lock
   file stops two commands from working on one directory at the same time (released by
   the kernel even if the client is killed).
-* **Failures.** A realization that fails (:class:`fem_rmpm.run.SimulationError`:
+* **Failures.** A realization that fails (:class:`fem_rmpm.schemes.common.SimulationError`:
   unstable, a random-field value the material cannot take, ...; or any other
   exception in the realization) is recorded with ``status = failed`` and its
   message and the campaign goes on.  Statistics use the ``ok`` realizations; the
@@ -84,7 +84,7 @@ DasGupta 2001), which stays meaningful at p = 0 or 1; mean, standard deviation,
 standard error of the mean and the 5/50/95 % quantiles of run-out, retrogression
 and sliding area; and their running values in index order (convergence with N).
 
-Figures (:mod:`fem_rmpm.campaign_plots`): ``exceedance.png`` (P[run-out > x],
+Figures (:mod:`fem_rmpm.campaign.plots`): ``exceedance.png`` (P[run-out > x],
 P[retrogression > r], P[sliding area > a]), ``histograms.png``,
 ``convergence.png`` (P(failure) and mean run-out against N with 95 % bands) and,
 with kept VTK, ``cases.png`` (final plastic shear strain of one realization per
@@ -147,8 +147,15 @@ from __future__ import annotations
 
 import importlib
 
-from .cases import (LITERATURE_CASES, CampaignError, Case, literature_cases, parse_case,
-                    realization_seed, without_random_field)
+from fem_rmpm.campaign.cases import (
+    LITERATURE_CASES,
+    CampaignError,
+    Case,
+    literature_cases,
+    parse_case,
+    realization_seed,
+    without_random_field,
+)
 
 # The rest is imported when first used (PEP 562): the cluster, runner and task modules
 # import dask and distributed (~0.65 s), which a plain ``fem-rmpm run`` never needs.

@@ -38,7 +38,7 @@ Configuration of the batch jobs, highest precedence first:
 3. fem_rmpm's defaults where the Dask configuration has none: ``cores = 1``,
    ``processes = cores`` (one single-thread worker per core: a realization is
    single-threaded), ``memory`` = ``processes`` x the larger of 1 GiB and twice the
-   estimated peak memory of one realization (:mod:`fem_rmpm.budget`), the
+   estimated peak memory of one realization (:mod:`fem_rmpm.runtime.budget`), the
    dashboard on a free port.
 
 Every job starts with ``OMP_NUM_THREADS``, ``MKL_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``,
@@ -78,12 +78,16 @@ from distributed import Client
 from distributed.core import Status
 from tornado.ioloop import PeriodicCallback
 
-from ..budget import estimate_run
-from ..machine import usable_cores
-
-from .cases import CampaignError
-from .cluster import local_worker_count, local_workers_text, start_client, worker_environment
-from .task import campaign_threads
+from fem_rmpm.campaign.cases import CampaignError
+from fem_rmpm.campaign.cluster import (
+    local_worker_count,
+    local_workers_text,
+    start_client,
+    worker_environment,
+)
+from fem_rmpm.campaign.task import campaign_threads
+from fem_rmpm.runtime.budget import estimate_run
+from fem_rmpm.runtime.machine import usable_cores
 
 __all__ = ["CLUSTER_KINDS", "ClusterError", "ClusterSpec", "Backend", "open_backend",
            "campaign_backend",
@@ -200,7 +204,7 @@ def campaign_backend(spec: ClusterSpec | None, workers: int | None, scheduler: s
                      cases: Sequence) -> Backend:
     """The backend of a campaign: ``spec`` (default: local) with ``run_campaign``'s
     ``workers`` and ``scheduler`` arguments and the estimated peak memory of one
-    realization of the largest case (:func:`fem_rmpm.budget.estimate_run`)."""
+    realization of the largest case (:func:`fem_rmpm.runtime.budget.estimate_run`)."""
     spec = spec or ClusterSpec()
     if workers is not None:
         if spec.workers not in (None, workers):

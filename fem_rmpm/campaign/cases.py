@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
-from ..scene import Scene, scene_from_dict, scene_to_dict, with_value
+from fem_rmpm.runtime.errors import InputError
+from fem_rmpm.scene import Scene, scene_from_dict, scene_to_dict, with_value
 
 __all__ = ["CampaignError", "Case", "LITERATURE_CASES", "parse_case", "literature_cases",
            "realization_seed", "without_random_field"]

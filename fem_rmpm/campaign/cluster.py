@@ -9,9 +9,9 @@ import os
 import dask
 from distributed import Client, LocalCluster
 
-from ..machine import usable_cores as _usable_cpus
-from .cases import CampaignError
-from .task import MALLOC_THRESHOLDS
+from fem_rmpm.campaign.cases import CampaignError
+from fem_rmpm.campaign.task import MALLOC_THRESHOLDS
+from fem_rmpm.runtime.machine import usable_cores as _usable_cpus
 
 __all__ = ["worker_environment", "local_worker_count", "local_workers_text",
            "start_local_cluster", "start_client"]

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from typing import Iterable
 
-from ..measures import moved_area
+from fem_rmpm.measures.deposit import moved_area
 
 __all__ = ["DECIDED", "DECIDED_FAILURE_AREA", "FailureWatch", "in_measure_sample",
            "is_decided", "decision_check"]

@@ -2,12 +2,12 @@
 
 :func:`estimate_campaign` reads the campaign directory (the records already there are
 not counted again), writes nothing and starts no worker.  Per case it takes the points
-and the CFL step count of one run from :func:`fem_rmpm.budget.estimate_run`, and
+and the CFL step count of one run from :func:`fem_rmpm.runtime.budget.estimate_run`, and
 
 * **steps** = the budget's count (``t_end`` over the CFL step at rest) x a *steps
   factor*: moving points shorten the step and a run that comes to rest stops early.
   From the ok records of this campaign when there are some (their mean ratio of steps
-  taken to the budget's count); else :data:`fem_rmpm.budget.STEPS_FACTOR`, the ratio
+  taken to the budget's count); else :data:`fem_rmpm.runtime.budget.STEPS_FACTOR`, the ratio
   measured on the reference slope (six realizations of the four literature cases:
   1.21-1.40, mean 1.30);
 * **CPU per realization** = setup + points x steps x the cost per point-step, with the
@@ -22,7 +22,7 @@ and the CFL step count of one run from :func:`fem_rmpm.budget.estimate_run`, and
 * **memory per worker** = the budget's peak memory of one realization (largest case);
 * **wall time** = the start of one worker + the realizations spread over the workers
   (``ceil(to_run / workers)`` realizations in a row per worker, each on the local
-  workers' ``[solver] threads`` at :data:`fem_rmpm.budget.THREAD_EFFICIENCY`; queue
+  workers' ``[solver] threads`` at :data:`fem_rmpm.runtime.budget.THREAD_EFFICIENCY`; queue
   waits of a batch system are not included).
 
 Measured on the reference slope main job (``fem-rmpm mc --out DIR``: 10 realizations):
@@ -37,12 +37,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Sequence
 
-from ..api import run as run_one
-from ..budget import STEPS_FACTOR, RunEstimate, estimate_run, thread_speed_up
-from ..scene import Scene, with_value
-from .backends import ClusterSpec, campaign_backend
-from .cases import Case, CampaignError
-from .runner import pending_work
+from fem_rmpm.api import run as run_one
+from fem_rmpm.campaign.backends import ClusterSpec, campaign_backend
+from fem_rmpm.campaign.cases import CampaignError, Case
+from fem_rmpm.campaign.runner import pending_work
+from fem_rmpm.runtime.budget import STEPS_FACTOR, RunEstimate, estimate_run, thread_speed_up
+from fem_rmpm.scene import Scene, with_value
 
 __all__ = ["STEPS_FACTOR", "CaseEstimate", "CampaignEstimate", "Calibration",
            "estimate_campaign", "probe_calibration", "records_calibration", "estimate_text"]

@@ -1,6 +1,6 @@
 """The factor of safety in a campaign (``[montecarlo] factor_of_safety = true``, ``--fs``,
 ``--fs-only``): per realization, the strength-reduction FS of its random field
-(:mod:`fem_rmpm.strength_reduction`) before the MPM run, or instead of it.
+(:mod:`fem_rmpm.schemes.implicit.strength_reduction`) before the MPM run, or instead of it.
 
 Per realization the record gains ``fs`` (text, bracket, static solves, wall time, status)
 and the measures (hence ``results.csv``): ``factor_of_safety`` (the bound itself when
@@ -21,11 +21,11 @@ from typing import Sequence
 
 import numpy as np
 
-from .. import api
-from ..plots import _plt
-from ..scene import Scene
-from ..strength_reduction import NonPhysicalFailure, factor_of_safety
-from .statistics import wilson_interval
+from fem_rmpm import api
+from fem_rmpm.campaign.statistics import wilson_interval
+from fem_rmpm.io.plots import _plt
+from fem_rmpm.scene import Scene
+from fem_rmpm.schemes.implicit.strength_reduction import NonPhysicalFailure, factor_of_safety
 
 __all__ = ["MODES", "fs_measures", "fs_statistics", "fs_text", "plot_factor_of_safety"]
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from .cases import CampaignError
+from fem_rmpm.campaign.cases import CampaignError
 
 __all__ = ["parse_keep_vtk", "kept"]
 

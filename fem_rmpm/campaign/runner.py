@@ -13,20 +13,28 @@ import numpy as np
 from distributed import as_completed
 from tqdm import tqdm
 
-from ..campaign_plots import campaign_figures
-from ..machine import describe as describe_machine, tally
-from ..output import write_json
-from ..report import write_report
-from ..scene import Scene
-from .cases import CampaignError, Case, parse_case, realization_seed
-from .decide import decision_check, in_measure_sample, is_decided
-from .backends import ClusterSpec, campaign_backend
-from .keep_vtk import kept, parse_keep_vtk
-from .factor_of_safety import fs_statistics, plot_factor_of_safety
-from .statistics import case_statistics
-from .store import (Layout, Lock, campaign_doc, check_directory, clean_temporaries,
-                    read_record, write_results)
-from .task import campaign_threads, run_realization
+from fem_rmpm.campaign.backends import ClusterSpec, campaign_backend
+from fem_rmpm.campaign.cases import CampaignError, Case, parse_case, realization_seed
+from fem_rmpm.campaign.decide import decision_check, in_measure_sample, is_decided
+from fem_rmpm.campaign.factor_of_safety import fs_statistics, plot_factor_of_safety
+from fem_rmpm.campaign.keep_vtk import kept, parse_keep_vtk
+from fem_rmpm.campaign.plots import campaign_figures
+from fem_rmpm.campaign.report import write_report
+from fem_rmpm.campaign.statistics import case_statistics
+from fem_rmpm.campaign.store import (
+    Layout,
+    Lock,
+    campaign_doc,
+    check_directory,
+    clean_temporaries,
+    read_record,
+    write_results,
+)
+from fem_rmpm.campaign.task import campaign_threads, run_realization
+from fem_rmpm.io.output import write_json
+from fem_rmpm.runtime.machine import describe as describe_machine
+from fem_rmpm.runtime.machine import tally
+from fem_rmpm.scene import Scene
 
 __all__ = ["run_campaign", "CampaignResult", "pending_work", "thread_shortfall"]
 

@@ -7,8 +7,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .decide import in_measure_sample
-from .store import MEASURE_KEYS, RESULT_COLUMNS
+from fem_rmpm.campaign.decide import in_measure_sample
+from fem_rmpm.campaign.store import MEASURE_KEYS, RESULT_COLUMNS
 
 __all__ = ["wilson_interval", "case_statistics"]
 

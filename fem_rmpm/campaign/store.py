@@ -16,18 +16,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from .. import scene as S
-from ..measures import UNITS
-from ..output import _atomic_write_bytes, write_json
-from ..scene import Scene, scene_to_dict
-from .cases import CampaignError, Case, realization_seed
+from fem_rmpm import scene as S
+from fem_rmpm.campaign.cases import CampaignError, Case, realization_seed
+from fem_rmpm.io.output import _atomic_write_bytes, write_json
+from fem_rmpm.measures.deposit import UNITS
+from fem_rmpm.scene import Scene, scene_to_dict
 
 __all__ = ["FORMAT", "MEASURE_KEYS", "RESULT_COLUMNS", "result_columns", "write_results",
            "read_results", "import_records"]
 
 FORMAT = "fem_rmpm campaign 1"
 #: The first measure columns of ``results.csv``; every other scalar measure of
-#: :func:`fem_rmpm.measures.compute_measures` (slip-surface height, intact blocks, ...)
+#: :func:`fem_rmpm.measures.deposit.compute_measures` (slip-surface height, intact blocks, ...)
 #: follows in alphabetical order.  Profiles (lists) go to ``profiles/``.
 MEASURE_KEYS = ("failed", "sliding_area", "runout_distance", "retrogression_distance",
                 "max_displacement", "time_to_rest")

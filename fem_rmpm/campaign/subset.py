@@ -99,8 +99,8 @@ from typing import Any, Callable, Iterator, Protocol, Sequence
 
 import numpy as np
 
-from ..errors import InputError
-from .cases import realization_seed
+from fem_rmpm.campaign.cases import realization_seed
+from fem_rmpm.runtime.errors import InputError
 
 __all__ = ["SubsetError", "SubsetWarning", "Sample", "CampaignMethod", "MethodResult",
            "LevelResult", "CrudeMonteCarlo", "SubsetSimulation", "run_method",

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..plots import _plt
-from .subset import MethodResult
+from fem_rmpm.campaign.subset import MethodResult
+from fem_rmpm.io.plots import _plt
 
 __all__ = ["plot_levels"]
 

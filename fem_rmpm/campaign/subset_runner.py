@@ -31,7 +31,7 @@ space of the scene's random field: a realization is a pure function of (scene, n
   another scene, response, ``p0`` or ``N`` in the same directory is an error.  The
   threshold is not part of the identity: the levels do not depend on it until the last
   one, so a re-run with a rarer threshold reuses every record and adds levels.
-* **Failed realizations** (a :class:`fem_rmpm.run.SimulationError`) are recorded and
+* **Failed realizations** (a :class:`fem_rmpm.schemes.common.SimulationError`) are recorded and
   count as runs that exceed no threshold (a rejected candidate); the summary counts them.
 * **Output.** ``summary.json`` (``"subset"``: P, its COV with the chain correlation
   (Au & Beck 2001), the thresholds, per-level conditional probability, COV, chain
@@ -60,21 +60,22 @@ import numpy as np
 from distributed import as_completed
 from tqdm import tqdm
 
-from .. import api
-from ..grid import make_grid
-from ..machine import describe as describe_machine, tally
-from ..output import _atomic_write_bytes, write_json
-from ..report import write_report
-from ..run import SimulationError
-from ..random_field import field_noise
-from ..scene import Scene
-from ..strength_reduction import FSOptions, factor_of_safety
-from .cases import CampaignError, parse_case
-from .backends import ClusterSpec, campaign_backend
-from .store import FORMAT, Lock, campaign_doc, check_directory, read_record
-from .subset import MethodResult, Sample, SubsetSimulation, SubsetWarning
-from .subset_plots import plot_levels
-from .task import run_realization
+from fem_rmpm import api
+from fem_rmpm.campaign.backends import ClusterSpec, campaign_backend
+from fem_rmpm.campaign.cases import CampaignError, parse_case
+from fem_rmpm.campaign.report import write_report
+from fem_rmpm.campaign.store import FORMAT, Lock, campaign_doc, check_directory, read_record
+from fem_rmpm.campaign.subset import MethodResult, Sample, SubsetSimulation, SubsetWarning
+from fem_rmpm.campaign.subset_plots import plot_levels
+from fem_rmpm.campaign.task import run_realization
+from fem_rmpm.discretise.grid import make_grid
+from fem_rmpm.io.output import _atomic_write_bytes, write_json
+from fem_rmpm.random_field import field_noise
+from fem_rmpm.runtime.machine import describe as describe_machine
+from fem_rmpm.runtime.machine import tally
+from fem_rmpm.scene import Scene
+from fem_rmpm.schemes.common import SimulationError
+from fem_rmpm.schemes.implicit.strength_reduction import FSOptions, factor_of_safety
 
 __all__ = ["SUBSET_FORMAT", "RESPONSES", "Response", "parse_response", "run_subset_sample",
            "run_subset_campaign", "SubsetCampaignResult", "subset_summary_text",
@@ -145,9 +146,10 @@ def noise_digest(noise: np.ndarray) -> str:
 # --------------------------------------------------------------------------- the task
 
 def _factor_of_safety_record(task: dict) -> dict:
-    """The record of a strength-reduction run of the sample (:mod:`fem_rmpm.strength_reduction`):
-    status, error, ``value`` = FS (the bound for "FS > f_max" / "FS < f_min"), its bound,
-    bracket and number of static solves, worker, wall and CPU time."""
+    """The record of a strength-reduction run of the sample
+    (:mod:`fem_rmpm.schemes.implicit.strength_reduction`): status, error, ``value`` = FS (the bound
+    for "FS > f_max" / "FS < f_min"), its bound, bracket and number of static solves, worker, wall
+    and CPU time."""
     rec: dict[str, Any] = {"format": FORMAT, "case": task["case"], "index": int(task["index"]),
                            "seed": task["seed"], "scheme": "strength_reduction",
                            "status": "ok", "error": None, "vtk": None, "value": None,
@@ -354,7 +356,7 @@ def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
     ``workers`` / ``scheduler`` / ``client`` / ``cluster``: as for crude Monte Carlo
     (:func:`fem_rmpm.campaign.run_campaign`; ``cluster`` a
     :class:`~fem_rmpm.campaign.backends.ClusterSpec`, e.g. SLURM workers); ``fs_options``:
-    :class:`fem_rmpm.strength_reduction.FSOptions` fields for the factor of safety
+    :class:`fem_rmpm.schemes.implicit.strength_reduction.FSOptions` fields for the factor of safety
     (part of the campaign identity).  Raises
     :class:`CampaignError` or :class:`SubsetError` (both input errors) before anything
     is written."""

@@ -12,12 +12,12 @@ from typing import Any
 import numba
 import numpy as np
 
-from .. import api
-from ..machine import cpu_model
-from ..run import SimulationError
-from .decide import DECIDED, FailureWatch
-from .factor_of_safety import fs_measures
-from .store import FORMAT
+from fem_rmpm import api
+from fem_rmpm.campaign.decide import DECIDED, FailureWatch
+from fem_rmpm.campaign.factor_of_safety import fs_measures
+from fem_rmpm.campaign.store import FORMAT
+from fem_rmpm.runtime.machine import cpu_model
+from fem_rmpm.schemes.common import SimulationError
 
 __all__ = ["run_realization", "campaign_threads", "MALLOC_THRESHOLDS"]
 

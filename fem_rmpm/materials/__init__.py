@@ -9,13 +9,28 @@ changes.
 """
 from __future__ import annotations
 
-from . import linear_elastic, mohr_coulomb, von_mises
-from .hencky import (exp_sym2, hencky_stress, hughes_winget_increment, kirchhoff_stress,
-                     log_sym2, return_map, small_strain_update, spatial_tangent, sqrt_j2,
-                     stress_update)
-from .points import cohesion, invalid_points, material_points, new_state, soil_values
-from .protocol import ELASTIC_COLUMNS, MaterialPoints, Parameter
-from .registry import model, model_id, models, names, register, version
+from fem_rmpm.materials import linear_elastic, mohr_coulomb, von_mises
+from fem_rmpm.materials.hencky import (
+                     exp_sym2,
+                     hencky_stress,
+                     hughes_winget_increment,
+                     kirchhoff_stress,
+                     log_sym2,
+                     return_map,
+                     small_strain_update,
+                     spatial_tangent,
+                     sqrt_j2,
+                     stress_update,
+)
+from fem_rmpm.materials.points import (
+                     cohesion,
+                     invalid_points,
+                     material_points,
+                     new_state,
+                     soil_values,
+)
+from fem_rmpm.materials.protocol import ELASTIC_COLUMNS, MaterialPoints, Parameter
+from fem_rmpm.materials.registry import model, model_id, models, names, register, version
 
 __all__ = ["MaterialPoints", "Parameter", "ELASTIC_COLUMNS", "register", "model", "model_id",
            "models", "names", "version", "material_points", "new_state", "soil_values", "cohesion",

@@ -20,7 +20,7 @@ passed as arguments), and that finish pass cost 18.7 ns per point against 14.4 i
 Why the ``version`` argument (:func:`.registry.version`): numba compiles the chain into
 the calling kernel and caches that kernel on disk (``cache=True``: no recompilation in
 the next process).  A kernel that uses the dispatch is made by a factory closing over
-the version number (:func:`fem_rmpm.kernels.material_kernels`): numba's cache key
+the version number (:func:`fem_rmpm.schemes.explicit.kernels.material_kernels`): numba's cache key
 includes a closure's values, and the overload sees ``version`` as a literal, so a new
 model or an edited model file gives a new key and one fresh compile (~1 s), never a
 stale chain.  An unknown id returns NaN (caught by the run's non-finite guard).
@@ -28,8 +28,8 @@ stale chain.  An unknown id returns NaN (caught by the run's non-finite guard).
 ``has_block_update(version, only)`` and ``block_dispatch(version, only, Z, state, params,
 active, b, m)``: a kernel restricted to one model (``only`` >= 0) whose module has the
 optional vectorised ``block_update`` (:mod:`.protocol`) runs it on whole blocks of points
-(:func:`fem_rmpm.kernels.stress`'s finish pass); the first is a compile-time constant, so
-the other kernels compile no block code.  Whether a run's points take the block path is
+(:func:`fem_rmpm.schemes.explicit.kernels.stress`'s finish pass); the first is a compile-time
+constant, so the other kernels compile no block code.  Whether a run's points take the block path is
 decided once per run, in Python, by :func:`takes_blocks` (the kernels' ``StepOptions.block``).
 """
 from __future__ import annotations
@@ -39,7 +39,7 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import overload
 
-from . import registry
+from fem_rmpm.materials import registry
 
 __all__ = ["point_dispatch", "block_dispatch", "has_block_update", "takes_blocks"]
 

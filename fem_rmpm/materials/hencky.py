@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import registry
-from .protocol import MaterialPoints
+from fem_rmpm.materials import registry
+from fem_rmpm.materials.protocol import MaterialPoints
 
 __all__ = ["exp_sym2", "log_sym2", "hughes_winget_increment", "hencky_stress",
            "kirchhoff_stress", "sqrt_j2", "return_map", "stress_update", "small_strain_update",

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .hencky import hencky_stress
+from fem_rmpm.materials.hencky import hencky_stress
 
 NAME = "linear_elastic"
 PARAMETERS = ()

@@ -53,8 +53,8 @@ import math
 import numpy as np
 from numba import njit
 
-from ..compiled import FASTMATH
-from .protocol import Parameter
+from fem_rmpm.materials.protocol import Parameter
+from fem_rmpm.runtime.compiled import FASTMATH
 
 NAME = "mohr_coulomb_softening"
 PARAMETERS = (

@@ -5,8 +5,8 @@ import math
 
 import numpy as np
 
-from . import registry
-from .protocol import MaterialPoints
+from fem_rmpm.materials import registry
+from fem_rmpm.materials.protocol import MaterialPoints
 
 __all__ = ["material_points", "soil_values", "cohesion", "invalid_points", "new_state"]
 

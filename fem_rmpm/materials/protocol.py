@@ -33,7 +33,7 @@ current strength per point in kPa for outputs; default: infinite) and
 strengths divided by the trial factor ``F`` of a factor-of-safety search by strength
 reduction, e.g. ``c / F`` and ``tan(phi) / F``; without ``softening`` residual = reduced
 peak; a model without it has its ``STRENGTHS`` names, or the default table of
-:mod:`fem_rmpm.strength_reduction`, divided by ``F``; see there), and
+:mod:`fem_rmpm.schemes.implicit.strength_reduction`, divided by ``F``; see there), and
 ``tangent(eps_tr, state, params) -> D`` (the consistent tangent ``d tau / d eps_tr``
 (n, 4, 4) of ``update`` at the trial log strains, columns ``[xx, yy, zz, xy]``; the
 implicit scheme uses it instead of the complex step of ``update``, which is ~10x slower;
@@ -42,7 +42,7 @@ a test must show the two agree), and ``block_update(Z, state, params, active, b,
 that LLVM vectorises it: the trial strains of point ``b + j`` in ``Z[0:4, j]``, its
 strains into ``Z[4:8, j]`` and Kirchhoff stress into ``Z[8:12, j]`` (rows 12-15 are its
 own), the state of the ``active`` points updated; ``Z`` is the kernels' block scratch,
-:data:`BLOCK_ROWS` x :data:`BLOCK_COLUMNS`, compiled with :data:`fem_rmpm.compiled.jit`;
+:data:`BLOCK_ROWS` x :data:`BLOCK_COLUMNS`, compiled with :data:`fem_rmpm.runtime.compiled.jit`;
 the results must be bitwise ``point_update``'s: the kernels use it where all points have
 the model, else ``point_update``) with ``block_eligible(params) -> bool`` (whether
 ``block_update`` computes points with these parameter rows (n, P), e.g. not a law it
@@ -56,14 +56,14 @@ from typing import Any
 
 import numpy as np
 
-from . import registry
+from fem_rmpm.materials import registry
 
 __all__ = ["Parameter", "MaterialPoints", "ELASTIC_COLUMNS", "BLOCK_ROWS", "BLOCK_COLUMNS"]
 
 # The block scratch ``Z`` a model's ``block_update`` gets (per chunk, i.e. per thread, of
 # the kernels): BLOCK_ROWS rows of BLOCK_COLUMNS float64, at least the kernels' block of
 # points (128).  The update may promise the width to LLVM
-# (:func:`fem_rmpm.compiled.assume_columns`), so that it can tell the rows apart and
+# (:func:`fem_rmpm.runtime.compiled.assume_columns`), so that it can tell the rows apart and
 # vectorise a loop that reads some and writes others.
 BLOCK_ROWS = 16
 BLOCK_COLUMNS = 192

@@ -12,7 +12,7 @@
   work conjugate of ``sqrt(J2)`` (``tau : d_eps_p = c d_gamma_p``) and equals the
   engineering plastic shear strain in simple shear.
 
-* **Regularisation** (``regularisation``, :mod:`fem_rmpm.regularisation`): ``c`` softens
+* **Regularisation** (``regularisation``, :mod:`fem_rmpm.schemes.regularisation`): ``c`` softens
   with the *softening variable* (state column 1).  ``"local"`` (default): it is the
   point's own ``gamma_p``; ``"nonlocal"``: its increments are ``m`` times the
   Galavi-weighted mean of the neighbours' over ``internal_length`` (m) plus ``1 - m``
@@ -34,9 +34,9 @@ import math
 import numpy as np
 from numba import njit
 
-from ..compiled import assume_columns, jit
-from .hencky import hencky_stress, sqrt_j2
-from .protocol import BLOCK_COLUMNS, Parameter
+from fem_rmpm.materials.hencky import hencky_stress, sqrt_j2
+from fem_rmpm.materials.protocol import BLOCK_COLUMNS, Parameter
+from fem_rmpm.runtime.compiled import assume_columns, jit
 
 NAME = "von_mises_softening"
 PARAMETERS = (

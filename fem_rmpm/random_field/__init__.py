@@ -8,7 +8,7 @@ Cholesky factor of the cross-correlation matrix), :mod:`.layout` (the field cell
 scene), :mod:`.conditioning` (measurements, kriging), :mod:`.points` (the fields of a
 seed or a noise array on the material points) and
 :mod:`.variogram` (scale estimation).  Figures and VTU of ``fem-rmpm field`` are in
-:mod:`fem_rmpm.field_output`, its command line in :mod:`fem_rmpm.cli`.
+:mod:`fem_rmpm.io.field_output`, its command line in :mod:`fem_rmpm.cli`.
 
 What a realization is
 ---------------------
@@ -132,18 +132,40 @@ Cressie-weighted least squares with a common sill.
 """
 from __future__ import annotations
 
-from .conditioning import Measurements, condition, read_measurements
-from .embedding import Embedding, circulant_embedding, dense_covariance, sample_dense
-from .layout import FieldLayout, field_layout
-from .cross import cholesky_factor, coherence, mix_noise
-from .model import (KINDS, MarkovModel, beta_shape, gaussian_to_property,
-                    local_average_covariance_1d, model_from_spec, property_to_gaussian,
-                    variance_function)
-from .points import (apply_to_points, embedding_for, embeddings_for, field_noise, field_values,
-                     gaussian_field, gaussian_fields, noise_shape, point_fields,
-                     sample_point_properties, sample_point_property)
-from .quadrature import lattice_covariance
-from .variogram import FitResult, empirical_variogram, fit_scales
+from fem_rmpm.random_field.conditioning import Measurements, condition, read_measurements
+from fem_rmpm.random_field.cross import cholesky_factor, coherence, mix_noise
+from fem_rmpm.random_field.embedding import (
+    Embedding,
+    circulant_embedding,
+    dense_covariance,
+    sample_dense,
+)
+from fem_rmpm.random_field.layout import FieldLayout, field_layout
+from fem_rmpm.random_field.model import (
+    KINDS,
+    MarkovModel,
+    beta_shape,
+    gaussian_to_property,
+    local_average_covariance_1d,
+    model_from_spec,
+    property_to_gaussian,
+    variance_function,
+)
+from fem_rmpm.random_field.points import (
+    apply_to_points,
+    embedding_for,
+    embeddings_for,
+    field_noise,
+    field_values,
+    gaussian_field,
+    gaussian_fields,
+    noise_shape,
+    point_fields,
+    sample_point_properties,
+    sample_point_property,
+)
+from fem_rmpm.random_field.quadrature import lattice_covariance
+from fem_rmpm.random_field.variogram import FitResult, empirical_variogram, fit_scales
 
 __all__ = [
     "KINDS", "MarkovModel", "model_from_spec", "variance_function",

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
-from ..grid import locate
-from ..particles import soil_cells
-from ..scene import RandomFieldSpec, Scene, SceneError
-from .embedding import Embedding
-from .layout import FieldLayout
-from .model import property_to_gaussian
+from fem_rmpm.discretise.grid import locate
+from fem_rmpm.discretise.points import soil_cells
+from fem_rmpm.random_field.embedding import Embedding
+from fem_rmpm.random_field.layout import FieldLayout
+from fem_rmpm.random_field.model import property_to_gaussian
+from fem_rmpm.scene import RandomFieldSpec, Scene, SceneError
 
 __all__ = ["Measurements", "read_measurements", "resolve_data_path", "data_cells", "condition"]
 

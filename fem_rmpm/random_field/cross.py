@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .embedding import Embedding
+from fem_rmpm.random_field.embedding import Embedding
 
 __all__ = ["cholesky_factor", "mix_noise", "coherence"]
 

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft as sfft
 
-from .model import MarkovModel
-from .quadrature import lattice_covariance
+from fem_rmpm.random_field.model import MarkovModel
+from fem_rmpm.random_field.quadrature import lattice_covariance
 
 __all__ = ["Embedding", "SingleVariable", "circulant_embedding", "dense_covariance",
            "sample_dense"]

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..particles import soil_cells
-from ..scene import Scene, SceneError
+from fem_rmpm.discretise.points import soil_cells
+from fem_rmpm.scene import Scene, SceneError
 
 __all__ = ["FieldLayout", "field_layout"]
 

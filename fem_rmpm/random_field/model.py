@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
-from ..scene import RandomFieldSpec
+from fem_rmpm.scene import RandomFieldSpec
 
 __all__ = ["KINDS", "MarkovModel", "model_from_spec", "variance_function",
            "local_average_covariance_1d", "gaussian_to_property", "property_to_gaussian",

@@ -15,14 +15,19 @@ import math
 
 import numpy as np
 
-from ..materials import MaterialPoints, registry
-from ..scene import RandomFieldSpec, Scene, SceneError
-from .conditioning import Measurements, condition, data_cells, read_measurements, \
-    resolve_data_path
-from .cross import cholesky_factor, mix_noise
-from .embedding import Embedding, circulant_embedding
-from .layout import FieldLayout, field_layout
-from .model import gaussian_to_property, model_from_spec
+from fem_rmpm.materials import MaterialPoints, registry
+from fem_rmpm.random_field.conditioning import (
+    Measurements,
+    condition,
+    data_cells,
+    read_measurements,
+    resolve_data_path,
+)
+from fem_rmpm.random_field.cross import cholesky_factor, mix_noise
+from fem_rmpm.random_field.embedding import Embedding, circulant_embedding
+from fem_rmpm.random_field.layout import FieldLayout, field_layout
+from fem_rmpm.random_field.model import gaussian_to_property, model_from_spec
+from fem_rmpm.scene import RandomFieldSpec, Scene, SceneError
 
 __all__ = ["embedding_for", "embeddings_for", "noise_shape", "field_noise", "gaussian_field",
            "gaussian_fields", "field_values", "sample_point_property",

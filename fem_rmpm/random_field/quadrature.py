@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from .model import MarkovModel, local_average_covariance_1d
+from fem_rmpm.random_field.model import MarkovModel, local_average_covariance_1d
 
 __all__ = ["lattice_covariance"]
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..scene import SceneError
+from fem_rmpm.scene import SceneError
 
 __all__ = ["empirical_variogram", "FitResult", "fit_scales"]
 

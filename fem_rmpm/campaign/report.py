@@ -1,0 +1,476 @@
+"""The campaign report: one self-contained HTML page, ``report.html``.
+
+``fem-rmpm report DIR`` (and ``fem-rmpm mc`` at the end of a campaign) reads what a
+campaign directory holds — ``summary.json`` (statistics per case), ``campaign.json``
+(identity: campaign seed, each case's scene), ``records/`` (one JSON record per
+realization), the figures (``*.png``) and the kept VTK (``vtk/...``) — and writes
+``DIR/report.html``:
+
+* **Provenance**: scene, fem_rmpm version(s) of the records, campaign seed and seed
+  rule, realizations per case, cost (wall and CPU time, core-hours), workers, the
+  machine of the last command and the machines (host, CPU) the realizations ran on;
+* **Results per case**: N, P(failure) with its standard error and Wilson 95 % interval,
+  and mean / standard error / 5-50-95 % quantiles of every measure the summary holds
+  (run-out, retrogression, sliding area, ..., factor of safety when computed);
+* **Risk study** (when ``validation/risk_study.py`` wrote ``risk_study.json``): per case
+  P(failure), P(FS < 1), the failure-mode split and the failure-surface depth;
+* **Realizations that failed numerically**, with their messages;
+* **Figures**: every PNG of the campaign directory, embedded as ``data:`` URIs;
+* **Representative realizations**: per case, among the realizations with kept VTK,
+  the ones with the median and the largest run-out, with their plastic-strain figure
+  and a relative link to their ``particles.pvd`` (open it in ParaView).
+
+The page needs no network and no other file to render (the VTK links point into
+the campaign directory).  A small inline script marks ``<body data-images-loaded>``
+with the number of images that decoded, so a headless browser can check the page.
+"""
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+import json
+import math
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+from fem_rmpm.io.output import _atomic_write_bytes
+from fem_rmpm.runtime.machine import tally
+
+__all__ = ["write_report", "report_html", "ReportError"]
+
+#: Figures written by the campaign, in the order the report shows them, with captions.
+FIGURES = (
+    ("exceedance.png", "Exceedance probability P[X > x] of run-out, retrogression and "
+                       "sliding area, per case (empirical, over the realizations run to rest)."),
+    ("histograms.png", "Histograms of the measures per case."),
+    ("convergence.png", "Running P(failure) with its Wilson 95 % band and running mean "
+                        "run-out with +- 1.96 standard errors, against N."),
+    ("cases.png", "Final plastic shear strain of one kept realization per case."),
+    ("cases_mechanism.png", "One kept realization per case at the mechanism time."),
+    ("risk_exceedance.png", "Risk study: exceedance curves of sliding area, run-out and "
+                            "retrogression, over all realizations (top) and given failure "
+                            "(bottom)."),
+    ("risk_modes.png", "Risk study: failure modes per case (rule in the section above) and "
+                       "the failure surface's height above the base, given failure."),
+)
+
+#: Measures shown first in the per-case table (others follow in the summary's order).
+MAIN_MEASURES = (("runout_distance", "run-out (m)"),
+                 ("retrogression_distance", "retrogression (m)"),
+                 ("sliding_area", "sliding area (m²/m)"))
+
+
+class ReportError(ValueError):
+    """The directory is not a finished campaign (no ``summary.json``), or it is unreadable."""
+
+
+# ----------------------------------------------------------------------------- reading
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise
+    except (OSError, ValueError) as exc:
+        raise ReportError(f"{path}: cannot be read as JSON ({exc})") from None
+
+
+def _records(campaign: Path) -> list[dict]:
+    root = campaign / "records"
+    if not root.is_dir():
+        return []
+    out = []
+    for p in sorted(root.rglob("realization_*.json")):
+        try:
+            out.append(json.loads(p.read_text(encoding="utf-8")))
+        except (OSError, ValueError):
+            continue   # a record being replaced right now; the summary still counts it
+    return out
+
+
+# ----------------------------------------------------------------------------- formatting
+
+def _esc(x: Any) -> str:
+    return html.escape(str(x), quote=True)
+
+
+def _num(x: Any, digits: int = 3) -> str:
+    if x is None:
+        return "–"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, int):
+        return str(x)
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return _esc(x)
+    if not math.isfinite(v):
+        return _esc(v)
+    if v != 0 and (abs(v) >= 1e5 or abs(v) < 1e-3):
+        return f"{v:.{digits}g}"
+    return (f"{v:.{digits}g}" if abs(v) < 1
+            else f"{v:.{max(digits - 1, 1)}f}".rstrip("0").rstrip("."))
+
+
+def _png_data_uri(path: Path) -> str:
+    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def _figure(path: Path, caption: str, alt: str) -> str:
+    return (f'<figure><img src="{_png_data_uri(path)}" alt="{_esc(alt)}">'
+            f"<figcaption>{_esc(caption)}</figcaption></figure>")
+
+
+def _table(header: Sequence[str], rows: Iterable[Iterable[str]], cls: str = "") -> str:
+    head = "".join(f"<th>{h}</th>" for h in header)
+    head = f"<thead><tr>{head}</tr></thead>" if any(header) else ""
+    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
+    return f'<table class="{cls}">{head}<tbody>{body}</tbody></table>'
+
+
+# ----------------------------------------------------------------------------- sections
+
+def _provenance(summary: dict, campaign: dict, records: list[dict]) -> str:
+    versions = sorted({str(r.get("fem_rmpm")) for r in records if r.get("fem_rmpm")})
+    this_run = summary.get("this_run", {})
+    cpu = summary.get("realization_cpu_time", {}).get("total")
+    wall = summary.get("realization_wall_time", {}).get("total")
+    rows = [
+        ("scene", _esc(summary.get("scene", "?"))),
+        ("scene file", _esc(summary.get("scene_file") or "embedded default")),
+        ("fem_rmpm version of the records", _esc(", ".join(versions) or "?")),
+        ("campaign seed", _esc(summary.get("campaign_seed", campaign.get("campaign_seed")))),
+        ("seed of realization i", _esc(campaign.get("seed_rule", "?"))),
+        ("realizations", _esc(", ".join(f"{c.get('label', c.get('name'))}: {c.get('ok', 0)} ok"
+                                         f" of {c.get('requested', c.get('realizations', '?'))}"
+                                         for c in summary.get("cases", [])))),
+        ("failure criterion", "a point moved more than "
+                              f"{_num(summary.get('failure_displacement'))} m"),
+        ("cost (all records)", f"{_num(cpu)} s CPU = {_num((cpu or 0) / 3600, 3)} core-hours; "
+                               f"{_num(wall)} s wall summed over realizations"),
+        ("last command", f"computed {_esc(this_run.get('computed', '?'))} realization(s) on "
+                         f"{_esc(this_run.get('workers', '?'))} in "
+                         f"{_num(this_run.get('wall_time'))} s"),
+    ]
+    if this_run.get("machine"):
+        rows.append(("machine of the last command", _machine_text(this_run["machine"])))
+    ran_on = tally(r.get("worker") for r in records)
+    if ran_on:
+        rows.append(("realizations ran on", _workers_text(ran_on)))
+    return "<h2>Scene and provenance</h2>" + _table(("", ""), rows, "kv")
+
+
+def _machine_text(m: dict) -> str:
+    """The campaign process's machine (``summary.json`` ``this_run.machine``, as
+    :func:`fem_rmpm.runtime.machine.describe` gave it at the campaign's end), escaped: local
+    workers ran on it; cluster workers on their own nodes."""
+    load = m.get("load_average")
+    text = (f"{m.get('cpu_model', '?')}, {m.get('usable_cores', '?')} of "
+            f"{m.get('logical_cores', '?')} cores usable"
+            + (f", load average {load[0]} at the end" if isinstance(load, list) and load else "")
+            + f"; Python {m.get('python', '?')}, numpy {m.get('numpy', '?')}, "
+              f"numba {m.get('numba', '?')} (local workers ran here, cluster workers on "
+              "their own nodes)")
+    return _esc(text)
+
+
+def _workers_text(machines: list[dict], shown: int = 6) -> str:
+    """The machines the records ran on (:func:`fem_rmpm.runtime.machine.tally`), most runs first,
+    the first ``shown`` by name, escaped."""
+    parts = [f"{m['host']} ({m['cpu_model']}): {m['runs']}" for m in machines[:shown]]
+    if len(machines) > shown:
+        rest = sum(m["runs"] for m in machines[shown:])
+        parts.append(f"{len(machines) - shown} more machines: {rest}")
+    return _esc("; ".join(parts) + " realization(s)")
+
+
+#: Units of the measures the campaign records (shown in the measures table).
+UNITS = {"runout_distance": "m", "retrogression_distance": "m", "sliding_area": "m²/m",
+         "max_displacement": "m", "slip_surface_height": "m", "sliding_area_early": "m²/m",
+         "intact_blocks": "count", "time_to_rest": "s", "mechanism_time": "s",
+         "factor_of_safety": "–", "excluded_frozen_points": "count",
+         "excluded_stray_points": "count", "excluded_frozen_volume": "m²/m",
+         "excluded_stray_volume": "m²/m"}
+
+
+def _measure_keys(cases: list[dict]) -> list[str]:
+    keys = [m for m, _ in MAIN_MEASURES]
+    for c in cases:
+        keys += [k for k, v in c.items() if isinstance(v, dict) and "mean" in v and k not in keys]
+    return keys
+
+
+def _label(c: dict) -> str:
+    return _esc(c.get("label", c.get("name"))) + (" <small>(deterministic)</small>"
+                                                    if c.get("deterministic") else "")
+
+
+def _results(summary: dict) -> str:
+    cases = summary.get("cases", [])
+    rows = []
+    for c in cases:
+        w = c.get("wilson95") or [None, None]
+        rows.append([_label(c), _num(c.get("ok")), _num(c.get("numerical_failures")),
+                     _num(c.get("slope_failures")),
+                     f"{_num(c.get('p_failure'))} ± {_num(c.get('se'))}",
+                     f"[{_num(w[0])}, {_num(w[1])}]",
+                     _num(c.get("measure_runs", c.get("mpm_runs", c.get("ok"))))])
+    head = ("case", "N finished", "numerical failures", "slope failures",
+            "P(failure) ± SE", "Wilson 95 %", "run to rest (measures)")
+    k_rest = summary.get("runs_to_rest")
+    decided = ("" if k_rest is None else
+               f" Realizations with index ≥ {_num(k_rest)} stopped once their failure was "
+               "decided (1 m² of points moved more than the failure displacement); they count "
+               "in P(failure) only.")
+    mrows = []
+    for key in _measure_keys(cases):
+        row = [f"{_esc(key.replace('_', ' '))} <small>({_esc(UNITS.get(key, '?'))})</small>"]
+        for c in cases:
+            s = c.get(key)
+            row.append("–" if not isinstance(s, dict) else
+                       f"{_num(s.get('mean'))} ± {_num(s.get('se'))}<br><small>"
+                       f"[{_num(s.get('q05'))}, {_num(s.get('q50'))}, {_num(s.get('q95'))}]"
+                       "</small>")
+        mrows.append(row)
+    return ("<h2>Results per case</h2><p>P(failure): fraction of finished realizations in "
+            "which a point moved more than the failure displacement; SE = sqrt(p (1 - p) / N); "
+            "Wilson 95 % score interval." + _esc(decided) + "</p>" + _table(head, rows, "cases")
+            + _decision_check(summary)
+            + "<p>Measures: mean ± standard error of the mean, [5 %, 50 %, 95 %] "
+            "quantiles, over the realizations of each case run to rest.</p>"
+            + _table(["measure"] + [_label(c) for c in cases], mrows, "measures"))
+
+
+def _decision_check(summary: dict) -> str:
+    """The stopping rule checked on the runs to rest that recorded their decision time."""
+    rows = [[_esc(name), _num(d.get("checked")), _num(d.get("agree")),
+             _esc(", ".join(map(str, d.get("failed_never_decided") or [])) or "none"),
+             _esc(", ".join(map(str, d.get("decided_but_stood") or [])) or "none")]
+            for name, d in (summary.get("decision_check") or {}).items() if d.get("checked")]
+    if not rows:
+        return ""
+    return ("<p>Stopping rule on the runs to rest (decided as failed exactly when failed):</p>"
+            + _table(("case", "runs to rest checked", "agree", "failed, never decided",
+                      "decided, stood"), rows))
+
+
+def _subset(summary: dict) -> str:
+    """Subset simulation (``summary["subset"]``): the estimate, its cost, and the levels."""
+    sub = summary.get("subset")
+    if not isinstance(sub, dict):
+        return ""
+    rows = [("failure", _esc(sub.get("failure", sub.get("response")))),
+            ("P(failure)", f"{_num(sub.get('probability'), 4)} (coefficient of variation "
+                           f"{_num(sub.get('cov'))}, Au & Beck 2001, chain correlation included)"),
+            ("p0, samples per level", f"{_num(sub.get('p0'))}, "
+                                      f"{_num(sub.get('samples_per_level'))}"),
+            ("runs", f"{_num(sub.get('total_runs'))} (crude Monte Carlo for the same "
+                     f"coefficient of variation: {_num(sub.get('crude_equivalent_runs'))}); "
+                     f"{_num(sub.get('failed_runs'))} failed numerically")]
+    rows += [("note", _esc(n)) for n in sub.get("notes") or []]
+    levels = [[_num(lv.get("level")), _num(lv.get("threshold_response"), 4),
+               _num(lv.get("conditional_probability")), _num(lv.get("cov")),
+               _num(lv.get("gamma")), _num(lv.get("acceptance")), _num(lv.get("runs"))]
+              for lv in sub.get("levels") or []]
+    return ("<h2>Subset simulation</h2>" + _table(("", ""), rows, "kv")
+            + _table(("level", "threshold", "P(level | previous)", "COV", "gamma",
+                      "acceptance", "runs"), levels))
+
+
+def _risk_study(campaign: Path) -> str:
+    """The risk study (``risk_study.json`` of ``validation/risk_study.py``), when present:
+    per case P(failure), P(FS < 1), the failure-mode split and the failure-surface depth."""
+    try:
+        study = _read_json(campaign / "risk_study.json")
+    except (FileNotFoundError, ReportError):
+        return ""
+    rules = study.get("rules") or {}
+    fs = study.get("factor_of_safety") or {}
+    rows = []
+    for name, c in (study.get("cases") or {}).items():
+        w = c.get("wilson95") or [None, None]
+        f = fs.get(name) or {}
+        a = (c.get("sliding_area") or {}).get("given_failure") or {}
+        ro = (c.get("runout_distance") or {}).get("given_failure") or {}
+        m = c.get("modes") or {}
+        h = c.get("slip_surface_height") or {}
+        rows.append([_esc(name), _num(c.get("n")),
+                     f"{_num(c.get('n_measure', c.get('n')))} ({_num(c.get('failed_measure'))})",
+                     f"{_num(c.get('p_failure'))} [{_num(w[0])}, {_num(w[1])}]",
+                     f"{_num(f.get('p_fs_below_1'))} (N {_num(f.get('n'))})" if f else "-",
+                     f"{_num(a.get('mean'))} ({_num(a.get('cov'), 2)})",
+                     f"{_num(ro.get('mean'))} ({_num(ro.get('cov'), 2)})",
+                     " / ".join(_num(m.get(k)) for k in ("toe slump", "translational",
+                                                         "retrogressive")),
+                     f"{_num(h.get('q50'))} ({_num(c.get('above_base'))})"])
+    rule = (f"Failure modes: toe slump when the retrogression is at most "
+            f"{_num(rules.get('toe_slump_retrogression_m'))} m; otherwise translational when at "
+            f"least {_num(rules.get('translational_early_fraction'))} of the final sliding area "
+            "moved by the mechanism time, else retrogressive. Above the base: failure-surface "
+            f"height over {_num(rules.get('above_base_height_m'))} m.")
+    return ("<h2>Risk study</h2><p>" + _esc(rule) + "</p>"
+            + _table(("case", "N", "run to rest: n (failed)", "P(failure) [Wilson 95 %]",
+                      "P(FS < 1)",
+                      "sliding area given failure: mean (COV)",
+                      "run-out given failure: mean (COV)",
+                      "toe slump / translational / retrogressive",
+                      "failure-surface height: median m (n above base)"), rows)
+            + _decided_check(study) + _mesh_check(study))
+
+
+def _decided_check(study: dict) -> str:
+    """A decided-only campaign against the runs to rest, pair by pair, when the study has it."""
+    rows = [[_esc(name), _num(d.get("pairs")), _num(d.get("agree")),
+             _esc(", ".join(map(str, d.get("disagree") or [])) or "none"),
+             _num(d.get("decided_time_max"))]
+            for name, d in (study.get("decided_check") or {}).items() if d]
+    if not rows:
+        return ""
+    return ("<h3>Runs stopped once decided against the runs to rest</h3><p>The same "
+            "realizations in a campaign with every run stopped once decided ("
+            + _esc(study.get("decided_campaign") or "") + ").</p>"
+            + _table(("case", "pairs", "same failed", "indices that differ",
+                      "latest decision (s)"), rows))
+
+
+def _mesh_check(study: dict) -> str:
+    """The study's mesh check (the same realizations on a finer mesh), when it has one."""
+    rows = []
+    for name, m in (study.get("mesh_check") or {}).items():
+        if not m:
+            continue
+        ca, fa = ((m.get(k) or {}).get("sliding_area_given_failure") or {}
+                  for k in ("coarse", "fine"))
+        rows.append([_esc(name), _num(m.get("n")),
+                     f"{_num((m.get('coarse') or {}).get('p_failure'))} / "
+                     f"{_num((m.get('fine') or {}).get('p_failure'))}",
+                     _num(m.get("agree")), f"{_num(ca.get('mean'))} / {_num(fa.get('mean'))}",
+                     f"{_num(m.get('area_abs_difference_mean'))} ({_num(m.get('both_failed'))})"])
+    if not rows:
+        return ""
+    return ("<h3>Mesh check</h3><p>The same realizations (same random field) on the scene's "
+            "mesh and on a finer one (" + _esc(study.get("mesh_campaign") or "") + ").</p>"
+            + _table(("case", "pairs", "P(failure) scene / finer", "agree",
+                      "sliding area given failure (m2) scene / finer",
+                      "mean |difference| where both failed (m2) (n)"), rows))
+
+
+def _failures(records: list[dict]) -> str:
+    bad = [r for r in records if r.get("status") != "ok"]
+    if not bad:
+        return "<h2>Numerical failures</h2><p>None: every realization finished.</p>"
+    rows = [[_esc(r.get("case")), _num(r.get("index")), _esc(r.get("seed")),
+             _esc(r.get("error") or "")] for r in bad]
+    return ("<h2>Numerical failures</h2><p>Realizations that stopped with an error are "
+            "recorded and left out of the statistics.</p>"
+            + _table(("case", "index", "seed", "message"), rows))
+
+
+def _figures(campaign: Path) -> str:
+    parts, known = [], set()
+    for name, caption in FIGURES:
+        known.add(name)
+        if (campaign / name).is_file():
+            parts.append(_figure(campaign / name, caption, name))
+    for p in sorted(campaign.glob("*.png")):
+        if p.name not in known:
+            parts.append(_figure(p, p.stem.replace("_", " "), p.name))
+    return "<h2>Figures</h2>" + ("".join(parts) or "<p>No figure was written.</p>")
+
+
+def _representatives(campaign: Path, records: list[dict]) -> str:
+    by_case: dict[str, list[dict]] = {}
+    for r in records:
+        if r.get("status") == "ok":
+            by_case.setdefault(str(r.get("case")), []).append(r)
+    parts = []
+    for case, recs in by_case.items():
+        kept = [r for r in recs if r.get("vtk") and (campaign / r["vtk"]).is_dir()
+                and (r.get("measures") or {}).get("runout_distance") is not None]
+        if not kept:
+            parts.append(f"<h3>{_esc(case)}</h3><p>No realization of this case kept its VTK "
+                         "(use <code>--keep-vtk</code> to keep some).</p>")
+            continue
+        kept.sort(key=lambda r: (float(r["measures"]["runout_distance"]), r["index"]))
+        picks = [("median run-out", kept[(len(kept) - 1) // 2]), ("largest run-out", kept[-1])]
+        if picks[0][1] is picks[1][1]:
+            picks = [("median and largest run-out", kept[-1])]
+        cells = []
+        for what, r in picks:
+            vtk = campaign / r["vtk"]
+            fig = vtk / "plastic_shear_strain.png"
+            m = r["measures"]
+            text = (f"{_esc(what)} among {len(kept)} kept: realization {r['index']} "
+                    f"(seed {r['seed']}), run-out {_num(m.get('runout_distance'))} m, "
+                    f"sliding area {_num(m.get('sliding_area'))} m², "
+                    f"failed: {_num(m.get('failed'))}. "
+                    f'<a href="{_esc(r["vtk"])}/particles.pvd">particles.pvd</a> · '
+                    f'<a href="{_esc(r["vtk"])}/grid.vtu">grid.vtu</a>')
+            img = _figure(fig, f"realization {r['index']}", fig.name) if fig.is_file() else ""
+            cells.append(f'<div class="rep">{img}<p>{text}</p></div>')
+        parts.append(f"<h3>{_esc(case)}</h3><div class=\"reps\">{''.join(cells)}</div>")
+    return "<h2>Representative realizations</h2>" + "".join(parts)
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:2em auto;max-width:1300px;
+color:#222;line-height:1.4;padding:0 1em}
+h1{font-size:1.6em;margin-bottom:.2em}h2{border-bottom:1px solid #ccc;margin-top:1.6em}
+table{border-collapse:collapse;margin:.6em 0;font-size:.9em}
+td,th{border:1px solid #ccc;padding:.3em .6em;text-align:left;vertical-align:top}
+th{background:#f2f2f2}table.kv td:first-child{font-weight:600;white-space:nowrap}
+figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}
+figcaption{font-size:.9em;color:#555}.reps{display:flex;gap:1.5em;flex-wrap:wrap}
+.rep{flex:1 1 500px}small{color:#666}code{background:#f4f4f4;padding:0 .2em}
+"""
+
+_SCRIPT = """
+var femRmpmErrors = 0;
+window.addEventListener('error', function () {
+  femRmpmErrors += 1;
+  if (document.body) { document.body.setAttribute('data-errors', String(femRmpmErrors)); }
+}, true);
+window.addEventListener('load', function () {
+  var imgs = Array.prototype.slice.call(document.images);
+  var ok = imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; }).length;
+  document.body.setAttribute('data-images-loaded', ok + '/' + imgs.length);
+  document.body.setAttribute('data-errors', String(femRmpmErrors));
+});
+"""
+
+
+def report_html(campaign_dir: str | Path) -> str:
+    """The report page of a campaign directory, as one HTML string (see the module doc)."""
+    campaign = Path(campaign_dir)
+    try:
+        summary = _read_json(campaign / "summary.json")
+    except FileNotFoundError:
+        raise ReportError(f"{campaign}: no summary.json here (not a finished campaign "
+                          "directory; run `fem-rmpm mc ... --out DIR` first)") from None
+    try:
+        identity = _read_json(campaign / "campaign.json")
+    except FileNotFoundError:
+        identity = {}
+    records = _records(campaign)
+    title = f"fem_rmpm campaign report: {summary.get('scene', campaign.name)}"
+    made = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    body = "".join((
+        f"<h1>{_esc(title)}</h1><p><small>Written {made} from {_esc(campaign.resolve())}. "
+        'Files: <a href="results.csv">results.csv</a> · <a href="summary.json">summary.json</a>'
+        ' · <a href="records/">records/</a></small></p>',
+        _provenance(summary, identity, records), _subset(summary), _results(summary),
+        _risk_study(campaign), _failures(records),
+        _figures(campaign), _representatives(campaign, records)))
+    return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
+            f"<title>{_esc(title)}</title><style>{_CSS}</style><script>{_SCRIPT}</script>"
+            f"</head><body>{body}</body></html>\n")
+
+
+def write_report(campaign_dir: str | Path) -> Path:
+    """Write ``report.html`` into the campaign directory (atomically) and return its path."""
+    campaign = Path(campaign_dir)
+    path = campaign / "report.html"
+    _atomic_write_bytes(path, report_html(campaign).encode("utf-8"))
+    return path

@@ -1,0 +1,1 @@
+"""Output: VTK, JSON summaries, run directories and PNG figures."""

@@ -1,0 +1,96 @@
+"""Run directories that never claim a success they do not hold.
+
+A run writes into a fresh (absent or empty) directory, or refuses one that holds
+anything (:class:`RunDirError`, exit 2 on the command line, nothing changed);
+``force=True`` (``--force``) replaces the run in it.  The sequence is:
+
+1. :func:`check_run_dir` — before anything is computed or written: ``out`` must not
+   be a file, and must be absent or empty unless ``force``;
+2. :func:`start_run_dir` — creates the directory and writes ``summary.json`` with
+   ``"status": "running"`` *first* (atomically, replacing an older summary), then
+   deletes the files of the earlier run and any temporaries a killed writer left
+   (only the names a run writes, :data:`RUN_FILES`; other files are left alone);
+3. the run writes its VTK and figures; the final ``summary.json`` (``"ok"`` or
+   ``"failed"``, with ``"files"``: every file the run wrote) is written *last*.
+
+A run killed at any point therefore leaves either the earlier, complete run
+untouched, or a summary saying ``"running"``: never an ``"ok"`` beside output of
+another run or beside partial output.
+"""
+from __future__ import annotations
+
+import contextlib
+import fnmatch
+import os
+import shutil
+from pathlib import Path
+
+from fem_rmpm.io.output import write_json
+from fem_rmpm.runtime.errors import InputError
+from fem_rmpm.scene import SceneError
+
+__all__ = ["RunDirError", "RUN_FILES", "check_run_dir", "start_run_dir", "run_files",
+           "output_dir_for"]
+
+#: File name patterns a run writes (and ``--force`` removes); ``.*.tmp*``: temporaries.
+RUN_FILES = ("summary.json", "particles.pvd", "particles_*.vtu", "grid.vtu", "fem.vtu",
+             "plastic_shear_strain.png", "profile.png", ".*.tmp*", ".*.tmp")
+
+
+class RunDirError(InputError):
+    """The output directory cannot take this run (a file, or it holds another run)."""
+
+
+def _is_run_file(name: str) -> bool:
+    return any(fnmatch.fnmatchcase(name, pat) for pat in RUN_FILES)
+
+
+def check_run_dir(out: str | Path, force: bool = False, option: str = "--out") -> Path:
+    """Refuse ``out`` if it is a file, or a non-empty directory without ``force``.
+    Changes nothing."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise RunDirError(f"{option} {out}: [] is a file; allowed: a new or empty directory")
+    if out.is_dir() and not force:
+        entries = sorted(os.listdir(out))
+        if entries:
+            held = [e for e in entries if _is_run_file(e)]
+            what = (f"holds another run ({', '.join(held[:3])}{', ...' if len(held) > 3 else ''})"
+                    if held else f"is not empty ({', '.join(entries[:3])})")
+            raise RunDirError(f"{option} {out}: [] {what}; allowed: a new or empty directory, "
+                              "or --force to replace the run in it")
+    return out
+
+
+def start_run_dir(out: str | Path, running_summary: dict) -> Path:
+    """Create ``out``, write the ``running`` summary first, then delete the earlier
+    run's files and temporaries (only :data:`RUN_FILES` names)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "summary.json", {**running_summary, "status": "running"})
+    for name in os.listdir(out):
+        if name != "summary.json" and _is_run_file(name) and (out / name).is_file():
+            (out / name).unlink()
+    return out
+
+
+def run_files(out: str | Path) -> list[str]:
+    """The run's files now in ``out`` (sorted names, temporaries and summary excluded)."""
+    return sorted(n for n in os.listdir(out)
+                  if _is_run_file(n) and not n.startswith(".") and n != "summary.json")
+
+
+@contextlib.contextmanager
+def output_dir_for(out: str | Path, option: str = "--out"):
+    """Create ``out`` (not a file) for a command that writes into it; if bad input
+    (:class:`InputError`, :class:`SceneError`) stops the command, a directory this
+    created is removed again, so bad input leaves nothing behind."""
+    out = check_run_dir(out, force=True, option=option)
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        yield out
+    except (InputError, SceneError):
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise

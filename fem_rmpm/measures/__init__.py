@@ -1,0 +1,1 @@
+"""Measures of a realization, taken on the deposit."""

@@ -1,0 +1,102 @@
+"""numba decorators and the LLVM shape promise of the package's compiled code.
+
+Shared by the explicit kernels (:mod:`fem_rmpm.schemes.explicit.kernels`) and the material models'
+point and block functions (:mod:`fem_rmpm.materials`), which the kernels inline or call: both import
+this module and it imports neither, so a material model does not depend on the
+kernels package.
+"""
+from __future__ import annotations
+
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
+
+# LLVM floating-point flags of every kernel (and of the material point functions inlined
+# into them): "nsz" only (the sign of a zero may be ignored), no flag that changes a
+# value.  Each caller's compiled code holds a copy of every compiled callee, optimized a
+# second time there (below), and a flag that lets LLVM choose the arithmetic lets the
+# copies choose differently: with "contract" (a * b + c as one fused multiply-add where the
+# backend sees fit) the copies of the stress pass fused differently on AVX2 code, so on an
+# AMD EPYC Zen 1 VM a run compiled in its process and the same run loaded from the cache
+# it wrote differed by one ulp (case (i) to t = 2 s: two hashes; 23 of the 190 samples of
+# a subset-simulation campaign of ``tests/data/mc_tiny.toml``; reproduced on a Zen 4 VM
+# with ``NUMBA_CPU_NAME=znver1 NUMBA_CPU_FEATURES=``, ``validation/load_order.py --cpu
+# znver1``).  Without it (and without "arcp": a division by a reused divisor becomes a
+# multiplication by its reciprocal where the backend counts enough of them in one block)
+# every copy rounds every operation as written: one hash, 0 of 190 differ.  The fused
+# multiply-adds the map and the move need are written out
+# (:mod:`fem_rmpm.schemes.explicit.kernels.pairs`). Cost: none measurable on case (i), one thread,
+# Zen 4 (4 interleaved runs, medians 55.5 ns with the three flags, 55.7 ns with "nsz" only; the
+# host's noise was +-15 %).
+# (The solve on the mesh was the first kernel compiled without "contract": LLVM inlines it
+# into the serial and the threaded step and fused the kinetic-energy sum differently where
+# a constant folded a branch away, 1 ulp between 1 and 2 threads, measured.)
+# Never "nnan" / "ninf" / "fast": the run's guards must see NaN and inf; never "reassoc":
+# sums would be regrouped differently in the serial and the threaded compiles.
+FASTMATH = {"nsz"}
+jit = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy")
+# Each caller's compiled code holds a copy of every compiled (not inlined) callee, optimized
+# again there; which copy a call runs depends on what the process loaded first (compiled in
+# the process: the callee's own; from the cache: the caller's).  The copies must compute
+# the same: ``validation/load_order.py`` checks that they do (with LLVM's SLP vectorizer
+# on, numba's default off, the map's copies did not until its x, y twins were written as
+# explicit vector operations, :mod:`fem_rmpm.schemes.explicit.kernels.pairs`).
+# The step kernels allocate nothing, so they run without numba's reference counting
+# (NRT): with it, every array handed to an inlined per-point helper is incref'd and
+# decref'd (atomic operations) once per point, which made G2P ~4x slower (56 vs 13
+# ns per point, measured).  A kernel that allocated would fail to compile, not misbehave.
+kernel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy", _nrt=False)
+inline = njit(inline="always", fastmath=FASTMATH, error_model="numpy")
+# The threaded drivers: a ``prange`` loop over chunks of the points whose body calls a
+# compiled (``kernel``) chunk function, the same one the serial kernel runs, so every point
+# is computed with the same arithmetic and the result is bitwise the serial one.  The loop
+# body is a call, not the per-point code itself: numba 0.68's parfor array analysis
+# crashed on those bodies inline (IndexError in array_analysis._gen_shape_call), and the
+# threaded loop takes no nested named tuple (pass ``N._replace(half=None)`` and ``N.half``).
+# A threaded driver must be a Python function of its own: numba names its cache files
+# after the function's qualified name and its cache key does not contain the ``parallel``
+# flag, so a serial and a parallel compile of ONE function share one cache entry and
+# whichever compiled first is loaded by both (the threaded kernels had run serial that way).
+# One ``prange`` loop per threaded function: numba fuses two ``prange`` loops of the same
+# length into one when it sees no dependency between them, and it cannot see into the
+# chunk calls (g2p's nodal velocities ran before the other half's re-map had finished
+# that way).  ``parallel={"fusion": False}`` does not stop it: numba 0.68 pops the key
+# from the options dict that all dispatchers of this decorator share, at the first compile.
+kernel_parallel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy", _nrt=False,
+                       parallel=True)
+
+
+# Column counts: numba indexes a C-contiguous 2-D array ``a[i, j]`` as ``i a.shape[1] + j``
+# with the run-time shape, so every point's row costs an integer multiply per array, and
+# the shapes (and row pointers) compete for registers with the arithmetic (the stress
+# pass spilled most of them to the stack).  The point arrays' column counts never change
+# (2 for positions and velocities, 4 for stress and log strain, W_COLUMNS for the block
+# scratch), so the kernels state them (:func:`assume_columns`) and LLVM indexes with
+# constants: case (i), one thread, 7 interleaved pairs against the same code without
+# them: 0.90-0.93x the time, bitwise the same run (run-out 63.72968029438788 m, 11 724
+# steps); the stress pass's integer multiplies 15 -> 10, the map's 12 -> 4.
+
+
+@intrinsic
+def assume_columns(typingctx, a, k):
+    """Tell LLVM that the 2-D C-contiguous array ``a`` has ``k`` columns (``k`` a literal),
+    so ``a[i, j]`` indexes ``k i + j`` without loading the shape and multiplying by it.
+    ``llvm.assume``: a false promise is undefined behaviour (a run with the block scratch's
+    width promised wrong took another path, measured), so only shapes the callers check or
+    make are promised (:data:`fem_rmpm.schemes.explicit.kernels.arrays.FIXED_COLUMNS`); a strided
+    view promises nothing."""
+    if not (isinstance(a, types.Array) and a.ndim == 2 and isinstance(k, types.IntegerLiteral)):
+        return None
+    sig = types.none(a, k)
+
+    def codegen(context, builder, signature, args):
+        if signature.args[0].layout != "C":      # (a strided view: nothing to promise)
+            return context.get_dummy_value()
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        cols = builder.extract_value(ary.shape, 1)
+        ok = builder.icmp_signed("==", cols, cols.type(signature.args[1].literal_value))
+        fn = builder.module.declare_intrinsic("llvm.assume", fnty=ir.FunctionType(
+            ir.VoidType(), [ir.IntType(1)]))
+        builder.call(fn, [ok])
+        return context.get_dummy_value()
+    return sig, codegen

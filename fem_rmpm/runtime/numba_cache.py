@@ -1,0 +1,86 @@
+"""numba's on-disk cache, kept fresh for kernels that inline code from other files.
+
+numba (``cache=True``) keeps a compiled function in ``__pycache__`` with an index that
+is valid while *the function's own source file* is unchanged (its stamp is the hash of
+that one file).  The explicit kernels inline helpers from other modules — the Q4/uGIMP
+basis (:mod:`fem_rmpm.schemes.explicit.kernels.basis`) into the transfers, the Hencky helpers of
+:mod:`fem_rmpm.schemes.explicit.kernels.strain` into the stress pass, the material models' point
+functions through the dispatch — so an edit of ``basis.py``, a rebase or an in-place
+upgrade left the kernels of the unchanged files running the old code (seen as NaN
+after a model file gained a state column), until ``*.nbi`` / ``*.nbc`` were deleted.
+
+:func:`install` puts, in front of numba's cache locators, a copy of each that adds the
+hash of *every* source file of the package's compiled code (:data:`COMPILED_SOURCES`)
+to the stamp of functions defined in this package: any edit of any of them makes every
+kernel's cache index stale, so the kernels compile once more (and are cached again).
+Functions of other packages keep numba's own rule.  It runs when :mod:`fem_rmpm` is
+imported, before any kernel is decorated.  If numba's locator interface changes, the
+package falls back to numba's rule (no error).
+"""
+from __future__ import annotations
+
+import functools
+import hashlib
+from pathlib import Path
+
+try:
+    from numba.core.caching import CacheImpl
+except ImportError:          # numba's internals moved: numba's own rule applies (install)
+    CacheImpl = None
+
+__all__ = ["COMPILED_SOURCES", "sources_hash", "install"]
+
+PACKAGE = Path(__file__).resolve().parents[1]
+#: The package's compiled (numba) code, relative to the package directory: folders
+#: (every ``.py`` in them) or files.  ``tests/test_numba_cache.py`` checks that every
+#: module using numba is listed here.
+COMPILED_SOURCES = ("runtime/compiled.py", "schemes/explicit/kernels", "materials",
+                    "schemes/implicit", "schemes/regularisation.py")
+
+
+@functools.lru_cache(maxsize=None)
+def sources_hash() -> str:
+    """sha256 over the names and contents of the :data:`COMPILED_SOURCES` files (once per
+    process: numba, too, reads a source stamp once, when a function is decorated)."""
+    h = hashlib.sha256()
+    for rel in COMPILED_SOURCES:
+        p = PACKAGE / rel
+        for f in sorted(p.glob("*.py")) if p.is_dir() else [p]:
+            h.update(f.relative_to(PACKAGE).as_posix().encode() + b"\0")
+            h.update(f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def _ours(py_file) -> bool:
+    try:
+        return Path(py_file).resolve().is_relative_to(PACKAGE)
+    except (OSError, TypeError, ValueError):
+        return False
+
+
+def _package_locator(base):
+    """A subclass of numba locator ``base`` for this package's functions: same cache
+    place, stamp = (numba's stamp, :func:`sources_hash`)."""
+    class Locator(base):
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            return super().from_function(py_func, py_file) if _ours(py_file) else None
+
+        def get_source_stamp(self):
+            return (super().get_source_stamp(), sources_hash())
+
+    Locator.__name__ = Locator.__qualname__ = f"FemRmpm{base.__name__}"
+    return Locator
+
+
+def install() -> bool:
+    """Put the package's locators first in numba's list (idempotent).  False if numba's
+    cache machinery does not look as expected (then numba's own rule applies)."""
+    try:
+        classes = list(CacheImpl._locator_classes)
+    except AttributeError:   # also CacheImpl None
+        return False
+    if any(c.__name__.startswith("FemRmpm") for c in classes):
+        return True
+    CacheImpl._locator_classes = [_package_locator(c) for c in classes] + classes
+    return True

@@ -1,0 +1,1 @@
+"""The explicit MPM scheme: the time loop, its compiled kernels and the stability (CFL) limit."""

@@ -1,0 +1,275 @@
+"""Many explicit steps in one compiled call: the time loop's ordinary steps without Python.
+
+Between two steps the time loop of :func:`fem_rmpm.schemes.explicit.loop.run_explicit` picks the CFL
+step, the gravity ramp and the damping, then checks guards, output times, sorting and
+rest.  Done in Python that cost ~27 us per step in a tight loop and ~70-100 us inside
+a run (building the argument groups, unboxing ~50 arrays for each of the three kernel
+calls, the loop's own bookkeeping, all on caches the kernels had just filled with
+points): 1.5-5 ns per point-step on the reference slope (18 260 points; ~5 % of a whole
+run, measured), more on smaller scenes.  :func:`step_drivers` gives
+compiled drivers that run steps back to back with the same arithmetic, in the same
+order, and return to Python at the first step that needs it (:data:`EVENTS`): a guard
+fired, an output or sort is due, the run is at rest or at its end, the geostatic phase
+may end, or the energy record is full.  The loop then runs its usual per-step block for
+that step, so a run is bitwise the one stepped from Python (``tests/test_advance.py``).
+The kinetic energy of every :data:`RECORD_EVERY`-th step is recorded by the driver into
+a buffer the loop empties at each return (``record_limit`` steps' records at most, the
+last one the loop's own: :func:`record_limit`).  Returning at every record step, as
+before, cost ~0.3 ms a return (the call's ~50 arrays unboxed again, the loop's
+bookkeeping): 0.19 s over the 619 returns of a 10 s two-thread run of case (i), and the
+progress bar drawn at each return 0.22 s more (cProfile); now 35 returns, one per output.
+
+Each step is the three stages of the method, as :func:`fem_rmpm.schemes.explicit.loop.explicit_step`
+calls them: map to nodes (:func:`.transfer.map_to_nodes`), solve on the mesh and map back
+(:func:`.transfer.solve_and_move`), then the stress pass (:mod:`.stress`).  The driver
+arithmetic (step size, ramp, damping, the checks) is compiled without any fast-math
+flag: every operation is rounded as Python rounds it.
+
+**Two threads, one parallel region per call.**  The threaded driver opens a parallel
+region (``prange``) for each of the step's three stages, ~4.5 us each on the 2-core AMD
+EPYC VM (numba setting up the region, the other thread woken, the join): ~3 % of a
+two-thread step of case (i) (~430 us), measured with cycle stamps in each region.  With
+exactly two threads (no F-bar) :func:`step_drivers` also gives ``advance_pair``: one
+region per call, in which each of the two threads runs :func:`pair_worker` over the
+steps, its half of the points in each stage, with a spin barrier (:func:`.common.arrive`)
+where the regions joined, and thread 0 alone books the step (:func:`_tick`).  The same
+functions on the same halves in the same order: bitwise the run of either other driver
+(``tests/test_advance.py``).  Case (i) from its state at t = 1.5, 8 and 20 s, 0.2 s of
+steps, 24-30 alternations of the two drivers: the pairs' median ratio 1.010-1.046x (13-26
+of 24-29 pairs faster); whole runs of case (i), 6 interleaved pairs: no difference beyond
+the host's noise.  It needs the two threads to run at once (a barrier waits for the
+other): the caller uses it only when numba's pool has two threads, and a thread that gives
+up waiting (:func:`.common.arrive`, ~30 s) ends the call with the event ``stall`` instead
+of hanging.  A waiting thread spins, then yields its core: where more threads want to run
+than there are cores it gains most.  Case (i) to t = 2-4 s, ns per point-step, against a
+region per stage: two such runs at once 76-81 against 126-133; beside two busy processes
+(``yes``) 65-77 against 108-362 (pure spinning, no yield: 509-635 against 292-463 and
+257-317 against 320-380; yielding after 4 096 spins: 65-98 against 149-294 and 60-682
+against 111-457).
+"""
+from __future__ import annotations
+
+from collections import namedtuple
+
+import numpy as np
+from numba import njit, prange
+
+from fem_rmpm.materials import registry
+from fem_rmpm.schemes.explicit.kernels.arrays import RECORD_BUFFER, StepOptions
+from fem_rmpm.schemes.explicit.kernels.common import QUEUE_BARRIER, arrive
+from fem_rmpm.schemes.explicit.kernels.strain import fbar_gradient_pass, fbar_gradient_pass_parallel
+from fem_rmpm.schemes.explicit.kernels.stress import (
+    _combine,
+    _reset_queues,
+    _stress_queue_call,
+    nodal_in_pass,
+    serial_stress_pass,
+    workers,
+)
+from fem_rmpm.schemes.explicit.kernels.transfer import (
+    _grid_stats,
+    _map_half,
+    _move_half,
+    map_to_nodes,
+    map_to_nodes_parallel,
+    nodal_velocities,
+    nodal_velocities_parallel,
+    solve_and_move,
+    solve_and_move_parallel,
+)
+
+__all__ = ["RunControl", "step_drivers", "record_limit", "RECORD_EVERY", "RECORD_BUFFER",
+           "EVENTS", "STALL", "pair_worker", "pair_driver_fits"]
+
+#: The step numbers at which the loop records the kinetic energy and reports progress.
+RECORD_EVERY = 20
+
+RunControl = namedtuple("RunControl", "cfl h_min t_end ramp_time damping damping_time g0 g1 "
+                                      "geostatic_time rest_velocity rest_energy_ratio "
+                                      "next_output sort_step record_limit")
+RunControl.__doc__ = """The time loop's constants for one driver call: CFL number (-),
+smallest cell size (m), end time (s), gravity ramp time (s), damping (-) applied while
+t < damping_time (s), full gravity (m/s2), end of the geostatic phase (s), rest speed (m/s)
+and kinetic-energy ratio (-), the next output time (s; inf: none), the step at which
+the next sort is due (a large number: none) and the record steps per call
+(:func:`record_limit`).  All floats."""
+
+#: Point-steps between two returns for the record: ~1-2 s of one thread.
+RECORD_POINT_STEPS = 2e7
+
+
+def record_limit(n_points: int) -> float:
+    """Record steps per driver call for ``n_points`` points: as many as fit in
+    :data:`RECORD_POINT_STEPS` point-steps (so that the progress bar and Ctrl-C are seen
+    every second or two), at least 1 (a return at every record step), at most
+    :data:`RECORD_BUFFER`."""
+    fit = RECORD_POINT_STEPS // (max(int(n_points), 1) * RECORD_EVERY)
+    return float(max(1, min(RECORD_BUFFER, fit)))
+
+#: Why a driver returned (``count[1]``; read by nobody, for debugging).
+EVENTS = ("record", "guard", "jump", "output", "sort", "rest", "geostatic", "end", "stall")
+STALL = EVENTS.index("stall")
+
+# no fast-math flags: the driver's own arithmetic must round as the Python loop's does
+driver = njit(cache=True, fastmath=False, nogil=True, error_model="numpy", _nrt=False)
+driver_parallel = njit(cache=True, fastmath=False, nogil=True, error_model="numpy", _nrt=False,
+                       parallel=True)
+exact_inline = njit(inline="always", error_model="numpy")
+
+
+@exact_inline
+def _options(o, c, t, wave_speed, point_speed):
+    """The next step's options, as the Python loop makes them (``explicit._cfl_step``)."""
+    dt = min(c.cfl * c.h_min / (wave_speed + point_speed), c.t_end - t)
+    ramp = 1.0 if c.ramp_time <= 0 else min(1.0, (t + dt) / c.ramp_time)
+    damping = c.damping if (o.geostatic or t < c.damping_time) else 0.0
+    return StepOptions(dt, ramp * c.g0, ramp * c.g1, damping, o.flip, o.geostatic, o.gimp,
+                       o.fbar, o.threads, o.model, o.block)
+
+
+@exact_inline
+def _event(c, o, S, count, t, step, dt, ke, ke_peak, vmax):
+    """The first of :data:`EVENTS` (its index) the step just done raises, or -1 (the
+    checks of the Python loop; ``ke_peak`` already holds this step's energy, as the loop's
+    rest check sees it — the loop's own ``max`` at the returned step changes nothing;
+    ``count[2]``: the records in the buffer)."""
+    if S.out[2] != 0 or S.out[3] != 0:
+        return 1
+    if vmax * dt > 0.5 * c.h_min:
+        return 2
+    if step % RECORD_EVERY == 0 and count[2] + 1 >= c.record_limit:
+        return 0                     # (the last record: the loop's own)
+    if t >= c.next_output - 1e-12:
+        return 3
+    if step >= c.sort_step:
+        return 4
+    if t >= c.ramp_time and vmax < c.rest_velocity and ke <= c.rest_energy_ratio * ke_peak:
+        return 5
+    if o.geostatic and t >= c.geostatic_time:
+        return 6
+    if not t < c.t_end - 1e-12:
+        return 7
+    return -1
+
+
+@exact_inline
+def _tick(c, op, S, clock, count, energy, ke, vmax):
+    """Book the step just done in ``clock`` / ``count`` (time, step number, dt range, peak,
+    then its kinetic energy ``ke``, max |v_pic| ``vmax`` and dt) as the Python loop does;
+    returns its event (:func:`_event`), also in ``count[1]``.  A record step that raises
+    none is recorded in ``energy[count[2]]`` = (t, ke) (the loop records the steps it
+    sees itself)."""
+    dt = op.dt
+    clock[0] = clock[0] + dt
+    count[0] = count[0] + 1
+    clock[2], clock[3] = min(clock[2], dt), max(clock[3], dt)
+    clock[1] = max(clock[1], ke)
+    clock[4], clock[5], clock[6] = ke, vmax, dt
+    count[1] = _event(c, op, S, count, clock[0], count[0], dt, ke, clock[1], vmax)
+    if count[1] < 0 and count[0] % RECORD_EVERY == 0:
+        energy[count[2], 0] = clock[0]
+        energy[count[2], 1] = ke
+        count[2] = count[2] + 1
+    return count[1]
+
+
+@driver
+def pair_worker(version, only, P, M, T, H, S, o, c, clock, count, energy, w):
+    """Thread ``w`` (0 or 1) of ``advance_pair`` (module docstring): the steps of
+    ``advance_parallel`` with its half ``w`` in each stage and a barrier after each; thread
+    0 books each step.  On a stalled barrier: ``count[1]`` = :data:`STALL`, return."""
+    bar = S.queue[QUEUE_BARRIER:]
+    k = 0
+    while True:
+        op = _options(o, c, clock[0], S.out[0], S.out[1])
+        if w == 0:
+            _reset_queues(S)          # (the last step's stress pass ended at a barrier)
+        _map_half(P, M, T, H, S, op, w)                         # 1. map to nodes
+        if not arrive(bar, k + 2):
+            break
+        _move_half(P, M, T, H, S, op, w)                        # 2. solve, 3a. map back
+        if not arrive(bar, k + 4):
+            break
+        _stress_queue_call(version, only, P, M, T, H, S, op, w)  # 3b, 3c. stress update
+        if not arrive(bar, k + 6):
+            break
+        if w == 0:
+            _combine(S, 2)
+            ke, vmax = _grid_stats(S)
+            _tick(c, op, S, clock, count, energy, ke, vmax)
+        if not arrive(bar, k + 8):
+            break
+        if count[1] >= 0:
+            return
+        k += 8
+    count[1] = STALL
+
+
+def _make_drivers(version, only):
+    """``(serial, parallel, pair)`` drivers for one registry version and model restriction
+    (the stress pass's, :func:`.stress.material_kernels`; ``pair``: exactly two threads, no
+    F-bar, module docstring).  All take the step options ``o``
+    of the previous step (their dt, gravity and damping are replaced), a :class:`RunControl`
+    ``c``, ``clock`` (float64 (7,): t, peak kinetic energy, smallest and largest dt so far,
+    then the last step's kinetic energy, max |v_pic| and dt), ``count`` (int64 (3,): the
+    step number; the event that stopped the call; the records in ``energy``) and
+    ``energy`` (float64 (:data:`RECORD_BUFFER`, 2): (t, kinetic energy) of the record
+    steps run), all updated; ``S.out`` holds the last step's maxima on entry (the CFL
+    step) and on return."""
+    @driver
+    def advance(P, M, N, S, o, c, clock, count, energy):
+        while True:
+            op = _options(o, c, clock[0], S.out[0], S.out[1])
+            map_to_nodes(P, M, N, S, op)                      # 1. map to nodes
+            ke, vmax = solve_and_move(P, M, N, S, op)         # 2. solve, 3a. map back
+            if op.fbar:                                       # 3b, 3c. stress update
+                nodal_velocities(M, N)
+                fbar_gradient_pass(P, M, N, S, op)
+            serial_stress_pass(version, only, P, M, N, S, op)
+            if _tick(c, op, S, clock, count, energy, ke, vmax) >= 0:
+                break
+
+    @driver_parallel
+    def advance_parallel(P, M, N, T, H, S, o, c, clock, count, energy):
+        nch = workers(o, S)
+        while True:
+            op = _options(o, c, clock[0], S.out[0], S.out[1])
+            map_to_nodes_parallel(P, M, T, H, S, op)
+            ke, vmax = solve_and_move_parallel(P, M, T, H, S, op)
+            if not nodal_in_pass(op, S):                      # (else in the stress pass)
+                nodal_velocities_parallel(M, T, H)
+            if op.fbar:
+                fbar_gradient_pass_parallel(P, M, T, H, S, op)
+            _reset_queues(S)
+            for ch in prange(nch):
+                _stress_queue_call(version, only, P, M, T, H, S, op, np.int64(ch))
+            _combine(S, nch)
+            if _tick(c, op, S, clock, count, energy, ke, vmax) >= 0:
+                break
+
+    @driver_parallel
+    def advance_pair(P, M, N, T, H, S, o, c, clock, count, energy):
+        S.queue[QUEUE_BARRIER] = 0
+        for w in prange(2):
+            pair_worker(version, only, P, M, T, H, S, o, c, clock, count, energy, np.int64(w))
+    return advance, advance_parallel, advance_pair
+
+
+def pair_driver_fits(threads: int, fbar: bool) -> bool:
+    """Whether a run on ``threads`` threads (with F-bar or not) steps with ``advance_pair``
+    (module docstring: exactly two threads, no F-bar), given a numba pool of two threads;
+    else with ``advance_parallel`` (``threads`` > 1) or ``advance`` (one)."""
+    return threads == 2 and not fbar
+
+
+_BY_VERSION: dict = {}
+
+
+def step_drivers(only: int = -1):
+    """``(advance, advance_parallel, advance_pair)`` compiled for the current model registry
+    and model restriction ``only`` (the one model id of all points, -1: any; see
+    :func:`.stress.material_kernels`)."""
+    key = (registry.version(), int(only))
+    if key not in _BY_VERSION:
+        _BY_VERSION[key] = _make_drivers(*key)
+    return _BY_VERSION[key]

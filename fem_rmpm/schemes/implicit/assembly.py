@@ -1,0 +1,191 @@
+"""The grid-reset system of one implicit step: basis at the step-start positions, DOF
+numbering, and the vectorised assembly of internal force, tangent and lumped mass with the
+material points as quadrature points."""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from fem_rmpm.discretise.basis import shape_at_points
+from fem_rmpm.discretise.grid import Grid
+from fem_rmpm.schemes.implicit import point_kernels as pk
+from fem_rmpm.schemes.locking import (
+    bbar_tangent_correction,
+    cell_pressure_tangent_correction,
+    fbar_tangent_correction,
+    fbar_work_tangent_correction,
+    host_cells,
+)
+
+__all__ = ["StepSystem", "rigid_body_modes"]
+
+
+class StepSystem:
+    """The grid-reset system of one step: basis at the step-start positions, DOF numbering,
+    and the vectorised assembly of internal force, tangent and lumped mass.
+
+    ``free`` numbers the DOFs that are touched by a point's basis and not
+    prescribed by a boundary (``grid.fixed``); only they enter the solve.  The
+    sparsity pattern is built once per step (the CSR structure of the free DOFs and, per
+    node set -- a host cell for Q4 -- the position of each block entry in its data
+    array); every Newton iteration then adds the per-point blocks straight into the
+    data array (:func:`fem_rmpm.schemes.implicit.point_kernels.assemble_tangent`, one compiled
+    loop over the points), with no sparse products, sorting or index building.
+    """
+
+    def __init__(self, grid: Grid, x: np.ndarray, shape: str = "standard", half_width=None,
+                 fixed: np.ndarray | None = None):
+        self.grid = grid
+        fixed = grid.fixed if fixed is None else fixed      # (n_nodes, 2) prescribed DOFs
+        self.host = host_cells(grid, x)                     # F-bar cells
+        _, nodes, N, dN, _ = shape_at_points(grid, x, shape, half_width)
+        self.nodes, self.N, self.dN = nodes, N, dN
+        n, k = nodes.shape
+        self.n, self.k = n, k
+        nn = grid.n_nodes
+        used = np.zeros(nn, dtype=bool)
+        touch = (N != 0) | (dN != 0).any(axis=2)     # uGIMP lists nodes with zero weight
+        used[nodes[touch]] = True
+        self.used = used
+        free_mask = (used[:, None] & ~fixed).ravel()           # dof = 2 node + comp
+        self.free_dofs = np.nonzero(free_mask)[0]
+        self.n_free = nf = len(self.free_dofs)
+        fnum = np.full(2 * nn, -1, dtype=np.int64)
+        fnum[self.free_dofs] = np.arange(nf)
+        self.fnum = fnum
+        self.point_dofs = (2 * nodes[:, :, None] + np.arange(2)).reshape(n, 2 * k)  # global
+        # group the points by their node set (Q4: the host cell, identified by node 0)
+        if k == 4:
+            _, inv = np.unique(nodes[:, 0], return_inverse=True)
+        else:
+            _, inv = np.unique(nodes, axis=0, return_inverse=True)
+        inv = inv.ravel()
+        ng = int(inv.max()) + 1 if n else 0
+        self.n_groups = ng
+        first = np.zeros(ng, dtype=np.int64)
+        first[inv] = np.arange(n)                                  # a representative point
+        gd = fnum[self.point_dofs[first]].reshape(ng, k, 2)        # free index or -1
+        # block entries are laid out [a, i, l, b]: row dof (a, i), column dof (b, l)
+        rows = np.broadcast_to(gd[:, :, :, None, None], (ng, k, 2, 2, k)).ravel()
+        cols = np.broadcast_to(np.swapaxes(gd, 1, 2)[:, None, None, :, :],
+                               (ng, k, 2, 2, k)).ravel()
+        keep = (rows >= 0) & (cols >= 0)
+        key = rows[keep] * nf + cols[keep]
+        ukey, self._pos = np.unique(key, return_inverse=True)     # CSR order: row, then column
+        self._pos = self._pos.ravel()
+        self._indices = (ukey % nf).astype(np.int32) if nf else ukey.astype(np.int32)
+        self._indptr = np.searchsorted(ukey, np.arange(nf + 1) * nf).astype(np.int32)
+        self.nnz = len(ukey)
+        self._diag = np.searchsorted(ukey, np.arange(nf) * (nf + 1))   # position of (r, r)
+        # the same positions per node set, -1 for entries of prescribed DOFs (compiled path)
+        positions = np.full(ng * 4 * k * k, -1, dtype=np.int64)
+        positions[keep] = self._pos
+        self._positions = positions.reshape(ng, 4 * k * k)
+        self._group = inv.astype(np.int64)
+
+    # --- kinematics
+    def gradient(self, du: np.ndarray) -> np.ndarray:
+        """grad_n(du) at the points (n, 2, 2), ``H_ij = d du_i / d x_j``; du (n_nodes, 2)."""
+        return pk.displacement_gradient(np.ascontiguousarray(du, dtype=float), self.nodes,
+                                       self.dN, np.empty((self.n, 2, 2)))
+
+    def interpolate(self, nodal: np.ndarray) -> np.ndarray:
+        """Nodal vector (n_nodes, 2) at the points (n, 2)."""
+        return np.einsum("pa,pai->pi", self.N, nodal[self.nodes])
+
+    def to_nodes(self, free_vec: np.ndarray, prescribed: np.ndarray | None = None) -> np.ndarray:
+        """Free-DOF vector -> nodal (n_nodes, 2); the other DOFs are zero, or take the
+        values of ``prescribed`` (n_nodes, 2) if given."""
+        full = np.zeros(2 * self.grid.n_nodes) if prescribed is None else \
+            np.array(prescribed, dtype=float).ravel()
+        full[self.free_dofs] = free_vec
+        return full.reshape(-1, 2)
+
+    # --- vectors
+    def _scatter(self, per_point: np.ndarray) -> np.ndarray:
+        """(n, k, 2) per-point nodal contributions -> free-DOF vector."""
+        full = np.bincount(self.point_dofs.ravel(), per_point.ravel(),
+                           minlength=2 * self.grid.n_nodes)
+        return full[self.free_dofs]
+
+    def internal_force(self, V0: np.ndarray, tau4: np.ndarray, g: np.ndarray,
+                       full: bool = False) -> np.ndarray:
+        """``f_ai = sum_p V0_p tau_ij g_aj`` on the free DOFs (kN per m); ``full``: on all
+        DOFs, as (n_nodes, 2) (for the reactions at prescribed DOFs)."""
+        f = pk.internal_force(np.ascontiguousarray(tau4), V0, g, self.nodes,
+                             np.zeros((self.grid.n_nodes, 2)))
+        return f if full else f.ravel()[self.free_dofs]
+
+    def fbar_tangent(self, V0: np.ndarray, g: np.ndarray, Q: np.ndarray,
+                     w: np.ndarray) -> sp.csr_matrix:
+        """The F-bar coupling term of the tangent on the free DOFs
+        (:func:`fem_rmpm.schemes.locking.fbar_tangent_correction`)."""
+        return fbar_tangent_correction(self.fnum[self.point_dofs], V0, g, Q, w, self.host,
+                                       self.n_free)
+
+    def bbar_tangent(self, V0: np.ndarray, g: np.ndarray, D: np.ndarray,
+                     w: np.ndarray) -> sp.csr_matrix:
+        """The B-bar terms of the small-strain tangent on the free DOFs
+        (:func:`fem_rmpm.schemes.locking.bbar_tangent_correction`)."""
+        return bbar_tangent_correction(self.fnum[self.point_dofs], V0, g, D, w, self.host,
+                                       self.n_free)
+
+    def fbar_work_tangent(self, V0: np.ndarray, g: np.ndarray, A: np.ndarray,
+                          tau4: np.ndarray, w: np.ndarray) -> sp.csr_matrix:
+        """The work-conjugate F-bar force's extra tangent term on the free DOFs
+        (:func:`fem_rmpm.schemes.locking.fbar_work_tangent_correction`)."""
+        return fbar_work_tangent_correction(self.fnum[self.point_dofs], V0, g, A, tau4, w,
+                                            self.host, self.n_free)
+
+    def cell_pressure_tangent(self, V0: np.ndarray, g: np.ndarray, D: np.ndarray,
+                              w: np.ndarray) -> sp.csr_matrix:
+        """The cell-pressure condensation term of the small-strain tangent
+        (:func:`fem_rmpm.schemes.locking.cell_pressure_tangent_correction`)."""
+        return cell_pressure_tangent_correction(self.fnum[self.point_dofs], V0, g, D, w,
+                                                self.host, self.n_free)
+
+    def body_force(self, mass: np.ndarray, gravity) -> np.ndarray:
+        """``f_ai = sum_p m_p g_i N_a`` on the free DOFs (kN per m)."""
+        return self._scatter(self.N[:, :, None] * mass[:, None, None]
+                             * np.asarray(gravity, dtype=float))
+
+    def lumped_mass(self, mass: np.ndarray) -> np.ndarray:
+        """Nodal lumped mass ``m_a = sum_p m_p N_a`` (n_nodes,), t per m."""
+        return np.bincount(self.nodes.ravel(), (self.N * mass[:, None]).ravel(),
+                           minlength=self.grid.n_nodes)
+
+    def momentum(self, mass: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Nodal ``sum_p m_p v_p N_a`` (n_nodes, 2)."""
+        w = self.N * mass[:, None]
+        return np.stack([np.bincount(self.nodes.ravel(), (w * v[:, k:k + 1]).ravel(),
+                                     minlength=self.grid.n_nodes) for k in range(2)], axis=1)
+
+    # --- matrix
+    def tangent(self, V0: np.ndarray, g: np.ndarray, A: np.ndarray,
+                diagonal: np.ndarray | None = None) -> sp.csr_matrix:
+        """``K_ai,bl = sum_p V0_p g_aj A_ijlm g_bm`` (+ ``diag(diagonal)``) on the free DOFs.
+
+        ``g`` (n, k, 2) spatial gradients, ``A`` (n, 2, 2, 2, 2); ``diagonal``
+        is a free-DOF vector (e.g. the Newmark mass term 4 m / dt^2).
+        """
+        data = np.zeros(self.nnz)
+        pk.assemble_tangent(g, A, V0, self._group, self._positions, data)
+        if diagonal is not None:
+            data[self._diag] += diagonal
+        return sp.csr_matrix((data, self._indices, self._indptr),
+                             shape=(self.n_free, self.n_free))
+
+    def rigid_body_modes(self) -> np.ndarray:
+        return rigid_body_modes(self.grid.nodes, self.free_dofs)
+
+
+def rigid_body_modes(node_xy: np.ndarray, free_dofs: np.ndarray) -> np.ndarray:
+    """The three 2-D rigid-body modes (x, y translation, rotation) on the free DOFs (nf, 3)."""
+    node, comp = free_dofs // 2, free_dofs % 2
+    xy = node_xy[node] - node_xy[node].mean(axis=0)
+    B = np.zeros((len(free_dofs), 3))
+    B[comp == 0, 0] = 1.0
+    B[comp == 1, 1] = 1.0
+    B[:, 2] = np.where(comp == 0, -xy[:, 1], xy[:, 0])
+    return B
+

@@ -1,0 +1,105 @@
+"""Full Newton-Raphson on the free DOFs of one implicit step, with a backtracking line
+search and the two-part convergence test (relative residual and predicted correction)."""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from fem_rmpm.schemes.implicit.linear import LinearSolveError, LinearSolver
+
+__all__ = ["NewtonFailure", "NewtonResult", "newton"]
+
+
+class NewtonFailure(RuntimeError):
+    """A Newton iteration that cannot go on; ``inverted``: a trial state inverted a point
+    (``det dF <= 0``), which the line search answers by a shorter correction."""
+
+    def __init__(self, reason: str, residuals: list[float], inverted: bool = False):
+        super().__init__(reason)
+        self.reason, self.residuals, self.inverted = reason, residuals, inverted
+
+
+@dataclass
+class NewtonResult:
+    du: np.ndarray              # free-DOF increment
+    residuals: list[float]      # relative residual before each solve and at the end
+    iterations: int             # linear solves
+    t_solve: float = 0.0        # s (factorisation and solve)
+    t_material: float = 0.0     # s (stress update and consistent tangent at the points)
+    t_assembly: float = 0.0     # s (kinematics, internal force, tangent matrix)
+    t_setup: float = 0.0        # s (basis at the points, DOF numbering, sparsity pattern)
+    state: tuple = ()           # what the last evaluation returned (material state)
+
+
+def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterations: int,
+           tol: float, modes=None, line_search: int = 4) -> NewtonResult:
+    """Full Newton-Raphson on the free DOFs, with a backtracking line search.
+
+    ``evaluate(du) -> (R, ref, state)``: residual (free DOFs), its reference
+    norm and whatever the caller needs at convergence; may raise
+    :class:`NewtonFailure`.  ``tangent() -> K`` the consistent tangent at the
+    last evaluated ``du``.  Converged when ``|R| <= tol ref0`` and the correction
+    the next iteration would make, estimated as ``|delta_k| r_{k+1} / r_k``, is
+    ``<= sqrt(tol) |du|`` (see the module docstring).
+
+    Line search: a full correction that does not lower the residual, or that inverts a
+    point, is halved up to ``line_search`` times (the last, smallest one is kept if none
+    lowers the residual; a state with an inverted point is never kept).  Near
+    the solution full steps always lower the residual, so quadratic convergence is
+    untouched; far from it, or where the softening law has a kink (the linear law
+    reaching the residual cohesion), it stops the 2-cycles Newton otherwise falls into.
+    """
+    def _evaluate(u):
+        try:
+            return evaluate(u)
+        except NewtonFailure as exc:
+            raise NewtonFailure(exc.reason, res, exc.inverted) from None
+
+    du = du0.copy()
+    res: list[float] = []
+    t_sol = 0.0
+    last_delta = 0.0
+    R, ref, state = _evaluate(du)
+    ref0 = max(ref, float(np.linalg.norm(R)))
+    for it in range(max_iterations + 1):
+        rn = float(np.linalg.norm(R))
+        r = rn / ref0 if ref0 > 0 else 0.0
+        res.append(r)
+        if not math.isfinite(r):
+            raise NewtonFailure("non-finite residual", res)
+        if r > 1e3 * max(1.0, res[0]):
+            raise NewtonFailure("diverging (residual grew 1000-fold)", res)
+        # correction the next iteration would make, |delta_k| r_{k+1} / r_k
+        predicted = last_delta * r / res[-2] if it > 0 and res[-2] > 0 else 0.0
+        if r <= tol and predicted <= math.sqrt(tol) * float(np.linalg.norm(du)):
+            return NewtonResult(du, res, it, t_sol, state=state)
+        if it == max_iterations:
+            break
+        K = tangent()
+        t1 = time.perf_counter()
+        eta = min(1e-3, max(1e-12, 0.1 * r))
+        try:
+            delta = solver.solve(K, R, modes, rtol=eta)
+        except LinearSolveError as exc:
+            raise NewtonFailure(f"linear solve failed ({exc})", res) from None
+        t_sol += time.perf_counter() - t1
+        alpha = 1.0
+        for _ in range(line_search + 1):
+            last = alpha < 0.5 ** (line_search - 0.5)
+            try:
+                R, ref, state = _evaluate(du + alpha * delta)
+            except NewtonFailure as exc:      # an inverted point: try a shorter correction
+                if not exc.inverted or last:
+                    raise
+                alpha *= 0.5
+                continue
+            if float(np.linalg.norm(R)) < rn or last:
+                break
+            alpha *= 0.5
+        du = du + alpha * delta
+        last_delta = alpha * float(np.linalg.norm(delta))
+    raise NewtonFailure(f"not converged in {max_iterations} iterations", res)
+

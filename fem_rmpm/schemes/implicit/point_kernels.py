@@ -1,0 +1,76 @@
+"""Compiled loops of the implicit assembly (numba): the per-point sums of
+:class:`fem_rmpm.schemes.implicit.assembly.StepSystem`, written straight into a fixed pattern.
+
+Each replaces a chain of numpy passes (batched 2x2 matmuls, a sparse group sum, a
+bincount) by one loop over the points; they compute the same sums (equal to the
+scikit-fem assembly to round-off, ``tests/test_implicit.py``).  Compiled on first use
+and cached on disk (``cache=True``).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["assemble_tangent", "displacement_gradient", "internal_force"]
+
+
+@njit(cache=True, error_model="numpy")
+def assemble_tangent(g, A, V0, group, positions, data):
+    """``data[positions[group[p], e]] += Ke_p[e]`` for every point ``p``, with the point
+    block ``Ke[a, i, l, b] = V0_p g_aj A_ijlm g_bm`` (flattened in that order, ``e``;
+    position -1: a prescribed DOF, skipped).  ``g`` (n, k, 2), ``A`` (n, 2, 2, 2, 2)."""
+    n, k = g.shape[0], g.shape[1]
+    gA = np.empty((k, 2, 2, 2))
+    for p in range(n):
+        v = V0[p]
+        for a in range(k):
+            g0, g1 = v * g[p, a, 0], v * g[p, a, 1]
+            for i in range(2):
+                for l in range(2):
+                    for m in range(2):
+                        gA[a, i, l, m] = g0 * A[p, i, 0, l, m] + g1 * A[p, i, 1, l, m]
+        row = positions[group[p]]
+        e = 0
+        for a in range(k):
+            for i in range(2):
+                for l in range(2):
+                    c0, c1 = gA[a, i, l, 0], gA[a, i, l, 1]
+                    for b in range(k):
+                        q = row[e]
+                        e += 1
+                        if q >= 0:
+                            data[q] += c0 * g[p, b, 0] + c1 * g[p, b, 1]
+
+
+@njit(cache=True, error_model="numpy")
+def displacement_gradient(du, nodes, dN, out):
+    """``out[p, i, j] = sum_a du[nodes[p, a], i] dN[p, a, j]`` (n, 2, 2)."""
+    n, k = nodes.shape
+    for p in range(n):
+        h00 = h01 = h10 = h11 = 0.0
+        for a in range(k):
+            q = nodes[p, a]
+            u0, u1 = du[q, 0], du[q, 1]
+            d0, d1 = dN[p, a, 0], dN[p, a, 1]
+            h00 += u0 * d0
+            h01 += u0 * d1
+            h10 += u1 * d0
+            h11 += u1 * d1
+        out[p, 0, 0], out[p, 0, 1], out[p, 1, 0], out[p, 1, 1] = h00, h01, h10, h11
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def internal_force(tau4, V0, g, nodes, out):
+    """``out[nodes[p, a], i] += V0_p tau_ij g_aj`` (``out`` (n_nodes, 2), zeroed by the
+    caller); ``tau4`` (n, 4) [xx, yy, zz, xy]."""
+    n, k = nodes.shape
+    for p in range(n):
+        v = V0[p]
+        txx, tyy, txy = v * tau4[p, 0], v * tau4[p, 1], v * tau4[p, 3]
+        for a in range(k):
+            g0, g1 = g[p, a, 0], g[p, a, 1]
+            q = nodes[p, a]
+            out[q, 0] += txx * g0 + txy * g1
+            out[q, 1] += txy * g0 + tyy * g1
+    return out

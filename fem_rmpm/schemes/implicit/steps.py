@@ -1,0 +1,507 @@
+"""The three kinds of implicit step over one shared system.
+
+:class:`ImplicitSystem` holds what every step of a run shares (grid, points, prescribed
+regions, linear solver); :meth:`ImplicitSystem.begin` builds the grid-reset
+:class:`StepData` of one step (basis at the step-start positions, step-start material
+state, external force).  A step kind is a small class with
+
+* ``predictor(st)``: the starting increment of the Newton iteration,
+* ``residual(st, du) -> (R, ref, state)``: out-of-balance force on the free DOFs, its
+  reference norm and the material state at ``du``,
+* ``tangent(st) -> K``: the consistent tangent at the last evaluated ``du``,
+* ``commit(st, result) -> info``: applies the converged step to the points,
+
+and :meth:`StepKind.solve` runs the Newton iteration of one step with them.  The kinds:
+:class:`Geostatic` (small strain, fixed geometry), :class:`QuasiStatic` (large
+deformation load step) and :class:`NewmarkDynamic` (trapezoidal rule, lumped mass).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fem_rmpm.discretise.grid import Grid, points_in_polygon
+from fem_rmpm.discretise.points import Particles
+from fem_rmpm.materials import MaterialPoints, small_strain_update, stress_update
+from fem_rmpm.scene import Scene, SceneError
+from fem_rmpm.schemes.common import SimulationError
+from fem_rmpm.schemes.explicit import kernels
+from fem_rmpm.schemes.implicit.assembly import StepSystem
+from fem_rmpm.schemes.implicit.linear import LinearSolver
+from fem_rmpm.schemes.implicit.newton import NewtonFailure, NewtonResult, newton
+from fem_rmpm.schemes.implicit.tangent import (
+    elastic_left_cauchy_green,
+    finite_strain_tangent,
+    inv2,
+    small_strain_tangent,
+)
+from fem_rmpm.schemes.locking import (
+    bbar_force_stress,
+    bbar_gradient,
+    fbar_increment,
+    fbar_q,
+    fbar_weights,
+    fbar_work_stress,
+    uniform_cell_pressure,
+)
+
+__all__ = ["ImplicitSystem", "StepData", "StepKind", "Geostatic", "QuasiStatic",
+           "NewmarkDynamic", "prescribed_nodes"]
+
+_MASS_TOL = 1e-14
+_EYE = np.eye(2)
+
+
+@dataclass
+class StepData:
+    """One step's grid-reset system and the step-start state of its active points."""
+    S: StepSystem
+    act: np.ndarray                 # indices of the active points
+    V0: np.ndarray                  # initial volumes (m2 per m)
+    Vn: np.ndarray                  # volumes at step start (F-bar weights)
+    mass: np.ndarray                # t per m
+    ls0: np.ndarray                 # elastic log strain at step start (n, 4)
+    state0: np.ndarray                 # state variables of the points' models at step start (n, S)
+    soil: MaterialPoints
+    f_ext: np.ndarray               # body force on the free DOFs at the step end (kN per m)
+    lf_new: float                   # gravity factor at the step end
+    lf_old: float                   # gravity factor at the step start
+    presc: np.ndarray | None        # prescribed nodal increment (n_nodes, 2), or None
+    dt: float = 0.0                 # time step (s), dynamic steps
+    cache: dict = field(default_factory=dict)     # the last evaluation, for the tangent
+    clock: dict = field(default_factory=lambda: {"material": 0.0, "assembly": 0.0})
+
+
+@dataclass
+class StepOutcome:
+    result: NewtonResult
+    commit: object                  # callable applying the converged step to the points
+    limits: object = None           # callable: the step's kinematic figures (see StepKind)
+
+
+class ImplicitSystem:
+    """What all steps of an implicit run share: scene, grid, points (changed only by a
+    step's ``commit``), prescribed regions, the linear solver and the point accelerations."""
+
+    def __init__(self, scene: Scene, grid: Grid, pts: Particles, solver: LinearSolver):
+        self.scene, self.grid, self.pts, self.solver = scene, grid, pts, solver
+        self.sv = scene.solver
+        self.fbar = bool(self.sv.fbar)
+        self.cell_pressure = self.fbar and getattr(self.sv, "locking_constraint",
+                                                   "volume") == "pressure"
+        self.g_full = np.array(scene.gravity_vector, dtype=float)
+        self.acc = np.zeros((pts.n, 2))          # point accelerations (dynamic)
+        self.regions = prescribed_nodes(scene, grid)
+        mask = np.zeros((grid.n_nodes, 2), dtype=bool)
+        target = np.zeros((grid.n_nodes, 2))     # prescribed displacement at load factor 1
+        for r in self.regions:
+            mask |= r["mask"]
+            target[r["mask"]] = np.broadcast_to(r["displacement"], r["mask"].shape)[r["mask"]]
+        self.presc_mask, self.presc_target = mask, target
+        self.fixed = grid.fixed | mask
+        # the residual's stress update: the compiled point update of the explicit kernels
+        # (equal to the numpy reference to 1e-12, tests/test_kernels.py) or that reference
+        compiled = getattr(self.sv, "kernel", "numba") == "numba"
+        self.stress_update = kernels.stress_update_points if compiled else stress_update
+        self.small_strain_update = (kernels.small_strain_update_points if compiled
+                                    else small_strain_update)
+
+    def begin(self, lf_new: float, lf_old: float, dt: float = 0.0,
+              dynamic: bool = False) -> StepData:
+        """The grid-reset system of a step from gravity factor ``lf_old`` to ``lf_new``;
+        prescribed displacements grow by ``(lf_new - lf_old)`` x their value (quasi-static
+        and geostatic steps only: a dynamic step cannot carry them)."""
+        pts = self.pts
+        act = np.nonzero(pts.active)[0]
+        if len(act) == 0:
+            raise SimulationError("no active material point left (all frozen at the grid "
+                                  "edge); enlarge [grid] size")
+        S = StepSystem(self.grid, pts.x[act], self.sv.shape,
+                       pts.half_width[act] if pts.half_width is not None else None,
+                       fixed=self.fixed)
+        mass = pts.mass[act]
+        presc = None
+        if self.presc_mask.any():
+            if dynamic:
+                raise SimulationError("prescribed displacements need quasi-static load steps")
+            presc = np.where(self.presc_mask, (lf_new - lf_old) * self.presc_target, 0.0)
+        return StepData(S, act, pts.volume0[act], pts.volume[act], mass, pts.log_strain[act],
+                        pts.state[act], pts.soil.take(act),
+                        S.body_force(mass, lf_new * self.g_full), lf_new, lf_old, presc, dt)
+
+    def reactions(self, st: StepData, du: np.ndarray, tau: np.ndarray,
+                  g: np.ndarray) -> dict:
+        """Force (kN/m) of each prescribed region on the soil: f_int - f_ext there."""
+        if st.presc is None:
+            return {}
+        S = st.S
+        r = S.internal_force(st.V0, tau, g, full=True) - np.bincount(
+            S.point_dofs.ravel(), (S.N[:, :, None] * st.mass[:, None, None]
+                                   * (st.lf_new * self.g_full)).ravel(),
+            minlength=2 * self.grid.n_nodes).reshape(-1, 2)
+        return {"reactions": {reg["name"]: [float(v) for v in r[reg["nodes"]].sum(axis=0)]
+                              for reg in self.regions}}
+
+
+class StepKind:
+    """A kind of implicit step: ``residual``, ``tangent`` and ``commit`` over the shared
+    :class:`ImplicitSystem` (see the module docstring)."""
+    name = ""
+    dynamic = False
+
+    def __init__(self, system: ImplicitSystem):
+        self.sys = system
+
+    # -- hooks of the subclasses
+    def predictor(self, st: StepData) -> np.ndarray:
+        return np.zeros(st.S.n_free)
+
+    def material(self, st: StepData, H: np.ndarray):
+        """Stress update at the displacement-increment gradient ``H`` (n, 2, 2):
+        ``(log_strain, gamma_p, tau, g, dF)`` with ``g`` the spatial gradients."""
+        raise NotImplementedError
+
+    def inertia(self, st: StepData, du: np.ndarray, R: np.ndarray) -> np.ndarray:
+        return R
+
+    def force_stress(self, st: StepData, tau: np.ndarray) -> np.ndarray:
+        """The stress the internal force and the reactions are integrated from (the
+        points' stress; geostatic B-bar: see :class:`Geostatic`)."""
+        return tau
+
+    def coupling_tangent(self, st: StepData, g, A, Q, w):
+        """The locking remedy's term of the tangent (F-bar: rank one per point)."""
+        return st.S.fbar_tangent(st.V0, g, Q, w)
+
+    # -- the Newton pieces
+    def residual(self, st: StepData, du: np.ndarray):
+        """``(R, ref, state)``: ``R = f_ext - f_int`` (minus inertia) on the free DOFs,
+        ``ref`` the norm it is measured against, ``state = (ls, q, tau, dF)``."""
+        S = st.S
+        t0 = time.perf_counter()
+        H = S.gradient(S.to_nodes(du, st.presc))
+        t_mat = st.clock["material"]
+        ls, q, tau, g, dFm = self.material(st, H)
+        tf = self.force_stress(st, tau)
+        f_int = S.internal_force(st.V0, tf, g)
+        R = st.f_ext - f_int
+        ref = float(np.linalg.norm(st.f_ext))
+        if st.presc is not None:      # the prescribed motion drives the step
+            ref = max(ref, float(np.linalg.norm(S.internal_force(st.V0, tf, g, full=True))))
+        R = self.inertia(st, du, R)
+        st.clock["assembly"] += time.perf_counter() - t0 - (st.clock["material"] - t_mat)
+        return R, ref, (ls, q, tau, dFm)
+
+    def point_tangent(self, st: StepData):
+        """``(A, Q, w)``: the point tangent (n, 2, 2, 2, 2), and with F-bar the
+        coupling factors :func:`fem_rmpm.schemes.locking.fbar_q` and the cell weights."""
+        raise NotImplementedError
+
+    def diagonal(self, st: StepData):
+        """A free-DOF vector added to the tangent's diagonal (the inertia term), or None."""
+        return None
+
+    def stiffness_factor(self, st: StepData) -> float:
+        """Weight of the stiffness in the residual (HHT-alpha: ``1 - alpha``)."""
+        return 1.0
+
+    def tangent(self, st: StepData):
+        t0 = time.perf_counter()
+        A, Q, w = self.point_tangent(st)
+        t1 = time.perf_counter()
+        S, g = st.S, st.cache["g"]
+        f = self.stiffness_factor(st)
+        if f != 1.0:
+            A = f * A
+            Q = None if Q is None else f * Q
+        K = S.tangent(st.V0, g, A, diagonal=self.diagonal(st))
+        if self.sys.fbar:
+            K = K + self.coupling_tangent(st, g, A, Q, w)
+        st.clock["material"] += t1 - t0
+        st.clock["assembly"] += time.perf_counter() - t1
+        return K
+
+    def commit(self, st: StepData, res: NewtonResult) -> dict:
+        raise NotImplementedError
+
+    # -- one step
+    def solve(self, lf_old: float, lf_new: float, dt: float = 0.0) -> StepOutcome:
+        """Newton iteration of one step from gravity factor ``lf_old`` to ``lf_new`` (of
+        ``dt`` seconds if dynamic); nothing changes until ``outcome.commit()``."""
+        sys_, sv = self.sys, self.sys.sv
+        t_setup = time.perf_counter()
+        st = sys_.begin(lf_new, lf_old, dt, self.dynamic)
+        t_setup = time.perf_counter() - t_setup
+        du0 = self.predictor(st)
+        sys_.solver.new_step()
+        res = newton(lambda du: self.residual(st, du), lambda: self.tangent(st), du0,
+                     sys_.solver, sv.max_iterations, sv.tolerance,
+                     modes=st.S.rigid_body_modes)
+        res.t_material, res.t_assembly, res.t_setup = (st.clock["material"],
+                                                       st.clock["assembly"], t_setup)
+        return StepOutcome(res, lambda: self.commit(st, res), lambda: self.limits(st, res))
+
+    def limits(self, st: StepData, res: NewtonResult) -> dict:
+        """Kinematic figures of a converged step: the largest point displacement increment
+        as a fraction of the (smallest) cell size, and the range of the points' ``det dF``
+        (``None`` for steps that do not move the points)."""
+        return {}
+
+
+class Geostatic(StepKind):
+    """Gravity on the fixed in-situ geometry, small strain: the points do not move (the
+    displacement goes to ``pts.u_geostatic``); B-bar with F-bar on: the points' strain
+    takes the cell-mean trace (:func:`fem_rmpm.schemes.locking.bbar_gradient`) and the internal
+    force is its work conjugate, ``sum_p V0_p Bbar_p^T tau_p``
+    (:func:`fem_rmpm.schemes.locking.bbar_force_stress`), with the symmetric tangent
+    ``sum_p V0_p Bbar^T D Bbar`` (:func:`fem_rmpm.schemes.locking.bbar_tangent_correction`)."""
+    name = "geostatic"
+
+    def force_stress(self, st, tau):
+        if not self.sys.fbar:
+            return tau
+        return bbar_force_stress(tau, st.V0, st.Vn, st.S.host, self.sys.grid.n_cells)
+
+    def coupling_tangent(self, st, g, A, Q, w):
+        K = st.S.bbar_tangent(st.V0, g, A, w)
+        if self.sys.cell_pressure:
+            K = K + st.S.cell_pressure_tangent(st.V0, g, A, w)
+        return K
+
+    def material(self, st, H):
+        sys_ = self.sys
+        Hm = bbar_gradient(H, st.Vn, st.S.host, sys_.grid.n_cells) if sys_.fbar else H
+        t1 = time.perf_counter()
+        if sys_.cell_pressure:       # one in-plane mean stress per cell (locking_constraint)
+            try:
+                Hm, delta, (ls, q, tau), _ = uniform_cell_pressure(
+                    lambda Hx: sys_.small_strain_update(Hx, st.ls0, st.state0, st.soil), Hm,
+                    st.Vn, st.S.host, sys_.grid.n_cells, st.cache.get("delta"))
+            except ArithmeticError as exc:
+                raise NewtonFailure(str(exc), []) from None
+            st.cache["delta"] = delta
+        else:
+            ls, q, tau = sys_.small_strain_update(Hm, st.ls0, st.state0, st.soil)
+        st.clock["material"] += time.perf_counter() - t1
+        st.cache.update(H=Hm, g=st.S.dN, tau=tau)
+        return ls, q, tau, st.S.dN, None
+
+    def point_tangent(self, st):
+        _, A = small_strain_tangent(st.cache["H"], st.ls0, st.state0, st.soil)
+        if not self.sys.fbar:
+            return A, None, None
+        S, Vn = st.S, st.Vn
+        w = Vn / np.bincount(S.host, Vn, minlength=self.sys.grid.n_cells)[S.host]
+        return A, fbar_q(A, None), w
+
+    def commit(self, st, res):
+        ls, q, tau, _ = res.state
+        info = self.sys.reactions(st, res.du, self.force_stress(st, tau), st.S.dN)
+        pts, act = self.sys.pts, st.act
+        pts.log_strain[act], pts.state[act] = ls, q
+        pts.u_geostatic[act] += st.S.interpolate(st.S.to_nodes(res.du, st.presc))
+        pts.stress[act] = tau
+        return info
+
+
+class QuasiStatic(StepKind):
+    """A large-deformation load step (updated Lagrangian, Hencky/Kirchhoff): the points
+    move by the converged increment, ``F <- dF F``, ``V = det(F) V0``.  With F-bar the
+    internal force is the work conjugate of the F-bar deformation
+    (:func:`fem_rmpm.schemes.locking.fbar_work_stress`, ``tau + e I``), with its tangent: the
+    standard F-bar tangent, the geometric term of ``e`` and
+    :func:`fem_rmpm.schemes.locking.fbar_work_tangent_correction`."""
+    name = "static"
+
+    def force_stress(self, st, tau):
+        if not self.sys.fbar:
+            return tau
+        return fbar_work_stress(tau, st.V0, st.Vn, st.cache["J"], st.S.host,
+                                self.sys.grid.n_cells)
+
+    def coupling_tangent(self, st, g, A, Q, w):
+        f = self.stiffness_factor(st)
+        tau = st.cache["tau"]
+        e = f * (self.force_stress(st, tau)[:, 0] - tau[:, 0])
+        Ag = np.zeros_like(A)
+        for i in range(2):
+            for j in range(2):
+                Ag[:, i, j, j, i] = -e
+        K = st.S.fbar_tangent(st.V0, g, Q, w) + st.S.tangent(st.V0, g, Ag)
+        return K + st.S.fbar_work_tangent(st.V0, g, A, f * tau, w)
+
+    def material(self, st, H):
+        sys_ = self.sys
+        dF = _EYE + H
+        Finv, det = inv2(dF)
+        if not np.all(det > 0):
+            i = st.act[np.argmin(det)]
+            raise NewtonFailure(f"material point {i} inverted (det dF = {det.min():.3g})", [],
+                                inverted=True)
+        if sys_.fbar:
+            dFm, J, _ = fbar_increment(dF, st.Vn, st.S.host, sys_.grid.n_cells)
+            st.cache["w"] = fbar_weights(st.Vn, J, st.S.host, sys_.grid.n_cells)
+            st.cache["J"] = J
+        else:
+            dFm = dF
+        t1 = time.perf_counter()
+        ls, q, tau = sys_.stress_update(dFm, st.ls0, st.state0, st.soil)
+        st.clock["material"] += time.perf_counter() - t1
+        g = np.matmul(st.S.dN, Finv)
+        st.cache.update(H=H, dF=dFm, g=g, tau=tau)
+        return ls, q, tau, g, dFm
+
+    def point_tangent(self, st):
+        c = st.cache
+        if "b_e" not in c:
+            c["b_e"] = elastic_left_cauchy_green(st.ls0)
+        _, A = finite_strain_tangent(c["dF"], st.ls0, st.state0, st.soil, b_e=c["b_e"],
+                                     tau=c["tau"])
+        return (A, fbar_q(A, c["tau"]), c["w"]) if self.sys.fbar else (A, None, None)
+
+    def commit(self, st, res):
+        ls, q, tau, dFm = res.state
+        S, pts, act = st.S, self.sys.pts, st.act
+        du_nodes = S.to_nodes(res.du, st.presc)
+        info = {}
+        if st.presc is not None:
+            Finv, J = inv2(_EYE + S.gradient(du_nodes))
+            st.cache["J"] = J
+            info = self.sys.reactions(st, res.du, self.force_stress(st, tau),
+                                      np.matmul(S.dN, Finv))
+        pts.log_strain[act], pts.state[act] = ls, q
+        pts.x[act] = pts.x[act] + S.interpolate(du_nodes)
+        pts.F[act] = dFm @ pts.F[act]
+        F = pts.F[act]
+        J = F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
+        pts.volume[act] = J * st.V0
+        pts.stress[act] = tau / J[:, None]
+        return info
+
+    def limits(self, st, res):
+        dFm = res.state[3]
+        u = st.S.interpolate(st.S.to_nodes(res.du, st.presc))
+        J = dFm[:, 0, 0] * dFm[:, 1, 1] - dFm[:, 0, 1] * dFm[:, 1, 0]
+        disp = np.sqrt(np.max(np.sum(u * u, axis=1), initial=0.0))
+        i = int(np.argmax(np.abs(np.log(J)))) if len(J) else 0
+        return {"displacement": float(disp / np.min(self.sys.grid.cell)),
+                "det_min": float(J.min(initial=1.0)), "det_max": float(J.max(initial=1.0)),
+                "worst_point": int(st.act[i]) if len(J) else -1}
+
+
+class NewmarkDynamic(QuasiStatic):
+    """Newmark dynamics with the lumped nodal mass, optionally with HHT-alpha numerical
+    damping (Hilber, Hughes & Taylor 1977, in the force-averaged form of Kuhl & Crisfield
+    1999 for nonlinear problems), ``alpha = [solver] hht_alpha`` in [0, 1/3]::
+
+        (1 - alpha) (f_ext,n+1 - f_int(du)) + alpha (f_ext,n - f_int,n) - m a_n+1 = 0
+        a_n+1 = (du - dt v_n - dt^2 (1/2 - beta) a_n) / (beta dt^2)
+        v_n+1 = v_n + dt ((1 - gamma) a_n + gamma a_n+1)
+
+    with ``gamma = 1/2 + alpha``, ``beta = (1 + alpha)^2 / 4``; ``alpha = 0`` is the
+    trapezoidal rule (``beta = 1/4, gamma = 1/2``: no numerical dissipation), ``alpha > 0``
+    damps the high frequencies (grid noise) and, with large steps, the slow modes too,
+    so a run comes to rest.  Tangent ``(1 - alpha) K + m / (beta dt^2)``.  ``f_int,n`` is
+    the step-start stress on the step-start grid.  The point velocities are updated
+    FLIP-like, blended with PIC by ``[solver] flip``.
+
+    Nearly empty nodes: a node whose lumped mass is below ``[solver] min_mass_fraction``
+    of a full cell's (``rho A_cell``, ``rho`` the mean density of the points) carries that
+    floor mass instead, in the residual and the tangent alike (a small stabilising mass):
+    a lone point entering an empty cell row no longer leaves its new nodes held by almost
+    nothing, which made Newton throw them (and the point) far away.
+    """
+    name = "dynamic"
+    dynamic = True
+
+    def _coefficients(self):
+        alpha = float(self.sys.sv.hht_alpha)
+        return alpha, 0.5 + alpha, 0.25 * (1.0 + alpha) ** 2
+
+    def predictor(self, st):
+        S, pts, act, mass, dt = st.S, self.sys.pts, st.act, st.mass, st.dt
+        m_nodes = S.lumped_mass(mass)
+        has = m_nodes > _MASS_TOL
+        inv_m = np.where(has, 1.0 / np.where(has, m_nodes, 1.0), 0.0)[:, None]
+        v_n = (S.momentum(mass, pts.velocity[act]) * inv_m).ravel()[S.free_dofs]
+        a_n = (S.momentum(mass, self.sys.acc[act]) * inv_m).ravel()[S.free_dofs]
+        frac = float(self.sys.sv.min_mass_fraction)
+        m_min = frac * float(mass.sum() / st.Vn.sum()) * float(np.prod(self.sys.grid.cell))
+        m_free = np.maximum(np.repeat(m_nodes, 2)[S.free_dofs], m_min)
+        alpha, gamma, beta = self._coefficients()
+        st.cache.update(v_n=v_n, a_n=a_n, m_free=m_free, c=1.0 / (beta * dt * dt),
+                        n_floor=int(np.count_nonzero(m_nodes[S.used] < m_min)))
+        if alpha > 0:
+            tau_n = pts.stress[act] * (st.Vn / st.V0)[:, None]
+            if self.sys.fbar:        # the work-conjugate F-bar force at dF = I
+                tau_n = fbar_work_stress(tau_n, st.V0, st.Vn, np.ones(len(act)), S.host,
+                                         self.sys.grid.n_cells)
+            st.cache["f_n"] = (S.body_force(mass, st.lf_old * self.sys.g_full)
+                               - S.internal_force(st.V0, tau_n, S.dN))
+        return dt * v_n + 0.5 * dt * dt * a_n
+
+    def _acceleration(self, st, du):
+        c = st.cache
+        if "f_n" not in c:           # trapezoidal rule: a = 4/dt^2 (du - dt v_n) - a_n
+            return c["c"] * (du - st.dt * c["v_n"]) - c["a_n"]
+        beta = self._coefficients()[2]
+        return c["c"] * (du - st.dt * c["v_n"] - st.dt * st.dt * (0.5 - beta) * c["a_n"])
+
+    def inertia(self, st, du, R):
+        c = st.cache
+        if "f_n" in c:
+            alpha = self._coefficients()[0]
+            R = (1.0 - alpha) * R + alpha * c["f_n"]
+        return R - c["m_free"] * self._acceleration(st, du)
+
+    def stiffness_factor(self, st):
+        return 1.0 - self._coefficients()[0]
+
+    def diagonal(self, st):
+        return st.cache["c"] * st.cache["m_free"]
+
+    def commit(self, st, res):
+        super().commit(st, res)
+        S, pts, act, c = st.S, self.sys.pts, st.act, st.cache
+        v_n, a_n = c["v_n"], c["a_n"]
+        a_new = self._acceleration(st, res.du)
+        gamma = self._coefficients()[1]
+        v_new = v_n + st.dt * ((1.0 - gamma) * a_n + gamma * a_new)
+        v_pic = S.interpolate(S.to_nodes(v_new))
+        flip = self.sys.sv.flip
+        pts.velocity[act] = flip * (pts.velocity[act] + S.interpolate(S.to_nodes(v_new - v_n))) \
+            + (1 - flip) * v_pic
+        self.sys.acc[act] = S.interpolate(S.to_nodes(a_new))
+        ke = 0.5 * float(np.sum(c["m_free"] * v_new * v_new))
+        return {"kinetic_energy": ke, "floor_mass_nodes": c["n_floor"],
+                "max_speed": float(np.sqrt(np.max(np.sum(v_pic * v_pic, 1), initial=0.0)))}
+
+
+def prescribed_nodes(scene: Scene, grid: Grid) -> list[dict]:
+    """The ``[[prescribed]]`` regions of a scene on its grid: per region its ``name``, the
+    ``nodes`` in or on its polygon, the (n_nodes, 2) ``mask`` of prescribed components
+    and the ``displacement`` (2,) at load factor 1.  A region that holds no grid node is
+    a :class:`SceneError`."""
+    out = []
+    p = grid.nodes
+    tol = 1e-6 * float(np.min(grid.cell))
+    for i, pr in enumerate(getattr(scene, "prescribed", ())):
+        poly = np.asarray(pr.polygon, dtype=float)
+        on = points_in_polygon(p, poly)
+        for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+            ab = b - a
+            t = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-300), 0.0, 1.0)
+            on |= np.linalg.norm(p - (a + t[:, None] * ab), axis=1) <= tol
+        nodes = np.nonzero(on)[0]
+        if len(nodes) == 0:
+            raise SceneError(f"{scene.source}: [prescribed[{i}].polygon] holds no grid node; "
+                             "allowed: a polygon containing or touching grid nodes (m)")
+        mask = np.zeros((grid.n_nodes, 2), dtype=bool)
+        comps = [k for k, c in enumerate("xy") if c in pr.components]
+        mask[np.ix_(nodes, comps)] = True
+        out.append({"name": pr.name if pr.name != "prescribed" or len(scene.prescribed) == 1
+                    else f"{pr.name}{i}", "nodes": nodes, "mask": mask,
+                    "displacement": np.array(pr.displacement, dtype=float)})
+    return out
