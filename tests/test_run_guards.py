@@ -1,9 +1,10 @@
-"""The run guards' exact thresholds and messages (issue 21, mutation testing of
-:mod:`fem_rmpm.schemes.common` and :mod:`fem_rmpm.schemes.explicit.loop`).  The expected values follow from the
-documented rules: at rest when the kinetic energy is at most ``rest_energy_ratio`` x its
-peak (a peak other than 1 tells a product from a quotient); a point moving more than half
-a cell in a step stops the run; a non-finite point or a point outside the grid is named
-with its step, time, position and the option to change."""
+"""The run guards' exact thresholds and messages in :mod:`fem_rmpm.schemes.common` and
+:mod:`fem_rmpm.schemes.explicit.loop` (exact, so that mutation testing finds them checked).
+The expected values follow from the documented rules: at rest when the kinetic energy is at
+most ``rest_energy_ratio`` x its peak (a peak other than 1 tells a product from a
+quotient); a point moving more than half a cell in a step stops the run; a non-finite point
+or a point outside the grid is named with its step, time, position and the option to
+change."""
 from __future__ import annotations
 
 import time
