@@ -18,7 +18,9 @@ def column_text() -> str:
     return (MESHES / "column.toml").read_text()
 
 
-@pytest.fixture(scope="session")
+# Scope "package": tests/ is the one test directory, so a fixture of this scope is made once
+# for the whole test run.
+@pytest.fixture(scope="package")
 def meshes_dir_fx():
     """The reference slope grid (shared, read-only)."""
     from fem_rmpm.discretise.grid import make_grid
@@ -26,7 +28,7 @@ def meshes_dir_fx():
     return make_grid(load_scene(MESHES / "slope_elastic.toml"))
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def dask_client():
     """One local Dask cluster (2 single-thread worker processes) for the whole test run.
 
@@ -54,7 +56,7 @@ def dask_client():
     cluster.close(timeout=10)
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def dask_scheduler(dask_client) -> str:
     """The address of :func:`dask_client`'s scheduler (for ``mc --scheduler``)."""
     return dask_client.scheduler.address
