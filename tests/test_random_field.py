@@ -531,7 +531,7 @@ def test_variogram_fit_recovers_scales(theta_h, theta_v):
     * the mean of the K fits is within 5 SE = 5 s / sqrt(K) of the truth (achieved offsets
       <= 0.6 SE, except theta_v = 2 cells: -2.3 SE, a 4 % bias of the finite grid);
     * a fit pooled over R = 6 further fields is within 5 s / sqrt(R) (its own SE, about
-      3.5 % of theta; the former fixed bound of 20 % was this 5 SE, not derived)."""
+      3.5 % of theta)."""
     model = rf.MarkovModel(theta_h, theta_v)
     h1, h2 = theta_h / 8, 0.125
     shape = (int(round(20 * theta_h / h1)), int(round(12 * theta_v / h2)))
@@ -564,8 +564,7 @@ def test_variogram_fit_from_cpt_profiles_via_cli(tmp_path, capsys):
     sampled every 0.05 m, of one synthetic field with theta_h = 6 m, theta_v = 0.5 m:
     fitted, printed and written to fit.json.  The bound is 3 SD of this estimator: over
     N = 30 other seeds (100-129) the fits have mean +1.7 % / +0.6 % and SD 5.5 % / 4.7 %
-    (theta_h / theta_v); seed 42 achieves +2.0 % / +1.4 %; asserts 16.5 % / 14 % (was a
-    fixed 20 %)."""
+    (theta_h / theta_v); seed 42 achieves +2.0 % / +1.4 %; asserts 16.5 % / 14 %."""
     model = rf.MarkovModel(6.0, 0.5)
     h1, h2 = 1.5, 0.05
     shape = (160, 200)                                   # 240 m x 10 m
