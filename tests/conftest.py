@@ -18,7 +18,9 @@ def column_text() -> str:
     return (MESHES / "column.toml").read_text()
 
 
-@pytest.fixture(scope="session")
+# Scope "package": tests/ is the one test directory, so a fixture of this scope is made once
+# for the whole test run.
+@pytest.fixture(scope="package")
 def meshes_dir_fx():
     """The reference slope grid (shared, read-only)."""
     from fem_rmpm.discretise.grid import make_grid
@@ -26,19 +28,19 @@ def meshes_dir_fx():
     return make_grid(load_scene(MESHES / "slope_elastic.toml"))
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def dask_client():
-    """One local Dask cluster (2 single-thread worker processes) for the whole session.
+    """One local Dask cluster (2 single-thread worker processes) for the whole test run.
 
     Tests that run campaigns in this process use it (``client=`` or ``--scheduler`` its
     address) instead of starting their own: each start costs seconds, and a second
-    in-process LocalCluster now and then failed in distributed's loop start (once under
-    load, once in CI).  Tests of cluster start-up itself run the CLI in a subprocess.
+    in-process LocalCluster can fail in distributed's loop start (under load, in CI).
+    Tests of cluster start-up itself run the CLI in a subprocess.
 
     Before the workers start, a 2-step run of the campaign tests' scene compiles the
     explicit kernels here into numba's disk cache: on a cold cache (a fresh clone) the two
-    workers otherwise compiled the same kernels at the same time as each other and as this
-    process (the first campaign test's set-up took 138 s of a 787 s suite at load 3-4)."""
+    workers would otherwise compile the same kernels at the same time as each other and as
+    this process, which makes the first campaign test's set-up cost minutes under load."""
     from fem_rmpm.campaign import start_local_cluster
     from fem_rmpm.discretise.grid import make_grid
     from fem_rmpm.discretise.points import seed_particles
@@ -54,7 +56,7 @@ def dask_client():
     cluster.close(timeout=10)
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def dask_scheduler(dask_client) -> str:
     """The address of :func:`dask_client`'s scheduler (for ``mc --scheduler``)."""
     return dask_client.scheduler.address

@@ -1,4 +1,4 @@
-"""Implicit Newton MPM (issue 3): from the Gauss points to large compaction.
+"""Implicit Newton MPM: from the Gauss points to large compaction.
 
 References: closed forms (column, compaction, explicit time step); Charlton,
 Coombs & Augarde 2017 (AMPLE / iGIMP, Computers & Structures 190: the
@@ -237,7 +237,7 @@ def test_newton_converges_quadratically(monkeypatch):
 # ------------------------------------------------------------------ 4. soft column
 @pytest.mark.parametrize("steps", [1, 10])
 def test_soft_column_large_deformation(steps):
-    """Issue 3 acceptance 4 (the case a peer code never converges on): E = 1000 kPa,
+    """Closed form of a soft column (the case a peer code never converges on): E = 1000 kPa,
     nu = 0.3, unit weight 20, H = 10 m, 0.25 m cells (uGIMP), gravity in 1 and in 10
     load steps: <= 10 Newton iterations per step, settlement within 1 % of the closed
     form (oedometric Hencky, Cauchy M ln(lambda)/lambda = -gamma (H - Y)).
@@ -259,7 +259,7 @@ def test_soft_column_large_deformation(steps):
 
 # ------------------------------------------------------------------ 5. explicit vs implicit
 def test_explicit_and_implicit_agree_on_elastic_slope():
-    """Issue 3 acceptance 5, elastic reference slope: the explicit run
+    """Independent solver, elastic reference slope: the explicit run
     of meshes/slope_elastic.toml (geostatic phase, damped to rest) and the implicit
     scheme on the same scene agree in stress (volume-weighted relative L2) for the implicit
     geostatic step (small strain, the same problem: achieves 6.9e-5, asserts 3e-4) and for
@@ -297,7 +297,7 @@ def _plastic_column_file(tmp_path, max_iterations, max_cuts):
 
 
 def test_forced_nonconvergence_fails_loudly_and_keeps_output(tmp_path, capsys):
-    """Issue 3 acceptance 6: a run that cannot converge (plastic column, max_iterations = 1:
+    """A run that cannot converge (plastic column, max_iterations = 1:
     the elastic steps are linear and converge, the first plastic step needs two iterations,
     halving it once does not help) stops with exit code 3 and a one-line error naming the
     step, the residual history and what to change; summary.json holds the error and every
@@ -346,7 +346,7 @@ def test_step_cutting_recovers_and_is_recorded():
 
 
 def test_summary_json_holds_residual_history(tmp_path):
-    """Issue 3: summary.json has the solver statistics: every step with
+    """summary.json has the solver statistics: every step with
     its residual history, iterations and the time split per Newton iteration."""
     scene = _solver(load_scene(MESHES / "soft_column.toml"), load_steps=2)
     api.run(scene, out=tmp_path, figures=False)

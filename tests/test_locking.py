@@ -1,4 +1,4 @@
-"""Volumetric locking and its remedy, F-bar with cell averaging (issue 8).
+"""Volumetric locking and its remedy, F-bar with cell averaging.
 
 References: de Souza Neto, Peric, Dutko & Owen 1996 (F-bar, Int. J. Solids Struct. 33);
 Coombs, Charlton, Cortis & Augarde 2018 (F-bar in MPM, CMAME 333); Nagtegaal, Parks &
@@ -190,7 +190,7 @@ def _pressure_error(pts, nu, H=5.0, gamma=20.0):
 
 
 def test_nu0499_rough_box_no_checkerboard_with_fbar():
-    """Issue 8 acceptance 3, meshes/column_nu0499.toml (nu = 0.499 under self-weight between
+    """Closed form of the column, meshes/column_nu0499.toml (nu = 0.499 under self-weight between
     rough walls, where the state tends to the column under self-weight as nu -> 0.5).  With
     F-bar — explicit (the shipped scene, damped to rest) and implicit (one geostatic step)
     — the point pressure deviates from the closed form by < 5 % of its base value anywhere
@@ -239,7 +239,7 @@ def test_laterally_restrained_column_cannot_lock():
     assert np.allclose(res[0], res[1], rtol=1e-9, atol=1e-9)
 
 
-# ------------------------------------------------------- cell-constant pressure (issue 16)
+# ---------------------------------------------------------------- cell-constant pressure
 def _mc_soil(n, rng):
     """Mohr-Coulomb points (c 5 kPa, phi 30, psi 20 deg: non-associated, dilatant; a third
     softening to c 2 / phi 25 / psi 10 over gamma_p 0.5), G 400, K 900 kPa."""
@@ -340,7 +340,7 @@ def test_cell_pressure_is_bbar_for_elastic_points(meshes_dir_fx):
 
 
 def test_fbar_work_conjugate_force_and_its_tangent(meshes_dir_fx):
-    """Finite strain (issue 16): the F-bar force ``sum V0 tau(F_bar) grad_x N`` is not the
+    """Finite strain: the F-bar force ``sum V0 tau(F_bar) grad_x N`` is not the
     derivative of the F-bar work ``sum_p V0_p W(F_bar_p)`` once the in-plane mean stress
     varies inside a cell (dilatant Mohr-Coulomb flow).  The work-conjugate force
     (:func:`fem_rmpm.schemes.locking.fbar_work_stress`: ``tau + e I``) is: its work increment

@@ -1,7 +1,8 @@
-"""The random field as a pure function of standard-normal noise (issue 18, part 1).
+"""The random field as a pure function of standard-normal noise.
 
-The golden values were computed by the seed path before the noise path existed
-(fem_rmpm main at 09:50 UTC, 2026-12-01): the seed path must stay bitwise the same.
+The golden values are the seed path's own, recorded from the generator that draws its
+noise from the seed alone: the seed path must stay bitwise the same, and the noise path
+must equal it bitwise.
 """
 import numpy as np
 import pytest
@@ -22,11 +23,10 @@ def slope():
 
 def test_seed_path_gives_the_same_field_as_before(slope):
     """Peak cohesion of realization 3 (xi = 12, reference slope): sum and three points as
-    printed by the code before this change (repr round-trip; 0 difference on the machine
-    that printed them).  Asserted to 1e-11 relative: numpy's FFT takes other SIMD paths on
-    other CPUs (measured on the AMD EPYC Zen 3 VM against these AVX-512 figures: 1.55e-12
-    relative at most, the sum 1.1e-16), while a change of the seed path gives O(1)
-    differences."""
+    recorded (golden values, repr round-trip; 0 difference on the machine that recorded
+    them, an AVX-512 CPU).  Asserted to 1e-11 relative: numpy's FFT takes other SIMD paths
+    on other CPUs (an AVX2 AMD EPYC: 1.55e-12 relative at most, the sum 1.1e-16), while a
+    change of the seed path gives O(1) differences."""
     scene, grid, pts = slope
     c = sample_point_property(scene, grid, pts, 3)
     assert c.sum() == pytest.approx(365755.41129674186, rel=1e-11, abs=0)
@@ -72,7 +72,7 @@ def test_wrong_noise_is_an_error(slope):
 
 
 def test_the_api_exports_the_noise_functions(slope):
-    """``api.noise_shape`` / ``api.field_noise`` (in ``api.__all__``, issue 18) are the
+    """``api.noise_shape`` / ``api.field_noise`` (in ``api.__all__``) are the
     random field's: a realization run from ``api.field_noise`` equals the seed's."""
     scene, grid, _ = slope
     assert {"noise_shape", "field_noise"} <= set(api.__all__)

@@ -1,4 +1,4 @@
-"""Random fields of peak cohesion (issue 5).
+"""Random fields of peak cohesion: statistics, reproducibility, conditioning, variogram fit.
 
 References cited by the tests:
   [D7]  closed forms of the model: lognormal s_ln^2 = ln(1 + v^2), m_ln = ln(mu) - s_ln^2/2;
@@ -252,7 +252,7 @@ def test_circulant_and_cholesky_samples_agree():
         assert np.max(np.abs(emp - C) / se) < 5.0
 
 
-# ----------------------------------------------------------------------------- acceptance 1
+# ------------------------------------------------------------- statistics of local averages
 def _check_statistics(scene, n_real, lags_x, lags_y, theta_h, theta_v, seed0, n_se=5.0):
     """Mean, variance and lag correlations of ``n_real`` fields, each within ``n_se``
     standard errors; the SE of each is the spread of its per-realization value / sqrt(N)
@@ -284,7 +284,7 @@ def _check_statistics(scene, n_real, lags_x, lags_y, theta_h, theta_v, seed0, n_
 
 @pytest.mark.parametrize("xi,size", [(1, (5.0, 5.0)), (12, (60.0, 5.0)), (48, (60.0, 5.0))])
 def test_statistics_500_realizations(xi, size):
-    """Acceptance 1 ([FG08], [V83], [D7]): 500 seeded realizations of the cell-averaged field
+    """[FG08], [V83], [D7]: 500 seeded realizations of the cell-averaged field
     with cells theta/4 along each axis: mean, variance (against the variance function) and
     correlation of local averages at 0.25, 0.5, 1, 2 theta along x and y, each within 5 SE
     (SE of the variance 0.5 % at xi = 1 and 12, 0.9 % at xi = 48; of a correlation
@@ -299,7 +299,7 @@ def test_statistics_500_realizations(xi, size):
 
 
 def test_statistics_reference_grid_xi48():
-    """Acceptance 1 on the literature's grid ([FG08], [V83]): 0.25 m cells, theta_h = 24 m on
+    """The literature's grid ([FG08], [V83]): 0.25 m cells, theta_h = 24 m on
     60 m x 5 m: correlation of local averages at 6, 12, 24, 48 m along x and 0.25, 0.5, 1 m
     along y within 5 SE (2000 realizations: the domain holds only 2.5 theta_h; SE of the
     variance 0.46 %, of a correlation 0.004-0.006; measured offsets within 0.9 SE)."""
@@ -310,7 +310,7 @@ def test_statistics_reference_grid_xi48():
 @pytest.mark.slow
 @pytest.mark.parametrize("xi", [1, 12, 48])
 def test_statistics_5000_realizations_slow(xi):
-    """Acceptance 1 with 5000 realizations ([FG08], [V83]): every statistic within 5 SE
+    """5000 realizations ([FG08], [V83]): every statistic within 5 SE
     (SE about 0.002 for a correlation) and every correlation also within 0.02."""
     th = xi * THETA_V
     size = (5.0, 5.0) if xi == 1 else (60.0, 5.0)
@@ -356,15 +356,15 @@ def test_field_cell_size_and_zero_cov():
     np.testing.assert_array_equal(rf.sample_point_property(flat, grid, pts, 4), MU)
 
 
-# ----------------------------------------------------------------------------- acceptance 2
+# --------------------------------------------------------------- lognormal point statistics
 def test_lognormal_point_mean_and_cov():
-    """Acceptance 2 ([D7] s_ln^2 = ln(1 + v^2), m_ln = ln(mu) - s_ln^2/2): without local
+    """[D7] (s_ln^2 = ln(1 + v^2), m_ln = ln(mu) - s_ln^2/2): without local
     averaging the peak cohesion on the material points has mean 20 kPa, variance
     (0.25 x 20)^2 = 25 kPa^2 and median 20 exp(-s_ln^2/2) = 19.403 kPa, each within 5 SE
     over N = 400 realizations (SE from the spread of the per-realization value: the mean
     1.1e-2 kPa, the variance 0.062 kPa^2, i.e. 0.25 %; the median as the fraction of values
-    below it, 0.5 within 5 SE of 9e-4; measured offsets within 0.7 SE).  All points of a cell share its value, and residual cohesion
-    scales in proportion."""
+    below it, 0.5 within 5 SE of 9e-4; measured offsets within 0.7 SE).  All points of a
+    cell share its value, and residual cohesion scales in proportion."""
     scene = make_scene((20.0, 10.0), (0.25, 0.25), {"local_averaging": False})
     grid = make_grid(scene)
     pts = seed_particles(scene, grid)
@@ -401,7 +401,7 @@ def test_lognormal_with_averaging_keeps_point_parameters():
     assert abs(below.mean() - 0.5) < 5 * below.std(ddof=1) / math.sqrt(len(below))
 
 
-# ----------------------------------------------------------------------------- acceptance 3
+# --------------------------------------------------------- reproducibility and independence
 _HASH_SCRIPT = """
 import hashlib, sys
 import numpy as np
@@ -417,7 +417,7 @@ for s in {seeds!r}:
 
 
 def test_same_seed_same_field_any_process_and_order():
-    """Acceptance 3: a realization is a pure function of (scene, seed):
+    """A realization is a pure function of (scene, seed):
     bitwise the same in another process and in any call order, with a cold or warm cache."""
     scene = make_scene((30.0, 5.0), (0.25, 0.25), {"anisotropy": 12.0})
     grid = make_grid(scene)
@@ -435,7 +435,7 @@ def test_same_seed_same_field_any_process_and_order():
 
 
 def test_different_seeds_independent():
-    """Acceptance 3 ([FG08]): fields of different seeds are uncorrelated: the mean sample
+    """[FG08]: fields of different seeds are uncorrelated: the mean sample
     correlation between pairs of realizations is 0 within 5 SE, and the cross-covariance of
     cell values over 300 pairs is 0 within 5 SE."""
     scene = make_scene((20.0, 5.0), (0.25, 0.25), {"anisotropy": 1.0, "distribution": "normal"})
@@ -448,14 +448,14 @@ def test_different_seeds_independent():
     assert np.abs(cross.mean()) < 5 * cross.std(ddof=1) / math.sqrt(300)
 
 
-# ----------------------------------------------------------------------------- acceptance 4
+# --------------------------------------------------------------------- conditioning on data
 def _write_csv(path, rows, header="x,y,value"):
     path.write_text(header + "\n" + "\n".join(",".join(str(v) for v in r) for r in rows) + "\n")
     return path
 
 
 def test_conditioning_honours_data_and_returns_to_unconditional(tmp_path):
-    """Acceptance 4 ([JH78] conditional simulation by simple kriging of the residual, [D7]
+    """[JH78] (conditional simulation by simple kriging of the residual, [D7]
     lognormal transform): at the measured cells the field equals the data to 1e-8 kPa in every
     realization (variance ~0); far away (> 6 theta) mean and variance are unconditional,
     within 5 SE over N = 300 realizations (SE of the variance 0.9 %)."""
@@ -503,10 +503,10 @@ def test_conditioning_several_values_in_one_cell_use_gaussian_mean(tmp_path):
     assert value == pytest.approx(math.sqrt(16.0 * 25.0), rel=1e-9)          # = 20 kPa
 
 
-# ----------------------------------------------------------------------------- acceptance 5
+# ----------------------------------------------------------------- Gaussian domain averages
 @pytest.mark.parametrize("xi,size", [(1, (20.0, 5.0)), (48, (60.0, 5.0))])
 def test_domain_average_has_no_heavy_tails(xi, size):
-    """Acceptance 5 ([FG08]; exact Gaussian by [DN97]): the excess kurtosis of the domain
+    """[FG08]; exact Gaussian by [DN97]: the excess kurtosis of the domain
     average of the Gaussian field over 3000 realizations is 0 within 5 SE, SE = sqrt(24/N)."""
     scene = make_scene(size, (0.25, 0.25), {"anisotropy": float(xi)})
     grid = make_grid(scene)
@@ -520,10 +520,10 @@ def test_domain_average_has_no_heavy_tails(xi, size):
     assert abs(kurt) < 5 * math.sqrt(24.0 / N)
 
 
-# ----------------------------------------------------------------------------- acceptance 6
+# ---------------------------------------------------------------------------- variogram fit
 @pytest.mark.parametrize("theta_h,theta_v", [(6.0, 0.5), (0.5, 0.5), (2.0, 0.25)])
 def test_variogram_fit_recovers_scales(theta_h, theta_v):
-    """Acceptance 6 ([FG08] ch. 5 variogram estimation; Markov model [D7]): synthetic
+    """[FG08] ch. 5 variogram estimation; Markov model [D7]: synthetic
     lognormal point fields with known theta_h, theta_v on a theta_h/8 x 0.125 m grid
     (20 theta_h x 12 theta_v).  The estimator's standard error comes from the test's own
     sample: K = 24 independent single-field fits, SD s of each parameter (achieved: 8.5-9 %
@@ -531,7 +531,7 @@ def test_variogram_fit_recovers_scales(theta_h, theta_v):
     * the mean of the K fits is within 5 SE = 5 s / sqrt(K) of the truth (achieved offsets
       <= 0.6 SE, except theta_v = 2 cells: -2.3 SE, a 4 % bias of the finite grid);
     * a fit pooled over R = 6 further fields is within 5 s / sqrt(R) (its own SE, about
-      3.5 % of theta; the former fixed bound of 20 % was this 5 SE, not derived)."""
+      3.5 % of theta)."""
     model = rf.MarkovModel(theta_h, theta_v)
     h1, h2 = theta_h / 8, 0.125
     shape = (int(round(20 * theta_h / h1)), int(round(12 * theta_v / h2)))
@@ -560,12 +560,11 @@ def test_variogram_fit_recovers_scales(theta_h, theta_v):
 
 
 def test_variogram_fit_from_cpt_profiles_via_cli(tmp_path, capsys):
-    """Acceptance 6 from the CLI ([FG08]): vertical profiles (cone tests) every theta_h/4,
+    """The variogram fit from the CLI ([FG08]): vertical profiles (cone tests) every theta_h/4,
     sampled every 0.05 m, of one synthetic field with theta_h = 6 m, theta_v = 0.5 m:
     fitted, printed and written to fit.json.  The bound is 3 SD of this estimator: over
     N = 30 other seeds (100-129) the fits have mean +1.7 % / +0.6 % and SD 5.5 % / 4.7 %
-    (theta_h / theta_v); seed 42 achieves +2.0 % / +1.4 %; asserts 16.5 % / 14 % (was a
-    fixed 20 %)."""
+    (theta_h / theta_v); seed 42 achieves +2.0 % / +1.4 %; asserts 16.5 % / 14 %."""
     model = rf.MarkovModel(6.0, 0.5)
     h1, h2 = 1.5, 0.05
     shape = (160, 200)                                   # 240 m x 10 m
@@ -589,14 +588,14 @@ def test_variogram_fit_from_cpt_profiles_via_cli(tmp_path, capsys):
     assert (out / "variogram.png").stat().st_size > 0
 
 
-# ----------------------------------------------------------------------------- acceptance 7
+# -------------------------------------------------------------------------------- bad input
 @pytest.mark.parametrize("key,value,allowed", [("cov", -0.1, "[0, 10]"),
                                                ("theta_v", 0.0, "(0, inf)"),
                                                ("theta_v", -1.0, "(0, inf)"),
                                                ("anisotropy", 0.0, "(0, inf)"),
                                                ("anisotropy", -12.0, "(0, inf)")])
 def test_bad_field_parameters_are_one_line_errors(key, value, allowed):
-    """Acceptance 7: cov < 0, theta <= 0, xi <= 0 raise SceneError with a
+    """cov < 0, theta <= 0, xi <= 0 raise SceneError with a
     one-line message naming the file, the key and the allowed range."""
     with pytest.raises(SceneError) as e:
         make_scene((5.0, 5.0), (0.25, 0.25), {key: value}, source="meshes/rf_bad.toml")
@@ -618,7 +617,7 @@ def test_bad_field_parameters_are_one_line_errors(key, value, allowed):
     ("x,y,value\n", "no data rows"),
 ])
 def test_bad_data_file_is_one_line_error(tmp_path, content, needle):
-    """Acceptance 7: a data file with missing columns, non-numbers, points outside the field's
+    """A data file with missing columns, non-numbers, points outside the field's
     soil or non-positive lognormal values: SceneError naming file and row, and exit code 2."""
     scene = make_scene((10.0, 5.0), (0.25, 0.25), {"anisotropy": 2.0})
     path = tmp_path / "rf_data.csv"
@@ -631,7 +630,7 @@ def test_bad_data_file_is_one_line_error(tmp_path, content, needle):
 
 
 def test_data_in_empty_cell_of_slope_rejected(tmp_path):
-    """Acceptance 7: a point inside the field's bounding box but above the slope surface
+    """A point inside the field's bounding box but above the slope surface
     (no soil) is outside the domain (the reference slope's geometry)."""
     poly = [[0, 0], [20, 0], [15, 5], [0, 5]]
     scene = make_scene((25.0, 6.0), (0.25, 0.25), {"anisotropy": 2.0}, polygon=poly)
@@ -664,7 +663,7 @@ anisotropy = 12.0
 
 
 def test_field_cli_writes_vtu_png_and_summary(tmp_path, capsys):
-    """`fem-rmpm field SCENE --seed S --out DIR` (issue 5): VTU with the field on the points,
+    """`fem-rmpm field SCENE --seed S --out DIR`: VTU with the field on the points,
     PNG, JSON; the VTU cohesion equals the API's realization [FG08]; a scene without
     [random_field] shows the default (literature) field [D7]; bad data -> exit 2."""
     import meshio

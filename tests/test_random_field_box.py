@@ -1,5 +1,5 @@
 """``[random_field] box``: a fixed field rectangle, so that realization i has the same
-random field on every mesh (issue 17's paired mesh check).  Without it the field's
+random field on every mesh (a paired mesh check).  Without it the field's
 rectangle is the bounding box of the soil cells, which moves with the grid cell (242 /
 243 field columns at 0.5 / 0.25 m on meshes/slope_risk.toml), so the circulant embedding
 and the whole field of a seed change with the mesh."""

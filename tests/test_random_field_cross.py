@@ -1,5 +1,6 @@
-"""Random fields of several cross-correlated properties (issue 16, acceptance 4 and the
-field part of acceptance 6).
+"""Random fields of several cross-correlated properties: sample cross-correlation and
+marginals against their targets, the one-property seed path against golden values, and
+one-line errors for bad cross-correlated fields.
 
 The generator (``fem_rmpm.random_field.cross``): one standard-normal noise array per
 property on a common circulant-embedding lattice, mixed by the Cholesky factor ``L`` of
@@ -65,16 +66,17 @@ def _sha(a: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()
 
 
-# ----------------------------------------------------------------------------- acceptance 4
+# ---------------------------------------------------------------- correlation and marginals
 N_STAT = 500
 
 
 @pytest.mark.parametrize("rho,averaging", [(-0.5, False), (0.0, False), (0.5, False),
                                            (0.5, True)])
 def test_sample_cross_correlation_of_the_gaussian_fields(rho, averaging):
-    """Acceptance 4: the sample (Pearson) correlation of the two Gaussian fields, pooled
+    """Reference: Z = L G (the Cholesky factor L of R mixes independent standard Gaussian
+    fields G).  The sample (Pearson) correlation of the two Gaussian fields, pooled
     over N = 500 realizations of 32 x 32 cells, is within 4.5 standard errors of rho, and
-    4.5 SE is below the acceptance's 0.03.  The SE is the spread of the per-realization
+    4.5 SE is below the required 0.03.  The SE is the spread of the per-realization
     correlations / sqrt(N): 0.0014-0.0019 (4.5 SE <= 0.0087); achieved |r - rho| <= 0.0013.
     With local averaging (cell variance gamma < 1) the correlation of the cell values is
     still rho (shared structure: Z = L G)."""
@@ -102,9 +104,9 @@ def _mean_cov_se(v: np.ndarray, batches: int = 20):
 
 @pytest.mark.parametrize("rho", [-0.5, 0.5])
 def test_marginal_means_covs_and_phi_bounds(rho):
-    """Acceptance 4: over N = 500 realizations (32 x 32 point values each) the mean and COV
+    """Over N = 500 realizations (32 x 32 point values each) the mean and COV
     of cohesion (lognormal, 5 kPa, 0.3) and friction angle (beta on [10, 35] deg, 22 deg,
-    0.1) are within 4.5 SE of the targets (relative), 4.5 SE below the acceptance's 2 %;
+    0.1) are within 4.5 SE of the targets (relative), 4.5 SE below the required 2 %;
     phi never leaves [10, 35] deg.  SE (relative): c mean 0.10 %, c COV 0.16 %, phi mean
     0.034 %, phi COV 0.13 %; achieved: c within 0.02 %, phi mean 0.03 %, phi COV 0.16 %."""
     scene = two_property_scene(rho)
@@ -177,14 +179,13 @@ def test_own_structures_keep_their_covariance_and_scale_the_cross_correlation():
     assert abs(r_i.mean() - rho) > 4.5 * r_i.std(ddof=1) / math.sqrt(n)   # not rho itself
 
 
-# ----------------------------------------------------------------------------- same as before
-# The arrays of the code before several properties existed (main at bb8e4ed), on the AMD
-# EPYC Zen 3 VM of session 10: (sum, sum of squares, first, middle and last finite entry).
-# bb8e4ed and today's code give bitwise the same arrays there (sha256 compared, session 10)
-# and on the Intel VM of the earlier sessions, but not the same bits on both: numpy's FFT
-# takes other SIMD paths (AVX2 / AVX-512), 1.55e-12 relative apart at most (measured on the
-# reference slope's larger field, tests/test_noise_field.py).  So "as before" is asserted to
-# 1e-11 relative, far below what any change of the seed path (other draws: O(1)) would give.
+# ------------------------------------------------------------------------- golden seed path
+# Golden values of the one-property seed path, recorded from the single-property generator:
+# (sum, sum of squares, first, middle and last finite entry).  The seed path is bitwise the
+# same on one machine, but not across CPUs: numpy's FFT takes other SIMD paths (AVX2 /
+# AVX-512), 1.55e-12 relative apart at most (on the reference slope's larger field,
+# tests/test_noise_field.py).  So the values are asserted to 1e-11 relative, far below what
+# any change of the seed path (other draws: O(1)) would give.
 GOLDEN = {
     ("gaussian_field", 0): (6.63414266656928, 14.842020682566268, -0.20350799336526723,
                             0.16299079249154977, -0.1982762871305678),
@@ -213,7 +214,7 @@ def _as_before(a: np.ndarray, key) -> bool:
 
 def test_single_property_seed_path_is_as_before():
     """The one-property scene (mc_tiny) gives the fields, point cohesions and parameter
-    rows of the code before several properties existed (:data:`GOLDEN`, 1e-11 relative:
+    rows of the single-property generator (:data:`GOLDEN`, 1e-11 relative:
     bitwise on one machine, FFT round-off between machines); the same field written as a
     one-entry [[random_field.properties]] list gives bitwise the same parameter rows."""
     scene = load_scene(TINY)
@@ -223,8 +224,8 @@ def test_single_property_seed_path_is_as_before():
         assert _as_before(rf.gaussian_field(scene, grid, seed), ("gaussian_field", seed))
         assert _as_before(rf.sample_point_property(scene, grid, pts, seed),
                           ("sample_point_property", seed))
-    # the parameter rows' first 6 columns (moduli + the von Mises parameters of bb8e4ed);
-    # columns added later (the regularisation keys) are not part of the golden values
+    # the parameter rows' first 6 columns (moduli + the von Mises parameters); the
+    # regularisation columns are not part of the golden values
     params = api.prepare(scene, 11)[1].soil.params
     assert _as_before(params[:, :6], ("prepare", 11))
     d = scene_to_dict(scene)
@@ -345,7 +346,7 @@ def test_drained_random_scene_round_trips_and_draws_both_fields():
     assert -0.65 < np.corrcoef(np.log(c), phi)[0, 1] < -0.35
 
 
-# ----------------------------------------------------------------------------- acceptance 6
+# ------------------------------------------------------------------------------- bad fields
 def _drained_text(field: str, props: str | None = None) -> str:
     """The shipped drained random scene with its [random_field] section (and properties)
     replaced."""
@@ -403,10 +404,10 @@ THREE = PHI + "low = 10.0\nhigh = 35.0\n[[random_field.properties]]\nproperty = 
 ])
 def test_bad_cross_correlated_fields_are_one_line_errors(tmp_path, capsys, field, props, key,
                                                          words):
-    """Acceptance 6 (field part): a cross-correlation matrix not positive definite, with
+    """A cross-correlation matrix not positive definite, with
     |rho| >= 1, of the wrong shape (or not symmetric, or without a unit diagonal); a
     property the model does not have; friction-angle bounds outside the model's declared
-    [0, 60) deg (the issue's [0, 90) is wider) or an unbounded marginal for it; a beta COV
+    [0, 60) deg (narrower than the physical [0, 90)) or an unbounded marginal for it; a beta COV
     out of reach; a per-property key beside the list: exit 2, one line on stderr naming
     the file, the key and what is allowed, no traceback, nothing written."""
     scene = tmp_path / "bad.toml"
@@ -440,8 +441,9 @@ def test_a_property_of_another_model_is_refused():
 def test_two_realization_campaign_of_a_cut_in_c_phi_soil(tmp_path, dask_client):
     """The mc_tiny cut (2 m high, 45 deg) in Mohr-Coulomb soil (c' 4 -> 1 kPa lognormal
     COV 0.3, phi' 25 -> 20 deg beta on [15, 35] COV 0.1, rho = -0.5): a 2-realization
-    campaign (the session's 2-worker Dask cluster) finishes both realizations, they differ, each record's run is the
-    realization's seed run in this process (pure function of scene and seed), and a rerun
+    campaign (the test run's 2-worker Dask cluster) finishes both realizations, they
+    differ, each record's run is the realization's seed run in this process (pure function
+    of scene and seed), and a rerun
     of the same campaign finds nothing to do (the campaign identity reads the new keys)."""
     d = scene_to_dict(load_scene(TINY))
     soil = {k: v for k, v in d["soil"][0].items() if k not in ("cohesion_peak",

@@ -1,6 +1,6 @@
-"""Exact properties of the random field's point lookup and data argument that the mutation
-run of issue 21 left alive (``python validation/mutation.py random_field``; listed in
-validation/mutation_survivors.md).
+"""Exact properties of the random field's point lookup and data argument, written out so
+that mutation testing (``python validation/mutation.py random_field``; survivors listed
+in validation/mutation_survivors.md) finds them checked.
 
 References written out here: a point's field cell is the field cell that contains its
 initial position (:meth:`FieldLayout.locate`, plain geometry) — also when the field's

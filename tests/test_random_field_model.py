@@ -1,5 +1,5 @@
-"""The random-field model written out term by term (issue 21: kills the mutants that
-`validation/mutation.py random_field` found alive).  References: the Markov correlation
+"""The random-field model written out term by term, so that each term is checked (mutation
+testing: `validation/mutation.py random_field`).  References: the Markov correlation
 rho = exp(-2 r) with the elliptic r = sqrt((p/theta_h)^2 + (q/theta_v)^2) or separable
 r = |p|/theta_h + |q|/theta_v of the lag rotated into the layering (Fenton & Griffiths 2008,
 ch. 3); Vanmarcke's (1983) variance function g(T) = 2 (x + e^-x - 1) / x^2, x = 2T/theta,

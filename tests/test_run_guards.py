@@ -1,9 +1,10 @@
-"""The run guards' exact thresholds and messages (issue 21, mutation testing of
-:mod:`fem_rmpm.schemes.common` and :mod:`fem_rmpm.schemes.explicit.loop`).  The expected values follow from the
-documented rules: at rest when the kinetic energy is at most ``rest_energy_ratio`` x its
-peak (a peak other than 1 tells a product from a quotient); a point moving more than half
-a cell in a step stops the run; a non-finite point or a point outside the grid is named
-with its step, time, position and the option to change."""
+"""The run guards' exact thresholds and messages in :mod:`fem_rmpm.schemes.common` and
+:mod:`fem_rmpm.schemes.explicit.loop` (exact, so that mutation testing finds them checked).
+The expected values follow from the documented rules: at rest when the kinetic energy is at
+most ``rest_energy_ratio`` x its peak (a peak other than 1 tells a product from a
+quotient); a point moving more than half a cell in a step stops the run; a non-finite point
+or a point outside the grid is named with its step, time, position and the option to
+change."""
 from __future__ import annotations
 
 import time
@@ -223,8 +224,8 @@ def test_run_warns_once_at_the_start_on_busy_cores(monkeypatch, capsys):
 def test_threads_resolved_from_auto_by_run_do_not_warn(monkeypatch, capsys):
     """``fem_rmpm.api.run`` replaces ``threads = 0`` by :func:`auto_threads` once, before
     the run; if the cores turn busy in between (another process starts), the run does not
-    warn as if the user had set that count (CI once failed a one-line-stderr test on it: the
-    warning said "threads = 2" for a scene without a ``threads`` key).  An explicit
+    warn as if the user had set that count (such a warning would say "threads = 2" for a
+    scene without a ``threads`` key, and add a line to a one-line stderr).  An explicit
     ``threads = 2`` on the same busy cores still warns, once."""
     import fem_rmpm.api as api
     scene = load_scene(Path(__file__).resolve().parents[1] / "meshes" / "column.toml")

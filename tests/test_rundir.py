@@ -1,4 +1,4 @@
-"""Run directories never claim a success they do not hold (issue 12, acceptance 4).
+"""Run directories never claim a success they do not hold.
 
 ``fem-rmpm run`` is started as a real process and killed with SIGKILL in the middle of
 its output (once its 5th particle file exists), into a fresh directory and into one

@@ -1,4 +1,4 @@
-"""Accuracy against cost of the schemes (issue 7): one PNG, error vs wall time, Pareto front.
+"""Accuracy against cost of the schemes: one PNG, error vs wall time, Pareto front.
 
     nice python validation/accuracy_vs_cost.py            # ~15 min on a shared 2-core machine
     python validation/accuracy_vs_cost.py --quick         # a subset, ~2 min

@@ -1,6 +1,6 @@
 """Biaxial compression of a softening specimen on three meshes, local against non-local
-softening, and Newton's iterations with the regularisation on (issue 14, acceptance 2
-and 3).
+softening, and Newton's iterations with the regularisation on: mesh objectivity of the
+post-peak response, and the error of the staggered non-local update.
 
 meshes/biaxial_softening.toml (1 x 2 m unconfined plane strain, c 10 -> 5 kPa, weak seed
 cell at the bottom-left corner, implicit small-strain load steps to 0.12 m) on cells of
@@ -12,7 +12,7 @@ quasi-static gravity steps) made of von Mises clay that yields and softens at it
 Writes validation/out/biaxial_softening.png (force against displacement) and .json;
 prints the post-peak differences between meshes and the iterations per step.
 Run: ``nice python validation/biaxial_softening.py`` (a few minutes on a shared machine).
-``--staggered`` (acceptance 3): the staggered update's error - the non-local biaxial at
+``--staggered``: the staggered update's error - the non-local biaxial at
 0.05 m with 20 / 40 / 80 / 160 load steps, and case (i) (0.25 m, non-local) to 4 s
 implicit dynamic against explicit - written to validation/out/staggered_error.json.
 """
@@ -119,7 +119,7 @@ def _post_peak(a: dict, b: dict) -> float:
 
 
 def staggered() -> None:
-    """Acceptance 3: the staggered scheme's error (``--staggered``)."""
+    """The staggered scheme's error (``--staggered``)."""
     OUT.mkdir(exist_ok=True)
     runs = load_step_error()
     for r in runs:

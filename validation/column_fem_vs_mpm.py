@@ -1,4 +1,4 @@
-"""Column under self-weight: closed form vs scikit-fem FEM vs explicit MPM (issue 2, acc. 8).
+"""Column under self-weight: closed form vs scikit-fem FEM vs explicit MPM.
 
 Prints the error figures and writes ``validation/out/column_fem_vs_mpm.png`` (sigma_yy
 against depth).  Reference: the closed form sigma_yy = -gamma (H - y), K0 = nu/(1-nu),

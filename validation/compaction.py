@@ -1,4 +1,4 @@
-"""Column compaction under self-weight, implicit MPM under refinement (issue 3, acceptance 2).
+"""Column compaction under self-weight, implicit MPM under refinement.
 
 Reference: Charlton, Coombs & Augarde 2017 (AMPLE, "iGIMP",
 Computers & Structures 190).  l0 = 50 m, E = 10 kPa, nu = 0, rho0 = 0.08 t/m3, g = 10,

@@ -1,6 +1,6 @@
-"""Case (i) with the compiled kernels against the numpy reference, and the chaos floor
-(issue 13, acceptance 1: "results within 1e-10 relative of the single-thread numpy
-reference on the measures of case (i)").
+"""Case (i) with the compiled kernels against the numpy reference, and the chaos floor:
+how close the compiled kernels come to the single-thread numpy reference on the measures
+of case (i), against the target of 1e-10 relative.
 
 The numpy path (``[solver] kernel = "numpy"``) takes about an hour for the whole run on
 the shared 2-core machine, and case (i) is a collapsing slope: round-off differences

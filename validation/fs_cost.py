@@ -1,8 +1,8 @@
-"""Cost of the strength-reduction factor of safety beside the MPM run (issue 15 acc 5).
+"""Cost of the strength-reduction factor of safety beside the MPM run.
 
 For one scene (default: the reference slope, case (i)), interleaved in one process and
 repeated: the FS with strength continuation (the default search), the FS with gravity
-applied anew at every trial (``continuation = False``, the previous search) and the
+applied anew at every trial (``continuation = False``, the plain search) and the
 explicit MPM run of the same realization (no output files).  CPU time is
 ``time.process_time`` of this process (one numba thread, as a campaign worker), so the
 figures compare on a loaded machine; wall times are printed with the load average.
@@ -52,7 +52,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default=str(ROOT / "meshes" / "slope_reference.toml"))
     ap.add_argument("--repeats", type=int, default=2)
-    ap.add_argument("--no-classic", action="store_true", help="skip the previous search")
+    ap.add_argument("--no-classic", action="store_true",
+                    help="skip the plain search (gravity anew at every trial)")
     a = ap.parse_args()
     numba.set_num_threads(1)
     scene = api.load_scene(a.scene)

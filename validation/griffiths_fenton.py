@@ -1,13 +1,14 @@
 """P(FS < 1) of the Griffiths slope against the COV of the undrained cohesion, for several
-scales of fluctuation, beside the single-random-variable closed form (issue 15,
-acceptance 7; Griffiths & Fenton 2004, J. Geotech. Geoenviron. Eng. 130(5) 507-518).
+scales of fluctuation, beside the single-random-variable closed form (Griffiths & Fenton
+2004, J. Geotech. Geoenviron. Eng. 130(5) 507-518).
 
 The slope: ``meshes/griffiths_slope.toml`` (2:1, H = 10 m, D = 2), mean C = c / (gamma H)
 = 0.25 (homogeneous FS 1.47, Taylor), a lognormal isotropic Markov field of the cohesion
 with theta = Theta H for Theta in {0.5, 1, 2, 4, 1e4} (1e4: one random variable) and COV
 0.1 .. 0.5.  Each realization needs one static solve: whether the slope stands at F = 1
-under full gravity (:func:`fem_rmpm.schemes.implicit.strength_reduction.stable_at`), exactly the event
-FS < 1 the strength reduction reports, as RFEM does (Griffiths & Fenton 2004).
+under full gravity (:func:`fem_rmpm.schemes.implicit.strength_reduction.stable_at`),
+exactly the event FS < 1 the strength reduction reports, as RFEM does (Griffiths & Fenton
+2004).
 
 Closed form (perfect correlation): FS = FS_hom c / mu, so P(FS < 1) = Phi((ln(mu / FS_hom)
 - m_ln) / s_ln) with s_ln^2 = ln(1 + COV^2), m_ln = ln mu - s_ln^2 / 2; FS_hom is computed

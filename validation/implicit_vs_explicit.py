@@ -4,7 +4,7 @@ For each case the explicit run (the scene as shipped) and the implicit dynamic r
 (``solver.scheme = "implicit"``, ``solver.dynamic = true``, every other setting the
 default) are made back to back in this process, and the measures of the outputs
 (:mod:`fem_rmpm.measures.deposit`, on the deposit) are compared: run-out, retrogression,
-sliding area and slip-surface height, with the acceptance of 10 % (a measure whose
+sliding area and slip-surface height, within a tolerance of 10 % (a measure whose
 explicit value is below one cell, such as a slip surface at the base, is compared
 absolutely: within one cell, 0.25 m).  Wall time (``perf_counter``) and CPU time
 (``process_time``) of each run and their implicit / explicit ratios are printed; on a
@@ -85,7 +85,7 @@ def one_run(scene, seed) -> dict:
 
 
 def agree(m: str, exp: float, imp: float, cell: float) -> tuple[float, bool]:
-    """(difference, within the acceptance): relative to the explicit value, or absolute
+    """(difference, within the tolerance): relative to the explicit value, or absolute
     (m) where that is below one cell."""
     if abs(exp) < cell:
         return imp - exp, abs(imp - exp) <= cell

@@ -12,15 +12,16 @@ arithmetic only if the second optimization does not change it.  With numba's def
 passes it does not (the runs this script compares are bitwise the same); with
 LLVM's SLP vectorizer switched on (``NUMBA_SLP_VECTORIZE=1``, which numba leaves off) and
 FMA contraction, the copies of the map to nodes and the map back packed and fused
-differently, and a run compiled in its process and the same run from the cache took 2 115
-and 2 114 steps to t = 6 s (``--slp`` before 7180213).  Those kernels now write their
-vector operations and fused multiply-adds out (``fem_rmpm/schemes/explicit/kernels/pairs.py``): with
-``--slp`` the four runs agree as well (t = 2 and 12 s, measured), but SLP stays off.
-Without SLP the copies still differed where LLVM chose the arithmetic itself: with FMA
-contraction ("contract") allowed, the stress pass's copies fused differently in AVX2 code
-(an AMD EPYC Zen 1 host; ``--cpu znver1`` on a newer host): compiled 1 thread and the three
-others gave two hashes at t = 2 s (478 steps).  The kernels now carry no flag that changes
-a value (``fem_rmpm/runtime/compiled.py``): one hash, with and without ``--cpu znver1``.
+differently when the kernels leave the packing to LLVM: a run compiled in its process and
+the same run from the cache took 2 115 and 2 114 steps to t = 6 s.  So those kernels
+write their vector operations and fused multiply-adds out
+(``fem_rmpm/schemes/explicit/kernels/pairs.py``): with ``--slp`` the four runs agree as
+well (t = 2 and 12 s), but SLP stays off.  Without SLP the copies can still differ where
+LLVM chooses the arithmetic itself: with FMA contraction ("contract") allowed, the stress
+pass's copies fuse differently in AVX2 code (an AMD EPYC Zen 1 host; ``--cpu znver1`` on a
+newer host): compiled 1 thread and the three others gave two hashes at t = 2 s (478
+steps).  So the kernels carry no flag that changes a value
+(``fem_rmpm/runtime/compiled.py``): one hash, with and without ``--cpu znver1``.
 
 The check runs case (i) of the reference slope (or ``--scene`` with ``--set`` changes,
 e.g. ``--set solver.shape=gimp --set solver.fbar=true``) to ``--t-end`` in child
@@ -92,8 +93,7 @@ def main(argv=None) -> int:
                     help="as fem-rmpm run --set, e.g. solver.shape=gimp (repeatable)")
     ap.add_argument("--t-end", type=float, default=2.0, help="simulated seconds per run")
     ap.add_argument("--slp", action="store_true",
-                    help="with numba's SLP vectorizer on (differed before the pair "
-                         "intrinsics: module docstring)")
+                    help="with numba's SLP vectorizer on (see the module docstring)")
     ap.add_argument("--cpu", metavar="NAME",
                     help="compile for this LLVM CPU (e.g. znver1: AVX2, no AVX-512) instead "
                          "of the host")

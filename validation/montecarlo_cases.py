@@ -1,4 +1,4 @@
-"""The four literature cases of the reference slope, side by side (issue 6, acceptance 6).
+"""The four literature cases of the reference slope, side by side.
 
 Wang, Vardon & Hicks (2017) ran the reference slope (meshes/slope_reference.toml) homogeneous and
 with a lognormal random field of the undrained strength (COV 0.25, theta_v = 0.5 m) of

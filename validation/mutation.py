@@ -27,7 +27,8 @@ kernel paths) — is left out by the tool itself; nothing to configure.  What is
 the numpy side: von Mises' ``update`` / ``cohesion`` / ``check``, the shared Hencky
 kinematics, Mohr–Coulomb's checks, strength laws and the numpy wrapper of its update,
 the explicit step's numpy reference (``explicit_step_numpy``, ``map_to_nodes``,
-``solve_on_mesh``, the time loop), ``run.py`` and ``measures.py``.  The compiled code is
+``solve_on_mesh``, the time loop), ``schemes/explicit/loop.py``, ``schemes/common.py``
+and ``measures/deposit.py``.  The compiled code is
 guarded by the kernel-equality tests (numba = numpy to 1e-12, tests/test_kernels.py,
 test_material_extension.py, test_mohr_coulomb.py), so a mutant of the numpy reference
 that those tests catch also stands for the same change in the kernel; Mohr–Coulomb's

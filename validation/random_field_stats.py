@@ -1,4 +1,4 @@
-"""Validation of the random-field generator (issue 5).
+"""Validation of the random-field generator against its target statistics.
 
 Prints the statistics table (mean, variance vs the variance function, excess kurtosis of the
 domain average, correlation of local averages at 0.25, 0.5, 1, 2 theta along x and y, for

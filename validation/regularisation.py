@@ -1,5 +1,5 @@
 """Mesh convergence of the failure mechanism with local, displacement-scaled and non-local
-softening (issue 14, acceptance 1).
+softening: does the failure mechanism converge as the cells shrink?
 
 Two slopes: case (i) (meshes/slope_reference.toml, c 20 -> 4 kPa) and one fixed random
 realization of it (lognormal c_peak, COV 0.25, theta_v 0.5 m, xi = 12, field cells 0.25 m,
@@ -22,9 +22,10 @@ The runs go to rest (the reference's rest test: no point faster than 0.02 m/s, k
 energy below 1e-4 of its peak) or stop at ``--t-end`` (default 150 s; the table's ``t``
 column and ``stop`` say which): the run-out is the front where the deposit stopped.
 Stray points (debris separated from the deposit, excluded from every measure) count in
-the rest test, so a point sliding on alone along the floor delays it.  Outputs in validation/out/: regularisation_<slope>.json (every run as
-it finishes; rerunning skips the runs already there; ``--slopes`` runs one slope per
-process), regularisation_<slope>.png (plastic shear strain at the
+the rest test, so a point sliding on alone along the floor delays it.  Outputs in
+validation/out/: regularisation_<slope>.json (every run as it finishes; rerunning skips
+the runs already there; ``--slopes`` runs one slope per process),
+regularisation_<slope>.png (plastic shear strain at the
 mechanism time, one row per mesh, one column per softening), regularisation_width.png
 (main shear band width against the cell) and the tables printed at the end.
 
@@ -45,13 +46,14 @@ Main shear band width, measures of the basal band (case (i) fails at the base), 
   when the whole sliding layer may have softened).
 
 Intact blocks at the mechanism time (3 s): ``intact_blocks`` is the measure (least block
-1 m2 on every mesh), ``intact_blocks_4cells`` the count of earlier versions (groups of 4
-cells: 1 m2 at 0.5 m, 0.06 m2 at 0.125 m).  The run's own measure is exact; the other
+1 m2 on every mesh), ``intact_blocks_4cells`` the count with a least block of 4 cells
+(1 m2 at 0.5 m, 0.06 m2 at 0.125 m).  The run's own measure is exact; the other
 count is recounted from the run's saved snapshot at the mechanism time (positions rounded
 to 1 mm, which moves a few points across cell edges: a recount of the run's own 4-cell
-measure differs from it by at most 1 block, 12 against 11 and 9 against 8).  The slip-surface height is that of the deposit at rest.
+measure differs from it by at most 1 block, 12 against 11 and 9 against 8).  The
+slip-surface height is that of the deposit at rest.
 
-Cost (acceptance 4): ``--cost N`` runs case (i) as it is (0.25 m, to rest) N times local
+Cost: ``--cost N`` runs case (i) as it is (0.25 m, to rest) N times local
 and non-local, interleaved, and prints the CPU times.
 
 Run: ``nice python validation/regularisation.py [--t-end 150] [--cells 0.5 0.25 0.125]
@@ -198,7 +200,7 @@ def table(runs, slope, soft) -> str:
 def blocks_at_mechanism_time(r: dict, **rule) -> int:
     """Intact blocks at the mechanism time as the ``intact_blocks`` measure counts them
     (least block ``[montecarlo] intact_block_area``, 1 m2), or with ``rule`` (e.g.
-    ``min_cells=4``: the definition of earlier versions, 0.06 m2 at 0.125 m), from the
+    ``min_cells=4``: a least block of 4 cells, 0.06 m2 at 0.125 m), from the
     run's saved snapshot (every point at 0.125 m and up) and the seeded initial positions
     (the run keeps the points' order); -1 if the snapshot was thinned."""
     s = scene_for(r["slope"], r["softening"], r["cell"], 3.0)
@@ -287,7 +289,7 @@ def figures(runs):
 
 
 def cost(repeats: int) -> None:
-    """Acceptance 4: whole runs of case (i) (meshes/slope_reference.toml as it is, 0.25 m,
+    """Whole runs of case (i) (meshes/slope_reference.toml as it is, 0.25 m,
     to rest), local and non-local interleaved, CPU time (time.process_time) of each;
     written to validation/out/regularisation_cost.json."""
     base = load_scene(ROOT / "meshes" / "slope_reference.toml")
@@ -342,7 +344,7 @@ def main(argv=None):
     for r in runs:        # the run's own count is exact; the other is recounted
         if "intact_block_area" in r:
             r["intact_blocks_4cells"] = blocks_at_mechanism_time(r, min_cells=4)
-        else:             # runs of earlier versions hold the 4-cell count
+        else:             # records without intact_block_area hold the 4-cell count
             r["intact_blocks_4cells"] = r["intact_blocks"]
             r["intact_blocks"] = blocks_at_mechanism_time(r)
     for slope in SLOPES:

@@ -4,8 +4,8 @@
 
 Reads ``particles.pvd`` (first and last entry) and ``summary.json`` (scene: frame angle,
 grid, failure threshold) and prints the measures on the deposit beside the ones the
-summary holds (which may come from an older definition).  Point data used: coordinates,
-``displacement`` (x0 = x - displacement), ``volume``, ``active``.
+summary holds (which may come from another version of a measure's definition).  Point
+data used: coordinates, ``displacement`` (x0 = x - displacement), ``volume``, ``active``.
 """
 from __future__ import annotations
 

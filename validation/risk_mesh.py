@@ -1,4 +1,4 @@
-"""The critical strength factor of a risk-slope realization on several meshes (issue 17).
+"""The critical strength factor of a risk-slope realization on several meshes.
 
 ``lambda_crit`` of a realization is the factor on its strength (peak and residual cohesion
 of every point multiplied by ``lambda``, the random field's pattern unchanged) at which the
@@ -20,7 +20,7 @@ Each run is the campaign's explicit run of the realization (same scene, seed
   ``failure_displacement`` (the campaign's rule, stray points included here);
 * **stands** when it comes to rest (the run's own stop), or at ``--t-cap`` (default 30 s)
   if then no point moved more than ``failure_displacement`` (standing slopes of the
-  campaign came to rest by 14 s, failing ones had moved metres by 10 s).
+  campaign come to rest by 14 s, failing ones have moved metres by 10 s).
 
 ``lambda_crit`` is bracketed from 1 in steps of ``--step`` (default 0.1) and bisected to
 ``--tol`` (default 0.01).  Every run is appended to ``runs.jsonl`` in ``--out`` and read back

@@ -1,4 +1,4 @@
-"""The risk study of ``meshes/slope_risk.toml`` (issue 17): from a crude Monte Carlo campaign
+"""The risk study of ``meshes/slope_risk.toml``: from a crude Monte Carlo campaign
 of the four cases (homogeneous, xi = 1, 12, 48), the figures and the table a risk analyst
 reads.
 
@@ -17,8 +17,8 @@ exceedance is P(failure) x the exceedance given failure.  Each n is stated.
 
 ``--run N`` runs (or resumes) the campaign first with ``N`` realizations per random case.
 ``--import-from SRC`` first copies the records of another campaign directory of the same
-scene (checked case by case as for resuming; e.g. runs made with ``--set grid.cell=0.25``
-before the file had that cell, or a decided-only campaign) into the campaign directory,
+scene (checked case by case as for resuming; e.g. runs made with ``--set grid.cell=0.25``,
+the file's own cell, or a decided-only campaign) into the campaign directory,
 so that ``fem-rmpm mc`` then computes only the rest.
 ``--decided DIR``: a campaign of the same scene with ``--set montecarlo.runs_to_rest=0``
 (every run stopped once decided): its ``failed`` against this campaign's runs to rest,

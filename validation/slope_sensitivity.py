@@ -1,4 +1,4 @@
-"""Mesh and softening sensitivity of the homogeneous reference slope, case (i) (issue 4, acc. 4).
+"""Mesh and softening sensitivity of the homogeneous reference slope, case (i).
 
 Runs meshes/slope_reference.toml with cell sizes 0.5 / 0.25 / 0.125 m (default softening)
 and, at 0.25 m, two further softening rates (residual reached at gamma_p = 0.2 and 1.0

@@ -1,5 +1,5 @@
 """A campaign through SLURM: scaling (1 vs 2 workers) and the --dry-run estimate against
-the measured CPU time (issue 19, acceptance 3 and 5).
+the measured CPU time.
 
 Needs a running SLURM (``bash .ci/slurm-start.sh`` as root starts a single-node one) and
 runs ``fem-rmpm mc`` as a user would, in subprocesses, writing to ``--out``

@@ -1,4 +1,4 @@
-"""Where MPM fails, measured and cured (issue 8): a stability map in four studies.
+"""Where MPM fails, measured and cured: a stability map in four studies.
 
 (a) **CFL.**  The explicit step is ``dt = cfl h / (c_p + |v|max)``; the textbook
     estimate is cfl <= 1.  The stable limit of the column (meshes/column.toml) is found
@@ -6,8 +6,8 @@
     10 gamma H), for linear elastodynamics (geostatic phase, points fixed) and for large
     deformation, undamped and with the default local damping 0.7; a 2-D box (rough
     walls) in the linear regime; and the theory of the scheme itself, the cfl at which
-    the spectral radius of the linearised step exceeds 1 (fem_rmpm/schemes/explicit/stability.py), for
-    FLIP and PIC.
+    the spectral radius of the linearised step exceeds 1
+    (fem_rmpm/schemes/explicit/stability.py), for FLIP and PIC.
 (b) **Cell crossing.**  The compaction column (Charlton et al. 2017: l0 = 50 m, E = 10 kPa,
     nu = 0; error norm sum_p |sigma_p - sigma_a| V_p / (rho0 g l0 V0)) under refinement,
     standard Q4 vs uGIMP (Bardenhagen & Kober 2004), implicit (50 load steps) and

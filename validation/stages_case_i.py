@@ -1,5 +1,5 @@
 """Kernel timers along case (i): the three compiled stages of the explicit step, on one
-and on two threads, from the states of case (i) at given times (issue 13).
+and on two threads, from the states of case (i) at given times.
 
 For each ``--times`` value the reference slope is run to that time, its points sorted by
 host cell as the run keeps them (``--unsorted``: in their original order), then 300 further steps
@@ -78,8 +78,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--times", type=float, nargs="+", default=[2.0, 8.0, 25.0])
     ap.add_argument("--unsorted", action="store_true",
-                    help="the points in their original order (before session 12: the "
-                         "only order this script timed, not the run's)")
+                    help="the points in their original (seeding) order, not the run's "
+                         "host-cell order")
     args = ap.parse_args()
     for t_state in args.times:
         res = {th: stage_times(t_state, th, sort=not args.unsorted) for th in (1, 2)}

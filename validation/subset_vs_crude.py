@@ -1,4 +1,4 @@
-"""Subset simulation against crude Monte Carlo on the risk slope (issue 18, acceptance 3).
+"""Subset simulation against crude Monte Carlo on the risk slope.
 
 From a finished crude campaign of a scene (``fem-rmpm mc SCENE --out CRUDE``; its
 per-realization records ``CRUDE/records/<case>/realization_*.json``) the script takes one
@@ -16,7 +16,7 @@ case and a response threshold at which crude Monte Carlo reaches the probability
   COV, and a 95 % interval P exp(+-1.96 s), s^2 = ln(1 + COV^2) (lognormal: the subset
   estimator is a product of level factors).
 
-Agreement (acceptance 3): the two 95 % intervals overlap; also printed, the difference
+Agreement: the two 95 % intervals overlap; also printed, the difference
 in units of its standard error sqrt(SE_crude^2 + (COV P_subset)^2) and whether each
 estimate lies inside the other's interval.  Records of the subset campaign are in
 ``--out`` (a killed run resumes: re-run the same command).

@@ -1,6 +1,6 @@
 """A Monte Carlo campaign on 1 and on 2 threads per realization gives the same
-``results.csv`` (issue 13, acceptance 2: "results.csv of a 3-realization campaign
-identical with 1 and 2 threads").
+``results.csv``: a realization is a pure function of the scene and its seed, whatever the
+number of threads.
 
 Runs ``fem-rmpm mc`` twice on the reference slope with one local worker, ``--set
 solver.threads=1`` and ``=2`` (the worker process then has a numba pool of that many
@@ -8,7 +8,7 @@ threads), checks that every realization ran on that many threads (its record's
 ``worker.threads``) and compares the two ``results.csv`` byte for byte (they hold no
 timings).
 
-The acceptance's campaign (the scene's 3 realizations of each of its four cases, whole
+The whole campaign (the scene's 3 realizations of each of its four cases, whole
 runs): ``python validation/threads_campaign.py`` (~10 realizations x ~20 s on one thread,
 then again on two: ~10-15 CPU-min).  A small check: ``--case xi=12 --t-end 2`` (3
 realizations to t = 2 s, ~1 CPU-min).  Exit status 0 when identical, 1 otherwise.

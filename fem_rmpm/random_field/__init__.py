@@ -93,8 +93,8 @@ Checked against ``scipy.integrate.nquad`` and the closed form in the tests.
 cell, gives a cell variance 2 % too high — 0.624 instead of 0.612 for xi = 1,
 0.25 m cells — and costs 16x more FFT work.)
 
-Speed (this machine, 2 shared cores; ``validation/random_field_stats.py`` measures it)
---------------------------------------------------------------------------------------
+Speed (2 shared cores; ``validation/random_field_stats.py`` measures it)
+------------------------------------------------------------------------
 Set-up (covariance table + FFT) once per configuration and process (cached),
 then per realization ``m1 m2`` normals and one rfft2/irfft2 pair:
 reference slope (4 575 soil cells, 4 860 field cells, embedding 500-720 x 45):
@@ -103,7 +103,7 @@ reference slope (4 575 soil cells, 4 860 field cells, embedding 500-720 x 45):
 gstools 1.7 (randomization method, 1000 modes, point field only): 0.22-0.31 s per
 4 880-cell field, i.e. ~300x slower, with the right variance and correlation but
 not exactly Gaussian over the domain: the excess kurtosis of the domain average
-for xi = 1 was +1.56 (SE 0.40, 150 realizations) against -0.25 here; it has no
+for xi = 1 is +1.56 (SE 0.40, 150 realizations) against -0.25 here; it has no
 local averaging either.  So gstools is not used at run time.
 
 Reproducibility

@@ -1,8 +1,8 @@
 """Which machine a run's speed figures come from.
 
 A figure in ns per point-step means little without the machine: the same kernels ran the
-reference slope at 48 ns per point-step on one 2-core VM and at 70 ns on another (an Intel
-Xeon and an AMD EPYC VM, one thread each, measured).  :func:`describe`
+reference slope at 48 ns per point-step on one 2-core machine and at 70 ns on another (an
+Intel Xeon and an AMD EPYC, one thread each).  :func:`describe`
 names it in every run's ``summary.json`` (key ``machine``), taken when the run starts:
 the CPU model, the cores the process may use, the load average (a run on a loaded machine
 is slower and says so), the platform and the versions of Python, numpy and numba.
@@ -81,8 +81,8 @@ def slow_threads_warning(layer: str | None, threads: int) -> str | None:
     """The one-line warning for a run on ``threads`` >= 2 threads that numba runs on its
     ``workqueue`` layer (it found neither the OpenMP runtime, ``libgomp.so.1``, nor TBB,
     ``libtbb.so.12``), else None.  That layer wakes its threads for every parallel loop:
-    ~80 us per loop against ~1 us with OpenMP (an empty two-thread loop, measured on a 2-core
-    AMD EPYC VM).  Case (i) to t = 10 s on that VM, two threads against one: 1.23x with a
+    ~80 us per loop against ~1 us with OpenMP (an empty two-thread loop on a 2-core AMD
+    EPYC).  Case (i) to t = 10 s on that machine, two threads against one: 1.23x with a
     loop per stage of the step (53 against 65 ns per point-step; F-bar and three or more
     threads still step so), 1.5-1.7x with the two-thread driver's one loop per call (32.0 /
     35.4 against 53.8 ns), where OpenMP gave 1.8-2.1x (25.9 / 29.7)."""

@@ -5,9 +5,10 @@ is valid while *the function's own source file* is unchanged (its stamp is the h
 that one file).  The explicit kernels inline helpers from other modules — the Q4/uGIMP
 basis (:mod:`fem_rmpm.schemes.explicit.kernels.basis`) into the transfers, the Hencky helpers of
 :mod:`fem_rmpm.schemes.explicit.kernels.strain` into the stress pass, the material models' point
-functions through the dispatch — so an edit of ``basis.py``, a rebase or an in-place
-upgrade left the kernels of the unchanged files running the old code (seen as NaN
-after a model file gained a state column), until ``*.nbi`` / ``*.nbc`` were deleted.
+functions through the dispatch — so under numba's rule an edit of ``basis.py``, a rebase
+or an in-place upgrade leaves the kernels of the unchanged files running the old code (a
+model file that gains a state column then gives NaN) until ``*.nbi`` / ``*.nbc`` are
+deleted.
 
 :func:`install` puts, in front of numba's cache locators, a copy of each that adds the
 hash of *every* source file of the package's compiled code (:data:`COMPILED_SOURCES`)

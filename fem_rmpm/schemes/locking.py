@@ -258,7 +258,7 @@ def fbar_work_stress(tau4: np.ndarray, V0: np.ndarray, volume: np.ndarray, J: np
     ``w_q = V_q dJ_q / sum_r V_r dJ_r``).  ``volume`` the step-start volumes, ``J`` the
     points' ``det dF``.  With ``sum_p V0_p tau_p grad_x N`` (de Souza Neto et al.'s F-bar
     force) the two differ as soon as ``s`` varies inside a cell, which dilatant plastic
-    flow does, and the force softens spuriously as the small-strain B-bar did."""
+    flow does, and the force softens spuriously, as the small-strain B-bar force does."""
     return bbar_force_stress(tau4, V0, volume * J, host, n_cells)
 
 
