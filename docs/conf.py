@@ -47,6 +47,7 @@ autodoc_preserve_defaults = True
 napoleon_google_docstring = False
 napoleon_numpy_docstring = True
 python_use_unqualified_type_names = True
+add_module_names = False
 
 html_theme = "furo"
 html_title = "fem_rmpm"

@@ -186,12 +186,13 @@ def _unit_first(comment: str) -> tuple[str, str]:
 
 
 def _intro(cls: type) -> list[str]:
-    """The first paragraph of a section class's docstring (none for a bare one)."""
+    """The first paragraph of a section class's docstring, without a leading
+    ``[section]:`` (the heading says it); none for a class without a docstring."""
     doc = inspect.getdoc(cls) or ""
     if doc.startswith(cls.__name__ + "("):         # the dataclass's generated signature
         return []
-    first = doc.split("\n\n")[0]
-    return [_cell(first).replace("\\|", "|"), ""] if first else []
+    first = re.sub(r"^``\[[\w.]+\]``: *", "", doc.split("\n\n")[0])
+    return [_cell(first[:1].upper() + first[1:]).replace("\\|", "|"), ""] if first else []
 
 
 def _section(section: str, cls: type, skip: tuple[str, ...] = ()) -> list[str]:
@@ -230,9 +231,9 @@ def _soil() -> list[str]:
     declared = {p.name for m in materials.models() for p in m.PARAMETERS}
     common = tuple(f.name for f in dataclasses.fields(SoilSpec)
                    if f.name in declared or f.name == "parameters")
-    lines = _intro(SoilSpec)
-    lines += ["The keys of every soil:", ""] + _section("soil", SoilSpec, skip=common)[
-        len(_intro(SoilSpec)):]
+    lines = ["One table per soil region: the keys of every soil, then those of its "
+             "material model (`model`), declared by the model itself.", ""]
+    lines += _section("soil", SoilSpec, skip=common)[len(_intro(SoilSpec)):]
     for m in materials.models():
         lines += [f'### [[soil]] model = "{m.NAME}"', ""]
         doc = (m.__doc__ or "").strip().split("\n\n")[0]

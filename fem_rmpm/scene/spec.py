@@ -153,7 +153,7 @@ class PrescribedSpec:
 @dataclass(frozen=True)
 class PropertyFieldSpec:
     """One ``[[random_field.properties]]`` table: the marginal of one property of the
-    field's soils and, where given, its own correlation structure (None: the value of
+    field's soils and, where given, its own correlation structure (not set: the value of
     ``[random_field]``, shared by the properties)."""
     property: str = scene_key(doc="a numeric parameter of the soil's model, e.g. "
                               "friction_angle_peak")
