@@ -1,4 +1,4 @@
-"""Scene files: bad input gets a clear one-line error and loses nothing (issue 2, acceptance 6).
+"""Scene files: bad input gets a clear one-line error and loses nothing.
 
 Each case runs the real command line (``fem_rmpm.cli.main``) and checks: exit code 2,
 exactly one line on stderr naming the file and the key and what is allowed, no

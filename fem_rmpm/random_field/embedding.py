@@ -43,7 +43,7 @@ class Embedding:
         return float(self.table[0, 0])
 
     def covariance(self, dk, dl) -> np.ndarray:
-        """C at integer lags inside the field (|dk| < n1, |dl| < n2) from the table."""
+        """C at integer lags inside the field (``|dk| < n1``, ``|dl| < n2``) from the table."""
         m1, m2 = self.padded
         return self.table[np.asarray(dl) % m2, np.asarray(dk) % m1]
 

@@ -1,6 +1,6 @@
 """The ``[random_field]`` section of a scene: read it and check it against the soils.
 
-One property (the original form, still the default)::
+One property (the simple form)::
 
     [random_field]
     property = "cohesion_peak"       # a parameter of the soil's material model
@@ -90,8 +90,9 @@ def build_random_field(source: str, data: Any) -> RandomFieldSpec:
 
 def random_field_to_dict(rf: RandomFieldSpec) -> dict:
     """Plain data of the section, as :func:`build_random_field` reads it back: the keys of
-    several properties only when they are used (so a one-property field is written as
-    before), the per-property keys of ``[random_field]`` not beside them."""
+    several properties only when they are used (a campaign's identity, which hashes this
+    data, does not depend on keys it does not use), the per-property keys of
+    ``[random_field]`` not beside them."""
     out = dataclasses.asdict(rf)
     if rf.properties:
         for key in _PER_PROPERTY:
@@ -100,7 +101,7 @@ def random_field_to_dict(rf: RandomFieldSpec) -> dict:
         del out["properties"]
     if not rf.cross_correlation:
         del out["cross_correlation"]
-    if rf.box is None:       # written only when given: older campaigns keep their identity
+    if rf.box is None:       # written only when given, as above
         del out["box"]
     return out
 

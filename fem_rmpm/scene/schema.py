@@ -51,7 +51,6 @@ _SECTIONS = {"scene": SceneInfo, "grid": GridSpec, "boundary": BoundarySpec, "so
 _LISTS = ("soil", "bedrock", "prescribed")     # sections that are arrays of tables
 
 
-
 def _build_soil(source: str, data: Any) -> SoilSpec:
     """A ``[[soil]]`` table: the common keys as any section, the keys of its material
     model against the model's declared parameters (unit, range or choices)."""

@@ -1,11 +1,13 @@
 """Scene specification: the frozen dataclasses a validated scene file becomes.
 
-A scene describes everything one run needs.  Every key carries its unit in its name
-or in the comment beside its field.  Units: m, s, kPa (stress, modulus, cohesion),
-kN/m3 (unit weight); the density used by the dynamics is ``unit_weight / gravity``
-in t/m3.  Reading and validating a TOML file into these classes is
-:mod:`fem_rmpm.scene.schema`; changing values of a scene is :mod:`fem_rmpm.scene`
-(which re-exports every public name of both).
+A scene describes everything one run needs.  Each key is declared once, as a field of
+its section's dataclass with its default, unit and one-line description
+(:func:`scene_key`, read by :mod:`fem_rmpm.scene.reference`, which writes the scene
+reference of the documentation).  Units: m, s, kPa (stress, modulus, cohesion), kN/m3
+(unit weight); the density used by the dynamics is ``unit_weight / gravity`` in t/m3.
+Reading and validating a TOML file into these classes is :mod:`fem_rmpm.scene.schema`;
+changing values of a scene is :mod:`fem_rmpm.scene` (which re-exports every public name
+of both).
 """
 from __future__ import annotations
 
@@ -15,12 +17,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = [
+    "scene_key",
     "SceneError", "Scene", "SceneInfo", "GridSpec", "BoundarySpec", "SoilSpec",
     "BedrockSpec", "PrescribedSpec", "RandomFieldSpec", "PropertyFieldSpec", "SolverSpec",
     "MonteCarloSpec", "OutputSpec",
     "BOUNDARY_KINDS", "SCHEMES", "SHAPES", "EDGE_POLICIES", "DISTRIBUTIONS", "CORRELATIONS",
 ]
-
 
 
 class SceneError(ValueError):
@@ -38,28 +40,43 @@ DISTRIBUTIONS = ("normal", "lognormal", "beta")
 CORRELATIONS = ("markov_elliptic", "markov_separable")
 
 
+def scene_key(default: Any = dataclasses.MISSING, doc: str = "", unit: str = "") -> Any:
+    """A scene key as a dataclass field: its ``default`` (none: the key is required), a
+    one-line description ``doc`` and its ``unit`` ("-": dimensionless, "": not a
+    quantity), kept in the field's metadata for the scene reference."""
+    return field(default=default, metadata={"doc": doc, "unit": unit})
+
+
 @dataclass(frozen=True)
 class SceneInfo:
-    name: str = "scene"
-    gravity: float = 9.81          # m/s2
-    frame_angle_deg: float = 0.0   # angle of the grid x axis below the true horizontal (deg)
-    description: str = ""
+    """``[scene]``: the scene's name and gravity."""
+    name: str = scene_key("scene", "name of the scene (in outputs and reports)")
+    gravity: float = scene_key(9.81, "gravitational acceleration", "m/s2")
+    frame_angle_deg: float = scene_key(
+        0.0, "angle of the grid x axis below the true horizontal (a tilted frame)", "deg")
+    description: str = scene_key("", "free text describing the scene")
 
 
 @dataclass(frozen=True)
 class GridSpec:
-    origin: tuple[float, float] = (0.0, 0.0)   # m
-    size: tuple[float, float] = (1.0, 1.0)     # m
-    cell: tuple[float, float] = (0.25, 0.25)   # m
-    file: str | None = None                    # quad mesh read by meshio (path relative to scene)
+    """``[grid]``: the background grid of square or rectangular Q4 cells."""
+    origin: tuple[float, float] = scene_key((0.0, 0.0), "lower left corner [x, y]", "m")
+    size: tuple[float, float] = scene_key((1.0, 1.0), "extent [width, height]", "m")
+    cell: tuple[float, float] = scene_key(
+        (0.25, 0.25), "cell size [hx, hy] (one number: square cells); size must be a whole "
+        "number of cells", "m")
+    file: str | None = scene_key(
+        None, "a quad mesh read by meshio instead (path relative to the scene file)")
 
 
 @dataclass(frozen=True)
 class BoundarySpec:
-    left: str = "roller"
-    right: str = "roller"
-    bottom: str = "fixed"
-    top: str = "free"
+    """``[boundary]``: the condition on each edge of the grid."""
+    left: str = scene_key("roller", "left edge: fixed (no motion), roller (no normal motion) "
+                          "or free")
+    right: str = scene_key("roller", "right edge, as left")
+    bottom: str = scene_key("fixed", "bottom edge, as left")
+    top: str = scene_key("free", "top edge, as left")
 
 
 @dataclass(frozen=True)
@@ -111,7 +128,8 @@ _SOIL_FIELDS = ("polygon", "unit_weight", "youngs_modulus", "poisson_ratio", "na
 @dataclass(frozen=True)
 class BedrockSpec:
     """A rigid region: every grid node inside or on the polygon is fixed (no particles)."""
-    polygon: tuple[tuple[float, float], ...]
+    polygon: tuple[tuple[float, float], ...] = scene_key(
+        doc="corners [[x, y], ...] of the rigid region", unit="m")
 
 
 @dataclass(frozen=True)
@@ -123,27 +141,33 @@ class PrescribedSpec:
     quasi-static (or geostatic) load steps each step adds its share (the load factor
     increment times ``displacement``).  A component prescribed here wins over a fixed
     or roller boundary.  The reaction (kN per m) of each region is recorded per step."""
-    polygon: tuple[tuple[float, float], ...]
-    displacement: tuple[float, float]    # m, at load factor 1
-    components: str = "xy"
-    name: str = "prescribed"
+    polygon: tuple[tuple[float, float], ...] = scene_key(
+        doc="corners [[x, y], ...] of the region whose grid nodes are moved", unit="m")
+    displacement: tuple[float, float] = scene_key(
+        doc="displacement [ux, uy] reached at load factor 1", unit="m")
+    components: str = scene_key("xy", "the prescribed components: xy (both, a rough "
+                                "footing), x or y (one, a smooth footing)")
+    name: str = scene_key("prescribed", "name of the region (in the reaction records)")
 
 
 @dataclass(frozen=True)
 class PropertyFieldSpec:
     """One ``[[random_field.properties]]`` table: the marginal of one property of the
-    field's soils and, where given, its own correlation structure (None: the value of
+    field's soils and, where given, its own correlation structure (not set: the value of
     ``[random_field]``, shared by the properties)."""
-    property: str                        # a parameter of the soil's model, e.g. friction_angle_peak
-    distribution: str = "lognormal"      # "normal" | "lognormal" | "beta" (bounded: low, high)
-    cov: float = 0.25                    # coefficient of variation (-)
-    low: float | None = None             # beta: lower bound (property units)
-    high: float | None = None            # beta: upper bound (property units)
-    theta_v: float | None = None         # m
-    anisotropy: float | None = None      # -
-    correlation: str | None = None
-    layering_angle_deg: float | None = None
-    data: str | None = None              # CSV of x, y, value of this property (kriging)
+    property: str = scene_key(doc="a numeric parameter of the soil's model, e.g. "
+                              "friction_angle_peak")
+    distribution: str = scene_key("lognormal", "marginal distribution (beta: bounded by "
+                                  "low and high)")
+    cov: float = scene_key(0.25, "coefficient of variation", "-")
+    low: float | None = scene_key(None, "beta: lower bound", "property's unit")
+    high: float | None = scene_key(None, "beta: upper bound", "property's unit")
+    theta_v: float | None = scene_key(None, "its own vertical scale of fluctuation", "m")
+    anisotropy: float | None = scene_key(None, "its own xi = theta_h / theta_v", "-")
+    correlation: str | None = scene_key(None, "its own correlation function")
+    layering_angle_deg: float | None = scene_key(None, "its own layering angle", "deg")
+    data: str | None = scene_key(None, "CSV of x, y, value of this property to condition "
+                                 "on (kriging)")
 
 
 @dataclass(frozen=True)
@@ -152,24 +176,29 @@ class RandomFieldSpec:
     cross-correlated ones (``properties``, one :class:`PropertyFieldSpec` each, and the
     correlation matrix ``cross_correlation`` of their standard Gaussian fields, default
     the identity).  The other keys are shared by the properties."""
-    property: str = "cohesion_peak"
-    distribution: str = "lognormal"      # "normal" | "lognormal" | "beta" (bounded: low, high)
-    cov: float = 0.25                    # coefficient of variation (-)
-    theta_v: float = 0.5                 # vertical scale of fluctuation (m)
-    anisotropy: float = 1.0              # xi = theta_h / theta_v (-)
-    correlation: str = "markov_elliptic"  # "markov_elliptic" | "markov_separable"
-    layering_angle_deg: float = 0.0      # angle of the layering to the grid x axis (deg)
-    cell_size: float | None = None       # field cell size (m); default: the grid cell
-    box: tuple[float, float, float, float] | None = None  # [x0, y0, x1, y1] m, with cell_size:
-    # the field's rectangle, fixed (default: the soil cells' bounding box, which moves with
-    # the grid cell, so each mesh draws another field from the same seed)
-    local_averaging: bool = True
-    soil: str | None = None              # name of the soil the field applies to (default: all)
-    data: str | None = None              # CSV of x, y, value to condition on (kriging)
-    low: float | None = None             # beta: lower bound (property units)
-    high: float | None = None            # beta: upper bound (property units)
-    properties: tuple[PropertyFieldSpec, ...] = ()
-    cross_correlation: tuple[tuple[float, ...], ...] = ()   # p x p, rows in properties' order
+    property: str = scene_key("cohesion_peak", "the random parameter of the soil's model")
+    distribution: str = scene_key("lognormal", "marginal distribution (beta: bounded by low "
+                                  "and high)")
+    cov: float = scene_key(0.25, "coefficient of variation", "-")
+    theta_v: float = scene_key(0.5, "vertical scale of fluctuation", "m")
+    anisotropy: float = scene_key(1.0, "xi = theta_h / theta_v", "-")
+    correlation: str = scene_key("markov_elliptic", "correlation function")
+    layering_angle_deg: float = scene_key(0.0, "angle of the layering to the grid x axis", "deg")
+    cell_size: float | None = scene_key(None, "field cell size (default: the grid cell)", "m")
+    box: tuple[float, float, float, float] | None = scene_key(
+        None, "the field's fixed rectangle [x0, y0, x1, y1], with cell_size (default: the "
+        "soil cells' bounding box, which moves with the grid cell)", "m")
+    local_averaging: bool = scene_key(True, "field values are local averages over the "
+                                      "field cells")
+    soil: str | None = scene_key(None, "name of the soil the field applies to (default: all)")
+    data: str | None = scene_key(None, "CSV of x, y, value to condition on (kriging)")
+    low: float | None = scene_key(None, "beta: lower bound", "property's unit")
+    high: float | None = scene_key(None, "beta: upper bound", "property's unit")
+    properties: tuple[PropertyFieldSpec, ...] = scene_key(
+        (), "several cross-correlated properties: one [[random_field.properties]] table each")
+    cross_correlation: tuple[tuple[float, ...], ...] = scene_key(
+        (), "p x p correlation matrix of the properties' Gaussian fields, rows in the order "
+        "of properties (default: the identity)", "-")
 
     def fields(self) -> tuple["RandomFieldSpec", ...]:
         """One single-property spec per random property, in order: this spec itself
@@ -184,63 +213,76 @@ class RandomFieldSpec:
 
 @dataclass(frozen=True)
 class SolverSpec:
-    scheme: str = "explicit"
-    shape: str = "standard"              # "standard" Q4 or "gimp"
-    cfl: float = 0.5                     # explicit: dt = cfl * h / (c_p + |v|max)
-    damping: float = 0.7                 # local (Cundall) damping coefficient (-)
-    damping_time: float = math.inf       # s; damping is switched off after this time
-    gravity_ramp_time: float = 1.0       # s; gravity grows linearly to full over this time
-    gravity_phase: str = "dynamic"       # "geostatic": in-situ stresses on the fixed geometry first
-    geostatic_time: float = 20.0         # s; longest geostatic phase (ends earlier at rest)
-    t_end: float = 10.0                  # s; simulated time limit
-    rest_velocity: float = 1e-3          # m/s; at rest when max particle speed below this ...
-    rest_energy_ratio: float = 1e-6      # ... and kinetic energy below this fraction of its peak
-    output_interval: float = 0.5         # s between particle snapshots
-    flip: float = 1.0                    # FLIP fraction of the particle velocity update (1 = FLIP,
-    #                                      0 = PIC)
-    kernel: str = "numba"                # explicit step: "numba" (compiled) | "numpy" (reference)
-    threads: int = 0                     # explicit numba step: threads (0: auto = the idle cores,
-    #                                      1 in a campaign; any count: bitwise the same run)
-    edge_policy: str = "freeze"          # what happens to points reaching the grid edge
-    # implicit
-    load_steps: int = 1                  # quasi-static: number of load steps
-    dynamic: bool = False                # implicit: Newmark trapezoidal dynamics
-    #                                      (else quasi-static)
-    dt: float = 0.05                     # implicit dynamic time step (s)
-    max_iterations: int = 15
-    tolerance: float = 1e-9              # relative residual
-    max_cuts: int = 4                    # step cuts before giving up
-    linear_solver: str = "cholmod"       # "cholmod" | "superlu" | "pyamg" (implicit)
-    fbar: bool = False                   # F-bar locking remedy (cell-averaged volume change)
-    locking_constraint: str = "volume"   # geostatic steps with fbar: "volume" (B-bar: one volume
-    #                                      change per cell) | "pressure" (one in-plane mean stress)
-    adaptive: bool = True                # implicit: step size follows Newton and kinematic limits
-    dt_max: float = 0.1                  # implicit dynamic: largest adaptive time step (s)
-    max_displacement_fraction: float = 0.5   # implicit dynamic: point displacement per step (cells)
-    hht_alpha: float = 0.0               # implicit dynamic: HHT-alpha numerical damping, 0 .. 1/3
-    min_mass_fraction: float = 1e-2      # implicit dynamic: nodal mass floor
-    #                                      (fraction of rho A_cell)
+    """``[solver]``: the scheme and its time stepping, both schemes' keys in one table."""
+    scheme: str = scene_key("explicit", "explicit (numba) or implicit (Newton MPM)")
+    shape: str = scene_key("standard", "basis: standard Q4 or gimp (uGIMP)")
+    cfl: float = scene_key(0.5, "explicit: dt = cfl * h / (c_p + |v|max)", "-")
+    damping: float = scene_key(0.7, "local (Cundall) damping coefficient", "-")
+    damping_time: float = scene_key(math.inf, "damping is switched off after this time", "s")
+    gravity_ramp_time: float = scene_key(1.0, "gravity grows linearly to full over this time",
+                                         "s")
+    gravity_phase: str = scene_key("dynamic", "geostatic: in-situ stresses on the fixed "
+                                   "geometry first")
+    geostatic_time: float = scene_key(20.0, "longest geostatic phase (ends earlier at rest)",
+                                      "s")
+    t_end: float = scene_key(10.0, "simulated time limit", "s")
+    rest_velocity: float = scene_key(1e-3, "at rest when the largest point speed is below "
+                                     "this ...", "m/s")
+    rest_energy_ratio: float = scene_key(1e-6, "... and the kinetic energy below this "
+                                         "fraction of its peak", "-")
+    output_interval: float = scene_key(0.5, "time between point snapshots", "s")
+    flip: float = scene_key(1.0, "FLIP fraction of the point velocity update (1: FLIP, "
+                            "0: PIC)", "-")
+    kernel: str = scene_key("numba", "explicit step: numba (compiled) or numpy (reference)")
+    threads: int = scene_key(0, "explicit numba step: threads (0: the idle cores, 1 in a "
+                             "campaign; any count gives bitwise the same run)")
+    edge_policy: str = scene_key("freeze", "a point reaching the grid edge: freeze (kept "
+                                 "there, inactive) or stop (the run fails)")
+    load_steps: int = scene_key(1, "implicit quasi-static: number of load steps")
+    dynamic: bool = scene_key(False, "implicit: Newmark trapezoidal dynamics (else "
+                              "quasi-static)")
+    dt: float = scene_key(0.05, "implicit dynamic time step", "s")
+    max_iterations: int = scene_key(15, "implicit: Newton iterations per step")
+    tolerance: float = scene_key(1e-9, "implicit: relative residual of Newton", "-")
+    max_cuts: int = scene_key(4, "implicit: step cuts before giving up")
+    linear_solver: str = scene_key("cholmod", "implicit: cholmod, superlu or pyamg")
+    fbar: bool = scene_key(False, "F-bar locking remedy (cell-averaged volume change)")
+    locking_constraint: str = scene_key(
+        "volume", "geostatic steps with fbar: volume (B-bar: one volume change per cell) or "
+        "pressure (one in-plane mean stress)")
+    adaptive: bool = scene_key(True, "implicit: the step size follows Newton and kinematic "
+                               "limits")
+    dt_max: float = scene_key(0.1, "implicit dynamic: largest adaptive time step", "s")
+    max_displacement_fraction: float = scene_key(
+        0.5, "implicit dynamic: largest point displacement per step (cells)", "-")
+    hht_alpha: float = scene_key(0.0, "implicit dynamic: HHT-alpha numerical damping", "-")
+    min_mass_fraction: float = scene_key(
+        1e-2, "implicit dynamic: nodal mass floor (fraction of rho A_cell)", "-")
 
 
 @dataclass(frozen=True)
 class MonteCarloSpec:
-    realizations: int = 8
-    seed: int = 2017
-    failure_displacement: float = 0.5    # m; a point with |u| above this counts as sliding
-    intact_block_area: float = 1.0       # m2; least area of an intact block (measures)
-    keep_vtk: int = 2                    # keep VTK output of the first k realizations
-    factor_of_safety: bool = False       # strength-reduction FS of every realization first
-    runs_to_rest: int | None = None      # realizations with index >= this stop once decided
-    #                                      (fem_rmpm.campaign: "Runs stopped once decided");
-    #                                      None: every realization runs to rest
-    cases: tuple[str, ...] = ()          # variants run side by side: "homogeneous", "xi=12",
-    #                                      "<section.key>=<value>" (fem_rmpm.campaign.parse_case)
+    """``[montecarlo]``: a campaign of realizations and the measures' thresholds."""
+    realizations: int = scene_key(8, "realizations per case")
+    seed: int = scene_key(2017, "campaign seed (each realization's seed derives from it)")
+    failure_displacement: float = scene_key(
+        0.5, "a point displaced more than this counts as sliding", "m")
+    intact_block_area: float = scene_key(1.0, "least area of an intact block (measures)", "m2")
+    keep_vtk: int = scene_key(2, "keep the VTK output of the first k realizations")
+    factor_of_safety: bool = scene_key(False, "the strength-reduction factor of safety of "
+                                       "every realization first")
+    runs_to_rest: int | None = scene_key(
+        None, "realizations with an index from this on stop once decided (default: every "
+        "realization runs to rest)")
+    cases: tuple[str, ...] = scene_key(
+        (), "variants run side by side: homogeneous, xi=12 or section.key=value")
 
 
 @dataclass(frozen=True)
 class OutputSpec:
-    vtk: bool = True
-    png: bool = True
+    """``[output]``: the files a run writes."""
+    vtk: bool = scene_key(True, "write VTK files of the points and the grid")
+    png: bool = scene_key(True, "write PNG figures")
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from fem_rmpm.scene.spec import (
     SceneError,
 )
 
-__all__: list[str] = []      # internal to the scene layer (scene_schema, scene_fields)
+__all__: list[str] = []      # internal to the scene layer (schema, fields, reference)
 
 _RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "scene.gravity": (0, 1e3, True, True),
@@ -78,8 +78,6 @@ _CHOICES: dict[str, tuple[str, ...]] = {
     "solver.locking_constraint": ("volume", "pressure"),
     "prescribed.components": ("xy", "x", "y"),
 }
-
-
 
 #: float keys whose value may be infinite (no strength, damping for ever)
 _INFINITE_OK = ("solver.damping_time", "soil.cohesion_peak", "soil.cohesion_residual")
