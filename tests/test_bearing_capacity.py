@@ -1,5 +1,5 @@
-"""Rigid rough strip footing on weightless Mohr-Coulomb soil, associated flow (issue 16,
-acceptance 2): meshes/bearing_capacity.toml against Prandtl's N_c.
+"""Rigid rough strip footing on weightless Mohr-Coulomb soil, associated flow:
+meshes/bearing_capacity.toml against Prandtl's N_c.
 
 References: Prandtl 1920, Reissner 1924 (q_u = c N_c, N_c = (N_q - 1) cot(phi),
 N_q = exp(pi tan phi) tan^2(45 + phi/2), rough or smooth footing on weightless soil);
@@ -42,7 +42,7 @@ def _footing(h=None, **changes):
 
 
 def test_prandtl_formula():
-    """N_c at phi = 20 deg is the issue's 14.83 (and 5.14 = 2 + pi as phi -> 0)."""
+    """N_c at phi = 20 deg is 14.83 (and 5.14 = 2 + pi as phi -> 0)."""
     assert abs(_nc(20.0) - 14.835) < 1e-3
     assert abs(_nc(1e-6) - (2 + math.pi)) < 1e-4
 
@@ -96,10 +96,11 @@ def test_dilatant_flow_does_not_soften_spuriously():
 
 @pytest.mark.slow
 def test_footing_with_bbar_extrapolates_to_prandtl_under_refinement():
-    """Issue 16 acceptance 2 with B-bar (one volume change per cell): q/c at 2.5 % of B on B/8, B/16, B/32 (2048, 8192, 32 768
-    points) decreases monotonically (18.59, 17.03, 16.11) and its Richardson extrapolation
-    is within 5 % of Prandtl's N_c = 14.83 (achieves 14.78, -0.35 %; observed order 0.76).
-    The finest mesh alone is +8.6 %: it is not within 5 % (see README)."""
+    """Prandtl's N_c with B-bar (one volume change per cell): q/c at 2.5 % of B on B/8, B/16,
+    B/32 (2048, 8192, 32 768 points) decreases monotonically (18.59, 17.03, 16.11) and its
+    Richardson extrapolation is within 5 % of Prandtl's N_c = 14.83 (achieves 14.78, -0.35 %;
+    observed order 0.76).
+    The finest mesh alone is +8.6 %: it is not within 5 % (docs/validation/footing.md)."""
     nc = _nc(20.0)
     q = [_footing(2.0 / k, **VOLUME)[0][-1] for k in (8, 16, 32)]
     r = (q[1] - q[2]) / (q[0] - q[1])
@@ -111,7 +112,7 @@ def test_footing_with_bbar_extrapolates_to_prandtl_under_refinement():
 
 @pytest.mark.slow
 def test_footing_with_one_pressure_per_cell_is_within_5_percent_under_refinement():
-    """Issue 16 acceptance 2, the shipped scene (one in-plane mean stress per cell): on B/8,
+    """Prandtl's N_c, the shipped scene (one in-plane mean stress per cell): on B/8,
     B/16, B/32 every load-settlement curve levels off (rise over the last quarter of 2.5 %
     of B achieves 0.002 %, 0.004 %, 0.001 %; asserts < 0.05 %), q/c decreases
     monotonically (16.19, 15.57, 15.23: +9.1 %, +4.95 %, +2.6 % from N_c = 14.83) and is

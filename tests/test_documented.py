@@ -1,6 +1,7 @@
-"""Documented behaviour that had no test (issue 21): each test below checks one sentence of
-README.md ("The commands", "Scene files", "Outputs", "The method") and fails if the code
-stops doing what that sentence says.  All run through the public API or the command line.
+"""Documented behaviour: each test below checks one sentence of the documentation
+(docs/guide/commands.md, scenes.md, outputs.md; docs/method/mpm.md, explicit.md,
+implicit.md) and fails if the code stops doing what that sentence says.  All run through
+the public API or the command line.
 """
 from __future__ import annotations
 
@@ -54,7 +55,7 @@ def _one_line_error(capsys) -> str:
 
 # ----------------------------------------------------------------------------- exit codes
 def test_interrupt_exits_130_and_keeps_finished_output(tmp_path, capsys, monkeypatch):
-    """README "The commands": exit code 130 when interrupted; output up to then is kept.
+    """docs/guide/commands.md: exit code 130 when interrupted; output up to then is kept.
     A KeyboardInterrupt raised while the second snapshot is written (as Ctrl-C would) ends
     `fem-rmpm run` with 130, one line on stderr, and the first snapshot and the .pvd that
     lists it stay readable."""
@@ -81,7 +82,7 @@ def test_interrupt_exits_130_and_keeps_finished_output(tmp_path, capsys, monkeyp
 
 
 def test_writer_refuses_nan_and_the_run_exits_3(tmp_path, capsys, monkeypatch):
-    """README "Outputs": no file is ever written with NaN or Inf: the writer refuses, and
+    """docs/guide/outputs.md: no file is ever written with NaN or Inf: the writer refuses, and
     the command exits 3 naming the field.  A NaN put into one point's plastic shear strain
     (a field no run-time guard looks at) just before the second snapshot: the snapshot
     file is not written (nor left half-written), the first one is intact."""
@@ -140,7 +141,7 @@ def _column_with_grid_file(tmp_path, mesh_name: str) -> Path:
 
 
 def test_grid_file_is_the_same_grid_and_the_same_run(tmp_path):
-    """README "Scene files": `[grid] file` = a structured quad mesh read by meshio.  The
+    """docs/guide/scenes.md: `[grid] file` = a structured quad mesh read by meshio.  The
     column's 1 x 22 cells of 0.25 m written as a .vtu give the grid of `origin/size/cell`
     (nodes, cells, fixed DOFs) and, through a whole explicit run, the same stresses to
     round-off (both are the same arithmetic; achieves 0, asserts exact equality)."""
@@ -165,7 +166,7 @@ def test_grid_file_is_the_same_grid_and_the_same_run(tmp_path):
     ("incomplete", "not a complete axis-aligned grid of equal cells"),
 ])
 def test_grid_file_errors_are_one_line_exit_2(tmp_path, capsys, case, needle):
-    """README "Scene files" / the bad-input rule: the four ways a `[grid] file` can be
+    """docs/guide/scenes.md / the bad-input rule: the four ways a `[grid] file` can be
     wrong (missing, unreadable, no quads, not a structured grid of equal cells, including
     one with a cell missing) each give exit 2, one line naming the scene file, the key
     and the mesh, and no output directory."""
@@ -192,7 +193,7 @@ def _rel_l2(a, b, w):
 
 
 def test_bedrock_fixes_its_nodes_and_holds_no_points(tmp_path):
-    """README "Scene files": `[[bedrock]]` is a rigid region; every grid node in or on it is
+    """docs/guide/scenes.md: `[[bedrock]]` is a rigid region; every grid node in or on it is
     fixed and no particles are placed in it, even where a soil polygon overlaps it.  The
     5 m column with bedrock over its lowest 1 m is a 4 m column on a fixed base: 64 points
     (not 80), all above y = 1 m; the nodes at y <= 1 m fixed in x and y, the others free in
@@ -228,7 +229,7 @@ def _top_history(res):
 
 
 def test_damping_is_switched_off_after_damping_time():
-    """README "The method": local (Cundall) damping, switched off after `damping_time`.
+    """docs/method/explicit.md: local (Cundall) damping, switched off after `damping_time`.
     The column under suddenly applied gravity (dynamic phase, no ramp): damping_time = 0 is
     bitwise the undamped run, which overshoots to about twice the static settlement (the
     1-D wave solution of a suddenly applied load; achieves 2.11x, asserts > 1.8x); damped
@@ -257,11 +258,11 @@ def test_damping_is_switched_off_after_damping_time():
 # ----------------------------------------------------------------------------- points per cell
 @pytest.mark.parametrize("n", [1, 3])
 def test_points_per_cell_dir_seeds_gauss_points_and_integrates_like_the_fem(n):
-    """README "Seeding": standard Q4, points at the n x n Gauss points with the Gauss weights
-    as volumes (1 point: the centre, the cell area); uGIMP at the centres of n x n equal
-    sub-cells.  With n = 3 the 3 x 3 Gauss rule integrates the Q4 stiffness and the weight
-    exactly, like the FEM's 2 x 2, so one implicit geostatic step is the scikit-fem
-    solution (achieves 2.2e-14, asserts 1e-12)."""
+    """docs/method/mpm.md "Seeding": standard Q4, points at the n x n Gauss points with the
+    Gauss weights as volumes (1 point: the centre, the cell area); uGIMP at the centres of n x n
+    equal sub-cells.  With n = 3 the 3 x 3 Gauss rule integrates the Q4 stiffness and the weight
+    exactly, like the FEM's 2 x 2, so one implicit geostatic step is the scikit-fem solution
+    (achieves 2.2e-14, asserts 1e-12)."""
     from fem_rmpm.discretise.basis import q4_at_points
     from fem_rmpm.schemes.fem import solve_static
     scene = _column(**{"soil.points_per_cell_dir": n})
@@ -292,11 +293,11 @@ def test_points_per_cell_dir_seeds_gauss_points_and_integrates_like_the_fem(n):
 
 # ----------------------------------------------------------------------------- guards
 def test_half_cell_motion_guard_stops_a_finite_run():
-    """README "Guards": a point moving more than half a cell in a step stops the run, naming
-    the step and saying to reduce cfl.  A 1 m block of very soft soil (E = 0.2 kPa, so the
-    CFL step is 0.33 s) in free fall inside an all-free 10 m grid drops 1.05 m in its first
-    step: every value stays finite, so only the motion guard can stop it (the non-finite
-    guard would let it run on)."""
+    """docs/method/explicit.md "Guards": a point moving more than half a cell in a step stops
+    the run, naming the step and saying to reduce cfl.  A 1 m block of very soft soil (E = 0.2
+    kPa, so the CFL step is 0.33 s) in free fall inside an all-free 10 m grid drops 1.05 m in
+    its first step: every value stays finite, so only the motion guard can stop it (the
+    non-finite guard would let it run on)."""
     from fem_rmpm.schemes.common import SimulationError
     scene = _column(**{"grid.size": [10.0, 10.0], "boundary.left": "free",
                        "boundary.right": "free", "boundary.bottom": "free",
@@ -310,7 +311,7 @@ def test_half_cell_motion_guard_stops_a_finite_run():
 
 
 def test_at_rest_needs_both_the_speed_and_the_energy_criterion():
-    """README "Explicit scheme": the run stops at rest when the max point speed is below
+    """docs/method/explicit.md: the run stops at rest when the max point speed is below
     `rest_velocity` AND the grid kinetic energy is below `rest_energy_ratio` x its peak.
     The shared test function, both ways round; and in a run: the column at rest at 7.4 s
     with the defaults runs on to t_end when either criterion cannot be met."""
@@ -340,9 +341,9 @@ def _falling_block(**changes):
 
 
 def test_frozen_points_stay_where_they_left_the_grid(tmp_path):
-    """README "Guards": with edge_policy = "freeze" a point that leaves through a free edge
-    is frozen where it left: just beyond the edge (less than the half cell a point may move
-    in a step), and it never moves again; the particle files mark it `active = 0`."""
+    """docs/method/explicit.md "Guards": with edge_policy = "freeze" a point that leaves through
+    a free edge is frozen where it left: just beyond the edge (less than the half cell a point
+    may move in a step), and it never moves again; the particle files mark it `active = 0`."""
     res = api.run(_falling_block(), out=tmp_path / "o")
     p, grid = res.particles, res.grid
     frozen = ~p.active
@@ -359,7 +360,7 @@ def test_frozen_points_stay_where_they_left_the_grid(tmp_path):
 
 # ----------------------------------------------------------------------------- output files
 def test_particle_and_grid_fields_are_the_documented_ones(tmp_path):
-    """README "Outputs": the point data of the particle files and the grid file, field by
+    """docs/guide/outputs.md: the point data of the particle files and the grid file, field by
     field, on a column of two soils: a von Mises clay (c_p = 8, c_r = 4 kPa, linear
     softening over gamma_p = 0.5) below y = 2 m that yields under its own weight, and a
     linear elastic soil above.  cohesion = the softening law of the point's plastic shear
@@ -403,7 +404,7 @@ def test_particle_and_grid_fields_are_the_documented_ones(tmp_path):
 
 
 def test_summary_json_holds_the_documented_keys(tmp_path):
-    """README "Outputs": summary.json holds the scene, seed, scheme, status, steps, simulated
+    """docs/guide/outputs.md: summary.json holds the scene, seed, scheme, status, steps, simulated
     time, wall time, particle count, ns per point-step, the measures (the documented ones),
     frozen points, solver statistics, the kinetic-energy history and the machine, each with
     the value of the run."""
@@ -456,7 +457,7 @@ def _two_cycle_problem():
 
 
 def test_line_search_stops_newton_two_cycles():
-    """README "Implicit scheme": a backtracking line search stops 2-cycles (at the kinks of
+    """docs/method/implicit.md: a backtracking line search stops 2-cycles (at the kinks of
     the softening law).  On a residual where the full Newton step maps u to -u, Newton with
     the default line search converges (the first halved step hits the root); with the line
     search off (line_search = 0) it cycles and fails with the cycle in its residuals."""

@@ -1,4 +1,4 @@
-"""Rigid strip footing on von Mises soil, displacement controlled, implicit (issue 8).
+"""Rigid strip footing on von Mises soil, displacement controlled, implicit.
 
 References: Prandtl 1920 (limit pressure (2 + pi) c of a strip footing on weightless
 phi = 0 soil; Hill 1950 for the rough footing, same value); Nagtegaal, Parks & Rice 1974
@@ -37,12 +37,12 @@ def _footing(tmp_path, **changes):
 
 
 def test_strip_footing_reaches_prandtl_with_fbar(tmp_path):
-    """Issue 8 acceptance 2 (meshes/footing.toml: rough rigid footing, B = 2 m, half model,
+    """Prandtl's limit (meshes/footing.toml: rough rigid footing, B = 2 m, half model,
     c = 10 kPa, E = 3000 kPa, nu = 0.49, F-bar, B/32 cells, 12 small-strain steps to a
     settlement of 3 % of B): the pressure levels off (last two steps within 0.2 %) at a
     limit within 5 % of Prandtl's (2 + pi) c = 5.14 c.  The reactions are in summary.json
     for every step, and every Newton step converged.  The +2.75 % achieved at B/32 is the
-    discretisation error (it halves with h, README "Choosing a method"); the README's 5.28
+    discretisation error (it halves with h, docs/validation/footing.md); that page's 5.28
     is asserted to its rounding (achieves 5.2829), so the table cannot drift."""
     q, res = _footing(tmp_path)
     print(f"q_u / c = {q[-1]:.4f} (Prandtl {PRANDTL:.4f}, {q[-1] / PRANDTL - 1:+.2%})", q)
@@ -56,8 +56,8 @@ def test_strip_footing_reaches_prandtl_with_fbar(tmp_path):
 def test_strip_footing_overshoots_without_fbar(tmp_path):
     """Without the remedy the Q4 mesh locks under isochoric von Mises flow: at the same
     settlement the pressure is more than 15 % above Prandtl's and still rising (no limit
-    load), while F-bar has levelled off (previous test).  README: 6.69 (+30 %) at B/32,
-    asserted to its rounding (achieves 6.6924, last increase +0.91 %)."""
+    load), while F-bar has levelled off (previous test).  docs/validation/footing.md: 6.69
+    (+30 %) at B/32, asserted to its rounding (achieves 6.6924, last increase +0.91 %)."""
     q, _ = _footing(tmp_path, **{"solver.fbar": False})
     print(f"without F-bar: q / c = {q[-1]:.4f} ({q[-1] / PRANDTL - 1:+.1%}), last increase "
           f"{q[-1] / q[-2] - 1:+.2%}")

@@ -1,4 +1,4 @@
-"""Implicit scheme that finishes (issue 20): adaptive step size, robustness at nearly empty
+"""Implicit scheme that finishes: adaptive step size, robustness at nearly empty
 nodes and inverted points, HHT-alpha damping, output at output_interval.
 
 References: Hilber, Hughes & Taylor 1977 (HHT-alpha: alpha = 0 is the trapezoidal rule,
@@ -200,7 +200,7 @@ def test_hht_damping_brings_the_column_to_rest_trapezoidal_does_not():
 
 
 def test_hht_damping_brings_the_elastic_slope_to_rest_at_its_static_solution():
-    """Issue 20 acceptance 5: meshes/slope_elastic.toml at 1 m cells (1132 points), uGIMP,
+    """HHT-alpha dissipation: meshes/slope_elastic.toml at 1 m cells (1132 points), uGIMP,
     gravity ramped on over 1 s, implicit dynamics from dt = 0.1 s up to dt_max = 1 s,
     rest at 1e-3 m/s and 1e-6 of the peak kinetic energy.  With hht_alpha = 1/3 the
     slope is at rest after 28 s, within 0.94 mm of the quasi-static solution on the same
@@ -237,8 +237,8 @@ def test_quasi_static_output_follows_output_interval():
 @pytest.mark.slow
 @pytest.mark.timeout(3600)
 def test_reference_slope_implicit_default_runs_past_12_s(tmp_path):
-    """Issue 20 acceptance 1: the README's implicit command (case (i), default settings,
-    only scheme = implicit and dynamic = true) to t = 12 s, past the 10.7 s where the
+    """The implicit command of docs/validation/reference_slope.md (case (i), default
+    settings, only scheme = implicit and dynamic = true) to t = 12 s, past the 10.7 s where the
     fixed-step scheme failed: the run completes, the slope has failed (run-out beyond
     50 m, the explicit run has 64 m at rest) and every step converged.  About 10 minutes
     on an idle core."""
@@ -253,11 +253,11 @@ def test_reference_slope_implicit_default_runs_past_12_s(tmp_path):
 
 def test_implicit_campaign_identical_on_one_and_two_workers_and_records_failures(
         tmp_path, dask_client):
-    """Issue 20 acceptance 6: a 3-realization campaign of one random case (the tiny slope,
-    xi = 4, implicit Newmark) writes the same results.csv on 1 worker (``fem-rmpm mc
-    --workers 1`` in a subprocess, its own LocalCluster) and on 2 (the session's shared
-    cluster, tests/conftest.py: a second in-process cluster start is what flaked), byte
-    for byte; every record says scheme implicit; and a realization the implicit scheme
+    """Any worker count gives the same table: a 3-realization campaign of one random case
+    (the tiny slope, xi = 4, implicit Newmark) writes the same results.csv on 1 worker
+    (``fem-rmpm mc --workers 1`` in a subprocess, its own LocalCluster) and on 2 (the
+    suite's shared cluster, tests/conftest.py: a second in-process cluster start is what
+    flaked), byte for byte; every record says scheme implicit; and a realization the implicit scheme
     cannot converge (max_iterations = 1, max_cuts = 0) is recorded as failed with its
     Newton message."""
     import os

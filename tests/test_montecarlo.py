@@ -568,7 +568,8 @@ def test_validation_script_writes_the_case_figures(tmp_path):
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
 
 
-# The four cases on the reference slope with the script's documented N, against the
-# README's table: tests/test_readme_figures.py::test_four_literature_cases_match_readme
+# The four cases on the reference slope with the script's documented N, against the table
+# of docs/validation/reference_slope.md:
+# tests/test_readme_figures.py::test_four_literature_cases_match_docs
 # (slow; it writes to a temporary directory, not validation/out).
 

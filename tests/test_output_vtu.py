@@ -51,7 +51,8 @@ def test_every_field_round_trips_bitwise_in_meshio(tmp_path):
     for name, value in expected.items():
         assert _same(m.point_data[name], value), name
     assert m.point_data["stress"][0, 0] == 0.0 and np.signbit(m.point_data["stress"][0, 0])
-    # the README's layout: 2D vectors with a zero z, the stress's yz and xz zero
+    # the documented layout (docs/guide/outputs.md): 2D vectors with a zero z, the stress's
+    # yz and xz zero
     for name, value, k in (("displacement", pts.displacement, 2), ("velocity", pts.velocity, 2),
                            ("stress", pts.stress, 4)):
         assert _same(m.point_data[name][:, :k], value) and not m.point_data[name][:, k:].any()
@@ -151,7 +152,7 @@ def test_block_by_block_is_bitwise_the_whole_array_fields(tmp_path, monkeypatch)
     for name, value in particle_fields(pts).items():
         assert _same(m.point_data[name], value), name
     assert (m.point_data["cohesion"][model == 0] == -1.0).all()
-    # a non-finite value stops the write, naming the first bad field in the README's order
+    # a non-finite value stops the write, naming the first bad field in the documented order
     # (the positions last), whatever block it is in; nothing is left behind
     pts.stress[-1, 3] = np.nan
     pts.velocity[9000, 1] = np.inf

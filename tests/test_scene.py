@@ -146,7 +146,8 @@ def test_shipped_scenes_load_and_seed_their_soil(meshes):
     two differ by at most half a cell along the boundary: perimeter x h / 2, plus the
     h / 8 of the quarter-cell lattice that measures the area; achieves 0 on the
     rectangles and 2.4 % of that bound on the slopes, asserts 10 %), and the
-    embedded default is byte-identical to meshes/slope_reference.toml (README)."""
+    embedded default is byte-identical to meshes/slope_reference.toml
+    (docs/guide/commands.md)."""
     import numpy as np
 
     from fem_rmpm import api

@@ -107,7 +107,8 @@ def test_validation_scripts_write_their_figures(tmp_path):
     """validation/stability_map.py (--quick) and validation/footing.py (--quick) run to the end
     and write one fresh PNG per study into a temporary directory (issue 8: CFL, cell
     crossing, locking, points per cell, footing), with the JSON of numbers beside them.  The
-    README's figures from them: tests/test_readme_figures.py."""
+    documented figures from them (docs/guide/choosing.md, docs/validation/footing.md):
+    tests/test_readme_figures.py."""
     import json
     import subprocess
     import sys
