@@ -44,7 +44,8 @@ from fem_rmpm.scene import Scene, SceneError, check_seed, load_scene, scene_to_d
 from fem_rmpm.schemes.common import RunRecord, SimulationError
 from fem_rmpm.schemes.explicit import kernels
 from fem_rmpm.schemes.explicit.kernels.advance import pair_driver_fits, pair_worker
-from fem_rmpm.schemes.explicit.loop import auto_threads, run_explicit, threads_from_auto
+from fem_rmpm.schemes.explicit.loop import run_explicit
+from fem_rmpm.schemes.explicit.threads import auto_threads, threads_from_auto
 from fem_rmpm.schemes.fem import FemResult, solve_static
 from fem_rmpm.schemes.implicit import run_implicit, strength_reduction
 

@@ -1,10 +1,10 @@
-"""The compiled step driver (:mod:`fem_rmpm.schemes.explicit.kernels.advance`) runs the explicit time loop
-bitwise as the Python loop steps it.
+"""The compiled step driver (:mod:`fem_rmpm.schemes.explicit.kernels.advance`) runs the
+explicit time loop bitwise as the Python loop steps it.
 
-The driver runs the ordinary steps of :func:`fem_rmpm.schemes.explicit.loop.run_explicit` back to back
-in one compiled call and returns at the first step the loop must see (records, outputs,
+The driver runs the ordinary steps of :func:`fem_rmpm.schemes.explicit.loop.run_explicit`
+back to back in one compiled call and returns at the first step the loop must see (records, outputs,
 sorts, guards, rest, the end of the geostatic phase, the end).  The reference is the same
-loop with the driver switched off (every step from Python, as before the driver existed):
+loop with the driver switched off (every step from Python):
 every point field, the step count, the smallest and largest dt, the energy record, the
 output times and the stop reason must be equal bit for bit (asserted: 0 difference), on
 one and two threads, Q4 and uGIMP with F-bar, through a geostatic phase, a failure with
@@ -49,7 +49,7 @@ def _run(meshes, values, threads, driven, monkeypatch):
         return step(*a, **k)
     with monkeypatch.context() as m:
         m.setattr(explicit, "explicit_step", counted)
-        if not driven:                   # every step from Python (the loop before the driver)
+        if not driven:                   # every step from Python (the driver off)
             m.setattr(explicit, "has_nonlocal", lambda soil: True)
         rec = run_explicit(scene, grid, pts, on_output=lambda t, p: outputs.append(t),
                            sort_every=7)

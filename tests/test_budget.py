@@ -118,13 +118,13 @@ def test_cost_per_point_step_composes_basis_remedy_and_model(meshes):
 
 
 def test_explicit_cost_is_the_measured_figure_of_the_runs_cpu(meshes):
-    """The explicit step's cost is the one measured on the run's kind of CPU: case (i),
-    one thread, whole runs from their summary.json: 39 ns on the Intel Xeon VM (family 6,
-    model 167), 104 ns on the AMD EPYC Zen 1 VM (family 23, model 1; 101-107 ns in 5 runs,
-    21.4-22.6 s), 53 ns on the AMD EPYC Zen 4 VM (family 25, model 17; 46.5-64.1 ns in 7
-    runs, 10.7-14.8 s), each named on the printed line.  A CPU not measured gets the
-    slowest figure, and the line says so.  The estimated wall time of case (i) on the Zen 1
-    EPYC, 21 s, is within 10 % of the runs'; on the Zen 4, 10.9 s, within their range."""
+    """The explicit step's cost is the one of the run's kind of CPU in the table
+    (:data:`fem_rmpm.runtime.budget.EXPLICIT_NS_BY_CPU`: case (i), one thread, whole runs):
+    39 ns on the Intel Xeon (family 6, model 167), 104 ns on the AMD EPYC Zen 1 (family
+    23, model 1), 53 ns on the AMD EPYC Zen 4 (family 25, model 17), each machine named on
+    the printed line.  A CPU not in the table gets the slowest figure, and the line says
+    so.  The estimated wall time of case (i) is within 10 % of the whole runs' on the Zen 1
+    (21.4-22.6 s) and within their range on the Zen 4 (10.7-14.8 s)."""
     ref = load_scene(meshes / "slope_reference.toml")
     intel = budget.estimate_run(ref, ("GenuineIntel", 6, 167))
     epyc = budget.estimate_run(ref, ("AuthenticAMD", 23, 1))

@@ -1,4 +1,4 @@
-"""Explicit MPM against the static FEM reference and the closed form (issue 2)."""
+"""Explicit MPM against the static FEM reference (scikit-fem) and the closed form."""
 from __future__ import annotations
 
 import json
@@ -110,8 +110,8 @@ def test_column_outputs_are_complete_and_finite(column_run):
 
 
 def test_elastic_slope_explicit_matches_fem(meshes, capsys):
-    """Issue 2 acceptance 4: the elastic reference slope at rest, explicit MPM vs scikit-fem
-    FEM: volume-weighted relative L2 difference of stress and of displacement each < 5 %.
+    """The elastic reference slope at rest, explicit MPM against the scikit-fem FEM solution
+    (:mod:`fem_rmpm.schemes.fem`): volume-weighted relative L2 difference of stress and of displacement each < 5 %.
     Achieves stress 6.9e-5 (asserts 3e-4) and displacement 1.6e-4 (asserts 6e-4)."""
     scene = load_scene(meshes / "slope_elastic.toml")
     res = api.run(scene)
@@ -125,7 +125,7 @@ def test_elastic_slope_explicit_matches_fem(meshes, capsys):
 
 
 def test_rigid_rotation_creates_no_stress():
-    """Objectivity (issue 2 acceptance 5): a block turned by 90 degrees as a rigid body, with
+    """Objectivity (Hughes & Winget 1980): a block turned by 90 degrees as a rigid body, with
     the velocity gradient taken from rigidly rotating grid nodes through the Q4 basis and the
     Hughes-Winget increment, keeps zero stress (max |sigma| < 1e-6 E), and a pre-stressed
     block's stress turns with it (sigma_xx <-> sigma_yy)."""
@@ -160,7 +160,7 @@ def test_rigid_rotation_creates_no_stress():
 
 
 def test_too_large_cfl_stops_with_clear_error(tmp_path, capsys, meshes):
-    """Issue 2 acceptance 7: cfl = 5 exceeds the explicit stability limit (CFL:
+    """cfl = 5 exceeds the explicit stability limit (CFL:
     dt <= h / (c_p + |v|)); the run stops with an error naming the step and suggesting a
     smaller cfl, exit code 3, and no NaN/Inf in any file written."""
     text = (meshes / "column.toml").read_text().replace("cfl = 0.5", "cfl = 5.0")

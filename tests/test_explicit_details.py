@@ -1,5 +1,5 @@
-"""Exact checks of the explicit step's numpy stages and of its time loop (issue 21,
-mutation testing: ``python validation/mutation.py explicit``).
+"""Exact checks of the explicit step's numpy stages and of its time loop (written so that
+the mutants of ``python validation/mutation.py explicit`` fail them).
 
 References written out here: the CFL step ``dt = cfl h / (c_p + |v|max)`` with
 ``c_p = sqrt((K + 4G/3) / rho)`` over the active points; the lumped-mass momentum
@@ -21,13 +21,8 @@ from fem_rmpm.discretise.grid import make_grid
 from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
 from fem_rmpm.schemes.common import RunRecord, SimulationError, at_rest, check_points
-from fem_rmpm.schemes.explicit.loop import (
-    explicit_step,
-    map_to_nodes,
-    run_explicit,
-    solve_on_mesh,
-    stable_time_step,
-)
+from fem_rmpm.schemes.explicit.loop import explicit_step, run_explicit
+from fem_rmpm.schemes.explicit.reference import map_to_nodes, solve_on_mesh, stable_time_step
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 

@@ -1,5 +1,5 @@
 """The explicit step's arguments and the time loop's solver options reach the physics
-(issue 21, surviving mutants of ``python validation/mutation.py explicit``).
+(written so that the mutants of ``python validation/mutation.py explicit`` fail them).
 
 References written out here: the documented defaults of :func:`explicit_step` (FLIP 1,
 standard Q4 shape functions, large deformation, one thread, a workspace made on demand);
@@ -27,12 +27,10 @@ from fem_rmpm.discretise.grid import make_grid
 from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
 from fem_rmpm.schemes.common import SimulationError, at_rest
-from fem_rmpm.schemes.explicit.loop import (
-    Workspace,
-    explicit_step,
+from fem_rmpm.schemes.explicit.loop import Workspace, explicit_step, run_explicit
+from fem_rmpm.schemes.explicit.reference import (
     explicit_step_numpy,
     map_to_nodes,
-    run_explicit,
     stable_time_step,
 )
 

@@ -1,4 +1,4 @@
-"""First use: a cold numba cache is detected and announced before the compile (issue 12)."""
+"""First use: a cold numba cache is detected and announced before the compile."""
 from __future__ import annotations
 
 import os
@@ -75,9 +75,9 @@ def test_no_notice_when_quiet_or_warm(tmp_path, capsys, meshes, monkeypatch):
 
 def test_notice_and_run_use_one_thread_count(tmp_path, capsys, meshes, monkeypatch):
     """``threads = 0`` (auto) is resolved once per run: the free-core count can change
-    between two asks (seen: two threads announced, the run then on one), so the notice and
+    between two asks (two threads announced, the run then on one), so the notice and
     the run must not ask apart.  The stub answers 2, then 1 to any later ask."""
-    from fem_rmpm.schemes.explicit import loop as explicit
+    from fem_rmpm.schemes.explicit import threads as explicit_threads
     answers = iter([2, 1, 1, 1])
     asks = []
 
@@ -86,7 +86,7 @@ def test_notice_and_run_use_one_thread_count(tmp_path, capsys, meshes, monkeypat
         return next(answers)
 
     monkeypatch.setattr(api, "auto_threads", auto_threads)
-    monkeypatch.setattr(explicit, "auto_threads", auto_threads)
+    monkeypatch.setattr(explicit_threads, "auto_threads", auto_threads)
     monkeypatch.setattr(api, "kernels_cold", lambda threads=1, fbar=False: True)
     scene = api.with_value(api.load_scene(meshes / "column.toml"), "solver.t_end", 0.05)
     res = api.run(scene, out=tmp_path / "o", progress=True, vtk=False, figures=False)

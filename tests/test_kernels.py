@@ -7,7 +7,8 @@
   :func:`fem_rmpm.materials.small_strain_update` (elastic, linear and
   exponential softening, plastic points);
 * whole steps and runs: the numpy reference step
-  :func:`fem_rmpm.schemes.explicit.loop.explicit_step_numpy` / ``run_explicit(kernel="numpy")``.
+  :func:`fem_rmpm.schemes.explicit.reference.explicit_step_numpy` /
+  ``run_explicit(kernel="numpy")``.
 
 Equality is to round-off: 1e-12 relative to the largest value of each field.
 No timing here (speed lives in validation/bench_explicit.py).
@@ -186,10 +187,9 @@ def test_run_explicit_numba_equals_numpy_run(meshes):
 
     Not to 4 s: this run amplifies round-off — the compiled run against itself with ONE
     point's x moved by one ulp differs in stress by 3e-16 at 0.5 s, 7.5e-14 at 1.5 s,
-    1.6e-12 at 2 s, 3.4e-7 at 3 s and 2.6e-4 at 4 s (measured) — and the two steps round
+    1.6e-12 at 2 s, 3.4e-7 at 3 s and 2.6e-4 at 4 s — and the two steps round
     differently (operation order; the compiled Hencky exp / log are series of their own),
-    so to 4 s they differ by 2.6e-4 in stress (measured in session 32, with the kernels
-    compiled without FMA contraction).  To 1.5 s it achieves 4.5e-14 (stress; 5.7e-15
+    so to 4 s they differ by about 2.6e-4 in stress.  To 1.5 s it achieves 4.5e-14 (stress; 5.7e-15
     u_geostatic, x and dt_min equal); asserts 1e-10."""
     scene = with_value(load_scene(meshes / "column.toml"), "solver.t_end", 1.5)
     grid = make_grid(scene)

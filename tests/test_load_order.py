@@ -17,11 +17,9 @@ from validation_module import load
 ])
 def test_compiled_and_cached_kernels_give_the_same_run(args):
     """The four runs' step counts and state hashes are equal (exit status 0).  The check
-    failed with numba's SLP vectorizer on before the map's pair intrinsics (``--slp`` on
-    c8efb93: two hashes at t = 2 s, measured; the script's module docstring), and compiled
-    for an AVX2 CPU while the kernels allowed FMA contraction (``--cpu znver1`` on 739f015,
-    478 steps: the run compiled in its process against the three others, measured on a
-    Zen 4 host; a Zen 1 host differed the same way without ``--cpu``)."""
+    fails when a callee's compiled copies may round differently: with numba's SLP
+    vectorizer on and the map's x, y twins not written as vector operations (``--slp``), or
+    with FMA contraction allowed in code for an AVX2 CPU (``--cpu znver1``)."""
     assert load("load_order").main(args) == 0
 
 

@@ -19,9 +19,9 @@ def test_cpu_model_is_the_first_model_name_of_cpuinfo(tmp_path):
 
 
 def test_cpu_signature_is_vendor_family_and_model(tmp_path):
-    """``vendor_id``, ``cpu family`` and ``model`` of the first CPU block (an AMD EPYC VM
-    of the Zen 1 generation: AuthenticAMD, 23, 1; it names itself just "AMD EPYC"); None
-    where a field is missing or not a number, or there is no file."""
+    """``vendor_id``, ``cpu family`` and ``model`` of the first CPU block (an AMD EPYC of
+    the Zen 1 generation: AuthenticAMD, 23, 1; a virtual machine may name it just "AMD
+    EPYC"); None where a field is missing or not a number, or there is no file."""
     f = tmp_path / "cpuinfo"
     f.write_text("processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 23\n"
                  "model\t\t: 1\nmodel name\t: AMD EPYC\n\n"
@@ -83,13 +83,13 @@ def test_a_threaded_run_records_its_threading_layer_and_warns_once(monkeypatch, 
     """A two-thread run books numba's layer in ``solver.threading_layer``; on the slow
     layer it warns on stderr once per process, not at every run; a one-thread run books
     none."""
-    import fem_rmpm.schemes.explicit.loop as ex
+    import fem_rmpm.schemes.explicit.threads as threads_mod
     from fem_rmpm.discretise.grid import make_grid
     from fem_rmpm.discretise.points import seed_particles
     from fem_rmpm.scene import load_scene, with_values
     from fem_rmpm.schemes.explicit.loop import run_explicit
-    monkeypatch.setattr(ex, "threading_layer", lambda: "workqueue")
-    monkeypatch.setattr(ex, "_THREADS_WARNED", set())
+    monkeypatch.setattr(threads_mod, "threading_layer", lambda: "workqueue")
+    monkeypatch.setattr(threads_mod, "_THREADS_WARNED", set())
     base = load_scene(os.path.join(os.path.dirname(__file__), "..", "meshes", "column.toml"))
     records = []
     for threads in (2, 2, 1):

@@ -22,7 +22,7 @@ from fem_rmpm.materials import (
     stress_update,
 )
 from fem_rmpm.scene import load_scene, with_values
-from fem_rmpm.schemes.explicit.loop import map_to_nodes
+from fem_rmpm.schemes.explicit.reference import map_to_nodes
 
 E, NU = 1000.0, 0.33
 G, K = E / (2 * (1 + NU)), E / (3 * (1 - 2 * NU))

@@ -2,9 +2,9 @@
 (:mod:`fem_rmpm.runtime.numba_cache`).
 
 numba's own rule keys a cached function on its own source file only: the kernel
-``transfer.map_to_nodes`` inlines ``basis.q4``, so an edit of ``basis.py`` alone used to
-leave the cached ``map_to_nodes`` running the old basis (the stale cache that returned
-NaN after model edits).  The functional test edits ``basis.py`` in a copy of the package
+``transfer.map_to_nodes`` inlines ``basis.q4``, so under that rule an edit of ``basis.py``
+alone would leave the cached ``map_to_nodes`` running the old basis (and a stale model
+update can return NaN after a model gains a state column).  The functional test edits ``basis.py`` in a copy of the package
 between two fresh processes and checks that the second runs the new code.
 """
 from __future__ import annotations
@@ -48,7 +48,7 @@ def _node_mass(root: Path) -> float:
 def test_edit_of_an_inlined_file_recompiles_the_kernels_using_it(tmp_path):
     """A point at the centre of cell 0 gives node 0 a quarter of its mass (Q4); after
     ``basis.q4`` is edited to double its weights, a fresh process must give half (the
-    cached ``map_to_nodes`` from before the edit would still give a quarter)."""
+    cached ``map_to_nodes`` of the unedited basis would still give a quarter)."""
     shutil.copytree(PACKAGE, tmp_path / "fem_rmpm",
                     ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc"))
     assert _node_mass(tmp_path) == 0.25
@@ -87,12 +87,9 @@ def test_functions_the_kernels_can_call_set_their_own_flags():
     """Every numba function of ``fem_rmpm.materials`` and ``fem_rmpm.schemes.explicit.kernels`` that is
     called rather than inlined sets ``fastmath`` and ``error_model`` itself.  numba
     compiles a function without them with the flags of the caller that compiles it
-    first, and caches that: the Mohr-Coulomb helpers (plain ``njit``) took the explicit
-    kernels' multiply-add contraction when a run compiled them and none when a test or
-    the implicit scheme's numpy-level update did, so the drained slope's state at t = 3 s
-    (1 146 steps) had two hashes by which came first, and a cached run kept either
-    (measured before the fix).  They now set the kernels' flags: one hash in both orders
-    and on two threads, the one a kernel-first compile gave (explicit runs unchanged)."""
+    first, and caches that: a helper compiled first by a kernel and first by the implicit
+    scheme's numpy-level update could then round differently, and a run's result would
+    depend on which came first (and which one the cache kept)."""
     unset = [name for name, f in _dispatchers(("fem_rmpm.materials", "fem_rmpm.schemes.explicit.kernels"))
              if (f.targetoptions.get("inline", "never") != "always"
                  and not {"fastmath", "error_model"} <= set(f.targetoptions))]
@@ -131,11 +128,10 @@ def test_no_compiled_function_lets_llvm_change_a_value():
     most ``nsz``: no ``contract``, ``arcp``, ``reassoc`` or ``fast``.  numba links a copy of
     each compiled callee into every caller, optimized again there, and which copy runs
     depends on what the process loaded first; with FMA contraction allowed the copies of
-    the stress pass fused differently in AVX2 code, and a run compiled in its process and
-    the same run from the cache it wrote differed by one ulp (739f015 on an AMD EPYC Zen 1
-    VM: a subset-simulation sample's ``max_displacement`` ...605 vs ...604;
-    ``validation/load_order.py --cpu znver1``: two hashes).  Fails on 739f015
-    (``FASTMATH = {"contract", "arcp", "nsz"}``)."""
+    the stress pass can fuse differently (AVX2 code), and a run compiled in its process and
+    the same run from the cache it wrote then differ by one ulp
+    (``validation/load_order.py --cpu znver1``: two hashes).  Fails with
+    ``FASTMATH = {"contract", "arcp", "nsz"}``."""
     from fem_rmpm.runtime import compiled
     allowed = {"nsz"}
     bad = [] if compiled.FASTMATH <= allowed else [f"compiled.FASTMATH {compiled.FASTMATH}"]

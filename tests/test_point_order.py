@@ -1,5 +1,5 @@
 """The explicit time loop sorts the points by host cell and shows them to everyone else in
-their original order (:mod:`fem_rmpm.discretise.point_order`, issue 13).
+their original order (:mod:`fem_rmpm.discretise.point_order`).
 
 References: a permutation followed by its inverse is the identity (exactly); a sorted run
 and an unsorted run of the same scene differ only by the order of the nodal sums, so by

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import fem_rmpm.schemes.explicit.loop as ex
+import fem_rmpm.schemes.explicit.threads as threads_mod
 from fem_rmpm.discretise.grid import make_grid
 from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
@@ -103,20 +104,20 @@ def test_auto_threads_is_the_pool_less_the_busy_cores(monkeypatch, pool, load, e
     """``[solver] threads = 0``: numba's pool size (read from the config while the pool
     has not started, from numba once it has) less the rounded 1-minute load average where
     the runnable count of ``/proc/loadavg`` is not available."""
-    monkeypatch.setattr(ex, "_runnable_others", lambda *a, **k: None)
+    monkeypatch.setattr(threads_mod, "_runnable_others", lambda *a, **k: None)
     def loadavg():
         if load is None:
             raise OSError("no load average")
         return (load, 99.0, 99.0)
-    monkeypatch.setattr(ex.os, "getloadavg", loadavg)
-    monkeypatch.setattr(ex.numba_parallel, "_is_initialized", False, raising=False)
-    monkeypatch.setattr(ex.numba.config, "NUMBA_NUM_THREADS", pool)
-    monkeypatch.setattr(ex.numba, "get_num_threads", lambda: 99)
-    assert ex.auto_threads() == expected
-    monkeypatch.setattr(ex.numba_parallel, "_is_initialized", True, raising=False)
-    monkeypatch.setattr(ex.numba, "get_num_threads", lambda: pool)
-    monkeypatch.setattr(ex.numba.config, "NUMBA_NUM_THREADS", 99)
-    assert ex.auto_threads() == expected
+    monkeypatch.setattr(threads_mod.os, "getloadavg", loadavg)
+    monkeypatch.setattr(threads_mod.numba_parallel, "_is_initialized", False, raising=False)
+    monkeypatch.setattr(threads_mod.numba.config, "NUMBA_NUM_THREADS", pool)
+    monkeypatch.setattr(threads_mod.numba, "get_num_threads", lambda: 99)
+    assert threads_mod.auto_threads() == expected
+    monkeypatch.setattr(threads_mod.numba_parallel, "_is_initialized", True, raising=False)
+    monkeypatch.setattr(threads_mod.numba, "get_num_threads", lambda: pool)
+    monkeypatch.setattr(threads_mod.numba.config, "NUMBA_NUM_THREADS", 99)
+    assert threads_mod.auto_threads() == expected
 
 
 @pytest.mark.parametrize("pool, others, expected", [
@@ -128,11 +129,11 @@ def test_auto_threads_is_the_pool_less_the_busy_cores(monkeypatch, pool, load, e
 def test_auto_threads_counts_the_processes_running_now(monkeypatch, pool, others, expected):
     """With ``/proc/loadavg``'s runnable count, auto takes the pool less the other threads
     running now, not the 1-minute load average (here 9.0: it would give 1 thread)."""
-    monkeypatch.setattr(ex, "_runnable_others", lambda *a, **k: others)
-    monkeypatch.setattr(ex.os, "getloadavg", lambda: (9.0, 9.0, 9.0))
-    monkeypatch.setattr(ex.numba_parallel, "_is_initialized", True, raising=False)
-    monkeypatch.setattr(ex.numba, "get_num_threads", lambda: pool)
-    assert ex.auto_threads() == expected
+    monkeypatch.setattr(threads_mod, "_runnable_others", lambda *a, **k: others)
+    monkeypatch.setattr(threads_mod.os, "getloadavg", lambda: (9.0, 9.0, 9.0))
+    monkeypatch.setattr(threads_mod.numba_parallel, "_is_initialized", True, raising=False)
+    monkeypatch.setattr(threads_mod.numba, "get_num_threads", lambda: pool)
+    assert threads_mod.auto_threads() == expected
 
 
 def test_run_record_threads_and_times():
@@ -161,10 +162,10 @@ def test_run_record_threads_and_times():
 def test_explicit_threads_on_busy_cores_warn(monkeypatch, threads, cores, others, warned):
     """``[solver] threads >= 2`` where fewer cores are free: one line naming the thread
     count, the busy processes, the cores, the load average and what to set instead."""
-    monkeypatch.setattr(ex, "_cores", lambda: cores)
-    monkeypatch.setattr(ex, "_runnable_others", lambda: others)
-    monkeypatch.setattr(ex.os, "getloadavg", lambda: (1.6, 1.0, 1.0))
-    text = ex.busy_threads_warning(threads)
+    monkeypatch.setattr(threads_mod, "_cores", lambda: cores)
+    monkeypatch.setattr(threads_mod, "_runnable_others", lambda: others)
+    monkeypatch.setattr(threads_mod.os, "getloadavg", lambda: (1.6, 1.0, 1.0))
+    text = threads_mod.busy_threads_warning(threads)
     assert (text is not None) == warned
     if warned:
         busy = others if others is not None else 2
@@ -184,9 +185,9 @@ def test_runnable_others_reads_proc_loadavg(monkeypatch):
     real_open = builtins.open
     monkeypatch.setattr(builtins, "open", lambda f, *a, **k: io.StringIO(next(lines))
                         if f == "/proc/loadavg" else real_open(f, *a, **k))
-    assert ex._runnable_others(pause=0.0) == 1
+    assert threads_mod._runnable_others(pause=0.0) == 1
     monkeypatch.setattr(builtins, "open", lambda *a, **k: (_ for _ in ()).throw(OSError()))
-    assert ex._runnable_others(pause=0.0) is None
+    assert threads_mod._runnable_others(pause=0.0) is None
 
 
 class FirstStep(Exception):
@@ -200,10 +201,10 @@ def _busy_two_cores(monkeypatch, others: int) -> None:
         raise FirstStep
 
     monkeypatch.setattr(ex, "explicit_step", first_step)
-    monkeypatch.setattr(ex, "_advance", first_step)
-    monkeypatch.setattr(ex, "_runnable_others", lambda: others)
-    monkeypatch.setattr(ex, "_cores", lambda: 2)
-    monkeypatch.setattr(ex, "_THREADS_WARNED", set())
+    monkeypatch.setattr(ex, "advance", first_step)
+    monkeypatch.setattr(threads_mod, "_runnable_others", lambda: others)
+    monkeypatch.setattr(threads_mod, "_cores", lambda: 2)
+    monkeypatch.setattr(threads_mod, "_THREADS_WARNED", set())
 
 
 def test_run_warns_once_at_the_start_on_busy_cores(monkeypatch, capsys):
@@ -237,4 +238,4 @@ def test_threads_resolved_from_auto_by_run_do_not_warn(monkeypatch, capsys):
             api.run(sc)
         err = capsys.readouterr().err
         assert len(err.splitlines()) == lines, (threads, err)
-    assert not ex._FROM_AUTO[0]
+    assert not threads_mod._FROM_AUTO[0]

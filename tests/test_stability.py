@@ -1,4 +1,4 @@
-"""Where MPM fails: the explicit stability limit and cell crossing (issue 8).
+"""Where MPM fails: the explicit stability limit and cell crossing.
 
 References: the central-difference bound (explicit time step dt <= C h / (c_p + |v|max), C =
 1, c_p = sqrt(M / rho)); the compaction column and its error norm; Bardenhagen & Kober 2004
@@ -32,7 +32,7 @@ def _column(phase, damping):
 
 
 def test_cfl_limit_against_theory_and_default():
-    """Issue 8 acceptance 4.  Bisection on cfl (a run is unstable when the run guard raises
+    """Bisection on cfl (a run is unstable when the run guard raises
     SimulationError or the stress leaves 10 gamma H), 3 s of simulated time each:
 
     * large deformation, undamped: the limit is within 20 % of the textbook
@@ -87,7 +87,7 @@ def _compaction(cells, shape, scheme):
 @pytest.mark.parametrize("scheme,cells", [("implicit", (4, 8, 16, 32)),
                                           ("explicit", (8, 16, 32, 64))])
 def test_cell_crossing_gimp_converges_standard_stalls(scheme, cells):
-    """Issue 8 acceptance 1 (compaction column; Bardenhagen & Kober 2004): under 4
+    """Compaction column (Bardenhagen & Kober 2004): under 4
     refinements the uGIMP stress error norm decreases monotonically (and by at least 2x
     overall); standard MPM does not: its error does not fall monotonically and the finest
     mesh is no better than half the coarsest (cell-crossing noise: points jump between
@@ -105,7 +105,7 @@ def test_cell_crossing_gimp_converges_standard_stalls(scheme, cells):
 @pytest.mark.slow
 def test_validation_scripts_write_their_figures(tmp_path):
     """validation/stability_map.py (--quick) and validation/footing.py (--quick) run to the end
-    and write one fresh PNG per study into a temporary directory (issue 8: CFL, cell
+    and write one fresh PNG per study into a temporary directory (CFL, cell
     crossing, locking, points per cell, footing), with the JSON of numbers beside them.  The
     documented figures from them (docs/guide/choosing.md, docs/validation/footing.md):
     tests/test_readme_figures.py."""

@@ -1,4 +1,4 @@
-"""Two threads for one realization give bitwise the single-thread result (issue 13).
+"""Two threads for one realization give bitwise the single-thread result.
 
 The points are taken in two fixed halves, each scattering into its own nodal arrays and
 solving, moving and re-mapping on its own nodes, with both halves' sums added in a fixed

@@ -1,4 +1,4 @@
-"""Time per Newton iteration of the implicit MPM, split into its parts (issue 3, acceptance 7).
+"""Time per Newton iteration of the implicit MPM, split into its parts.
 
 The elastic reference slope (meshes/slope_elastic.toml: 4575 Q4 soil elements of
 0.25 m, 18 300 points) and the same slope at 1/13 m cells (48 300 elements, 193 000
@@ -15,7 +15,8 @@ rigid-body modes as near-null space, CG).  Per iteration:
 Also times scikit-fem's ``asm`` of the same tangent (material points as quadrature,
 ``implicit.skfem_assemble``), the reference the vectorised path is tested against.
 Writes ``validation/out/bench_implicit.json``.  Each case is run ``--repeat`` times and
-the fastest time of each part is reported (the machine is shared; all runs are in the JSON).  Run:
+the fastest time of each part is reported (the machine is shared; all runs are in the
+JSON).  Run:
 ``nice python validation/bench_implicit.py`` (a few minutes; ``--small`` for 4600 only).
 
 ``--case-i``: the Newton iteration of case (i) (meshes/slope_reference.toml, 4565
@@ -24,16 +25,16 @@ elements, 18 260 points), implicit dynamics with the default settings over its f
 (``time.process_time`` in place of the wall clock, so the parts are CPU seconds even on a
 loaded machine) after a short warm-up run that loads numba's cache.  It prints one line
 per repeat and appends it to ``validation/out/bench_implicit_case_i.jsonl``.  It uses only
-``run_implicit`` and the run record, so the same file measures an older checkout:
-``PYTHONPATH=/path/to/old nice python validation/bench_implicit.py --case-i --label before``
-interleaved with ``--label after`` (see the README's implicit cost figures).
+``run_implicit`` and the run record, so the same file measures another checkout:
+``PYTHONPATH=/path/to/other nice python validation/bench_implicit.py --case-i --label other``
+interleaved with ``--label this``.
 """
 from __future__ import annotations
 
 import os
 
 # One BLAS thread: on a shared 2-core machine threaded BLAS oversubscribes and makes the
-# dense kernels of SuperLU and of pyamg's coarse solve several times slower (measured).
+# dense kernels of SuperLU and of pyamg's coarse solve several times slower.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 

@@ -1,11 +1,12 @@
-"""Explicit cost per point-step of Mohr–Coulomb beside von Mises (issue 16 acc 5).
+"""Explicit cost per point-step of Mohr–Coulomb beside von Mises.
 
 The reference geometry run explicitly for ``--t-end`` seconds, once as
 meshes/slope_reference.toml (von Mises clay, case (i)) and once as meshes/slope_drained.toml
-(the same geometry and mesh, 18 260 points, Mohr–Coulomb c' 5 -> 1 kPa, phi' 22 -> 18
-deg), interleaved ``--repeats`` times in one process, one numba thread; CPU time (``time.process_time``) per point-step of the whole
-run (the model's return mapping plus everything else in a step), after a warm-up run of
-each (compilation).  A CPU-time A/B, valid under load; say what the load was.
+(the same geometry and mesh, 18 260 points, Mohr–Coulomb c' 5 -> 1 kPa, phi' 22 -> 18 deg),
+interleaved ``--repeats`` times in one process, one numba thread; CPU time
+(``time.process_time``) per point-step of the whole run (the model's return mapping plus
+everything else in a step), after a warm-up run of each (compilation). A CPU-time A/B, valid
+under load; say what the load was.
 
     nice python validation/bench_mohr_coulomb.py [--repeats 3] [--t-end 1.0]
 """

@@ -1,12 +1,12 @@
-"""Two threads against one, in interleaved pairs of whole runs (issue 13, point 2).  Plain
-script:
+"""Two threads against one, in interleaved pairs of whole runs (target: two threads at
+least 1.8x as fast as one).  Plain script:
 
     nice python validation/bench_threads.py --pairs 10             # case (i), ~4 min
     nice python validation/bench_threads.py --pairs 3 --size 1e6   # ~1e6 points, ~3 min
 
-Why pairs: on a shared machine the same one-thread run of case (i) took 44-63 ns per
-point-step within one hour (a 2-core AMD EPYC VM, session 33), so one run on each thread
-count (``validation/bench_explicit.py``) moves the ratio by +-10 %.  Each pair here is a
+Why pairs: on a shared machine the cost of the same one-thread run of case (i) varies by
+tens of per cent within an hour, so one run on each thread count
+(``validation/bench_explicit.py``) can move the ratio by +-10 %.  Each pair here is a
 one-thread and a two-thread ``fem-rmpm run`` in fresh processes, one right after the other
 (which goes first alternates), so both see about the same host; the ratio of a pair is
 one-thread wall / two-thread wall, from each run's own ``summary.json`` (ns per
@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT / "validation"))
 from bench_explicit import fill_cache, machine, scaling_changes, whole_run  # noqa: E402
 
 OUT = ROOT / "validation" / "out"
-TARGET = 1.8                      # issue 13, point 2: two threads >= 1.8x one
+TARGET = 1.8                      # two threads >= 1.8x one
 SIZES = {"ref": [], "1e6": scaling_changes("1e6")}
 
 
@@ -70,7 +70,7 @@ def summarize(pairs: list[dict], target: float = TARGET) -> dict:
 def report(size: str, s: dict, m: dict) -> str:
     """The verdict lines of one size."""
     verdict = "met" if s["median_ratio"] >= s["target"] else "NOT met"
-    return (f"ISSUE 13 point 2, {size}, {m['cpu_model']}, {m['cores']} cores: median of "
+    return (f"two threads against one, {size}, {m['cpu_model']}, {m['cores']} cores: median of "
             f"{s['pairs']} pair ratios {s['median_ratio']:.2f}x (range {s['min_ratio']:.2f}-"
             f"{s['max_ratio']:.2f}, {s['at_target']} of {s['pairs']} >= {s['target']}x; "
             f"ratio of the medians {s['ratio_of_medians']:.2f}x, of the fastest runs "

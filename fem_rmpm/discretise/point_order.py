@@ -8,9 +8,8 @@ then solve.  :class:`PointOrder` sorts the points by their host cell every few h
 numbered row by row, as the grid numbers its nodes: the order the points are
 seeded in) and restores the original order before anyone outside the time loop looks at
 the points: at every output, at a guard and at the end of the run.  (Column by column
-suits the two halves of a long slope better, but on a fine grid it walks the nodal
-arrays a row apart, one memory page per node: at 1/30 m cells, ~1e6 points, 152 against
-88-92 ns per point-step on one thread, measured.)  A point's index is therefore its
+would suit the two halves of a long slope better, but on a fine grid it walks the nodal
+arrays a row apart, one memory page per node, and is much slower.)  A point's index is therefore its
 identity everywhere outside the kernels (VTK frames, snapshots, measures, frozen-point
 lists, error messages).
 
@@ -44,10 +43,9 @@ def permute_points(pts: Particles, idx: np.ndarray, buffers: dict | None = None)
     ``s`` takes the point that was in slot ``idx[s]``.  In place, so that arrays bound
     elsewhere (the compiled step's workspace) stay valid.  ``buffers``: work arrays kept
     between calls, ``{(dtype, shape, Fortran order): array}`` (a gather into a kept buffer
-    and a copy back: ~2 ms for the 18 260 points of the reference slope, against ~6 ms
-    for ``a[...] = a[idx]``, measured).  The column-major arrays (the material's parameter
-    rows and the state) are gathered column by column: numpy's row gather of a
-    column-major (18 260, 10) array took 1.23 ms, its column gather 0.35 ms (measured)."""
+    and a copy back is a few times faster than ``a[...] = a[idx]``).  The column-major
+    arrays (the material's parameter rows and the state) are gathered column by column,
+    several times faster than numpy's row gather of a column-major array."""
     buffers = {} if buffers is None else buffers
     for a in _point_arrays(pts):
         key = (a.dtype.str, a.shape, a.flags.f_contiguous)

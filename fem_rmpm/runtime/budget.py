@@ -19,44 +19,28 @@ real ones):
   + :data:`BYTES_PER_CELL` x cells + :data:`BYTES_PER_POINT` x points (uGIMP:
   + :data:`BYTES_PER_POINT_GIMP`, the factors its basis keeps) + 24 B per
   point per kept snapshot (position and plastic strain, one snapshot per
-  ``output_interval`` up to ``t_end``).  The two per-item constants were fitted to
-  ``tracemalloc`` peaks of seeding plus the explicit workspace on the reference
-  slope at 0.25 and 0.125 m cells and on the column at 0.01 m (within 0.3 %);
+  ``output_interval`` up to ``t_end``).  The per-item constants are fitted to
+  ``tracemalloc`` peaks of seeding plus the explicit workspace;
 * explicit steps = ``t_end / dt`` with the CFL step at rest
   ``dt = cfl h_min / c_p``, c_p = sqrt(M / rho) the largest P-wave speed of the
   soils (M the constrained modulus, rho = unit weight / g).  Moving points shorten
-  the step and a run that comes to rest stops early: on the reference slope
-  (0.25 m) this gives 8 628 steps against 11 560 taken in 34.4 s (at rest);
+  the step and a run that comes to rest stops early; :data:`STEPS_FACTOR` is the
+  mean ratio of the steps taken to this count on the reference slope;
 * implicit steps = ``load_steps`` (quasi-static) or ``t_end / dt`` (dynamic);
 * wall time = steps x :data:`STEPS_FACTOR` (explicit) x points x the cost per
-  point-step (:data:`NS_PER_POINT_STEP`, one thread) / the threads' speed-up
-  (:data:`THREAD_EFFICIENCY` x threads, for more than one; the explicit numba step only).
-  The explicit numba figure is the whole-run figure of the reference slope case (i)
-  (one thread, Python 3.11, numba) on the machine of the run's CPU where it was
-  measured (:data:`EXPLICIT_NS_BY_CPU`, chosen by :func:`fem_rmpm.runtime.machine.cpu_signature`):
-  39 ns on an idle 2-core Intel Xeon virtual machine (11 944 steps, 8.2-8.5 s wall,
-  37.4-39.7 ns in 14 runs, median 38.7), 104 ns on an idle 2-core AMD EPYC VM of the
-  Zen 1 generation at 2.0 GHz (11 556 steps, 21.4-22.6 s wall, 101-107 ns in 5 runs),
-  53 ns on an idle 2-core AMD EPYC VM of the Zen 4 generation at 2.6 GHz (12 617 steps,
-  10.7-14.8 s wall, 46.5-64.1 ns in 7 runs, median 53.0; the host's speed drifts).
-  On a CPU not in the table the estimate takes the slowest figure and says so (an AMD
-  EPYC Zen 3 VM ran code of an earlier era ~1.5-1.7x slower than the Intel VM: most
-  machines fall between the two).  The factors below were measured on the Intel VM and
-  are applied on every machine.  From the same runs' ``summary.json``: uGIMP costs 2.3x
-  (88.3-90.5 ns), F-bar 1.4x (53-57 ns), a Mohr-Coulomb soil 1.7x (the drained slope,
-  ``meshes/slope_drained.toml``: 68 ns, then 0.89-0.98x that with the closed-form return
-  past the residual; most of its points yield) and the numpy kernel
-  about 2.7 us.  The CFL count is that of the step at rest: moving points shorten the
-  step, so a failing slope takes more, and :data:`STEPS_FACTOR` (1.30) is the mean ratio
-  measured on the reference slope (1.21-1.40 in six realizations; case (i): 11 944
-  against 8 627).  The drained Mohr-Coulomb slope took 3.0x (25 491 steps): from
-  t = 3 s its step is 0.18x the one at rest, set by about 20 of its 18 260 points,
-  strongly sheared (plastic shear strain 12-21), whose volume grew 6- to 31-fold, so
-  that their P-wave speed sqrt(M V / m) is up to 5.6x the soil's at rest.  The implicit
-  figure, 35 us per point-step, is the README's dynamic implicit run of the reference
-  slope (1 788 Newmark steps in about 19 minutes on a shared core), so it may be 2x high
-  on an idle machine.
-  The numba compile of a first run (about 1-1.5 minutes, cached on disk) is not included.
+  point-step on one thread / the threads' speed-up (:data:`THREAD_EFFICIENCY` x
+  threads, for more than one; the explicit numba step only).  The explicit numba
+  cost is the whole-run figure of the reference slope case (i) on one thread, measured
+  on the CPU of the run (:data:`EXPLICIT_NS_BY_CPU`, chosen by
+  :func:`fem_rmpm.runtime.machine.cpu_signature`); on a CPU not in the table the
+  estimate takes the slowest figure and says so.  uGIMP, F-bar and a Mohr-Coulomb soil
+  multiply it by their factors in :data:`NS_PER_POINT_STEP`; the numpy kernel and the
+  implicit scheme have figures of their own there (the implicit one from a dynamic run
+  of the reference slope on a shared core, so it may be high on an idle machine).
+  The numba compile of a first run (cached on disk after) is not included.
+
+The figures behind the constants, with the date, commit and machine of each
+measurement, are on the benchmarks page of the documentation.
 """
 from __future__ import annotations
 
@@ -74,7 +58,7 @@ __all__ = ["RunEstimate", "BudgetError", "estimate_run", "check_budget",
 
 #: Environment variable that sets the memory limit in GiB (default: 75 % of the RAM).
 MEMORY_LIMIT_ENV = "FEM_RMPM_MEMORY_LIMIT_GB"
-BASE_BYTES = 200e6          # interpreter + numpy/scipy/numba/scikit-fem, measured RSS ~190 MB
+BASE_BYTES = 200e6          # interpreter + numpy/scipy/numba/scikit-fem (resident set ~190 MB)
 BYTES_PER_CELL = 277.0      # mesh nodes and cells, node flags, seeding temporaries, workspace
 #                             (129 B of it: the second half's nodal arrays of the kernels)
 BYTES_PER_POINT = 324.0     # point state (Particles) + explicit workspace per point (the
@@ -88,19 +72,18 @@ NS_PER_POINT_STEP = {"explicit_gimp_factor": 2.3, "explicit_fbar_factor": 1.4,
                      "implicit": 35000.0}
 #: Whole-run ns per point-step of case (i), explicit numba step, one thread, by the CPU's
 #: (vendor_id, cpu family, model) (:func:`fem_rmpm.runtime.machine.cpu_signature`), with the
-#: machine it was measured on (each VM names its CPU only "Intel Xeon" or "AMD EPYC").
+#: machine it was measured on (a virtual machine may name its CPU only "Intel Xeon" or
+#: "AMD EPYC").
 EXPLICIT_NS_BY_CPU = {
     ("GenuineIntel", 6, 167): (39.0, "idle 2-core Intel Xeon VM"),
     ("AuthenticAMD", 23, 1): (104.0, "idle 2-core AMD EPYC VM, Zen 1"),
     ("AuthenticAMD", 25, 17): (53.0, "idle 2-core AMD EPYC VM, Zen 4"),
 }
-#: Steps taken / the CFL count at rest (t_end / dt), reference slope, literature cases, six
-#: realizations: 12 077, 11 410, 11 096, 11 032, 10 466 and 11 560 steps against 8 628
-#: (1.21-1.40; mean 1.30).  Explicit runs only.
+#: Steps taken / the CFL count at rest (t_end / dt): the mean over realizations of the
+#: reference slope.  Explicit runs only.
 STEPS_FACTOR = 1.30
-#: Wall-time speed-up of one explicit realization per numba thread, for N > 1 threads: two
-#: threads ran case (i) 1.83-1.90x (2-core Intel Xeon VM, session 29) and the scene's
-#: 10-realization campaign 1.77x faster than one (1.70x on an AMD EPYC VM).
+#: Wall-time speed-up of one explicit realization per numba thread, for N > 1 threads (two
+#: threads run case (i) of the reference slope about 1.8x as fast as one).
 THREAD_EFFICIENCY = 0.9
 COST_MACHINE = {"implicit": "shared 2-core AMD EPYC VM",
                 "explicit_numpy": "idle 2-core Intel Xeon VM"}

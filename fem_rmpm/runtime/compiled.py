@@ -15,22 +15,17 @@ from numba.extending import intrinsic
 # into them): "nsz" only (the sign of a zero may be ignored), no flag that changes a
 # value.  Each caller's compiled code holds a copy of every compiled callee, optimized a
 # second time there (below), and a flag that lets LLVM choose the arithmetic lets the
-# copies choose differently: with "contract" (a * b + c as one fused multiply-add where the
-# backend sees fit) the copies of the stress pass fused differently on AVX2 code, so on an
-# AMD EPYC Zen 1 VM a run compiled in its process and the same run loaded from the cache
-# it wrote differed by one ulp (case (i) to t = 2 s: two hashes; 23 of the 190 samples of
-# a subset-simulation campaign of ``tests/data/mc_tiny.toml``; reproduced on a Zen 4 VM
-# with ``NUMBA_CPU_NAME=znver1 NUMBA_CPU_FEATURES=``, ``validation/load_order.py --cpu
-# znver1``).  Without it (and without "arcp": a division by a reused divisor becomes a
-# multiplication by its reciprocal where the backend counts enough of them in one block)
-# every copy rounds every operation as written: one hash, 0 of 190 differ.  The fused
-# multiply-adds the map and the move need are written out
-# (:mod:`fem_rmpm.schemes.explicit.kernels.pairs`). Cost: none measurable on case (i), one thread,
-# Zen 4 (4 interleaved runs, medians 55.5 ns with the three flags, 55.7 ns with "nsz" only; the
-# host's noise was +-15 %).
-# (The solve on the mesh was the first kernel compiled without "contract": LLVM inlines it
-# into the serial and the threaded step and fused the kinetic-energy sum differently where
-# a constant folded a branch away, 1 ulp between 1 and 2 threads, measured.)
+# copies choose differently.  With "contract" (a * b + c as one fused multiply-add where
+# the backend sees fit) the copies of one function may fuse differently, so a run
+# compiled in its process and the same run loaded from the on-disk cache can differ by
+# one ulp (``validation/load_order.py`` compares the two, also for another target CPU
+# with ``--cpu``).  Likewise "arcp" (a division by a reused divisor becomes a
+# multiplication by its reciprocal where the backend counts enough of them in one block).
+# Without them every copy rounds every operation as written.  The fused multiply-adds
+# the map and the move need are written out
+# (:mod:`fem_rmpm.schemes.explicit.kernels.pairs`).  The solve on the mesh is inlined
+# into the serial and the threaded step: with "contract" the kinetic-energy sum could be
+# fused differently in the two, and 1 and 2 threads would differ by one ulp.
 # Never "nnan" / "ninf" / "fast": the run's guards must see NaN and inf; never "reassoc":
 # sums would be regrouped differently in the serial and the threaded compiles.
 FASTMATH = {"nsz"}
@@ -39,29 +34,30 @@ jit = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy")
 # again there; which copy a call runs depends on what the process loaded first (compiled in
 # the process: the callee's own; from the cache: the caller's).  The copies must compute
 # the same: ``validation/load_order.py`` checks that they do (with LLVM's SLP vectorizer
-# on, numba's default off, the map's copies did not until its x, y twins were written as
-# explicit vector operations, :mod:`fem_rmpm.schemes.explicit.kernels.pairs`).
+# on, numba's default off, the map's x, y twins are written as explicit vector operations
+# so that its copies agree, :mod:`fem_rmpm.schemes.explicit.kernels.pairs`).
 # The step kernels allocate nothing, so they run without numba's reference counting
 # (NRT): with it, every array handed to an inlined per-point helper is incref'd and
-# decref'd (atomic operations) once per point, which made G2P ~4x slower (56 vs 13
-# ns per point, measured).  A kernel that allocated would fail to compile, not misbehave.
+# decref'd (atomic operations) once per point, several times the cost of the map back
+# itself.  A kernel that allocated would fail to compile, not misbehave.
 kernel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy", _nrt=False)
 inline = njit(inline="always", fastmath=FASTMATH, error_model="numpy")
 # The threaded drivers: a ``prange`` loop over chunks of the points whose body calls a
 # compiled (``kernel``) chunk function, the same one the serial kernel runs, so every point
 # is computed with the same arithmetic and the result is bitwise the serial one.  The loop
 # body is a call, not the per-point code itself: numba 0.68's parfor array analysis
-# crashed on those bodies inline (IndexError in array_analysis._gen_shape_call), and the
+# crashes on those bodies inline (IndexError in array_analysis._gen_shape_call), and the
 # threaded loop takes no nested named tuple (pass ``N._replace(half=None)`` and ``N.half``).
 # A threaded driver must be a Python function of its own: numba names its cache files
 # after the function's qualified name and its cache key does not contain the ``parallel``
-# flag, so a serial and a parallel compile of ONE function share one cache entry and
-# whichever compiled first is loaded by both (the threaded kernels had run serial that way).
+# flag, so a serial and a parallel compile of ONE function would share one cache entry and
+# whichever compiled first would be loaded by both.
 # One ``prange`` loop per threaded function: numba fuses two ``prange`` loops of the same
 # length into one when it sees no dependency between them, and it cannot see into the
-# chunk calls (g2p's nodal velocities ran before the other half's re-map had finished
-# that way).  ``parallel={"fusion": False}`` does not stop it: numba 0.68 pops the key
-# from the options dict that all dispatchers of this decorator share, at the first compile.
+# chunk calls (the nodal velocities of the map back could then run before the other
+# half's re-map has finished).  ``parallel={"fusion": False}`` does not stop it: numba
+# 0.68 pops the key from the options dict that all dispatchers of this decorator share,
+# at the first compile.
 kernel_parallel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="numpy", _nrt=False,
                        parallel=True)
 
@@ -72,18 +68,17 @@ kernel_parallel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="n
 # pass spilled most of them to the stack).  The point arrays' column counts never change
 # (2 for positions and velocities, 4 for stress and log strain, W_COLUMNS for the block
 # scratch), so the kernels state them (:func:`assume_columns`) and LLVM indexes with
-# constants: case (i), one thread, 7 interleaved pairs against the same code without
-# them: 0.90-0.93x the time, bitwise the same run (run-out 63.72968029438788 m, 11 724
-# steps); the stress pass's integer multiplies 15 -> 10, the map's 12 -> 4.
+# constants: fewer integer multiplies per point (the stress pass's 15 -> 10, the map's
+# 12 -> 4), the same arithmetic on the values (bitwise the same run).
 
 
 @intrinsic
 def assume_columns(typingctx, a, k):
     """Tell LLVM that the 2-D C-contiguous array ``a`` has ``k`` columns (``k`` a literal),
     so ``a[i, j]`` indexes ``k i + j`` without loading the shape and multiplying by it.
-    ``llvm.assume``: a false promise is undefined behaviour (a run with the block scratch's
-    width promised wrong took another path, measured), so only shapes the callers check or
-    make are promised (:data:`fem_rmpm.schemes.explicit.kernels.arrays.FIXED_COLUMNS`); a strided
+    ``llvm.assume``: a false promise is undefined behaviour (the compiled code may take
+    another path), so only shapes the callers check or make are promised
+    (:data:`fem_rmpm.schemes.explicit.kernels.arrays.FIXED_COLUMNS`); a strided
     view promises nothing."""
     if not (isinstance(a, types.Array) and a.ndim == 2 and isinstance(k, types.IntegerLiteral)):
         return None

@@ -3,18 +3,18 @@
 The textbook bound is ``dt <= C h / (c_p + |v|max)`` with C = 1:
 the critical step of central differences with a lumped mass on linear elements,
 ``omega_max = 2 c_p / h`` in 1-D.  The explicit scheme takes
-``dt = cfl h / (c_p + |v|max)`` (:func:`fem_rmpm.schemes.explicit.loop.stable_time_step`).  Two ways
-to find the real limit of *this* scheme (MUSL, FLIP/PIC, local damping, guards):
+``dt = cfl h / (c_p + |v|max)`` (:func:`fem_rmpm.schemes.explicit.reference.stable_time_step`).
+Two ways to find the real limit of *this* scheme (MUSL, FLIP/PIC, local damping, guards):
 
 * :func:`cfl_limit` — by bisection on ``cfl``: a run is unstable when the guards of
-  :func:`fem_rmpm.schemes.explicit.loop.run_explicit` stop it (:class:`SimulationError`: non-finite
-  state, a point moving more than half a cell in a step) or when its stresses leave
+  :func:`fem_rmpm.schemes.explicit.loop.run_explicit` stop it (:class:`SimulationError`:
+  non-finite state, a point moving more than half a cell in a step) or when its stresses leave
   any physical bound (``|sigma| > 10 gamma H``);
 * :func:`spectral_cfl_limit` — the linear stability theory of the same code: the
   Jacobian of one undamped geostatic (small-strain, fixed-point) step with respect to
   the point velocities and strains, built column by column from
-  :func:`fem_rmpm.schemes.explicit.loop.explicit_step_numpy` (the step is linear there, so the
-  columns are exact), and the ``cfl`` at which its spectral radius exceeds 1.
+  :func:`fem_rmpm.schemes.explicit.reference.explicit_step_numpy` (the step is linear
+  there, so the columns are exact), and the ``cfl`` at which its spectral radius exceeds 1.
 
 Why MUSL is stable beyond C = 1 in the linear (geostatic) regime: the stress update
 uses nodal velocities re-mapped from the point momenta; the highest nodal mode of a
@@ -32,7 +32,8 @@ from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.materials import kirchhoff_stress
 from fem_rmpm.scene import Scene, with_values
 from fem_rmpm.schemes.common import SimulationError
-from fem_rmpm.schemes.explicit.loop import explicit_step_numpy, run_explicit, stable_time_step
+from fem_rmpm.schemes.explicit.loop import run_explicit
+from fem_rmpm.schemes.explicit.reference import explicit_step_numpy, stable_time_step
 
 __all__ = ["is_stable", "cfl_limit", "step_jacobian", "spectral_cfl_limit"]
 

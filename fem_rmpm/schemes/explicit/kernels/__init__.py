@@ -1,12 +1,12 @@
 """Compiled (numba) kernels of the explicit MUSL step: the fast path of
-:mod:`fem_rmpm.schemes.explicit.loop`.
+:func:`fem_rmpm.schemes.explicit.step.explicit_step` and of the time loop.
 
-The step of :func:`fem_rmpm.schemes.explicit.loop.explicit_step_numpy` (the readable numpy
-reference) in compiled loops over the points or the active nodes, each stage a kernel of its own so
-that it can be timed alone (``validation/bench_explicit.py``).  The arguments are grouped
-(:mod:`.arrays`): the grid ``M``, the points ``P``, the nodes ``N``, scratch ``S`` and the
-step's options ``o``.  The points are taken in two halves, each with its own nodal arrays
-(:mod:`.transfer`).  The three stages of the method:
+The step of :func:`fem_rmpm.schemes.explicit.reference.explicit_step_numpy` (the readable
+numpy reference) in compiled loops over the points or the active nodes, each stage a kernel
+of its own so that it can be timed alone (``validation/bench_explicit.py``). The arguments
+are grouped (:mod:`.arrays`): the grid ``M``, the points ``P``, the nodes ``N``, scratch
+``S`` and the step's options ``o``. The points are taken in two halves, each with its own
+nodal arrays (:mod:`.transfer`). The three stages of the method:
 
 1. **map to nodes** — :func:`map_to_nodes`: per point, the host cell (arithmetic on the
    structured grid), Q4 or uGIMP shape values and gradients (:mod:`.basis`), mass,
@@ -28,24 +28,21 @@ The time loop runs its ordinary steps back to back in one compiled call
 loop's checks, returning at the first step the loop must see), bitwise the steps made one
 by one from Python.
 
-Every formula is the one of the numpy path, in the same order where it matters, so the
-two agree to round-off (``tests/test_kernels.py``: 1e-12 relative over several steps,
-measured ~1e-14).  ``cache=True`` keeps the compiled code on disk
-(``validation/bench_explicit.py`` measures the first compile and the load;
-:mod:`fem_rmpm.runtime.numba_cache` keys it on every compiled source file).  Threads
-(``StepOptions.threads`` > 1): the two halves run on two threads — each stage's nodal
-loop over the nodes its half touched, so a step has three parallel regions (map; move;
-nodal velocities and stress) and no serial merge (:mod:`.transfer`), or, with exactly two
-threads and no F-bar, the driver's steps all run in one region whose joins are spin
-barriers (:mod:`.advance`); the stress pass hands
-its blocks of points out from two work queues, one per half, to all threads (a plastic
-point costs more than an elastic one).  Any thread count gives bitwise the single-thread
-result; a Monte Carlo campaign runs one thread per realization.  Each threaded kernel is
-a function of its own whose ``prange`` body calls the compiled half or worker function
-the serial kernel calls (:mod:`.common` says why); blocks and halves are whole blocks of
-points from point 0 (:func:`.common.block_bounds`),
-the same on any number of threads.
-"""
+Every formula is the one of the numpy path, in the same order where it matters, so the two
+agree to round-off (``tests/test_kernels.py``: 1e-12 relative over several steps).
+``cache=True`` keeps the compiled code on disk (``validation/bench_explicit.py`` measures
+the first compile and the load; :mod:`fem_rmpm.runtime.numba_cache` keys it on every
+compiled source file). Threads (``StepOptions.threads`` > 1): the two halves run on two
+threads — each stage's nodal loop over the nodes its half touched, so a step has three
+parallel regions (map; move; nodal velocities and stress) and no serial merge
+(:mod:`.transfer`), or, with exactly two threads and no F-bar, the driver's steps all run in
+one region whose joins are spin barriers (:mod:`.advance`); the stress pass hands its blocks
+of points out from two work queues, one per half, to all threads (a plastic point costs more
+than an elastic one). Any thread count gives bitwise the single-thread result; a Monte Carlo
+campaign runs one thread per realization. Each threaded kernel is a function of its own
+whose ``prange`` body calls the compiled half or worker function the serial kernel calls
+(:mod:`.common` says why); blocks and halves are whole blocks of points from point 0
+(:func:`.common.block_bounds`), the same on any number of threads."""
 from __future__ import annotations
 
 from fem_rmpm.schemes.explicit.kernels.arrays import (

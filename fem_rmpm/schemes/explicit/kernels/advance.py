@@ -1,51 +1,40 @@
 """Many explicit steps in one compiled call: the time loop's ordinary steps without Python.
 
-Between two steps the time loop of :func:`fem_rmpm.schemes.explicit.loop.run_explicit` picks the CFL
-step, the gravity ramp and the damping, then checks guards, output times, sorting and
-rest.  Done in Python that cost ~27 us per step in a tight loop and ~70-100 us inside
-a run (building the argument groups, unboxing ~50 arrays for each of the three kernel
-calls, the loop's own bookkeeping, all on caches the kernels had just filled with
-points): 1.5-5 ns per point-step on the reference slope (18 260 points; ~5 % of a whole
-run, measured), more on smaller scenes.  :func:`step_drivers` gives
-compiled drivers that run steps back to back with the same arithmetic, in the same
-order, and return to Python at the first step that needs it (:data:`EVENTS`): a guard
-fired, an output or sort is due, the run is at rest or at its end, the geostatic phase
-may end, or the energy record is full.  The loop then runs its usual per-step block for
-that step, so a run is bitwise the one stepped from Python (``tests/test_advance.py``).
-The kinetic energy of every :data:`RECORD_EVERY`-th step is recorded by the driver into
-a buffer the loop empties at each return (``record_limit`` steps' records at most, the
-last one the loop's own: :func:`record_limit`).  Returning at every record step, as
-before, cost ~0.3 ms a return (the call's ~50 arrays unboxed again, the loop's
-bookkeeping): 0.19 s over the 619 returns of a 10 s two-thread run of case (i), and the
-progress bar drawn at each return 0.22 s more (cProfile); now 35 returns, one per output.
+Between two steps the time loop of :func:`fem_rmpm.schemes.explicit.loop.run_explicit`
+picks the CFL step, the gravity ramp and the damping, then checks guards, output times,
+sorting and rest.  Done in Python, that bookkeeping (building the argument groups,
+unboxing ~50 arrays for each kernel call) costs tens of microseconds per step, a few
+per cent of a run.  :func:`step_drivers` gives compiled drivers that run steps back to
+back with the same arithmetic, in the same order, and return to Python at the first
+step that needs it (:data:`EVENTS`): a guard fired, an output or sort is due, the run is
+at rest or at its end, the geostatic phase may end, or the energy record is full.  The
+loop then runs its usual per-step block for that step, so a run is bitwise the one
+stepped from Python (``tests/test_advance.py``).  The kinetic energy of every
+:data:`RECORD_EVERY`-th step is recorded by the driver into a buffer the loop empties at
+each return (``record_limit`` steps' records at most, the last one the loop's own:
+:func:`record_limit`), so that a driver returns about once per output, not at every
+record step.
 
-Each step is the three stages of the method, as :func:`fem_rmpm.schemes.explicit.loop.explicit_step`
-calls them: map to nodes (:func:`.transfer.map_to_nodes`), solve on the mesh and map back
+Each step is the three stages of the method, as
+:func:`fem_rmpm.schemes.explicit.step.explicit_step` calls them: map to nodes
+(:func:`.transfer.map_to_nodes`), solve on the mesh and map back
 (:func:`.transfer.solve_and_move`), then the stress pass (:mod:`.stress`).  The driver
 arithmetic (step size, ramp, damping, the checks) is compiled without any fast-math
 flag: every operation is rounded as Python rounds it.
 
-**Two threads, one parallel region per call.**  The threaded driver opens a parallel
-region (``prange``) for each of the step's three stages, ~4.5 us each on the 2-core AMD
-EPYC VM (numba setting up the region, the other thread woken, the join): ~3 % of a
-two-thread step of case (i) (~430 us), measured with cycle stamps in each region.  With
+**Two threads, one parallel region per call.**  The threaded driver ``advance_parallel``
+opens a parallel region (``prange``) for each of the step's three stages; each region
+costs a few microseconds (numba setting it up, the other thread woken, the join).  With
 exactly two threads (no F-bar) :func:`step_drivers` also gives ``advance_pair``: one
 region per call, in which each of the two threads runs :func:`pair_worker` over the
 steps, its half of the points in each stage, with a spin barrier (:func:`.common.arrive`)
 where the regions joined, and thread 0 alone books the step (:func:`_tick`).  The same
 functions on the same halves in the same order: bitwise the run of either other driver
-(``tests/test_advance.py``).  Case (i) from its state at t = 1.5, 8 and 20 s, 0.2 s of
-steps, 24-30 alternations of the two drivers: the pairs' median ratio 1.010-1.046x (13-26
-of 24-29 pairs faster); whole runs of case (i), 6 interleaved pairs: no difference beyond
-the host's noise.  It needs the two threads to run at once (a barrier waits for the
-other): the caller uses it only when numba's pool has two threads, and a thread that gives
-up waiting (:func:`.common.arrive`, ~30 s) ends the call with the event ``stall`` instead
-of hanging.  A waiting thread spins, then yields its core: where more threads want to run
-than there are cores it gains most.  Case (i) to t = 2-4 s, ns per point-step, against a
-region per stage: two such runs at once 76-81 against 126-133; beside two busy processes
-(``yes``) 65-77 against 108-362 (pure spinning, no yield: 509-635 against 292-463 and
-257-317 against 320-380; yielding after 4 096 spins: 65-98 against 149-294 and 60-682
-against 111-457).
+(``tests/test_advance.py``).  It needs the two threads to run at once (a barrier waits
+for the other): the caller uses it only when numba's pool has two threads, and a thread
+that gives up waiting (:func:`.common.arrive`, ~30 s) ends the call with the event
+``stall`` instead of hanging.  A waiting thread spins, then yields its core, which
+matters most where more threads want to run than there are cores.
 """
 from __future__ import annotations
 
@@ -119,7 +108,7 @@ exact_inline = njit(inline="always", error_model="numpy")
 
 @exact_inline
 def _options(o, c, t, wave_speed, point_speed):
-    """The next step's options, as the Python loop makes them (``explicit._cfl_step``)."""
+    """The next step's options, as the Python loop makes them (``loop._python_step``)."""
     dt = min(c.cfl * c.h_min / (wave_speed + point_speed), c.t_end - t)
     ramp = 1.0 if c.ramp_time <= 0 else min(1.0, (t + dt) / c.ramp_time)
     damping = c.damping if (o.geostatic or t < c.damping_time) else 0.0

@@ -55,8 +55,7 @@ memory as C-ordered (nn, 2)); ``flag`` (nn,) uint8 touched by the half this step
 half of the points (in the first half's group; None in the second's).  Flat, not (nn, 2):
 numba addresses ``v[a, k]`` of a C-ordered 2-D array as ``(a * shape[1] + k) * 8`` with
 ``shape[1]`` read at run time, an integer multiply per node and array that ``v[2 a + k]``
-does without (seen in the map's machine code; case (i), one thread: 0.95-0.98x the time
-in 7 interleaved pairs, the run bitwise the same)."""
+does without (seen in the map's machine code; the run bitwise the same)."""
 
 Scratch = namedtuple("Scratch",
                      "x_old W ta tb tc host D cell_v cell_vdj out parts halves q4_ll q4_st queue Z "
@@ -149,8 +148,8 @@ class Workspace:
     and the kernels' compiled entry points resolved for them.
 
     numba resolves the types of a tuple argument in Python, ~0.4 us per array (the
-    groups above hold ~60 arrays over the 7 kernel calls of a step: ~5 ns per point-step
-    on the reference slope, 7 % of the step).  :meth:`call` does that once per kernel and
+    groups above hold ~60 arrays over the 7 kernel calls of a step).  :meth:`call` does
+    that once per kernel and
     then calls the compiled entry point directly (~3x cheaper), as long as :meth:`bind`
     sees the same point arrays (a new array drops the resolved calls).  ``model``: the
     one model id of the bound points (-1: several), found at :meth:`bind` (a point's
@@ -218,9 +217,8 @@ def node_arrays(nn: int, half: NodeArrays | None = None) -> NodeArrays:
 # apart) and ta, tb, tc at three more (256 bytes from W's), so each thread's eleven
 # streams sit the same way in the L1 cache and no two of them are 4 KiB apart (a load
 # from one then waits on a store to another: "4K aliasing").  As plain arrays, W's rows
-# were 1216 bytes apart and its base and ta's where malloc put them, different for each
-# row and each run: the thread with scratch row 1 took 430-650 us for its half of case
-# (i) at t = 15 s against 345-380 us for row 0 (cycle counters), 310-390 us laid out so.
+# and the series arrays would sit where malloc put them, different for each row and each
+# run, and one thread's stress pass could take much longer than the other's.
 W_COLUMNS = 192                      # 8 x 192 x 8 bytes = 3 pages per chunk
 SERIES_COLUMNS = 512                 # one page per chunk
 SERIES_AT = (256, 1792, 3328)        # ta, tb, tc: offsets (bytes) in their pages

@@ -12,14 +12,12 @@ from numba.extending import intrinsic
 
 from fem_rmpm.runtime.compiled import assume_columns, inline
 
-MASS_TOL = 1e-14     # as explicit._MASS_TOL: nodes lighter than this carry no velocity
+MASS_TOL = 1e-14     # as reference.MASS_TOL: nodes lighter than this carry no velocity
 # Indices: numba reads a negative signed index ``i`` as ``i + n`` (a compare and a select at
 # every array access), which LLVM can drop only where it proves ``i >= 0`` (a loop from the
 # constant 0).  So node numbers are uint64 (:mod:`.basis`, ``NodeArrays.touched``) and
 # every point loop runs over ``range(np.uint64(start), np.uint64(stop))``; a uint64 index
-# must not meet an int64 in arithmetic (numba makes that float64).  Measured on case (i)
-# (t = 25 s, 1 thread): map to nodes ~18.5 -> ~14.5 ns per point, the map back ~12.3 -> ~10.3
-# (with gravity moved onto the mesh, :func:`.transfer._solve_nodes`).
+# must not meet an int64 in arithmetic (numba makes that float64).
 
 # Points are processed in blocks of BLOCK (the stress pass: .stress, .hencky) and in two
 # halves split at a block boundary (the scatters: .transfer); whole blocks from point 0,
@@ -35,7 +33,7 @@ QUEUE_FLAG = 1
 QUEUE_BARRIER = 2 * QUEUE_STRIDE
 # A thread waiting at :func:`arrive` spins SPINS_BEFORE_YIELD times, then gives its core
 # away (:func:`yield_core`) between reads, and gives up after YIELD_LIMIT yields that came
-# straight back (~30 s on the 2-core AMD EPYC VM: the other worker never runs).
+# straight back (of the order of half a minute: the other worker never runs).
 SPINS_BEFORE_YIELD = 200_000
 YIELD_LIMIT = 30_000_000
 

@@ -37,9 +37,9 @@ of ``b_tr``'s own invariants) to 5.3e-15 of its largest component
 computed with the scalar ``math`` functions (any input; NaN and inf pass through to the
 run's guards).
 
-**Why series in blocks.**  numba calls scalar libm for ``math.exp`` and friends (~4 ns each
-per point, measured); numpy's SIMD ufuncs over all points cost ~5 ns per point in the step
-but ran between kernels, on one thread, and split the stress update into three passes.
+**Why series in blocks.**  numba calls scalar libm for ``math.exp`` and friends (a few ns
+each per point); numpy's SIMD ufuncs over all points would run between kernels, on one
+thread, and split the stress update into three passes.
 A branch-free polynomial loop over uint64 indices is vectorised by LLVM (AVX2 /
 AVX-512): :func:`exp_block` and :func:`log_block` run over a block of :data:`.common.BLOCK`
 points inside the one stress pass (:mod:`.stress`), on every thread, with the block's
@@ -134,8 +134,8 @@ def log_parts(J, z):
 def exp_block(ls, tb, tc, b, e):
     """Points ``b:e`` (uint64) into the block scratch (entry ``i - b``): ``tb, tc = cosh(y),
     sinh(y)/y`` of the log strains ``ls`` (n, 4).  Two vectorised loops (``y^2`` from the
-    strided rows, then the series on the contiguous ``y^2``: 0.6 + 0.4 ns per point against
-    2.2 ns in one loop, measured); if a point of the block is outside :data:`Y2_MAX` (or
+    strided rows, then the series on the contiguous ``y^2``: about half the time of one
+    loop); if a point of the block is outside :data:`Y2_MAX` (or
     not finite), the points outside are recomputed by :func:`exp_parts`."""
     assume_columns(ls, 4)
     n = e - b

@@ -149,7 +149,7 @@ def _apply_increment(i, j, f00, f01, f10, f11, e0, e1, e3, P, W, ta, tb, tc):
     (J = det dF), and B_tr from the exp parts ``tb, tc`` of its log strain: :func:`log_args`
     of B_tr into ``W[:4, j]`` (mu, d, axy, J) and, for :func:`.hencky.log_block`, ``ta[j],
     tb[j], tc[j]`` = J, mu, s^2.  The total F is not carried: nothing in the explicit step
-    reads it (updating it cost ~2 ns per point-step, 5 % of the stress pass, measured)."""
+    reads it (updating it would cost a few per cent of the stress pass)."""
     J = f00 * f11 - f01 * f10
     P.vol[i] = P.vol[i] * J
     W[3, j] = J
@@ -234,9 +234,8 @@ def _gather_points(P, M, vn, S, o, tb, tc, W, b, e):
         if P.active[i]:
             # velocity gradient before the move: in the basis of the map to nodes (uGIMP
             # its factors, Q4 its cell and local coordinates).  Written out here, not
-            # through two levels of inlined helpers: numba's inliner took 3.9-4.3 s of each
-            # stress-pass compile for kinematics_points that way, 2.1-2.4 s now (case (i),
-            # cold, traced)
+            # through two levels of inlined helpers, which would double the time numba's
+            # inliner takes in each stress-pass compile
             if o.gimp:
                 L00, L01, L10, L11 = _velocity_gradient(gimp_kept(i, S.gimp_ij, S.gimp_w, M),
                                                         vn)

@@ -15,21 +15,19 @@ F-bar).  The pass walks the points in blocks of :data:`.hencky.BLOCK`; per block
    the non-finite and out-of-grid points (for the guards).  Where all points have one
    model and it has a vectorised ``block_update`` (von Mises), the block's trial strains
    go to the scratch ``S.Z`` and the model updates the block at once
-   (:func:`_finish_block`; bitwise the same: case (i), one thread, 0.957-0.976x the time).
+   (:func:`_finish_block`; bitwise the same as point by point, and faster).
 
 Geostatic steps (small strain) skip 1 and 3.  A block's scratch stays in L1 between the
-four loops; before, 1 and 3 were numpy ufunc passes over all points between three
-kernels (the ufuncs alone ~5 ns per point-step on one thread, and serial).  The pass is
+four loops, and every thread runs all four (numpy ufunc passes over all points between
+kernels would be serial and walk the points three times).  The pass is
 compiled once per registry version and model restriction (:func:`material_kernels`) and
 cached on disk by numba; only step 4 differs between those compiles.  Steps 1-3 are
 kernels of their own, called once per block and compiled once for all of them: numba's
 inliner (``inline="always"``) runs the callee's untyped pipeline again and deep-copies
-its IR at every inline site, at a cost of about blocks x variables, so inlined they made
-every model restriction's first compile 14-22 s (von Mises alone: 19.2 s); called, it
-is 2-5 s, after 5.6 s once for the four block kernels (measured cold, numba 0.68).  They
-exchange data with step 4 through the block scratch only, so a run is bitwise the one
-with them inlined (case (i): run-out 63.72968029438788 m in 11 724 steps either way) and
-as fast (case (i), one thread, 5 interleaved pairs: 0.97-1.01x the time).
+its IR at every inline site, at a cost of about blocks x variables, so inlined they
+would make every model restriction's first compile several times longer.  They exchange
+data with step 4 through the block scratch only, so a run is bitwise the one with them
+inlined, and as fast.
 """
 from __future__ import annotations
 
@@ -165,29 +163,20 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     only once that half's flag is set (:func:`.common.read_flag`), else it stops (it never
     waits: a numba pool of one thread runs the workers one after the other).
     Why its own half first: a block the other thread took crosses between the cores twice
-    per step (its stress and volume to the other core, then back for the next map), and
-    on the 2-core VM the two vCPUs sat on cores with a ~60 ns and, every other second or
-    so, a ~350-700 ns core-to-core round trip (measured with a ping-pong between two
-    pinned threads); with the blocks dealt out from one shared queue the map to nodes of
-    the other thread's points doubled (10.5 -> 22 ns per point), and two threads on case
-    (i) ran at 42.5-59.1 ns per point-step (median 56.3, 6 runs) against 46.7-59.9
-    (median 51.3) with the halves kept, interleaved with one thread at 73.3-87.8 (median
-    81.4).  Why the other half after: the halves' stress passes differ by up to ~13 %
-    (one thread, case (i): 265 / 280 us at t = 15 s, 332 / 293 us at t = 8 s), and a worker
-    done first took nothing before; taking the other half's last blocks cut two threads
-    on case (i) from 27.4-27.9 to 26.6-26.9 ns per point-step (6 interleaved pairs,
-    0.964-0.984x the time), bitwise the same run.  Which worker takes a block changes
-    nothing in it: every block is computed by this one compiled function, maxima and
-    counts combine exactly, so any thread count and any interleaving give bitwise the
+    per step (its stress and volume to the other core, then back for the next map), and a
+    core-to-core round trip can cost hundreds of nanoseconds on a virtual machine.  Why
+    the other half after: the halves' stress passes differ in cost (plastic points cost
+    more), and a worker done first would otherwise wait.  Which worker takes a block
+    changes nothing in it: every block is computed by this one compiled function, maxima
+    and counts combine exactly, so any thread count and any interleaving give bitwise the
     same result (``tests/test_threads.py``, with a half switched off so that one worker
-    takes most of the other's blocks).  ``version`` and
-    ``only`` are literals (one compile and cache entry per pair); not inlined into the
-    threaded loop: numba's parfor passes, run over the inlined model update, changed the
-    result (1 vs 2 threads differed in tests/test_threads.py once the dispatch was
-    inlined).  Module level, not a closure of :func:`_make_stress_pass`: numba's cache key
+    takes most of the other's blocks).  ``version`` and ``only`` are literals (one compile
+    and cache entry per pair); not inlined into the threaded loop: numba's parfor passes,
+    run over the inlined model update, can change the result (1 and 2 threads would
+    differ).  Module level, not a closure of :func:`_make_stress_pass`: numba's cache key
     of a closure holds its cell values pickled, and a dispatcher pickles with a random
-    uuid, so a threaded pass closing over this dispatcher missed the cache in every new
-    process (1.6 s of compile at every start with threads = 2, measured)."""
+    uuid, so a threaded pass closing over this dispatcher would miss the cache in every
+    new process."""
     n = P.x.shape[0]
     fixed_columns(P, S)
     bounds = (0, half_split(n) // BLOCK, (n + BLOCK - 1) // BLOCK)   # blocks of the halves
@@ -237,9 +226,8 @@ def _stress_points(version, only, P, M, vn, S, o, start, stop, row):
     ``row`` of ``S`` (one per thread: the same BLOCK rows for every block, so they stay in
     L1 and are never written back); returns the largest squared P-wave speed and the
     number of points with a non-finite stress.  (The four scratch arrays are passed one by
-    one: as one tuple, when the kinematics and F-bar functions were still inlined here,
-    numba 0.68 lost the kinematics' writes to them when the two sat in the branches of an
-    ``if``; they are called kernels now, see the module docstring.)"""
+    one: numba 0.68 can lose writes to the arrays of a tuple made in two branches of an
+    ``if`` by inlined functions.)"""
     W, ta, tb, tc, Z = S.W[row], S.ta[row], S.tb[row], S.tc[row], S.Z[row]
     assume_columns(W, W_COLUMNS)
     assume_columns(Z, BLOCK_COLUMNS)

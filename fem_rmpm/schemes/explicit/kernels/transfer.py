@@ -1,7 +1,7 @@
 """Grid transfers of the explicit step: stage 1 (map to nodes), stage 2 (solve on the
 mesh) and stage 3a (map back, move, MUSL re-map), and the MUSL nodal velocities (3b).
 
-Every formula is the one of :func:`fem_rmpm.schemes.explicit.loop.explicit_step_numpy`.
+Every formula is the one of :func:`fem_rmpm.schemes.explicit.reference.explicit_step_numpy`.
 
 **Two halves, each with its own nodes.**  The points are split in two halves at a block
 boundary near the middle (:func:`.common.half_split`, which does not depend on the number
@@ -243,7 +243,7 @@ def _g2p_points(P, M, A, S, o, start, stop, row):
     (the motion as the grid sees it), max |v|^2 (for the next CFL step), the points with a
     non-finite position or velocity and those outside the grid rectangle (for the guards);
     here, where the new x and v are in registers, not in the stress pass (which would load
-    them again: ~1.5 ns per point-step, measured)."""
+    them again)."""
     vpic2 = 0.0
     v2max = 0.0
     n_bad = 0
@@ -309,8 +309,8 @@ def _move_half(P, M, T, H, S, o, c):
     """Half ``c``: stage 2 on its nodes, then stage 3a for its points (the threaded
     kernel's task; the serial kernel calls the same two functions, both halves' nodes
     first).  LLVM inlines the solve into both callers; with FMA contraction allowed it
-    fused the kinetic-energy sum differently in each (1 ulp, measured), so no kernel
-    contracts (:data:`fem_rmpm.runtime.compiled.FASTMATH`)."""
+    could fuse the kinetic-energy sum differently in each (1 ulp), so no kernel contracts
+    (:data:`fem_rmpm.runtime.compiled.FASTMATH`)."""
     _solve_half(M, T, H, S, o, c)
     _move_points_half(P, M, T, H, S, o, c)
 
