@@ -217,8 +217,8 @@ def summary_text(res: campaign.CampaignResult) -> str:
     return "\n".join(lines)
 
 
-def _cmd_mc_subset(a, scene: Scene, cluster: campaign.ClusterSpec) -> int:
-    """``fem-rmpm mc --method subset``: P(response beyond threshold) by subset simulation
+def _cmd_mc_response(a, scene: Scene, cluster: campaign.ClusterSpec) -> int:
+    """``fem-rmpm mc --method subset``: P(response beyond threshold) by a response method
     on the same cluster options as crude Monte Carlo (``--cluster``, ``--scheduler``)."""
     for opt, val in (("--keep-vtk", a.keep_vtk), ("--case", a.case)):
         if val is not None:
@@ -230,7 +230,8 @@ def _cmd_mc_subset(a, scene: Scene, cluster: campaign.ClusterSpec) -> int:
                                        p0=0.1 if a.p0 is None else a.p0,
                                        n=a.realizations, workers=a.workers,
                                        scheduler=a.scheduler, force=a.force,
-                                       progress=not a.quiet, cluster=cluster)
+                                       progress=not a.quiet, cluster=cluster,
+                                       method=a.method)
     print(campaign.subset_summary_text(res))
     return 3 if res.lost else 0
 
@@ -246,11 +247,11 @@ def _cmd_mc(a) -> int:
                                    interface=a.interface,
                                    job_directives=tuple(a.job_directive or ()),
                                    adapt=campaign.parse_adapt(a.adapt))
-    if a.method == "subset":
+    if campaign.METHODS[a.method].response:
         if a.fs or a.fs_only:
             raise InputError("--fs / --fs-only: only for crude campaigns (--method crude); "
                              "use --response factor_of_safety for subset simulation")
-        return _cmd_mc_subset(a, scene, cluster)
+        return _cmd_mc_response(a, scene, cluster)
     if a.fs:
         scene = with_value(scene, "montecarlo.factor_of_safety", True)
     given = [o for o, v in (("--response", a.response), ("--threshold", a.threshold),
@@ -268,7 +269,7 @@ def _cmd_mc(a) -> int:
     res = campaign.run_campaign(scene, a.out, realizations=a.realizations, cases=cases,
                                 workers=a.workers, scheduler=a.scheduler, force=a.force,
                                 keep_vtk=a.keep_vtk, progress=not a.quiet, cluster=cluster,
-                                fs_only=a.fs_only)
+                                fs_only=a.fs_only, method=a.method)
     print(summary_text(res))
     return 3 if res.lost else 0
 
@@ -516,9 +517,9 @@ def _add_mc(sub) -> None:
                    "factor_of_safety = true)")
     m.add_argument("--fs-only", action="store_true", help="the factor of safety of every "
                    "realization instead of its MPM run")
-    m.add_argument("--method", choices=("crude", "subset"), default="crude",
-                   help="crude Monte Carlo (default) or subset simulation of a small "
-                   "probability (then -n is the samples per level, default 1000)")
+    m.add_argument("--method", choices=tuple(campaign.METHODS), default="crude",
+                   help="; ".join(f"{k}: {e.help}" for k, e in campaign.METHODS.items())
+                   + " (default crude; for subset -n is the samples per level, default 1000)")
     m.add_argument("--response", default=None,
                    help="subset: runout_distance, sliding_area, retrogression_distance, "
                    "max_displacement (failure: above --threshold) or factor_of_safety "

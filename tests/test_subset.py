@@ -1,4 +1,4 @@
-"""Subset simulation over standard-normal noise (fem_rmpm.campaign.subset), without the MPM.
+"""Subset simulation over standard-normal noise (fem_rmpm.campaign.methods), without the MPM.
 
 References: the exact probabilities of the limit states below (a linear one, P = Phi(-beta),
 and the exterior of a hypersphere, P = chi-square survival function) and the formulas of
@@ -12,7 +12,7 @@ import pytest
 from scipy.stats import chi2, norm
 
 from fem_rmpm.campaign.cases import realization_seed
-from fem_rmpm.campaign.subset import (
+from fem_rmpm.campaign.methods import (
     CrudeMonteCarlo,
     SubsetError,
     SubsetSimulation,

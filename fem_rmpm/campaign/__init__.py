@@ -2,12 +2,13 @@
 
 Modules: :mod:`.cases` (cases and seeds), :mod:`.task` (the realization task run by the
 workers), :mod:`.store` (campaign directory, identity, lock, records, ``results.csv``),
-:mod:`.statistics`, :mod:`.keep_vtk`, :mod:`.cluster` (the Dask client) and
-:mod:`.runner` (the campaign loop, :func:`run_campaign`); :mod:`.subset` (the
-campaign-method protocol, crude Monte Carlo and subset simulation over standard-normal
-noise), :mod:`.subset_runner` (subset campaigns of a scene on Dask,
-``fem-rmpm mc --method subset``) and :mod:`.subset_plots`.  The command line
-(``fem-rmpm mc``, its summary text) is in :mod:`fem_rmpm.cli`.
+:mod:`.statistics`, :mod:`.keep_vtk`, :mod:`.backends` and :mod:`.cluster` (where the
+realizations run); :mod:`.methods` (the campaign-method protocol and its table
+:data:`~fem_rmpm.campaign.methods.METHODS`: crude Monte Carlo, subset simulation);
+:mod:`.runner` (the one campaign runner: any method, records, lock, Dask);
+:mod:`.case_campaign` (campaigns of cases, :func:`run_campaign`), :mod:`.subset_runner`
+(response campaigns of a scene, ``fem-rmpm mc --method subset``), :mod:`.subset_plots`
+and :mod:`.summary_text` (the paragraphs ``fem-rmpm mc`` prints).
 
 ``fem-rmpm mc SCENE -n N --out DIR [--workers K | --scheduler ADDRESS]`` (or
 :func:`run_campaign` from Python) runs realizations ``0 .. N-1`` of one or more
@@ -160,12 +161,13 @@ from fem_rmpm.campaign.cases import (
 # The rest is imported when first used (PEP 562): the cluster, runner and task modules
 # import dask and distributed (~0.65 s), which a plain ``fem-rmpm run`` never needs.
 _LAZY = {"start_local_cluster": ".cluster", "worker_environment": ".cluster",
-         "parse_keep_vtk": ".keep_vtk", "CampaignResult": ".runner", "run_campaign": ".runner",
+         "parse_keep_vtk": ".keep_vtk", "CampaignResult": ".case_campaign",
+         "run_campaign": ".case_campaign",
          "case_statistics": ".statistics", "wilson_interval": ".statistics",
          "RESULT_COLUMNS": ".store", "read_results": ".store", "result_columns": ".store",
-         "write_results": ".store", "run_realization": ".task", "CampaignMethod": ".subset",
-         "CrudeMonteCarlo": ".subset", "SubsetSimulation": ".subset",
-         "subset_simulation": ".subset", "run_subset_campaign": ".subset_runner",
+         "write_results": ".store", "run_realization": ".task", "CampaignMethod": ".methods",
+         "CrudeMonteCarlo": ".methods", "SubsetSimulation": ".methods", "METHODS": ".methods",
+         "subset_simulation": ".methods", "run_subset_campaign": ".subset_runner",
          # for the CLI's mc command
          "ClusterSpec": ".backends", "parse_adapt": ".backends",
          "estimate_campaign": ".estimate", "estimate_text": ".estimate",
@@ -184,5 +186,5 @@ __all__ = ["CampaignError", "Case", "LITERATURE_CASES", "parse_case", "literatur
            "realization_seed", "without_random_field", "run_realization", "run_campaign",
            "CampaignResult", "case_statistics", "wilson_interval", "read_results",
            "write_results", "result_columns", "parse_keep_vtk", "worker_environment",
-           "start_local_cluster", "RESULT_COLUMNS", "CampaignMethod", "CrudeMonteCarlo",
+           "start_local_cluster", "RESULT_COLUMNS", "CampaignMethod", "CrudeMonteCarlo", "METHODS",
            "SubsetSimulation", "subset_simulation", "run_subset_campaign"]

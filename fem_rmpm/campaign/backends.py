@@ -22,7 +22,8 @@ Kinds
 many as the usable CPUs hold, at most the realizations to run).
 ``local`` with ``--scheduler ADDRESS``: the workers of a running Dask cluster.
 ``slurm`` | ``pbs`` | ``sge`` | ``lsf``: dask-jobqueue's ``SLURMCluster``,
-``PBSCluster``, ``SGECluster`` or ``LSFCluster``.  The scheduler runs in the client
+``PBSCluster``, ``SGECluster`` or ``LSFCluster``, one row of :data:`BATCH_SYSTEMS` each
+(a :class:`BatchSystem`: a new batch system is one row).  The scheduler runs in the client
 (the ``fem-rmpm mc`` process, on the login node or in a job of its own); each batch
 job runs ``processes`` single-thread Dask workers on ``cores`` cores with ``memory``.
 
@@ -89,18 +90,35 @@ from fem_rmpm.campaign.task import campaign_threads
 from fem_rmpm.runtime.budget import estimate_run
 from fem_rmpm.runtime.machine import usable_cores
 
-__all__ = ["CLUSTER_KINDS", "ClusterError", "ClusterSpec", "Backend", "open_backend",
-           "campaign_backend",
-           "parse_adapt", "probe_directory", "job_environment_lines"]
+__all__ = ["CLUSTER_KINDS", "BATCH_SYSTEMS", "BatchSystem", "ClusterError", "ClusterSpec",
+           "Backend", "open_backend", "campaign_backend", "parse_adapt", "probe_directory",
+           "job_environment_lines"]
 
-#: ``--cluster`` values: a local (or already running) Dask cluster, or dask-jobqueue kinds.
-CLUSTER_KINDS = ("local", "slurm", "pbs", "sge", "lsf")
-_JOBQUEUE_CLASS = {"slurm": "SLURMCluster", "pbs": "PBSCluster", "sge": "SGECluster",
-                   "lsf": "LSFCluster"}
-_BATCH_NAME = {"slurm": "SLURM", "pbs": "PBS", "sge": "SGE", "lsf": "LSF"}
-_ACCOUNT_KEYWORD = {"slurm": "account", "pbs": "account", "sge": "project",  # --account
-                    "lsf": "project"}
-_TEST_SUBMIT = {"slurm": ["sbatch", "--test-only"]}   # checks a job script, submits nothing
+
+@dataclass(frozen=True)
+class BatchSystem:
+    """A batch system as dask-jobqueue drives it: its ``--cluster`` name, its name in
+    messages, dask-jobqueue's cluster class, the job keyword that ``--account`` sets
+    (``account`` or ``project``), the command that checks a job script without submitting
+    it (None: none is used) and whether ``sinfo`` tells the nodes' memory."""
+    kind: str
+    title: str
+    jobqueue_class: str
+    account_keyword: str
+    test_submit: tuple[str, ...] | None = None
+    node_memory_from_sinfo: bool = False
+
+
+#: The batch systems of ``--cluster``, one row per kind.
+BATCH_SYSTEMS: dict[str, BatchSystem] = {b.kind: b for b in (
+    BatchSystem("slurm", "SLURM", "SLURMCluster", "account", ("sbatch", "--test-only"),
+                node_memory_from_sinfo=True),
+    BatchSystem("pbs", "PBS", "PBSCluster", "account"),
+    BatchSystem("sge", "SGE", "SGECluster", "project"),
+    BatchSystem("lsf", "LSF", "LSFCluster", "project"),
+)}
+#: ``--cluster`` values: a local (or already running) Dask cluster, or a batch system.
+CLUSTER_KINDS = ("local", *BATCH_SYSTEMS)
 _PROBE_PREFIX = ".fem-rmpm-probe-"
 _MEMORY = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*([KMGT]i?B?|B)?\s*$", re.IGNORECASE)
 
@@ -129,7 +147,7 @@ class ClusterSpec:
 
     @property
     def batch(self) -> bool:
-        return self.kind in _JOBQUEUE_CLASS
+        return self.kind in BATCH_SYSTEMS
 
 
 def parse_adapt(text: str | None) -> tuple[int, int] | None:
@@ -330,6 +348,7 @@ class JobqueueBackend(_ClientBackend):
         super().__init__()
         self.spec = spec
         self.kind = spec.kind
+        self.system = BATCH_SYSTEMS[spec.kind]
         self._keeper = None
         self._seen: dict[str, float | None] = {}   # job -> when its workers left
 
@@ -349,7 +368,7 @@ class JobqueueBackend(_ClientBackend):
         kw: dict[str, Any] = {"cores": int(cores), "processes": processes, "memory": memory,
                               "job_script_prologue": job_environment_lines()
                               + list(_config(kind, "job-script-prologue", []) or [])}
-        for key, value in (("queue", s.queue), (_ACCOUNT_KEYWORD[kind], s.account),
+        for key, value in (("queue", s.queue), (self.system.account_keyword, s.account),
                            ("walltime", s.walltime), ("interface", s.interface)):
             if value is not None:
                 kw[key] = value
@@ -368,7 +387,7 @@ class JobqueueBackend(_ClientBackend):
                 else "jobs")
         queue = kw.get("queue") or _config(self.kind, "queue") or "the default queue"
         wall = kw.get("walltime") or _config(self.kind, "walltime")
-        return (f"{_BATCH_NAME[self.kind]} (dask-jobqueue): {workers} worker(s) in {jobs} of "
+        return (f"{self.system.title} (dask-jobqueue): {workers} worker(s) in {jobs} of "
                 f"{kw['cores']} core(s) and {kw['memory']} on {queue}, walltime {wall}")
 
     def _jobqueue_class(self):
@@ -377,7 +396,7 @@ class JobqueueBackend(_ClientBackend):
         except ImportError:
             raise ClusterError(f"--cluster {self.kind}: needs the dask-jobqueue package "
                                "(pip install dask-jobqueue)") from None
-        return getattr(dask_jobqueue, _JOBQUEUE_CLASS[self.kind])
+        return getattr(dask_jobqueue, self.system.jobqueue_class)
 
     def _check_submit_command(self, cls) -> None:
         command = cls.job_cls.submit_command
@@ -389,7 +408,7 @@ class JobqueueBackend(_ClientBackend):
     def _check_node_memory(self, kw: dict) -> None:
         """SLURM: a job asking for more memory than the largest node of its partition has
         is an error naming both (other batch systems refuse it at submission)."""
-        if self.kind != "slurm" or shutil.which("sinfo") is None:
+        if not self.system.node_memory_from_sinfo or shutil.which("sinfo") is None:
             return
         queue = kw.get("queue") or _config(self.kind, "queue")
         cmd = ["sinfo", "-h", "-o", "%m"] + (["-p", str(queue)] if queue else [])
@@ -433,9 +452,9 @@ class JobqueueBackend(_ClientBackend):
                "memory_per_worker_bytes": _memory_bytes(kw["memory"]) / kw["processes"],
                "description": self._describe(kw, workers), "job_script": script,
                "checked": None}
-        test = _TEST_SUBMIT.get(self.kind)
+        test = self.system.test_submit
         if test and shutil.which(test[0]):
-            out["checked"] = _test_submit(test, script)
+            out["checked"] = _test_submit(list(test), script)
         return out
 
     def preflight(self, n_tasks: int) -> None:
@@ -445,9 +464,9 @@ class JobqueueBackend(_ClientBackend):
         self._check_submit_command(cls)
         kw = self._job_kwargs()
         self._check_node_memory(kw)
-        test = _TEST_SUBMIT.get(self.kind)
+        test = self.system.test_submit
         if test and shutil.which(test[0]):
-            _test_submit(test, self._script(cls, kw))
+            _test_submit(list(test), self._script(cls, kw))
 
     def start(self, n_tasks: int, out: Path):
         """Start the scheduler here and submit the worker jobs (their logs go to

@@ -40,7 +40,7 @@ from typing import Sequence
 from fem_rmpm.api import run as run_one
 from fem_rmpm.campaign.backends import ClusterSpec, campaign_backend
 from fem_rmpm.campaign.cases import CampaignError, Case
-from fem_rmpm.campaign.runner import pending_work
+from fem_rmpm.campaign.case_campaign import pending_work
 from fem_rmpm.runtime.budget import STEPS_FACTOR, RunEstimate, estimate_run, thread_speed_up
 from fem_rmpm.scene import Scene, with_value
 
@@ -176,8 +176,9 @@ def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = 
     n = scene.montecarlo.realizations if realizations is None else realizations
     if isinstance(n, bool) or not isinstance(n, int) or n <= 0:
         raise CampaignError(f"-n {n}: the number of realizations must be a positive integer")
-    case_list, counts, _, _, tasks, finished = pending_work(scene, out, n, cases, keep_vtk,
-                                                           force)
+    pending = pending_work(scene, out, n, cases, keep_vtk, force)
+    case_list, counts = pending.cases, pending.counts
+    tasks, finished = pending.tasks, pending.finished
     backend = campaign_backend(cluster, workers, scheduler, case_list)
     plan = backend.plan(max(len(tasks), 1))
     budget = {c.name: estimate_run(c.scene) for c in case_list}
