@@ -28,6 +28,7 @@ import pytest
 
 from fem_rmpm import api, cli
 from fem_rmpm import campaign as mc
+from fem_rmpm.campaign import methods as cm
 from fem_rmpm.campaign import store
 from fem_rmpm.runtime.machine import cpu_model
 
@@ -572,3 +573,44 @@ def test_validation_script_writes_the_case_figures(tmp_path):
 # README's table: tests/test_readme_figures.py::test_four_literature_cases_match_readme
 # (slow; it writes to a temporary directory, not validation/out).
 
+
+
+# --------------------------------------------------------------------------- campaign methods
+
+class _FirstN(cm.BatchMethod):
+    """A toy case method: realizations 0 .. n-1 asked for one at a time (n batches), the
+    same samples as crude Monte Carlo in another batching; P = k/n."""
+    name = "first_n"
+
+    def __init__(self, n: int, seed: int):
+        self.n, self.seed, self.on_failure = n, seed, "reject"
+        self._start()
+
+    def _process(self):
+        ys = []
+        for i in range(self.n):
+            y = yield [cm.Sample(0, i, 0, seed=mc.realization_seed(self.seed, i))]
+            ys.extend(y)
+        k = int(np.count_nonzero(np.asarray(ys) > 0.5))
+        return cm.MethodResult("first_n", 0.5, k / self.n, math.nan, self.n)
+
+
+def test_a_method_of_the_table_runs_through_the_one_runner_from_the_command_line(
+        tmp_path, monkeypatch, dask_scheduler):
+    """A third method registered in ``METHODS`` (one row) is a ``--method`` choice and runs
+    through the campaign runner: its one-sample batches give the records, table and
+    statistics of the crude campaign of the same N (the samples are the same realizations,
+    a pure function of their seed)."""
+    monkeypatch.setitem(mc.METHODS, "first_n", cm.MethodEntry(
+        lambda o: _FirstN(o.n, o.seed), response=False, help="toy: 0 .. n-1, one at a time"))
+    tables = {}
+    for method in ("first_n", "crude"):
+        out = tmp_path / method
+        argv = ["mc", str(TINY), "-n", "3", "--out", str(out), "--quiet", "--keep-vtk", "0",
+                "--scheduler", dask_scheduler, "--method", method]
+        assert cli.main(argv) == 0
+        assert _summary(out)["this_run"]["computed"] == 3
+        tables[method] = (_table(out), _summary(out)["cases"])
+    assert tables["first_n"] == tables["crude"]
+    assert cli.main(argv[:-1] + ["first_n"]) == 0      # crude's records serve first_n
+    assert _summary(tmp_path / "crude")["this_run"]["computed"] == 0
