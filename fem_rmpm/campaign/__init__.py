@@ -152,6 +152,8 @@ from fem_rmpm.campaign.cases import (
     LITERATURE_CASES,
     CampaignError,
     Case,
+    campaign_cases,
+    default_scene_path,
     literature_cases,
     parse_case,
     realization_seed,
@@ -171,7 +173,8 @@ _LAZY = {"start_local_cluster": ".cluster", "worker_environment": ".cluster",
          # for the CLI's mc command
          "ClusterSpec": ".backends", "parse_adapt": ".backends",
          "estimate_campaign": ".estimate", "estimate_text": ".estimate",
-         "fs_text": ".factor_of_safety", "subset_summary_text": ".subset_runner"}
+         "fs_text": ".factor_of_safety", "subset_summary_text": ".summary_text",
+         "summary_text": ".summary_text"}
 
 
 def __getattr__(name: str):
@@ -183,8 +186,10 @@ def __getattr__(name: str):
 
 
 __all__ = ["CampaignError", "Case", "LITERATURE_CASES", "parse_case", "literature_cases",
+           "campaign_cases", "default_scene_path",
            "realization_seed", "without_random_field", "run_realization", "run_campaign",
            "CampaignResult", "case_statistics", "wilson_interval", "read_results",
            "write_results", "result_columns", "parse_keep_vtk", "worker_environment",
            "start_local_cluster", "RESULT_COLUMNS", "CampaignMethod", "CrudeMonteCarlo", "METHODS",
-           "SubsetSimulation", "subset_simulation", "run_subset_campaign"]
+           "SubsetSimulation", "subset_simulation", "run_subset_campaign", "summary_text",
+           "subset_summary_text"]

@@ -39,8 +39,8 @@ from typing import Sequence
 
 from fem_rmpm.api import run as run_one
 from fem_rmpm.campaign.backends import ClusterSpec, campaign_backend
-from fem_rmpm.campaign.cases import CampaignError, Case
 from fem_rmpm.campaign.case_campaign import pending_work
+from fem_rmpm.campaign.cases import CampaignError, Case
 from fem_rmpm.runtime.budget import STEPS_FACTOR, RunEstimate, estimate_run, thread_speed_up
 from fem_rmpm.scene import Scene, with_value
 

@@ -59,8 +59,6 @@ import numpy as np
 from fem_rmpm import api
 from fem_rmpm.campaign.backends import ClusterSpec, campaign_backend
 from fem_rmpm.campaign.cases import CampaignError, parse_case
-from fem_rmpm.campaign.report import write_report
-from fem_rmpm.campaign.store import FORMAT, campaign_doc, check_directory, read_record
 from fem_rmpm.campaign.methods import (
     METHODS,
     MethodOptions,
@@ -69,7 +67,9 @@ from fem_rmpm.campaign.methods import (
     SubsetSimulation,
     SubsetWarning,
 )
+from fem_rmpm.campaign.report import write_report
 from fem_rmpm.campaign.runner import Execution, RunTally, run_method_campaign
+from fem_rmpm.campaign.store import FORMAT, campaign_doc, check_directory, read_record
 from fem_rmpm.campaign.subset_plots import plot_levels
 from fem_rmpm.campaign.task import run_realization
 from fem_rmpm.discretise.grid import make_grid
@@ -82,7 +82,7 @@ from fem_rmpm.schemes.common import SimulationError
 from fem_rmpm.schemes.implicit.strength_reduction import FSOptions, factor_of_safety
 
 __all__ = ["SUBSET_FORMAT", "RESPONSES", "Response", "parse_response", "run_subset_sample",
-           "run_subset_campaign", "SubsetCampaignResult", "subset_summary_text",
+           "run_subset_campaign", "SubsetCampaignResult",
            "sample_noise", "sample_noises"]
 
 SUBSET_FORMAT = "fem_rmpm subset campaign 1"
@@ -449,29 +449,6 @@ def _finish(res: SubsetCampaignResult, scene: Scene, method: SubsetSimulation,
         res.figures = [plot_levels(res.out / "subset_levels.png", r, resp, scene.scene.name,
                                    RESPONSES[resp.name]),
                        write_report(res.out)]
-
-
-def subset_summary_text(res: SubsetCampaignResult) -> str:
-    """The paragraph printed by ``fem-rmpm mc --method subset``."""
-    head = (f"Subset simulation in {res.out}: this run computed {res.computed} sample(s) "
-            f"(reused {res.reused} records) on {res.workers} in {res.wall_time:.1f} s.")
-    if res.result is None:
-        return (head + f"\n  {len(res.lost)} sample(s) LOST (their workers died; no record): "
-                + "; ".join(res.lost[:3]) + " -- re-run the same command to finish")
-    r = res.result
-    th = ", ".join(f"{-b if res.response.below else b:.4g}" for b in r.thresholds[:-1])
-    lines = [head, f"  P({res.response.describe()}) = {r.probability:.3g}, COV {r.cov:.2f} "
-                   f"(Au & Beck, with chain correlation) after {len(r.levels)} level(s), "
-                   f"{r.total_runs} runs" + (f", {r.failed_runs} failed numerically"
-                                             if r.failed_runs else "")
-                   + (f"; intermediate thresholds {th}" if th else "")]
-    if r.crude_equivalent_runs:
-        lines.append(f"  crude Monte Carlo would need {r.crude_equivalent_runs:.0f} runs for "
-                     f"the same COV ({r.crude_equivalent_runs / r.total_runs:.1f}x)")
-    lines.extend(f"  WARNING: {note}" for note in r.notes)
-    lines.append(f"Output: summary.json, samples.csv, records/"
-                 + "".join(f", {p.name}" for p in res.figures) + f" in {res.out}")
-    return "\n".join(lines)
 
 
 def sample_noises(scene: Scene, out: str | Path) -> Iterator[tuple[str, np.ndarray]]:
