@@ -110,7 +110,7 @@ class _Stopped(Exception):
         self.t, self.reason = t, reason
 
 
-def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
+def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
         progress: bool = False, vtk: bool | None = None, figures: bool | None = None,
         force: bool = False, noise=None, label: str | None = None,
         stop_when=None) -> RunResult:

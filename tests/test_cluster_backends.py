@@ -1,4 +1,4 @@
-"""Cluster backends and ``--dry-run`` without a batch system (issue 19).
+"""Cluster backends and ``--dry-run`` without a batch system.
 
 The tests that need a real SLURM are in ``tests/test_slurm.py`` (marker ``slurm``).
 Here: option checking (one line, exit 2, nothing written), the job scripts dask-jobqueue

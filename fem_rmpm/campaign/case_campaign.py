@@ -68,7 +68,7 @@ def _case_realizations(case: Case, n: int) -> int:
 
 
 def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
-                 cases: Sequence[str | Case] | None = None, workers: int | None = None,
+                 cases: Sequence[str | Case] | None = None, *, workers: int | None = None,
                  scheduler: str | None = None, force: bool = False, keep_vtk=None,
                  progress: bool = True, figures: bool = True, client=None,
                  cluster: ClusterSpec | None = None, fs_only: bool = False,
@@ -93,7 +93,8 @@ def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
     _check_arguments(n, workers, scheduler, client)
     if client is not None and cluster is not None:
         raise CampaignError("give a client or a cluster, not both")
-    plan = pending_work(scene, out, n, cases, keep_vtk, force, fs_only, method)
+    plan = pending_work(scene, out, n, cases, keep_vtk=keep_vtk, force=force,
+                        fs_only=fs_only, method=method)
     backend = (campaign_backend(cluster, workers, scheduler, plan.cases)
                if client is None else None)
     run = Execution(backend, client, preflight=len(plan.tasks) or None,
@@ -142,8 +143,8 @@ def case_methods(name: str, counts: dict[str, int], seed: int) -> PerCase:
                     for c, k in counts.items()})
 
 
-def pending_work(scene: Scene, out: Path, n: int, cases: Sequence[str | Case] | None,
-                 keep_vtk, force: bool, fs_only: bool = False,
+def pending_work(scene: Scene, out: Path, n: int, cases: Sequence[str | Case] | None, *,
+                 keep_vtk=None, force: bool = False, fs_only: bool = False,
                  method: str = "crude") -> CasePlan:
     """What a campaign in ``out`` has left to do in its first batch (read-only; raises
     CampaignError for bad cases or another campaign in ``out``)."""

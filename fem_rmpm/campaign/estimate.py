@@ -164,8 +164,9 @@ def probe_calibration(scene: Scene, seed: int) -> Calibration:
 # --------------------------------------------------------------------------- the estimate
 
 def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
-                      cases: Sequence[str | Case] | None = None, workers: int | None = None,
-                      scheduler: str | None = None, force: bool = False, keep_vtk=None,
+                      cases: Sequence[str | Case] | None = None, *,
+                      workers: int | None = None, scheduler: str | None = None,
+                      force: bool = False, keep_vtk=None,
                       cluster: ClusterSpec | None = None, probe: bool = True
                       ) -> CampaignEstimate:
     """The size and cost of ``run_campaign`` with the same arguments (module docstring);
@@ -176,7 +177,7 @@ def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = 
     n = scene.montecarlo.realizations if realizations is None else realizations
     if isinstance(n, bool) or not isinstance(n, int) or n <= 0:
         raise CampaignError(f"-n {n}: the number of realizations must be a positive integer")
-    pending = pending_work(scene, out, n, cases, keep_vtk, force)
+    pending = pending_work(scene, out, n, cases, keep_vtk=keep_vtk, force=force)
     case_list, counts = pending.cases, pending.counts
     tasks, finished = pending.tasks, pending.finished
     backend = campaign_backend(cluster, workers, scheduler, case_list)

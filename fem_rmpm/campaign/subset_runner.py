@@ -314,7 +314,8 @@ def _check_fs_options(options: dict) -> None:
 
 
 def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
-                        threshold: float | None = None, p0: float = 0.1, n: int | None = None,
+                        threshold: float | None = None, *, p0: float = 0.1,
+                        n: int | None = None,
                         workers: int | None = None, scheduler: str | None = None,
                         client=None, force: bool = False, progress: bool = True,
                         figures: bool = True, fs_options: dict | None = None,

@@ -164,7 +164,7 @@ class SubsetSimulation(BatchMethod):
     ``p0 ** max_levels``; ``label``: the failure event in messages."""
     name = "subset"
 
-    def __init__(self, threshold: float, n: int = 1000, p0: float = 0.1, seed: int = 0,
+    def __init__(self, threshold: float, n: int = 1000, p0: float = 0.1, seed: int = 0, *,
                  noise_from_seed: Callable[[int], np.ndarray] | None = None,
                  dim: int | None = None, on_failure: str = "raise", max_levels: int = 20,
                  label: str | None = None):
