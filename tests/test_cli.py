@@ -52,8 +52,9 @@ def test_help_lists_the_exit_codes(argv, capsys):
 
 def test_mc_set_and_case_recorded_in_campaign_identity(tmp_path, capsys, dask_scheduler):
     """``mc --set`` and ``--case`` on the tiny scene (on the reference slope the same
-    command reads ``fem-rmpm mc --set solver.t_end=5 --case xi=12 -n 2``): the campaign runs the one case with the changed end time, campaign.json records it,
-    and the same directory with another --set is refused (exit 2, nothing changed)."""
+    command reads ``fem-rmpm mc --set solver.t_end=5 --case xi=12 -n 2``): the campaign
+    runs the one case with the changed end time, campaign.json records it, and the same
+    directory with another --set is refused (exit 2, nothing changed)."""
     out = tmp_path / "mc"
     argv = ["mc", str(TINY), "--set", "solver.t_end=0.5", "--case", "xi=12", "-n", "2",
             "--scheduler", dask_scheduler, "--quiet", "--out", str(out)]
