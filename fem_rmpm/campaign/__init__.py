@@ -105,16 +105,13 @@ worker of two threads, unless ``--workers`` says otherwise) and
 ``MALLOC_TRIM_THRESHOLD_`` = 1 GiB with ``MALLOC_MMAP_THRESHOLD_`` = 32 MiB.
 Dask sets ``MALLOC_TRIM_THRESHOLD_=65536``; setting *any* trim threshold also
 freezes glibc's mmap threshold at 128 KiB, so every array above 128 KiB is a
-fresh ``mmap`` that page-faults on first touch and is unmapped when freed.
-Measured here (two workers, reference slope, 1 s of dynamics, numpy kernel):
-65536 -> 10 s system time and 4.5 million page faults per task, 3-4x the wall
-time; trim raised alone (1 GiB) -> still 7 s and 3.4 million; trim and mmap
-thresholds raised (or neither set) -> 0.06 s and ~300.  With the default numba
-kernel (few temporaries) the difference is within noise (24 500 vs 370 page
-faults, user time equal).  Workers of an existing cluster keep the environment
-they were started with, so each realization task also raises both thresholds
-with ``mallopt`` (glibc; a no-op elsewhere), which measured the same as the
-environment variables.
+fresh ``mmap`` that page-faults on first touch and is unmapped when freed: with
+array-heavy kernels (the numpy kernel) that is several times the wall time in system
+time; raising both thresholds (or setting neither) removes it, raising the trim
+threshold alone does not (the figures: the documentation's benchmark pages).  Workers
+of an existing cluster keep the environment they were started with, so each
+realization task also raises both thresholds with ``mallopt`` (glibc; a no-op
+elsewhere), to the same effect as the environment variables.
 
 An existing cluster: ``--scheduler tcp://host:8786`` (or ``run_campaign(...,
 scheduler=address)``) connects a ``distributed.Client`` to it (timeout

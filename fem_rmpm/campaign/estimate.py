@@ -7,9 +7,8 @@ and the CFL step count of one run from :func:`fem_rmpm.runtime.budget.estimate_r
 * **steps** = the budget's count (``t_end`` over the CFL step at rest) x a *steps
   factor*: moving points shorten the step and a run that comes to rest stops early.
   From the ok records of this campaign when there are some (their mean ratio of steps
-  taken to the budget's count); else :data:`fem_rmpm.runtime.budget.STEPS_FACTOR`, the ratio
-  measured on the reference slope (six realizations of the four literature cases:
-  1.21-1.40, mean 1.30);
+  taken to the budget's count); else :data:`fem_rmpm.runtime.budget.STEPS_FACTOR`, the mean
+  ratio measured on the reference slope's literature cases;
 * **CPU per realization** = setup + points x steps x the cost per point-step, with the
   cost per point-step and the setup (random field, seeding, measures) *measured on this
   machine*: from the records of this campaign (their CPU time over their point-steps)
@@ -25,9 +24,7 @@ and the CFL step count of one run from :func:`fem_rmpm.runtime.budget.estimate_r
   workers' ``[solver] threads`` at :data:`fem_rmpm.runtime.budget.THREAD_EFFICIENCY`; queue
   waits of a batch system are not included).
 
-Measured on the reference slope main job (``fem-rmpm mc --out DIR``: 10 realizations):
-see README "Running a campaign on a SLURM cluster" for the estimate against the
-campaign's measured CPU time.
+The estimate against a campaign's measured CPU time: the documentation's benchmark pages.
 """
 from __future__ import annotations
 
