@@ -458,14 +458,18 @@ def sample_noises(scene: Scene, out: str | Path) -> Iterator[tuple[str, np.ndarr
     samples has no record (the noise of that batch's samples is still yielded)."""
     doc = json.loads((Path(out) / "campaign.json").read_text())["method"]
     grid = make_grid(scene)
-    method = SubsetSimulation(1e300, n=doc["samples_per_level"], p0=doc["p0"],
-                              seed=scene.montecarlo.seed, on_failure="reject", max_levels=99,
-                              noise_from_seed=lambda seed: field_noise(scene, grid, seed).ravel())
+
+    def noise_from_seed(seed: int) -> np.ndarray:
+        return field_noise(scene, grid, seed).ravel()
+
+    method = METHODS[doc["name"]].make(MethodOptions(
+        n=doc["samples_per_level"], seed=scene.montecarlo.seed, threshold=1e300, p0=doc["p0"],
+        noise_from_seed=noise_from_seed, on_failure="reject", max_levels=99))
     resp = Response(doc["response"], 1.0)
     while (batch := method.next_batch()) is not None:
         ys = []
         for s in batch:
-            yield s.key, (s.noise if s.noise is not None else method.noise_from_seed(s.seed))
+            yield s.key, (s.noise if s.noise is not None else noise_from_seed(s.seed))
         for s in batch:
             rec = read_record(_record_path(Path(out), s.key))
             if rec is None:

@@ -42,7 +42,8 @@ class MethodOptions:
     """What a campaign gives a method: ``n`` samples (per level), the campaign ``seed``,
     the failure ``threshold`` on the response Y (failure: Y > threshold), the level
     probability ``p0``, ``noise_from_seed`` (the noise vector of a seeded sample), how a
-    failed run counts (``on_failure``) and the failure event in messages (``label``)."""
+    failed run counts (``on_failure``), the failure event in messages (``label``) and the
+    most levels of a multi-level method (``max_levels``)."""
     n: int
     seed: int
     threshold: float
@@ -50,6 +51,7 @@ class MethodOptions:
     noise_from_seed: Callable[[int], np.ndarray] | None = None
     on_failure: str = "reject"
     label: str | None = None
+    max_levels: int = 20
 
 
 @dataclass(frozen=True)
@@ -72,7 +74,7 @@ def _crude(o: MethodOptions) -> CrudeMonteCarlo:
 def _subset(o: MethodOptions) -> SubsetSimulation:
     return SubsetSimulation(o.threshold, n=o.n, p0=o.p0, seed=o.seed,
                             noise_from_seed=o.noise_from_seed, on_failure=o.on_failure,
-                            label=o.label)
+                            max_levels=o.max_levels, label=o.label)
 
 
 #: ``--method`` name -> :class:`MethodEntry`.
