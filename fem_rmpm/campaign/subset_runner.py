@@ -2,9 +2,11 @@
 
 ``fem-rmpm mc SCENE --method subset --response NAME --threshold X [--p0 0.1] [-n N]``
 (or :func:`run_subset_campaign`) estimates ``P(response > X)`` (``P(FS < X)`` for the
-factor of safety) by subset simulation (:mod:`fem_rmpm.campaign.subset`) in the noise
-space of the scene's random field: a realization is a pure function of (scene, noise),
-:func:`fem_rmpm.random_field.noise_shape` standard normals.
+factor of safety) by subset simulation (:mod:`fem_rmpm.campaign.methods.subset`; any
+response method of :data:`fem_rmpm.campaign.methods.METHODS`) in the noise space of the
+scene's random field: a realization is a pure function of (scene, noise),
+:func:`fem_rmpm.random_field.noise_shape` standard normals.  The samples run through the
+campaign runner (:mod:`fem_rmpm.campaign.runner`).
 
 * **Responses** (:data:`RESPONSES`): the realization's measures ``runout_distance``,
   ``sliding_area``, ``retrogression_distance``, ``max_displacement`` (m, m2, m, m;
@@ -198,7 +200,7 @@ def run_subset_sample(task: dict) -> dict:
 @dataclass
 class SubsetCampaignResult:
     """What :func:`run_subset_campaign` did: the estimate (``result``, a
-    :class:`fem_rmpm.campaign.subset.MethodResult`; None if samples were lost) and the
+    :class:`fem_rmpm.campaign.methods.MethodResult`; None if samples were lost) and the
     samples this command computed, reused from records and lost."""
     out: Path
     response: Response
