@@ -20,7 +20,6 @@ the seed's own noise (``grid = prepare(scene)[0]``), so that
 from __future__ import annotations
 
 import dataclasses
-import json
 import sys
 import time
 from dataclasses import dataclass
@@ -112,7 +111,7 @@ class _Stopped(Exception):
         self.t, self.reason = t, reason
 
 
-def run(scene: Scene, out: str | Path | None = None, seed: int | None = None,
+def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
         progress: bool = False, vtk: bool | None = None, figures: bool | None = None,
         force: bool = False, noise=None, label: str | None = None,
         stop_when=None) -> RunResult:
@@ -201,21 +200,14 @@ MECHANISM_TIME = 3.0
 
 #: Announced compile time (s) of the first explicit run on one thread, and the extra of the
 #: threaded kernels (``threads`` >= 2, the default of a single run on an idle multi-core
-#: machine), as (fastest, slowest) of the machines measured, to the first step done from a
-#: fresh install or an empty numba cache.  Slowest: the 2-core AMD EPYC (Zen 3) VM
-#: (session 10) 58.4 s on one thread, 100.8 s for a first run on two threads; the Emerald
-#: Rapids VM (session 9) 47.1 s and 16.5 s more.  Fastest: the model 167 Intel VM, 25.0 s
-#: and 9.0 s more (session 8); there, with the block kernels compiled once for all model
-#: restrictions, 28.1 s on one thread and 33.0 s on two (session 20, fresh venv), 18.1 s
-#: and 9.9 s more (session 21, empty ``NUMBA_CACHE_DIR``).  Warm (cache filled), process
-#: start to the first step done: 2.6-3.1 s (Zen 3), 1.15-1.45 s (Emerald Rapids), 0.96 s
-#: (model 167, session 21).  More on a loaded machine.
+#: machine), as (fastest, slowest) over the machines measured, from a fresh install or an
+#: empty numba cache to the first step done (the measured figures: the documentation's
+#: benchmark pages).  A warm start (cache filled) takes a few seconds; more on a loaded
+#: machine.
 COMPILE_SECONDS = (15.0, 60.0)
 COMPILE_SECONDS_THREADED = (10.0, 40.0)
 #: ... and of the serial (index 0) or threaded (1) drivers alone, when the other drivers ran
-#: before (the per-half functions they share are cached): ~6 s measured for the serial ones
-#: after a two-thread run (Zen 3 VM), 16.5 s for the threaded ones after a one-thread run
-#: (Emerald Rapids VM), 9.9 s (model 167 VM, session 21).
+#: before (the per-half functions they share are cached).
 COMPILE_SECONDS_DRIVERS = ((5.0, 10.0), (10.0, 30.0))
 
 
@@ -389,7 +381,3 @@ class _Bar:
     def close(self):
         self.bar.close()
 
-
-def read_summary(out: str | Path) -> dict:
-    """Read a run's ``summary.json``."""
-    return json.loads((Path(out) / "summary.json").read_text())

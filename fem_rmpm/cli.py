@@ -1,7 +1,9 @@
-"""Command line: ``fem-rmpm run | fem | mc | fs | field``.
+"""Command line: ``fem-rmpm run | fem | mc | fs | field | report``.
 
-Exit codes: 0 success, 2 bad input (scene, data file, options), 3 the
-simulation failed (unstable, Newton did not converge, ...), 130 interrupted.
+It parses the arguments, calls :mod:`fem_rmpm.api`, :mod:`fem_rmpm.campaign` or
+:mod:`fem_rmpm.io.field_output`, and prints their results.  Exit codes: 0 success, 2 bad
+input (scene, data file, options), 3 the simulation failed (unstable, Newton did not
+converge, ...), 130 interrupted.
 Errors are one line on stderr, never a traceback (``--debug`` shows it).
 The CLI is the top layer: nothing in the package imports it.
 """
@@ -11,40 +13,25 @@ import argparse
 import sys
 import time
 import tomllib
-from dataclasses import replace
-from importlib import resources
-from pathlib import Path
 
 import numpy as np
 
 from fem_rmpm import (
     api,
-    campaign,  # its cluster and runner modules (dask, ~0.65 s) load on first use
-    materials,
+    campaign,  # its cluster and runner modules (dask) load on first use
 )
+from fem_rmpm.campaign.cases import campaign_cases, default_scene_path
 from fem_rmpm.campaign.report import ReportError, write_report
-from fem_rmpm.discretise.grid import make_grid
-from fem_rmpm.discretise.points import seed_particles
-from fem_rmpm.io.field_output import plot_realization, plot_variogram, write_field_vtu
-from fem_rmpm.io.output import OutputError, write_json
+from fem_rmpm.campaign.summary_text import subset_summary_text, summary_text
+from fem_rmpm.io import field_output
+from fem_rmpm.io.output import OutputError
 from fem_rmpm.io.rundir import output_dir_for
-from fem_rmpm.random_field import (
-    apply_to_points,
-    embeddings_for,
-    field_layout,
-    fit_scales,
-    point_fields,
-    read_measurements,
-)
-from fem_rmpm.random_field.conditioning import resolve_data_path
 from fem_rmpm.runtime.errors import InputError
 from fem_rmpm.scene import (
-    RandomFieldSpec,
     Scene,
     SceneError,
     check_seed,
     load_scene,
-    scene_to_dict,
     with_value,
     with_values,
 )
@@ -53,12 +40,6 @@ from fem_rmpm.schemes.implicit.strength_reduction import fs_cli
 
 __all__ = ["main", "default_scene_path", "build_parser", "parse_settings", "summary_text",
            "campaign_cases", "InputError"]
-
-
-def default_scene_path() -> Path:
-    """The embedded default scene: the reference slope of the RMPM paper (Wang, Vardon &
-    Hicks 2017; ``fem_rmpm/data/slope_reference.toml``)."""
-    return Path(str(resources.files("fem_rmpm") / "data" / "slope_reference.toml"))
 
 
 def _scene_arg(p: argparse.ArgumentParser, optional: bool = False) -> None:
@@ -120,105 +101,8 @@ def _cmd_fem(a) -> int:
 
 # --------------------------------------------------------------------------- mc
 
-def _is_default_scene(path: str | Path) -> bool:
-    try:
-        return Path(path).resolve() == default_scene_path().resolve()
-    except OSError:  # pragma: no cover
-        return False
-
-
-def campaign_cases(scene: Scene, scene_path: str | Path | None = None) -> list[str]:
-    """Cases of a campaign run from the command line: ``[montecarlo] cases`` if the scene
-    has that key, the four :data:`LITERATURE_CASES` for the embedded default scene,
-    else the scene itself."""
-    listed = tuple(getattr(scene.montecarlo, "cases", ()) or ())
-    if listed:
-        return list(listed)
-    if scene_path is not None and _is_default_scene(scene_path):
-        return list(campaign.LITERATURE_CASES)
-    return ["scene"]
-
-
-_MECHANISM_TEXT = (("slip_surface_height", "slip-surface height", " m"),
-                   ("intact_blocks", "intact blocks", ""),
-                   ("sliding_area_early", "early sliding area", " m2"))
-
-
-def summary_text(res: campaign.CampaignResult) -> str:
-    """The final one-paragraph-per-case summary printed by ``fem-rmpm mc``."""
-    lines = []
-    rph = res.realizations_per_hour
-    head = (f"Campaign in {res.out}: {sum(res.realizations.values())} realizations in "
-            f"{len(res.cases)} case(s); ")
-    if res.computed or res.lost:
-        head += (f"this run computed {res.computed} (skipped {res.skipped} already "
-                 f"finished) on {res.workers} in {res.wall_time:.1f} s"
-                 + (f" ({rph:.0f} realizations/hour)" if rph else "") + ".")
-    else:
-        head += f"all {res.skipped} had finished before; tables and figures rebuilt."
-    lines.append(head)
-    for c in res.cases:
-        s = res.stats[c.name]
-        head = f"  {c.label}: " + ("deterministic (no random field), 1 realization; "
-                                   if c.deterministic else f"N = {s['ok']} ok")
-        if not c.deterministic:
-            head += (f", {s['numerical_failures']} failed numerically" if
-                     s["numerical_failures"] else "") + "; "
-        if s["ok"] == 0:
-            lines.append(head + "no realization finished"
-                         + (f" (first error: {s['errors'][0]['error']})" if s["errors"] else ""))
-            continue
-        if not s.get("mpm_runs"):                      # --fs-only
-            lines.append(head + campaign.fs_text(s.get("fs")))
-            continue
-        if c.deterministic:
-            r, t, a = (s[k]["mean"] for k in ("runout_distance", "retrogression_distance",
-                                              "sliding_area"))
-            mech = "".join(f", {lab} {s[k]['mean']:.2f}{unit}"
-                           for k, lab, unit in _MECHANISM_TEXT if k in s)
-            lines.append(head + f"failed = {bool(s['slope_failures'])}, run-out {r:.2f} m, "
-                         f"retrogression {t:.2f} m, sliding area {a:.1f} m2{mech}"
-                         + (f"; {campaign.fs_text(s['fs'])}" if s.get("fs") else ""))
-            continue
-        lo, hi = s["wilson95"]
-        txt = (f"P(failure) = {s['p_failure']:.3f} +- {s['se']:.3f} (SE sqrt(p(1-p)/N); "
-               f"Wilson 95 % [{lo:.2f}, {hi:.2f}])")
-        if s.get("measure_runs", s["ok"]) < s["mpm_runs"]:    # [montecarlo] runs_to_rest
-            txt += f"; measures over the {s['measure_runs']} run(s) to rest"
-        for key, lab, unit in (("runout_distance", "run-out", "m"), ("retrogression_distance",
-                               "retrogression", "m"), ("sliding_area", "sliding area", "m2")):
-            d = s[key]
-            txt += "" if d["mean"] is None else (
-                f"; {lab} mean {d['mean']:.2f} +- {d['se']:.2f} {unit} "
-                f"(5/50/95 %: {d['q05']:.2f}/{d['q50']:.2f}/{d['q95']:.2f})")
-        mech = [(k, lab, unit) for k, lab, unit in _MECHANISM_TEXT if k in s]
-        if mech:
-            txt += "; mean " + ", ".join(f"{lab} {s[k]['mean']:.2f}{unit}"
-                                         for k, lab, unit in mech)
-        conv = s.get("convergence")
-        if conv and s["ok"] >= 4:
-            idx = sorted({s["ok"] // 4 - 1, s["ok"] // 2 - 1, s["ok"] - 1})
-            txt += ("; with N = " + ", ".join(str(conv["n"][i]) for i in idx)
-                    + ": P(failure) " + ", ".join(f"{conv['p_failure'][i]:.2f}" for i in idx)
-                    + ("" if len(conv["mean_runout"]) < len(conv["n"]) else ", mean run-out "
-                       + ", ".join(f"{conv['mean_runout'][i]:.1f}" for i in idx) + " m"))
-        lines.append(head + txt + (f"; {campaign.fs_text(s['fs'])}" if s.get("fs") else ""))
-        if s["numerical_failures"]:
-            e = s["errors"][0]
-            lines.append(f"    first failed realization: #{e['index']} (seed {e['seed']}): "
-                         f"{e['error']}")
-    if res.lost:
-        lines.append(f"  {len(res.lost)} realization(s) LOST (their workers died; no record): "
-                     + "; ".join(res.lost[:3]) + " -- re-run the same command to compute them")
-    figs = ", ".join(p.name for p in res.figures)
-    lines.append(f"Output: results.csv, summary.json, records/"
-                 + (", vtk/" if (res.out / "vtk").exists() else "")
-                 + (f", {figs}" if figs else "") + f" in {res.out}")
-    return "\n".join(lines)
-
-
-def _cmd_mc_subset(a, scene: Scene, cluster: campaign.ClusterSpec) -> int:
-    """``fem-rmpm mc --method subset``: P(response beyond threshold) by subset simulation
+def _cmd_mc_response(a, scene: Scene, cluster: campaign.ClusterSpec) -> int:
+    """``fem-rmpm mc --method subset``: P(response beyond threshold) by a response method
     on the same cluster options as crude Monte Carlo (``--cluster``, ``--scheduler``)."""
     for opt, val in (("--keep-vtk", a.keep_vtk), ("--case", a.case)):
         if val is not None:
@@ -230,8 +114,9 @@ def _cmd_mc_subset(a, scene: Scene, cluster: campaign.ClusterSpec) -> int:
                                        p0=0.1 if a.p0 is None else a.p0,
                                        n=a.realizations, workers=a.workers,
                                        scheduler=a.scheduler, force=a.force,
-                                       progress=not a.quiet, cluster=cluster)
-    print(campaign.subset_summary_text(res))
+                                       progress=not a.quiet, cluster=cluster,
+                                       method=a.method)
+    print(subset_summary_text(res))
     return 3 if res.lost else 0
 
 
@@ -246,11 +131,11 @@ def _cmd_mc(a) -> int:
                                    interface=a.interface,
                                    job_directives=tuple(a.job_directive or ()),
                                    adapt=campaign.parse_adapt(a.adapt))
-    if a.method == "subset":
+    if campaign.METHODS[a.method].response:
         if a.fs or a.fs_only:
             raise InputError("--fs / --fs-only: only for crude campaigns (--method crude); "
                              "use --response factor_of_safety for subset simulation")
-        return _cmd_mc_subset(a, scene, cluster)
+        return _cmd_mc_response(a, scene, cluster)
     if a.fs:
         scene = with_value(scene, "montecarlo.factor_of_safety", True)
     given = [o for o, v in (("--response", a.response), ("--threshold", a.threshold),
@@ -268,90 +153,12 @@ def _cmd_mc(a) -> int:
     res = campaign.run_campaign(scene, a.out, realizations=a.realizations, cases=cases,
                                 workers=a.workers, scheduler=a.scheduler, force=a.force,
                                 keep_vtk=a.keep_vtk, progress=not a.quiet, cluster=cluster,
-                                fs_only=a.fs_only)
+                                fs_only=a.fs_only, method=a.method)
     print(summary_text(res))
     return 3 if res.lost else 0
 
 
 # --------------------------------------------------------------------------- field
-
-def _field_scene(a) -> tuple[Scene, str]:
-    """The scene of ``fem-rmpm field``; without a ``[random_field]``, the literature's
-    default field (and a note saying so)."""
-    scene = load_scene(a.scene)
-    if scene.random_field is not None:
-        return scene, ""
-    scene = with_value(scene, "random_field.anisotropy", RandomFieldSpec().anisotropy)
-    return scene, (" The scene has no [random_field] section, so this is the default field "
-                   "(add [random_field] to use a field in runs).")
-
-
-def _field_fit(path: str, rf: RandomFieldSpec, out: Path) -> str:
-    """``--fit CSV``: fit the scales, write ``fit.json`` and ``variogram.png``, print the
-    result; returns the sentence for the final summary."""
-    meas = read_measurements(path, key="fit")
-    fit = fit_scales(meas.x, meas.y, meas.value, log=rf.distribution == "lognormal",
-                     source=meas.source, group=meas.group)
-    write_json(out / "fit.json", {"data": meas.source, **fit.as_dict()})
-    plot_variogram(out / "variogram.png", fit, f"{Path(meas.source).name}: Markov fit")
-    print(f"fit of {meas.source}: theta_v = {fit.theta_v:.4g} m, theta_h = "
-          f"{fit.theta_h:.4g} m (xi = {fit.anisotropy:.3g}), sill {fit.sill:.3g}"
-          f"{' of ln(value)' if fit.log else ''}; written {out / 'fit.json'}")
-    return (f" The variogram fit of {Path(meas.source).name} gives theta_v = "
-            f"{fit.theta_v:.3g} m and theta_h = {fit.theta_h:.3g} m (set them with "
-            "random_field.theta_v / anisotropy to use them).")
-
-
-def _field_on_points(pts, name: str, values: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Give the points the realization's value of property ``name`` (as ``api.prepare``, a
-    residual in proportion); returns the value shown per point: the field on the field's
-    soils, the soil's value elsewhere, -1 where that is infinite (linear elastic)."""
-    base = getattr(pts.soil, name)
-    finite = np.isfinite(base)
-    pts.soil = apply_to_points(pts.soil, {name: np.where(mask & finite, values, base)})
-    return np.where(mask, values, np.where(finite, base, -1.0))
-
-
-def _field_property(scene: Scene, name: str | None) -> tuple[int, RandomFieldSpec]:
-    """``--property``: the index and spec of the field shown (default: the first)."""
-    fields = scene.random_field.fields()
-    names = [f.property for f in fields]
-    if name is None:
-        return 0, fields[0]
-    if name not in names:
-        raise InputError(f"--property {name}: [property] not a random property of "
-                         f"{scene.source}; allowed: {' | '.join(names)}")
-    return names.index(name), fields[names.index(name)]
-
-
-def _field_text(scene: Scene, rf: RandomFieldSpec, seed: int, layout, emb, meas,
-                v: np.ndarray) -> str:
-    """The one-paragraph summary of ``fem-rmpm field`` (without note, fit and output)."""
-    unit = materials.registry.parameter(rf.property).unit
-    xi = rf.anisotropy
-    avg = (f"local averages over {layout.cell[0]:g} x {layout.cell[1]:g} m cells (variance "
-           f"{emb.variance:.3f})" if rf.local_averaging else
-           f"point values at the centres of {layout.cell[0]:g} x {layout.cell[1]:g} m cells")
-    return (f"{scene.scene.name}: {rf.distribution} random field of {rf.property} (COV "
-            f"{rf.cov:g}, theta_v {rf.theta_v:g} m, theta_h {rf.theta_v * xi:g} m, xi {xi:g}, "
-            f"{rf.correlation.replace('markov_', '')} Markov, layering "
-            f"{rf.layering_angle_deg:g} deg to the grid x axis) as {avg} on {layout.shape[0]} x "
-            f"{layout.shape[1]} field cells, seed {seed}, circulant embedding {emb.padded[0]} x "
-            f"{emb.padded[1]} (lambda_min/lambda_max {emb.lambda_min / emb.lambda_max:.1e}, "
-            f"{'exact' if emb.clipped == 0 else f'clipped {emb.clipped:.1e}'})"
-            + _cross_text(scene, rf)
-            + (f", conditioned on {len(meas.x)} measurements of {meas.source}" if meas else "")
-            + f"; {len(v)} material points get {v.min():.3g} to {v.max():.3g} {unit} "
-            f"(mean {v.mean():.3g}, COV {v.std() / v.mean():.3g}).")
-
-
-def _cross_text(scene: Scene, rf: RandomFieldSpec) -> str:
-    """``, cross-correlated with X (rho r), ...`` when the field has several properties."""
-    names = [f.property for f in scene.random_field.fields()]
-    R, k = scene.random_field.cross_correlation or np.eye(len(names)), names.index(rf.property)
-    return "" if len(names) == 1 else ", cross-correlated with " + ", ".join(
-        f"{n} (rho {R[k][j]:g})" for j, n in enumerate(names) if j != k)
-
 
 def _cmd_fs(a) -> int:
     scene = scene_from_args(a)
@@ -362,39 +169,16 @@ def _cmd_fs(a) -> int:
 def _cmd_field(a) -> int:
     """``fem-rmpm field [SCENE] --seed S --out DIR [--data CSV] [--fit CSV]``."""
     t0 = time.perf_counter()
-    scene, note = _field_scene(a)
-    k, rf = _field_property(scene, getattr(a, "property", None))
+    scene, note = field_output.field_scene(a.scene)
+    k, rf = field_output.field_property(scene, getattr(a, "property", None))
     seed = scene.montecarlo.seed if getattr(a, "seed", None) is None else check_seed(a.seed)
     with output_dir_for(a.out) as out:          # bad input leaves no directory behind
-        fit_text = _field_fit(a.fit, rf, out) if getattr(a, "fit", None) else ""
-        grid = make_grid(scene)
-        pts = seed_particles(scene, grid)
-        layout = field_layout(scene, grid)
-        emb = embeddings_for(scene, layout)[k]
-        path = resolve_data_path(scene, getattr(a, "data", None), rf)
-        meas = read_measurements(path) if path is not None else None
-        values, mask = point_fields(scene, grid, pts, seed, meas, data_index=k)
-        values = values[rf.property]
-        shown = _field_on_points(pts, rf.property, values, mask)
-        write_field_vtu(out / "field.vtu", pts, shown)
-        unit = materials.registry.parameter(rf.property).unit
-        label = f"{rf.property.replace('_', ' ')} ({unit})"
-        title = (f"{scene.scene.name}: {label}, {rf.distribution}, COV {rf.cov:g}, "
-                 f"theta_v {rf.theta_v:g} m, xi = {rf.anisotropy:g}, seed {seed}"
-                 + (f", conditioned on {len(meas.x)} data" if meas is not None else ""))
-        plot_realization(out / "field.png", scene, pts, shown, mask, title, label=label)
-        v = values[mask]
-        write_json(out / "field.json", {
-            "scene_file": scene.source, "seed": seed, "property": rf.property,
-            "random_field": scene_to_dict(scene)["random_field"],
-            "field_cells": list(layout.shape), "field_cell_size": layout.cell.tolist(),
-            "embedding": list(emb.padded), "lambda_min": emb.lambda_min,
-            "lambda_min_over_max": emb.lambda_min / emb.lambda_max, "clipped": emb.clipped,
-            "cell_variance": emb.variance, "points": int(mask.sum()),
-            "min": float(v.min()), "mean": float(v.mean()), "max": float(v.max()),
-            "std": float(v.std()), "conditioned_on": None if meas is None else meas.source,
-            "wall_time": time.perf_counter() - t0})
-        print(_field_text(scene, rf, seed, layout, emb, meas, v) + f"{note}{fit_text} Output: "
+        fit_text = ""
+        if getattr(a, "fit", None):
+            line, fit_text = field_output.fit_measurements(a.fit, rf, out)
+            print(line)
+        text = field_output.write_field(scene, out, seed, k, rf, getattr(a, "data", None), t0)
+        print(text + f"{note}{fit_text} Output: "
               f"{out / 'field.vtu'}, {out / 'field.png'}, {out / 'field.json'} "
               f"({time.perf_counter() - t0:.2f} s).")
     return 0
@@ -516,9 +300,9 @@ def _add_mc(sub) -> None:
                    "factor_of_safety = true)")
     m.add_argument("--fs-only", action="store_true", help="the factor of safety of every "
                    "realization instead of its MPM run")
-    m.add_argument("--method", choices=("crude", "subset"), default="crude",
-                   help="crude Monte Carlo (default) or subset simulation of a small "
-                   "probability (then -n is the samples per level, default 1000)")
+    m.add_argument("--method", choices=tuple(campaign.METHODS), default="crude",
+                   help="; ".join(f"{k}: {e.help}" for k, e in campaign.METHODS.items())
+                   + " (default crude; for subset -n is the samples per level, default 1000)")
     m.add_argument("--response", default=None,
                    help="subset: runout_distance, sliding_area, retrogression_distance, "
                    "max_displacement (failure: above --threshold) or factor_of_safety "

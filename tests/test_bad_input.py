@@ -1,4 +1,4 @@
-"""Bad input everywhere (issue 12, acceptance 3): one test per bad input.
+"""Bad input everywhere: one test per bad input.
 
 Each case runs the real command line (``fem_rmpm.cli.main``) and checks exit code 2,
 exactly one line on stderr naming the option or file and what is allowed, no

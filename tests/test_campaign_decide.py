@@ -4,7 +4,7 @@ A realization is a pure function of scene and seed, so a run stopped once its fa
 decided is the run to rest up to that time: P(failure) must be the same, record by record,
 as with every run to rest, and the measures must come from the runs to rest only.
 Scene: ``tests/data/mc_tiny.toml`` (152 points, ~20 ms per realization; failure_displacement
-0.1 m, outputs every 0.5 s), on the session's two-worker cluster.
+0.1 m, outputs every 0.5 s), on the test run's two-worker cluster.
 """
 from __future__ import annotations
 

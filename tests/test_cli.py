@@ -1,4 +1,4 @@
-"""The command line as a user meets it (issue 12, "first use"): every option of every
+"""The command line as a user meets it on first use: every option of every
 subcommand has a help text, every ``--help`` lists the exit codes, and ``fem-rmpm mc``
 takes ``--set KEY=VALUE`` and ``--case SPEC`` like ``run`` takes ``--set``, with the
 change recorded in the campaign's identity (``campaign.json``)."""
@@ -51,10 +51,10 @@ def test_help_lists_the_exit_codes(argv, capsys):
 
 
 def test_mc_set_and_case_recorded_in_campaign_identity(tmp_path, capsys, dask_scheduler):
-    """Acceptance 5 of issue 12 on the tiny scene (the reference slope's form of the same
-    command, ``fem-rmpm mc --set solver.t_end=5 --case xi=12 -n 2``, is in the notes):
-    the campaign runs the one case with the changed end time, campaign.json records it,
-    and the same directory with another --set is refused (exit 2, nothing changed)."""
+    """``mc --set`` and ``--case`` on the tiny scene (on the reference slope the same
+    command reads ``fem-rmpm mc --set solver.t_end=5 --case xi=12 -n 2``): the campaign
+    runs the one case with the changed end time, campaign.json records it, and the same
+    directory with another --set is refused (exit 2, nothing changed)."""
     out = tmp_path / "mc"
     argv = ["mc", str(TINY), "--set", "solver.t_end=0.5", "--case", "xi=12", "-n", "2",
             "--scheduler", dask_scheduler, "--quiet", "--out", str(out)]

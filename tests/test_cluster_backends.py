@@ -1,4 +1,4 @@
-"""Cluster backends and ``--dry-run`` without a batch system (issue 19).
+"""Cluster backends and ``--dry-run`` without a batch system.
 
 The tests that need a real SLURM are in ``tests/test_slurm.py`` (marker ``slurm``).
 Here: option checking (one line, exit 2, nothing written), the job scripts dask-jobqueue
@@ -112,7 +112,7 @@ def test_fewer_threads_than_asked_is_one_warning_line():
     as many as asked, more, or records without a thread count (older campaigns): none."""
     from types import SimpleNamespace
 
-    from fem_rmpm.campaign.runner import thread_shortfall
+    from fem_rmpm.campaign.case_campaign import thread_shortfall
     from fem_rmpm.scene import with_values
     scene = load_scene(TINY)
     cases = [SimpleNamespace(name="a", scene=with_values(scene, {"solver.threads": 2})),

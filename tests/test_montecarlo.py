@@ -1,4 +1,4 @@
-"""Monte Carlo campaigns on Dask (issue 6): reproducible, resumable, lossless.
+"""Monte Carlo campaigns on Dask: reproducible, resumable, lossless.
 
 Scenes: ``tests/data/mc_tiny.toml`` (152 points, ~20 ms per realization) and
 ``tests/data/mc_slow.toml`` (624 points, ~0.3 s; for the tests that kill a worker or
@@ -28,6 +28,7 @@ import pytest
 
 from fem_rmpm import api, cli
 from fem_rmpm import campaign as mc
+from fem_rmpm.campaign import methods as cm
 from fem_rmpm.campaign import store
 from fem_rmpm.runtime.machine import cpu_model
 
@@ -91,7 +92,7 @@ def _env() -> dict:
 
 @pytest.fixture(scope="module")
 def client(dask_client):
-    """The session's local cluster (2 single-thread worker processes, tests/conftest.py),
+    """The test run's local cluster (2 single-thread worker processes, tests/conftest.py),
     shared by the tests that do not test cluster start-up itself."""
     return dask_client
 
@@ -174,14 +175,14 @@ def test_cases_and_keep_vtk_parsing():
             mc.parse_keep_vtk(bad)
 
 
-# --------------------------------------------------------------------------- acceptance 1
+# --------------------------------------------------------------------------- workers
 
 def test_one_and_two_workers_give_identical_tables(tmp_path, client):
-    """Acceptance 1: the same campaign on 1 and on 2 local worker processes writes the
+    """The same campaign on 1 and on 2 local worker processes writes the
     same results.csv byte for byte (measures bitwise equal), and each row equals the
     realization run alone in this process with api.run(scene, seed=realization_seed).
     One worker: ``fem-rmpm mc --workers 1`` in a subprocess (its own LocalCluster); two:
-    the session's shared cluster (a second in-process cluster start is what flaked)."""
+    the test run's shared cluster (one in-process cluster start per test run)."""
     scene = api.load_scene(TINY)
     r1 = subprocess.run([sys.executable, "-m", "fem_rmpm.cli", "mc", str(TINY), "-n", "6",
                          "--workers", "1", "--quiet", "--out", str(tmp_path / "w1")],
@@ -216,7 +217,7 @@ def test_one_and_two_workers_give_identical_tables(tmp_path, client):
                                            "cpu_model": cpu_model(), "runs": 6}]
 
 
-# --------------------------------------------------------------------------- acceptance 2
+# --------------------------------------------------------------------------- running cluster
 
 @pytest.fixture
 def loopback_cluster(tmp_path):
@@ -258,7 +259,7 @@ def loopback_cluster(tmp_path):
 
 
 def test_loopback_cluster_survives_a_killed_worker(tmp_path, loopback_cluster, slow_reference):
-    """Acceptance 2: a real scheduler and two workers on 127.0.0.1 (separate processes
+    """A real scheduler and two workers on 127.0.0.1 (separate processes
     started with the dask CLI); one worker is SIGKILLed in the middle of the campaign;
     Dask moves its task to the other worker; every realization is recorded exactly once
     and the table equals the local single-worker campaign bitwise."""
@@ -291,10 +292,10 @@ def test_loopback_cluster_survives_a_killed_worker(tmp_path, loopback_cluster, s
     assert _table(out) == _table(slow_reference)
 
 
-# --------------------------------------------------------------------------- acceptance 3
+# --------------------------------------------------------------------------- resuming
 
 def test_sigkill_of_the_client_then_rerun_finishes_only_the_missing(tmp_path, slow_reference):
-    """Acceptance 3: `fem-rmpm mc` is SIGKILLed (the client process only) after its first
+    """`fem-rmpm mc` is SIGKILLed (the client process only) after its first
     records; its local workers exit with it (they watch their parent); re-running the
     same command computes only the realizations without a record, and the final table
     equals the uninterrupted campaign's bitwise."""
@@ -343,10 +344,10 @@ def test_larger_n_appends_and_force_recomputes(tmp_path, client):
     assert _table(out) == table
 
 
-# --------------------------------------------------------------------------- acceptance 4
+# --------------------------------------------------------------------------- failures
 
 def test_failed_realization_is_recorded_with_its_message(tmp_path, client):
-    """Acceptance 4: with softening_strain = 0.022 the softening modulus
+    """With softening_strain = 0.022 the softening modulus
     h = (c_peak - c_res) / softening_strain reaches the shear modulus for points whose
     random peak cohesion is high, which api.prepare refuses (SimulationError) for some
     seeds only.  Those realizations are listed as failed with the message api.run gives
@@ -395,7 +396,7 @@ def test_unstable_case_fails_loudly_and_other_cases_complete(tmp_path, client):
     assert [r["seed"] for r in rows[:3]] == [r["seed"] for r in rows[3:]]
 
 
-# --------------------------------------------------------------------------- acceptance 5
+# --------------------------------------------------------------------------- bad input
 
 def _one_line_error(capsys, argv) -> str:
     code = cli.main(argv)
@@ -406,7 +407,7 @@ def _one_line_error(capsys, argv) -> str:
 
 
 def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys):
-    """Acceptance 5: N <= 0, an unreachable scheduler, a bad address, --workers 0, a bad
+    """N <= 0, an unreachable scheduler, a bad address, --workers 0, a bad
     --keep-vtk: exit 2 with one line, and no campaign directory is created."""
     out = tmp_path / "none"
     for argv, words in (
@@ -439,11 +440,11 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys):
 
 
 def test_directory_of_another_campaign_is_refused_untouched(tmp_path, capsys, client):
-    """Acceptance 5: an output directory that holds a different scene's campaign (here:
+    """An output directory that holds a different scene's campaign (here:
     another peak cohesion, another seed, other cases) or something that is not a campaign
     is refused with one line naming the difference; not a byte or a time stamp changes,
-    also with --force.  (The two campaigns that do run use the module's shared cluster: a
-    second in-process LocalCluster started by the CLI flaked in distributed's loop start.)"""
+    also with --force.  (The two campaigns that do run use the module's shared cluster
+    rather than a second in-process LocalCluster.)"""
     out = tmp_path / "camp"
     mc.run_campaign(api.load_scene(TINY), out, 2, client=client, progress=False, keep_vtk="0")
     capsys.readouterr()
@@ -534,11 +535,11 @@ def test_default_scene_runs_the_literature_cases():
     assert cli.campaign_cases(api.load_scene(TINY), TINY) == ["scene"]
 
 
-# --------------------------------------------------------------------------- acceptance 6
+# --------------------------------------------------------------------------- validation script
 
 def test_validation_script_writes_the_case_figures(tmp_path):
-    """Acceptance 6 (machinery): validation/montecarlo_cases.py on the tiny scene with
-    N = 2 runs the four literature cases (the deterministic one once) with common random
+    """validation/montecarlo_cases.py on the tiny scene with N = 2 runs the four
+    literature cases (the deterministic one once) with common random
     numbers, writes results.csv, summary.json and the figures (valid PNGs), and prints per
     case the P(failure) that the table's rows give."""
     import csv
@@ -573,3 +574,44 @@ def test_validation_script_writes_the_case_figures(tmp_path):
 # tests/test_readme_figures.py::test_four_literature_cases_match_docs
 # (slow; it writes to a temporary directory, not validation/out).
 
+
+
+# --------------------------------------------------------------------------- campaign methods
+
+class _FirstN(cm.BatchMethod):
+    """A toy case method: realizations 0 .. n-1 asked for one at a time (n batches), the
+    same samples as crude Monte Carlo in another batching; P = k/n."""
+    name = "first_n"
+
+    def __init__(self, n: int, seed: int):
+        self.n, self.seed, self.on_failure = n, seed, "reject"
+        self._start()
+
+    def _process(self):
+        ys = []
+        for i in range(self.n):
+            y = yield [cm.Sample(0, i, 0, seed=mc.realization_seed(self.seed, i))]
+            ys.extend(y)
+        k = int(np.count_nonzero(np.asarray(ys) > 0.5))
+        return cm.MethodResult("first_n", 0.5, k / self.n, math.nan, self.n)
+
+
+def test_a_method_of_the_table_runs_through_the_one_runner_from_the_command_line(
+        tmp_path, monkeypatch, dask_scheduler):
+    """A third method registered in ``METHODS`` (one row) is a ``--method`` choice and runs
+    through the campaign runner: its one-sample batches give the records, table and
+    statistics of the crude campaign of the same N (the samples are the same realizations,
+    a pure function of their seed)."""
+    monkeypatch.setitem(mc.METHODS, "first_n", cm.MethodEntry(
+        lambda o: _FirstN(o.n, o.seed), response=False, help="toy: 0 .. n-1, one at a time"))
+    tables = {}
+    for method in ("first_n", "crude"):
+        out = tmp_path / method
+        argv = ["mc", str(TINY), "-n", "3", "--out", str(out), "--quiet", "--keep-vtk", "0",
+                "--scheduler", dask_scheduler, "--method", method]
+        assert cli.main(argv) == 0
+        assert _summary(out)["this_run"]["computed"] == 3
+        tables[method] = (_table(out), _summary(out)["cases"])
+    assert tables["first_n"] == tables["crude"]
+    assert cli.main(argv[:-1] + ["first_n"]) == 0      # crude's records serve first_n
+    assert _summary(tmp_path / "crude")["this_run"]["computed"] == 0

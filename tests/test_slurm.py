@@ -1,4 +1,4 @@
-"""Campaigns through a real SLURM (issue 19): the single-node cluster that ``.ci/run``
+"""Campaigns through a real SLURM: the single-node cluster that ``.ci/run``
 starts with ``.ci/slurm-start.sh``.  Marked ``slurm``: skipped without a running SLURM,
 failed under CI=true (tests/conftest.py).
 
@@ -121,7 +121,7 @@ def local_reference(tmp_path_factory, config_dir) -> Path:
 
 def test_campaign_through_slurm_equals_the_local_campaign_bitwise(tmp_path, config_dir,
                                                                   local_reference):
-    """Acceptance 1: 4 realizations through `--cluster slurm` (2 worker jobs): results.csv
+    """4 realizations through `--cluster slurm` (2 worker jobs): results.csv
     is bitwise identical to the local cluster's; the records name the SLURM workers;
     the worker jobs are gone afterwards."""
     out = tmp_path / "slurm"
@@ -140,7 +140,7 @@ def test_campaign_through_slurm_equals_the_local_campaign_bitwise(tmp_path, conf
 
 
 def test_scancel_of_a_worker_job_mid_realization_loses_nothing(tmp_path, config_dir):
-    """Acceptance 2: one of two worker jobs is scancelled while it runs a realization (the
+    """One of two worker jobs is scancelled while it runs a realization (the
     job whose worker has just written the first record, so it is computing its next
     realization of ~1-10 s); Dask moves that realization to the other worker; the
     campaign completes with every realization recorded exactly once, none lost, and the
@@ -189,7 +189,7 @@ def test_scancel_of_a_worker_job_mid_realization_loses_nothing(tmp_path, config_
 ])
 def test_refused_jobs_are_one_line_exit_2_and_nothing_written(tmp_path, config_dir, args,
                                                               says):
-    """Acceptance 4: a queue that does not exist (SLURM's own refusal) and a memory request
+    """A queue that does not exist (SLURM's own refusal) and a memory request
     above the node's: exit 2, one line, no campaign directory, no job left; the same
     for --dry-run."""
     out = tmp_path / "c"
@@ -204,7 +204,7 @@ def test_refused_jobs_are_one_line_exit_2_and_nothing_written(tmp_path, config_d
 
 
 def test_a_directory_the_workers_do_not_share_is_refused(tmp_path, config_dir):
-    """Acceptance 4: the worker jobs run in a private mount namespace where the campaign
+    """The worker jobs run in a private mount namespace where the campaign
     directory is an empty tmpfs of their own (like /tmp of a login node seen from a compute
     node): exit 2 with one line naming the directory and the shared-file-system rule; no
     realization ran, and the campaign can then be run from a shared directory."""

@@ -1,4 +1,4 @@
-"""Subset simulation over standard-normal noise (fem_rmpm.campaign.subset), without the MPM.
+"""Subset simulation over standard-normal noise (fem_rmpm.campaign.methods), without the MPM.
 
 References: the exact probabilities of the limit states below (a linear one, P = Phi(-beta),
 and the exterior of a hypersphere, P = chi-square survival function) and the formulas of
@@ -12,7 +12,7 @@ import pytest
 from scipy.stats import chi2, norm
 
 from fem_rmpm.campaign.cases import realization_seed
-from fem_rmpm.campaign.subset import (
+from fem_rmpm.campaign.methods import (
     CrudeMonteCarlo,
     SubsetError,
     SubsetSimulation,
@@ -45,13 +45,13 @@ CASES = {   # name: (response, threshold, exact P)
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_subset_estimate_and_its_cov_over_20_runs(case):
-    """Acceptance 1: 20 runs of N = 1000 per level, p0 = 0.1, n = 1000 dimensions; the mean
+    """20 runs of N = 1000 per level, p0 = 0.1, n = 1000 dimensions; the mean
     estimate within 10 % of the exact P and the sample COV of the 20 estimates within a
     factor 1.5 of the mean of the method's own COV estimate (Au & Beck eq. 29).
 
     Achieved (seeds 0-19): mean/exact - 1 = +1.7 %, +1.5 %, -6.1 % and sample/own COV =
     0.83, 1.20, 1.09 for the three cases.  The standard error of a 20-run mean is
-    COV/sqrt(20) = 5.3 %, 6.7 % and 5.4 %, so the 10 % bound (the issue's target) is only
+    COV/sqrt(20) = 5.3 %, 6.7 % and 5.4 %, so the 10 % bound is only
     1.5-1.9 standard errors: other seeds would fail it about one time in ten.  The sample
     COV of 20 values has a relative standard error of 1/sqrt(2 * 19) = 16 %, so the factor
     1.5 is about 2.5 of them."""

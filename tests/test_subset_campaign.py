@@ -1,4 +1,4 @@
-"""Subset-simulation campaigns of a scene on Dask (issue 18, acceptance 4 and 5).
+"""Subset-simulation campaigns of a scene on Dask: resumed after a kill, reused records.
 
 Scene: ``tests/data/mc_tiny.toml`` (152 points, ~15 ms of CPU per realization); the
 response is the maximum displacement, threshold 1 m (P ~ 0.07 with N = 100 per level:
@@ -78,7 +78,7 @@ def _wait_records(out: Path, proc, at_least: int, timeout: float = 300.0) -> Non
 
 def test_sigkill_during_a_level_then_rerun_on_two_workers_equals_one_worker(tmp_path, reference,
                                                                           dask_scheduler):
-    """Acceptance 4: `fem-rmpm mc --method subset` on 2 workers is SIGKILLed (the client)
+    """`fem-rmpm mc --method subset` on 2 workers is SIGKILLed (the client)
     during level 1 (after 100 level-0 records and at least 5 chain samples); the same
     command again computes only the samples without a record; estimate, thresholds and
     every record (but where and how long it ran) equal the 1-worker uninterrupted run."""
@@ -99,7 +99,7 @@ def test_sigkill_during_a_level_then_rerun_on_two_workers_equals_one_worker(tmp_
         proc.stderr.close()
     done = len(list((out / "records").glob("L*.json")))
     assert 105 <= done < 190 and not (out / "summary.json").exists()
-    # the rerun in this process, on the session's 2-worker cluster (tests/conftest.py)
+    # the rerun in this process, on the test run's 2-worker cluster (tests/conftest.py)
     argv[argv.index("--workers"):argv.index("--workers") + 2] = ["--scheduler", dask_scheduler]
     assert cli.main(argv) == 0
     s = json.loads((out / "summary.json").read_text())
@@ -133,7 +133,7 @@ def test_records_hold_the_position_and_replay_the_noise(reference):
 
 def test_a_common_threshold_reuses_level_zero_and_says_it_is_not_rare(tmp_path, reference,
                                                                      capsys):
-    """Acceptance 5: a threshold most level-0 samples exceed: no new run (the levels do
+    """A threshold most level-0 samples exceed: no new run (the levels do
     not depend on the threshold), the crude estimate and a warning that says so."""
     import shutil
     out = tmp_path / "common"
@@ -193,7 +193,7 @@ def test_another_campaign_in_the_directory_is_refused(tmp_path, reference, capsy
 
 
 def test_subset_refuses_dry_run_in_one_line(tmp_path, capsys):
-    """Issue 18 leftover: ``--dry-run`` estimates crude campaigns only (a subset campaign's
+    """``--dry-run`` estimates crude campaigns only (a subset campaign's
     runs depend on its levels): exit 2, one line naming the option, nothing written."""
     out = tmp_path / "dry"
     assert cli.main(["mc", str(TINY), "--out", str(out), *ARGS, "--dry-run"]) == 2
@@ -221,7 +221,7 @@ def test_subset_checks_the_cluster_options_like_crude(tmp_path, capsys, argv, na
 
 
 class _RecordingBackend:
-    """A campaign backend that records its calls and runs on the session's cluster."""
+    """A campaign backend that records its calls and runs on the test run's cluster."""
     description = "the recording backend"
 
     def __init__(self, client):

@@ -2,12 +2,13 @@
 
 Modules: :mod:`.cases` (cases and seeds), :mod:`.task` (the realization task run by the
 workers), :mod:`.store` (campaign directory, identity, lock, records, ``results.csv``),
-:mod:`.statistics`, :mod:`.keep_vtk`, :mod:`.cluster` (the Dask client) and
-:mod:`.runner` (the campaign loop, :func:`run_campaign`); :mod:`.subset` (the
-campaign-method protocol, crude Monte Carlo and subset simulation over standard-normal
-noise), :mod:`.subset_runner` (subset campaigns of a scene on Dask,
-``fem-rmpm mc --method subset``) and :mod:`.subset_plots`.  The command line
-(``fem-rmpm mc``, its summary text) is in :mod:`fem_rmpm.cli`.
+:mod:`.statistics`, :mod:`.keep_vtk`, :mod:`.backends` and :mod:`.cluster` (where the
+realizations run); :mod:`.methods` (the campaign-method protocol and its table
+:data:`~fem_rmpm.campaign.methods.METHODS`: crude Monte Carlo, subset simulation);
+:mod:`.runner` (the one campaign runner: any method, records, lock, Dask);
+:mod:`.case_campaign` (campaigns of cases, :func:`run_campaign`), :mod:`.subset_runner`
+(response campaigns of a scene, ``fem-rmpm mc --method subset``), :mod:`.subset_plots`
+and :mod:`.summary_text` (the paragraphs ``fem-rmpm mc`` prints).
 
 ``fem-rmpm mc SCENE -n N --out DIR [--workers K | --scheduler ADDRESS]`` (or
 :func:`run_campaign` from Python) runs realizations ``0 .. N-1`` of one or more
@@ -104,16 +105,13 @@ worker of two threads, unless ``--workers`` says otherwise) and
 ``MALLOC_TRIM_THRESHOLD_`` = 1 GiB with ``MALLOC_MMAP_THRESHOLD_`` = 32 MiB.
 Dask sets ``MALLOC_TRIM_THRESHOLD_=65536``; setting *any* trim threshold also
 freezes glibc's mmap threshold at 128 KiB, so every array above 128 KiB is a
-fresh ``mmap`` that page-faults on first touch and is unmapped when freed.
-Measured here (two workers, reference slope, 1 s of dynamics, numpy kernel):
-65536 -> 10 s system time and 4.5 million page faults per task, 3-4x the wall
-time; trim raised alone (1 GiB) -> still 7 s and 3.4 million; trim and mmap
-thresholds raised (or neither set) -> 0.06 s and ~300.  With the default numba
-kernel (few temporaries) the difference is within noise (24 500 vs 370 page
-faults, user time equal).  Workers of an existing cluster keep the environment
-they were started with, so each realization task also raises both thresholds
-with ``mallopt`` (glibc; a no-op elsewhere), which measured the same as the
-environment variables.
+fresh ``mmap`` that page-faults on first touch and is unmapped when freed: with
+array-heavy kernels (the numpy kernel) that is several times the wall time in system
+time; raising both thresholds (or setting neither) removes it, raising the trim
+threshold alone does not (the figures: the documentation's benchmark pages).  Workers
+of an existing cluster keep the environment they were started with, so each
+realization task also raises both thresholds with ``mallopt`` (glibc; a no-op
+elsewhere), to the same effect as the environment variables.
 
 An existing cluster: ``--scheduler tcp://host:8786`` (or ``run_campaign(...,
 scheduler=address)``) connects a ``distributed.Client`` to it (timeout
@@ -151,6 +149,8 @@ from fem_rmpm.campaign.cases import (
     LITERATURE_CASES,
     CampaignError,
     Case,
+    campaign_cases,
+    default_scene_path,
     literature_cases,
     parse_case,
     realization_seed,
@@ -160,16 +160,18 @@ from fem_rmpm.campaign.cases import (
 # The rest is imported when first used (PEP 562): the cluster, runner and task modules
 # import dask and distributed (~0.65 s), which a plain ``fem-rmpm run`` never needs.
 _LAZY = {"start_local_cluster": ".cluster", "worker_environment": ".cluster",
-         "parse_keep_vtk": ".keep_vtk", "CampaignResult": ".runner", "run_campaign": ".runner",
+         "parse_keep_vtk": ".keep_vtk", "CampaignResult": ".case_campaign",
+         "run_campaign": ".case_campaign",
          "case_statistics": ".statistics", "wilson_interval": ".statistics",
          "RESULT_COLUMNS": ".store", "read_results": ".store", "result_columns": ".store",
-         "write_results": ".store", "run_realization": ".task", "CampaignMethod": ".subset",
-         "CrudeMonteCarlo": ".subset", "SubsetSimulation": ".subset",
-         "subset_simulation": ".subset", "run_subset_campaign": ".subset_runner",
+         "write_results": ".store", "run_realization": ".task", "CampaignMethod": ".methods",
+         "CrudeMonteCarlo": ".methods", "SubsetSimulation": ".methods", "METHODS": ".methods",
+         "subset_simulation": ".methods", "run_subset_campaign": ".subset_runner",
          # for the CLI's mc command
          "ClusterSpec": ".backends", "parse_adapt": ".backends",
          "estimate_campaign": ".estimate", "estimate_text": ".estimate",
-         "fs_text": ".factor_of_safety", "subset_summary_text": ".subset_runner"}
+         "fs_text": ".factor_of_safety", "subset_summary_text": ".summary_text",
+         "summary_text": ".summary_text"}
 
 
 def __getattr__(name: str):
@@ -181,8 +183,10 @@ def __getattr__(name: str):
 
 
 __all__ = ["CampaignError", "Case", "LITERATURE_CASES", "parse_case", "literature_cases",
+           "campaign_cases", "default_scene_path",
            "realization_seed", "without_random_field", "run_realization", "run_campaign",
            "CampaignResult", "case_statistics", "wilson_interval", "read_results",
            "write_results", "result_columns", "parse_keep_vtk", "worker_environment",
-           "start_local_cluster", "RESULT_COLUMNS", "CampaignMethod", "CrudeMonteCarlo",
-           "SubsetSimulation", "subset_simulation", "run_subset_campaign"]
+           "start_local_cluster", "RESULT_COLUMNS", "CampaignMethod", "CrudeMonteCarlo", "METHODS",
+           "SubsetSimulation", "subset_simulation", "run_subset_campaign", "summary_text",
+           "subset_summary_text"]

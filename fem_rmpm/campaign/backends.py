@@ -1,8 +1,9 @@
 """Where a campaign's realizations run: one backend protocol for a local Dask cluster, a
 running Dask scheduler, and worker jobs on a batch system (SLURM, PBS, SGE, LSF).
 
-A :class:`Backend` is opened from a :class:`ClusterSpec` by :func:`open_backend` (which
-checks the options and starts nothing), then
+A :class:`Backend` is opened from a :class:`ClusterSpec`
+(:mod:`fem_rmpm.campaign.cluster_spec`) by :func:`open_backend` (which checks the options
+and starts nothing), then
 
 * ``start(n_tasks)`` returns a ``distributed.Client`` with workers coming (it raises
   :class:`ClusterError`, exit 2, for a refused job submission: the batch system's own
@@ -22,7 +23,8 @@ Kinds
 many as the usable CPUs hold, at most the realizations to run).
 ``local`` with ``--scheduler ADDRESS``: the workers of a running Dask cluster.
 ``slurm`` | ``pbs`` | ``sge`` | ``lsf``: dask-jobqueue's ``SLURMCluster``,
-``PBSCluster``, ``SGECluster`` or ``LSFCluster``.  The scheduler runs in the client
+``PBSCluster``, ``SGECluster`` or ``LSFCluster``, one row of :data:`BATCH_SYSTEMS` each
+(a :class:`BatchSystem`: a new batch system is one row).  The scheduler runs in the client
 (the ``fem-rmpm mc`` process, on the login node or in a job of its own); each batch
 job runs ``processes`` single-thread Dask workers on ``cores`` cores with ``memory``.
 
@@ -64,127 +66,45 @@ import re
 import shutil
 import socket
 import subprocess
-import sys
 import tempfile
 import time
 import uuid
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Protocol, Sequence
 
 import dask
-from dask.utils import parse_bytes, parse_timedelta
+from dask.utils import parse_timedelta
 from distributed import Client
 from distributed.core import Status
 from tornado.ioloop import PeriodicCallback
 
-from fem_rmpm.campaign.cases import CampaignError
 from fem_rmpm.campaign.cluster import (
     local_worker_count,
     local_workers_text,
     start_client,
     worker_environment,
 )
+from fem_rmpm.campaign.cluster_spec import (
+    BATCH_SYSTEMS,
+    CLUSTER_KINDS,
+    BatchSystem,
+    ClusterError,
+    ClusterSpec,
+    _memory_bytes,
+    parse_adapt,
+    validate,
+)
 from fem_rmpm.campaign.task import campaign_threads
 from fem_rmpm.runtime.budget import estimate_run
 from fem_rmpm.runtime.machine import usable_cores
 
-__all__ = ["CLUSTER_KINDS", "ClusterError", "ClusterSpec", "Backend", "open_backend",
-           "campaign_backend",
-           "parse_adapt", "probe_directory", "job_environment_lines"]
+__all__ = ["CLUSTER_KINDS", "BATCH_SYSTEMS", "BatchSystem", "ClusterError", "ClusterSpec",
+           "Backend", "open_backend", "campaign_backend", "parse_adapt", "validate",
+           "probe_directory", "job_environment_lines"]
 
-#: ``--cluster`` values: a local (or already running) Dask cluster, or dask-jobqueue kinds.
-CLUSTER_KINDS = ("local", "slurm", "pbs", "sge", "lsf")
-_JOBQUEUE_CLASS = {"slurm": "SLURMCluster", "pbs": "PBSCluster", "sge": "SGECluster",
-                   "lsf": "LSFCluster"}
-_BATCH_NAME = {"slurm": "SLURM", "pbs": "PBS", "sge": "SGE", "lsf": "LSF"}
-_ACCOUNT_KEYWORD = {"slurm": "account", "pbs": "account", "sge": "project",  # --account
-                    "lsf": "project"}
-_TEST_SUBMIT = {"slurm": ["sbatch", "--test-only"]}   # checks a job script, submits nothing
+
 _PROBE_PREFIX = ".fem-rmpm-probe-"
-_MEMORY = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*([KMGT]i?B?|B)?\s*$", re.IGNORECASE)
-
-
-class ClusterError(CampaignError):
-    """Bad cluster input or a refused job submission (command line: exit 2, one line)."""
-
-
-@dataclass(frozen=True)
-class ClusterSpec:
-    """Where to run (see the module docstring).  ``None`` = not given: the Dask
-    configuration, then fem_rmpm's default, decides."""
-    kind: str = "local"
-    scheduler: str | None = None          # address of a running Dask scheduler (local only)
-    workers: int | None = None            # local processes, or workers kept on the batch system
-    adapt: tuple[int, int] | None = None  # (minimum, maximum) workers, batch systems only
-    queue: str | None = None
-    account: str | None = None
-    cores: int | None = None              # per job
-    memory: str | None = None             # per job, e.g. "8GB"
-    walltime: str | None = None           # e.g. "04:00:00"
-    interface: str | None = None
-    job_directives: tuple[str, ...] = ()
-    worker_memory_estimate: float | None = field(default=None, compare=False)  # B
-    threads_per_worker: int = field(default=1, compare=False)  # numba threads, local workers
-
-    @property
-    def batch(self) -> bool:
-        return self.kind in _JOBQUEUE_CLASS
-
-
-def parse_adapt(text: str | None) -> tuple[int, int] | None:
-    """``"MIN:MAX"`` workers (``"0:20"``) -> (0, 20); None -> None."""
-    if text is None:
-        return None
-    m = re.fullmatch(r"\s*(\d+)\s*:\s*(\d+)\s*", str(text))
-    if not m or int(m.group(2)) < max(1, int(m.group(1))):
-        raise ClusterError(f"--adapt {text!r}: expected MIN:MAX workers with 0 <= MIN <= MAX "
-                           "and MAX >= 1, e.g. --adapt 0:20")
-    return int(m.group(1)), int(m.group(2))
-
-
-def _positive(name: str, value) -> None:
-    if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value <= 0):
-        raise ClusterError(f"{name} {value}: expected a positive integer")
-
-
-def _memory_bytes(text: str, option: str = "--memory") -> float:
-    """'8GB', '954M', '2 GiB' -> bytes (dask's units: kB = 1000, KiB = 1024)."""
-    m = _MEMORY.match(str(text))
-    if not m:
-        raise ClusterError(f"{option} {text!r}: expected a memory size like 4GB, 1500MB or 2GiB")
-    unit = (m.group(2) or "B").upper().replace("IB", "iB")
-    unit = unit if unit.endswith("B") else unit + "B"
-    return float(parse_bytes(f"{m.group(1)} {unit}"))
-
-
-def validate(spec: ClusterSpec) -> ClusterSpec:
-    """Check a spec (raises :class:`ClusterError` naming the option); returns it."""
-    if spec.kind not in CLUSTER_KINDS:
-        raise ClusterError(f"--cluster {spec.kind!r}: unknown cluster kind; allowed: "
-                           + ", ".join(CLUSTER_KINDS))
-    _positive("--workers", spec.workers)
-    _positive("--cores", spec.cores)
-    if spec.memory is not None:
-        _memory_bytes(spec.memory)
-    if spec.workers is not None and spec.adapt is not None:
-        raise ClusterError("--workers keeps a fixed number of workers, --adapt lets Dask "
-                           "choose between MIN and MAX: give one of the two")
-    if spec.scheduler and spec.kind != "local":
-        raise ClusterError(f"--scheduler joins a running Dask cluster; --cluster {spec.kind} "
-                           "starts one on the batch system: give one of the two")
-    if spec.scheduler and spec.workers is not None:
-        raise ClusterError("--workers starts a local cluster; with --scheduler the "
-                           "cluster's own workers are used: give one of the two")
-    if not spec.batch:
-        given = [f"--{k.replace('_', '-')}" for k in ("queue", "account", "cores", "memory",
-                                                      "walltime", "interface", "adapt")
-                 if getattr(spec, k) is not None] + (["--job-directive"]
-                                                     if spec.job_directives else [])
-        if given:
-            raise ClusterError(f"{', '.join(given)}: options of batch-system workers; "
-                               "give --cluster slurm|pbs|sge|lsf as well")
-    return spec
 
 
 # --------------------------------------------------------------------------- protocol
@@ -330,6 +250,7 @@ class JobqueueBackend(_ClientBackend):
         super().__init__()
         self.spec = spec
         self.kind = spec.kind
+        self.system = BATCH_SYSTEMS[spec.kind]
         self._keeper = None
         self._seen: dict[str, float | None] = {}   # job -> when its workers left
 
@@ -349,7 +270,7 @@ class JobqueueBackend(_ClientBackend):
         kw: dict[str, Any] = {"cores": int(cores), "processes": processes, "memory": memory,
                               "job_script_prologue": job_environment_lines()
                               + list(_config(kind, "job-script-prologue", []) or [])}
-        for key, value in (("queue", s.queue), (_ACCOUNT_KEYWORD[kind], s.account),
+        for key, value in (("queue", s.queue), (self.system.account_keyword, s.account),
                            ("walltime", s.walltime), ("interface", s.interface)):
             if value is not None:
                 kw[key] = value
@@ -368,7 +289,7 @@ class JobqueueBackend(_ClientBackend):
                 else "jobs")
         queue = kw.get("queue") or _config(self.kind, "queue") or "the default queue"
         wall = kw.get("walltime") or _config(self.kind, "walltime")
-        return (f"{_BATCH_NAME[self.kind]} (dask-jobqueue): {workers} worker(s) in {jobs} of "
+        return (f"{self.system.title} (dask-jobqueue): {workers} worker(s) in {jobs} of "
                 f"{kw['cores']} core(s) and {kw['memory']} on {queue}, walltime {wall}")
 
     def _jobqueue_class(self):
@@ -377,7 +298,7 @@ class JobqueueBackend(_ClientBackend):
         except ImportError:
             raise ClusterError(f"--cluster {self.kind}: needs the dask-jobqueue package "
                                "(pip install dask-jobqueue)") from None
-        return getattr(dask_jobqueue, _JOBQUEUE_CLASS[self.kind])
+        return getattr(dask_jobqueue, self.system.jobqueue_class)
 
     def _check_submit_command(self, cls) -> None:
         command = cls.job_cls.submit_command
@@ -389,7 +310,7 @@ class JobqueueBackend(_ClientBackend):
     def _check_node_memory(self, kw: dict) -> None:
         """SLURM: a job asking for more memory than the largest node of its partition has
         is an error naming both (other batch systems refuse it at submission)."""
-        if self.kind != "slurm" or shutil.which("sinfo") is None:
+        if not self.system.node_memory_from_sinfo or shutil.which("sinfo") is None:
             return
         queue = kw.get("queue") or _config(self.kind, "queue")
         cmd = ["sinfo", "-h", "-o", "%m"] + (["-p", str(queue)] if queue else [])
@@ -433,9 +354,9 @@ class JobqueueBackend(_ClientBackend):
                "memory_per_worker_bytes": _memory_bytes(kw["memory"]) / kw["processes"],
                "description": self._describe(kw, workers), "job_script": script,
                "checked": None}
-        test = _TEST_SUBMIT.get(self.kind)
+        test = self.system.test_submit
         if test and shutil.which(test[0]):
-            out["checked"] = _test_submit(test, script)
+            out["checked"] = _test_submit(list(test), script)
         return out
 
     def preflight(self, n_tasks: int) -> None:
@@ -445,9 +366,9 @@ class JobqueueBackend(_ClientBackend):
         self._check_submit_command(cls)
         kw = self._job_kwargs()
         self._check_node_memory(kw)
-        test = _TEST_SUBMIT.get(self.kind)
+        test = self.system.test_submit
         if test and shutil.which(test[0]):
-            _test_submit(test, self._script(cls, kw))
+            _test_submit(list(test), self._script(cls, kw))
 
     def start(self, n_tasks: int, out: Path):
         """Start the scheduler here and submit the worker jobs (their logs go to

@@ -4,6 +4,8 @@ from __future__ import annotations
 import re
 import tomllib
 from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
 
 import numpy as np
 
@@ -11,7 +13,7 @@ from fem_rmpm.runtime.errors import InputError
 from fem_rmpm.scene import Scene, scene_from_dict, scene_to_dict, with_value
 
 __all__ = ["CampaignError", "Case", "LITERATURE_CASES", "parse_case", "literature_cases",
-           "realization_seed", "without_random_field"]
+           "realization_seed", "without_random_field", "default_scene_path", "campaign_cases"]
 
 #: The literature cases of the reference slope (Wang, Vardon & Hicks 2017).
 LITERATURE_CASES = ("homogeneous", "xi=1", "xi=12", "xi=48")
@@ -104,3 +106,28 @@ def realization_seed(campaign_seed: int, index: int) -> int:
         raise ValueError("campaign seed and index must be >= 0")
     state = np.random.SeedSequence([int(campaign_seed), int(index)]).generate_state(1, np.uint64)
     return int(state[0] >> np.uint64(1))
+
+
+def default_scene_path() -> Path:
+    """The embedded default scene: the reference slope of the RMPM paper (Wang, Vardon &
+    Hicks 2017; ``fem_rmpm/data/slope_reference.toml``)."""
+    return Path(str(resources.files("fem_rmpm") / "data" / "slope_reference.toml"))
+
+
+def _is_default_scene(path: str | Path) -> bool:
+    try:
+        return Path(path).resolve() == default_scene_path().resolve()
+    except OSError:  # pragma: no cover
+        return False
+
+
+def campaign_cases(scene: Scene, scene_path: str | Path | None = None) -> list[str]:
+    """Cases of a campaign run from the command line: ``[montecarlo] cases`` if the scene
+    has that key, the four :data:`LITERATURE_CASES` for the embedded default scene,
+    else the scene itself."""
+    listed = tuple(getattr(scene.montecarlo, "cases", ()) or ())
+    if listed:
+        return list(listed)
+    if scene_path is not None and _is_default_scene(scene_path):
+        return list(LITERATURE_CASES)
+    return ["scene"]

@@ -7,9 +7,8 @@ and the CFL step count of one run from :func:`fem_rmpm.runtime.budget.estimate_r
 * **steps** = the budget's count (``t_end`` over the CFL step at rest) x a *steps
   factor*: moving points shorten the step and a run that comes to rest stops early.
   From the ok records of this campaign when there are some (their mean ratio of steps
-  taken to the budget's count); else :data:`fem_rmpm.runtime.budget.STEPS_FACTOR`, the ratio
-  measured on the reference slope (six realizations of the four literature cases:
-  1.21-1.40, mean 1.30);
+  taken to the budget's count); else :data:`fem_rmpm.runtime.budget.STEPS_FACTOR`, the mean
+  ratio measured on the reference slope's literature cases;
 * **CPU per realization** = setup + points x steps x the cost per point-step, with the
   cost per point-step and the setup (random field, seeding, measures) *measured on this
   machine*: from the records of this campaign (their CPU time over their point-steps)
@@ -25,9 +24,7 @@ and the CFL step count of one run from :func:`fem_rmpm.runtime.budget.estimate_r
   workers' ``[solver] threads`` at :data:`fem_rmpm.runtime.budget.THREAD_EFFICIENCY`; queue
   waits of a batch system are not included).
 
-Measured on the reference slope main job (``fem-rmpm mc --out DIR``: 10 realizations):
-see README "Running a campaign on a SLURM cluster" for the estimate against the
-campaign's measured CPU time.
+The estimate against a campaign's measured CPU time: the documentation's benchmark pages.
 """
 from __future__ import annotations
 
@@ -39,8 +36,8 @@ from typing import Sequence
 
 from fem_rmpm.api import run as run_one
 from fem_rmpm.campaign.backends import ClusterSpec, campaign_backend
+from fem_rmpm.campaign.case_campaign import pending_work
 from fem_rmpm.campaign.cases import CampaignError, Case
-from fem_rmpm.campaign.runner import pending_work
 from fem_rmpm.runtime.budget import STEPS_FACTOR, RunEstimate, estimate_run, thread_speed_up
 from fem_rmpm.scene import Scene, with_value
 
@@ -164,8 +161,9 @@ def probe_calibration(scene: Scene, seed: int) -> Calibration:
 # --------------------------------------------------------------------------- the estimate
 
 def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
-                      cases: Sequence[str | Case] | None = None, workers: int | None = None,
-                      scheduler: str | None = None, force: bool = False, keep_vtk=None,
+                      cases: Sequence[str | Case] | None = None, *,
+                      workers: int | None = None, scheduler: str | None = None,
+                      force: bool = False, keep_vtk=None,
                       cluster: ClusterSpec | None = None, probe: bool = True
                       ) -> CampaignEstimate:
     """The size and cost of ``run_campaign`` with the same arguments (module docstring);
@@ -176,8 +174,9 @@ def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = 
     n = scene.montecarlo.realizations if realizations is None else realizations
     if isinstance(n, bool) or not isinstance(n, int) or n <= 0:
         raise CampaignError(f"-n {n}: the number of realizations must be a positive integer")
-    case_list, counts, _, _, tasks, finished = pending_work(scene, out, n, cases, keep_vtk,
-                                                           force)
+    pending = pending_work(scene, out, n, cases, keep_vtk=keep_vtk, force=force)
+    case_list, counts = pending.cases, pending.counts
+    tasks, finished = pending.tasks, pending.finished
     backend = campaign_backend(cluster, workers, scheduler, case_list)
     plan = backend.plan(max(len(tasks), 1))
     budget = {c.name: estimate_run(c.scene) for c in case_list}

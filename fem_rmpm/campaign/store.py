@@ -326,10 +326,6 @@ def read_results(path: str | Path) -> list[dict]:
 
 # --------------------------------------------------------------------------- importing records
 
-def _src_record_path(src: Path, names: list[str], case: str, index: int) -> Path:
-    return _case_dir(src / "records", case, len(names) == 1) / _record_name(index)
-
-
 def import_records(src: Path, dst: Path, doc: dict, cases: list[Case]) -> dict[str, int]:
     """Copy the finished records of campaign ``src`` (with their profiles and kept VTK)
     into campaign ``dst`` of identity ``doc`` (:func:`campaign_doc` of ``cases``;

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fem_rmpm.campaign.subset import MethodResult
+from fem_rmpm.campaign.methods import MethodResult
 from fem_rmpm.io.plots import _plt
 
 __all__ = ["plot_levels"]

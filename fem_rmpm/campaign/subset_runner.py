@@ -2,9 +2,11 @@
 
 ``fem-rmpm mc SCENE --method subset --response NAME --threshold X [--p0 0.1] [-n N]``
 (or :func:`run_subset_campaign`) estimates ``P(response > X)`` (``P(FS < X)`` for the
-factor of safety) by subset simulation (:mod:`fem_rmpm.campaign.subset`) in the noise
-space of the scene's random field: a realization is a pure function of (scene, noise),
-:func:`fem_rmpm.random_field.noise_shape` standard normals.
+factor of safety) by subset simulation (:mod:`fem_rmpm.campaign.methods.subset`; any
+response method of :data:`fem_rmpm.campaign.methods.METHODS`) in the noise space of the
+scene's random field: a realization is a pure function of (scene, noise),
+:func:`fem_rmpm.random_field.noise_shape` standard normals.  The samples run through the
+campaign runner (:mod:`fem_rmpm.campaign.runner`).
 
 * **Responses** (:data:`RESPONSES`): the realization's measures ``runout_distance``,
   ``sliding_area``, ``retrogression_distance``, ``max_displacement`` (m, m2, m, m;
@@ -48,24 +50,28 @@ import json
 import math
 import os
 import socket
-import sys
 import time
-import uuid
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
-from distributed import as_completed
-from tqdm import tqdm
 
 from fem_rmpm import api
 from fem_rmpm.campaign.backends import ClusterSpec, campaign_backend
 from fem_rmpm.campaign.cases import CampaignError, parse_case
+from fem_rmpm.campaign.methods import (
+    METHODS,
+    MethodOptions,
+    MethodResult,
+    Sample,
+    SubsetSimulation,
+    SubsetWarning,
+)
 from fem_rmpm.campaign.report import write_report
-from fem_rmpm.campaign.store import FORMAT, Lock, campaign_doc, check_directory, read_record
-from fem_rmpm.campaign.subset import MethodResult, Sample, SubsetSimulation, SubsetWarning
+from fem_rmpm.campaign.runner import Execution, RunTally, run_method_campaign
+from fem_rmpm.campaign.store import FORMAT, campaign_doc, check_directory, read_record
 from fem_rmpm.campaign.subset_plots import plot_levels
 from fem_rmpm.campaign.task import run_realization
 from fem_rmpm.discretise.grid import make_grid
@@ -78,7 +84,7 @@ from fem_rmpm.schemes.common import SimulationError
 from fem_rmpm.schemes.implicit.strength_reduction import FSOptions, factor_of_safety
 
 __all__ = ["SUBSET_FORMAT", "RESPONSES", "Response", "parse_response", "run_subset_sample",
-           "run_subset_campaign", "SubsetCampaignResult", "subset_summary_text",
+           "run_subset_campaign", "SubsetCampaignResult",
            "sample_noise", "sample_noises"]
 
 SUBSET_FORMAT = "fem_rmpm subset campaign 1"
@@ -191,14 +197,10 @@ def run_subset_sample(task: dict) -> dict:
 
 # --------------------------------------------------------------------------- the client
 
-class _Lost(Exception):
-    """Samples of a batch whose workers died: the level cannot go on this run."""
-
-
 @dataclass
 class SubsetCampaignResult:
     """What :func:`run_subset_campaign` did: the estimate (``result``, a
-    :class:`fem_rmpm.campaign.subset.MethodResult`; None if samples were lost) and the
+    :class:`fem_rmpm.campaign.methods.MethodResult`; None if samples were lost) and the
     samples this command computed, reused from records and lost."""
     out: Path
     response: Response
@@ -216,28 +218,33 @@ def _record_path(out: Path, key: str) -> Path:
     return out / "records" / f"{key}.json"
 
 
-class _Evaluator:
-    """Evaluates a method's batches: stored records first, the rest on Dask."""
+class _SubsetEvaluation:
+    """The runner's view of a response campaign (:class:`fem_rmpm.campaign.runner.Evaluation`):
+    a sample's record (``records/<key>.json``) is reused if its key, seed, noise digest and
+    response match (none with ``force``); its response is the subset variable Y."""
+    task_function = staticmethod(run_subset_sample)
 
-    def __init__(self, out: Path, scene: Scene, response: Response, workers, scheduler,
-                 client, force: bool, progress: bool, fs_options: dict,
-                 cluster: ClusterSpec | None = None):
-        self.out, self.scene, self.response = out, scene, response
-        self.fs_options = fs_options
-        self.force = force
-        self.client, self.own = client, client is None
-        # where the samples run: the crude campaign's backends (local, --scheduler, SLURM...)
-        self.backend = (campaign_backend(cluster, workers, scheduler,
-                                         [parse_case("scene", scene)]) if self.own else None)
-        self.desc = ("no workers needed" if client is None
-                     else f"the given Dask client ({len(client.nthreads())} workers)")
+    def __init__(self, scene: Scene, response: Response, doc: dict, force: bool,
+                 fs_options: dict):
+        self.scene, self.response, self.doc = scene, response, doc
+        self.force, self.fs_options = force, fs_options
         self.records: dict[str, dict] = {}
-        self.computed = self.reused = 0
-        self.compute_time = 0.0
-        self.bar = tqdm(desc=f"{scene.scene.name} subset", unit="run", dynamic_ncols=True,
-                        total=0) if progress else None
+        self.out = Path()
 
-    def evaluate(self, batch: list[Sample]) -> list[float]:
+    def check_directory(self, out: Path) -> None:
+        self.out = out
+        _check_subset_directory(out, self.doc)
+
+    def clean_temporaries(self, out: Path) -> None:
+        _clean_temporaries(out)
+
+    def task_key(self, task: dict) -> str:
+        return task["key"]
+
+    def task_name(self, task: dict) -> str:
+        return task["key"]
+
+    def plan(self, batch: list[Sample]) -> list[dict]:
         tasks = []
         for s in batch:
             digest = noise_digest(s.noise) if s.noise is not None else None
@@ -246,16 +253,9 @@ class _Evaluator:
                     and rec.get("noise_digest") == digest
                     and rec.get("response") == self.response.name):
                 self.records[s.key] = rec
-                self.reused += 1
             else:
                 tasks.append(self._task(s, digest))
-        if self.bar is not None:
-            self.bar.total += len(batch)
-            self.bar.update(len(batch) - len(tasks))
-        if tasks:
-            self._compute(tasks)
-        return [self.response.exceedance(self.records[s.key].get("value"))
-                if self.records[s.key]["status"] == "ok" else math.nan for s in batch]
+        return tasks
 
     def _task(self, s: Sample, digest: str | None) -> dict:
         return {"case": "scene", "index": s.chain, "seed": s.seed, "noise": s.noise,
@@ -264,50 +264,23 @@ class _Evaluator:
                 "noise_digest": digest, "response": self.response.name,
                 "level_threshold": s.level_threshold, "fs_options": self.fs_options}
 
-    def _compute(self, tasks: list[dict]) -> None:
-        if self.client is None:
-            # a local cluster sized for a level, not for this (possibly small) batch
-            self.client = self.backend.start(max(len(tasks), 1000), self.out)
-            self.desc = self.backend.description
-            self.backend.check_directory(self.client, self.out)   # the workers share it
-        t0 = time.perf_counter()
-        token = uuid.uuid4().hex[:8]
-        futures = self.client.map(run_subset_sample, tasks, pure=False, retries=0,
-                                  key=[f"subset-{token}-{t['key']}" for t in tasks])
-        by_key = {f.key: t for f, t in zip(futures, tasks)}
-        lost = []
-        for fut in as_completed(futures, loop=self.client.loop):
-            task = by_key[fut.key]
-            try:
-                rec = fut.result()
-            except Exception as exc:  # noqa: BLE001 - infrastructure, not the realization
-                lost.append(f"{task['key']}: {type(exc).__name__}: "
-                            + " ".join(str(exc).split())[:300])
-                continue
-            rec["accepted"] = (None if rec["level_threshold"] is None else
-                               bool(self.response.exceedance(rec["value"])
-                                    >= rec["level_threshold"]))
-            write_json(_record_path(self.out, rec["key"]), rec)
-            self.records[rec["key"]] = rec
-            self.computed += 1
-            if self.bar is not None:
-                self.bar.update(1)
-            fut.release()
-        self.compute_time += time.perf_counter() - t0
-        if lost:
-            raise _Lost(lost)
+    def arrived(self, rec: dict) -> None:
+        rec["accepted"] = (None if rec["level_threshold"] is None else
+                           bool(self.response.exceedance(rec["value"])
+                                >= rec["level_threshold"]))
+        write_json(_record_path(self.out, rec["key"]), rec)
+        self.records[rec["key"]] = rec
 
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-        if self.backend is not None:
-            self.backend.close()
+    def responses(self, batch: list[Sample]) -> list[float]:
+        return [self.response.exceedance(self.records[s.key].get("value"))
+                if self.records[s.key]["status"] == "ok" else math.nan for s in batch]
 
 
-def _identity(scene: Scene, response: Response, p0: float, n: int, fs_options: dict) -> dict:
+def _identity(scene: Scene, response: Response, p0: float, n: int, fs_options: dict,
+              method: str = "subset") -> dict:
     doc = campaign_doc([parse_case("scene", scene)], scene.montecarlo.seed)
     doc["format"] = SUBSET_FORMAT
-    doc["method"] = {"name": "subset", "response": response.name, "p0": p0,
+    doc["method"] = {"name": method, "response": response.name, "p0": p0,
                      "samples_per_level": n}
     if response.name == FS_RESPONSE:
         doc["method"]["fs_options"] = fs_options
@@ -343,11 +316,13 @@ def _check_fs_options(options: dict) -> None:
 
 
 def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
-                        threshold: float | None = None, p0: float = 0.1, n: int | None = None,
+                        threshold: float | None = None, *, p0: float = 0.1,
+                        n: int | None = None,
                         workers: int | None = None, scheduler: str | None = None,
                         client=None, force: bool = False, progress: bool = True,
                         figures: bool = True, fs_options: dict | None = None,
-                        cluster: ClusterSpec | None = None) -> SubsetCampaignResult:
+                        cluster: ClusterSpec | None = None,
+                        method: str = "subset") -> SubsetCampaignResult:
     """Run (or finish, or extend) a subset-simulation campaign in ``out`` (module docstring).
 
     ``response``: a :data:`RESPONSES` name or alias (or a :class:`Response`);
@@ -357,7 +332,8 @@ def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
     (:func:`fem_rmpm.campaign.run_campaign`; ``cluster`` a
     :class:`~fem_rmpm.campaign.backends.ClusterSpec`, e.g. SLURM workers); ``fs_options``:
     :class:`fem_rmpm.schemes.implicit.strength_reduction.FSOptions` fields for the factor of safety
-    (part of the campaign identity).  Raises
+    (part of the campaign identity); ``method``: a response method of
+    :data:`fem_rmpm.campaign.methods.METHODS`.  Raises
     :class:`CampaignError` or :class:`SubsetError` (both input errors) before anything
     is written."""
     t_start = time.perf_counter()
@@ -370,39 +346,38 @@ def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
     if resp.name == FS_RESPONSE:
         _check_fs_options(fs_options or {})
     grid = make_grid(scene)
-    method = SubsetSimulation(resp.y_threshold, n=n, p0=p0, seed=scene.montecarlo.seed,
-                              noise_from_seed=lambda seed: field_noise(scene, grid, seed).ravel(),
-                              on_failure="reject", label=resp.describe())
-    doc = _identity(scene, resp, float(p0), int(n), dict(fs_options or {}))
+    entry = METHODS.get(method)
+    if entry is None or not entry.response:
+        allowed = ", ".join(k for k, e in METHODS.items() if e.response)
+        raise CampaignError(f"--method {method!r}: not a method of response campaigns; "
+                            f"allowed: {allowed}")
+    sampler = entry.make(MethodOptions(
+        n=n, seed=scene.montecarlo.seed, threshold=resp.y_threshold, p0=p0,
+        noise_from_seed=lambda seed: field_noise(scene, grid, seed).ravel(),
+        on_failure="reject", label=resp.describe()))
+    doc = _identity(scene, resp, float(p0), int(n), dict(fs_options or {}), method)
     _check_subset_directory(out, doc)
     if client is not None and cluster is not None:
         raise CampaignError("give a client or a cluster, not both")
-    ev = _Evaluator(out, scene, resp, workers, scheduler, client, force, progress,
-                    dict(fs_options or {}), cluster)
-    result, lost = None, []
-    try:
-        if ev.backend is not None:     # before anything is written: refused, unreachable
-            ev.backend.preflight(n)
-        with Lock(out):
-            _check_subset_directory(out, doc)
-            if not (out / "campaign.json").exists():
-                write_json(out / "campaign.json", doc)
-            _clean_temporaries(out)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", SubsetWarning)
-                try:
-                    while (batch := method.next_batch()) is not None:
-                        method.tell(ev.evaluate(batch))
-                    result = method.result()
-                except _Lost as exc:
-                    lost = list(exc.args[0])
-            res = SubsetCampaignResult(out, resp, result, ev.computed, ev.reused, lost,
-                                       time.perf_counter() - t_start, ev.compute_time,
-                                       ev.desc)
-            if result is not None:
-                _finish(res, scene, method, ev.records, figures)
-    finally:
-        ev.close()
+    kind = _SubsetEvaluation(scene, resp, doc, force, dict(fs_options or {}))
+    backend = (campaign_backend(cluster, workers, scheduler, [parse_case("scene", scene)])
+               if client is None else None)
+    # a local cluster sized for a level, not for its (possibly small) first batch
+    run = Execution(backend, client, preflight=n, start_size=lambda k: max(k, 1000),
+                    progress=f"{scene.scene.name} subset" if progress else None)
+
+    def finish(tally: RunTally) -> SubsetCampaignResult:
+        result = sampler.result() if tally.finished else None
+        res = SubsetCampaignResult(out, resp, result, tally.computed, tally.reused,
+                                   tally.lost, time.perf_counter() - t_start,
+                                   tally.compute_time, tally.workers)
+        if result is not None:
+            _finish(res, scene, sampler, kind.records, figures)
+        return res
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SubsetWarning)
+        res = run_method_campaign(sampler, kind, out, doc, run, finish)
     res.wall_time = time.perf_counter() - t_start
     return res
 
@@ -479,43 +454,24 @@ def _finish(res: SubsetCampaignResult, scene: Scene, method: SubsetSimulation,
                        write_report(res.out)]
 
 
-def subset_summary_text(res: SubsetCampaignResult) -> str:
-    """The paragraph printed by ``fem-rmpm mc --method subset``."""
-    head = (f"Subset simulation in {res.out}: this run computed {res.computed} sample(s) "
-            f"(reused {res.reused} records) on {res.workers} in {res.wall_time:.1f} s.")
-    if res.result is None:
-        return (head + f"\n  {len(res.lost)} sample(s) LOST (their workers died; no record): "
-                + "; ".join(res.lost[:3]) + " -- re-run the same command to finish")
-    r = res.result
-    th = ", ".join(f"{-b if res.response.below else b:.4g}" for b in r.thresholds[:-1])
-    lines = [head, f"  P({res.response.describe()}) = {r.probability:.3g}, COV {r.cov:.2f} "
-                   f"(Au & Beck, with chain correlation) after {len(r.levels)} level(s), "
-                   f"{r.total_runs} runs" + (f", {r.failed_runs} failed numerically"
-                                             if r.failed_runs else "")
-                   + (f"; intermediate thresholds {th}" if th else "")]
-    if r.crude_equivalent_runs:
-        lines.append(f"  crude Monte Carlo would need {r.crude_equivalent_runs:.0f} runs for "
-                     f"the same COV ({r.crude_equivalent_runs / r.total_runs:.1f}x)")
-    lines.extend(f"  WARNING: {note}" for note in r.notes)
-    lines.append(f"Output: summary.json, samples.csv, records/"
-                 + "".join(f", {p.name}" for p in res.figures) + f" in {res.out}")
-    return "\n".join(lines)
-
-
 def sample_noises(scene: Scene, out: str | Path) -> Iterator[tuple[str, np.ndarray]]:
     """``(key, noise)`` of every sample of the campaign in ``out`` in the order the method
     asked for them, replayed from its records; stops before the first batch one of whose
     samples has no record (the noise of that batch's samples is still yielded)."""
     doc = json.loads((Path(out) / "campaign.json").read_text())["method"]
     grid = make_grid(scene)
-    method = SubsetSimulation(1e300, n=doc["samples_per_level"], p0=doc["p0"],
-                              seed=scene.montecarlo.seed, on_failure="reject", max_levels=99,
-                              noise_from_seed=lambda seed: field_noise(scene, grid, seed).ravel())
+
+    def noise_from_seed(seed: int) -> np.ndarray:
+        return field_noise(scene, grid, seed).ravel()
+
+    method = METHODS[doc["name"]].make(MethodOptions(
+        n=doc["samples_per_level"], seed=scene.montecarlo.seed, threshold=1e300, p0=doc["p0"],
+        noise_from_seed=noise_from_seed, on_failure="reject", max_levels=99))
     resp = Response(doc["response"], 1.0)
     while (batch := method.next_batch()) is not None:
         ys = []
         for s in batch:
-            yield s.key, (s.noise if s.noise is not None else method.noise_from_seed(s.seed))
+            yield s.key, (s.noise if s.noise is not None else noise_from_seed(s.seed))
         for s in batch:
             rec = read_record(_record_path(Path(out), s.key))
             if rec is None:

@@ -1,18 +1,4 @@
-"""Subset simulation (Au & Beck 2001) over standard-normal noise, and the campaign-method protocol.
-
-A *campaign method* turns evaluations of a scalar response ``Y(z)`` of a standard-normal
-noise vector ``z`` (dimension ``d``) into ``P(Y > threshold)``.  It is independent of
-the MPM: a realization of a scene is a pure function of its noise vector, so the same
-methods drive analytic limit states (the tests) and slope campaigns.  Every method
-follows one ask/tell protocol, :class:`CampaignMethod`: ``next_batch()`` returns the
-samples to evaluate next (each with its position and its noise or the seed the noise
-is drawn from), ``tell(responses)`` hands back their responses in order, and
-``result()`` gives the estimate when ``next_batch()`` returns ``None``.  A method is
-deterministic given the responses, so a driver that stores each response (a record per
-sample) resumes a killed campaign by replaying the stored responses, and 1 or N workers
-give identical results.  Two implementations: :class:`CrudeMonteCarlo` and
-:class:`SubsetSimulation`; :func:`run_method` evaluates a method with a Python
-function, :func:`subset_simulation` is the one-call API.
+"""Subset simulation (Au & Beck 2001) over standard-normal noise.
 
 Subset simulation
 -----------------
@@ -94,215 +80,28 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass, field
-from typing import Any, Callable, Iterator, Protocol, Sequence
+from typing import Any, Callable
 
 import numpy as np
 
 from fem_rmpm.campaign.cases import realization_seed
-from fem_rmpm.runtime.errors import InputError
+from fem_rmpm.campaign.methods.protocol import (
+    BatchMethod,
+    LevelResult,
+    MethodResult,
+    Sample,
+    SubsetError,
+    SubsetWarning,
+    check_common,
+    run_method,
+    standard_noise,
+)
 
-__all__ = ["SubsetError", "SubsetWarning", "Sample", "CampaignMethod", "MethodResult",
-           "LevelResult", "CrudeMonteCarlo", "SubsetSimulation", "run_method",
-           "subset_simulation", "chain_correlation_factor", "standard_noise"]
+__all__ = ["SubsetSimulation", "subset_simulation", "chain_correlation_factor"]
 
 _SPAWN_TAG = 0x5B5E7          # keeps the chains' streams apart from the realization seeds
 TARGET_ACCEPTANCE = 0.44      # Papaioannou et al. 2015
 LAMBDA_INIT = 0.6
-
-
-class SubsetError(InputError):
-    """Bad input of a campaign method (p0, N, threshold, responses): one line that
-    names the option, the value and what is allowed."""
-
-
-class SubsetWarning(UserWarning):
-    """The campaign ran, but its estimate needs a caveat (e.g. the threshold is not rare)."""
-
-
-def standard_noise(dim: int) -> Callable[[int], np.ndarray]:
-    """``seed -> default_rng(seed).standard_normal(dim)``: the noise of a seeded sample."""
-    return lambda seed: np.random.default_rng(seed).standard_normal(dim)
-
-
-@dataclass(frozen=True, eq=False)
-class Sample:
-    """One evaluation a method asks for.  ``level`` (0 for crude samples), ``chain`` (the
-    realization index at level 0), ``step`` (0 at level 0; ``1 ..`` along a chain);
-    ``seed``: the noise is ``noise_from_seed(seed)`` (level 0) or else ``noise``
-    (the candidate, a float64 vector); ``start``: key of the chain state the candidate
-    was proposed from; ``level_threshold``: the candidate is accepted if its response
-    is at least this (chains only)."""
-    level: int
-    chain: int
-    step: int
-    seed: int | None = None
-    noise: np.ndarray | None = None
-    start: str | None = None
-    level_threshold: float | None = None
-
-    @property
-    def key(self) -> str:
-        return f"L{self.level:02d}_C{self.chain:05d}_S{self.step:03d}"
-
-
-@dataclass
-class MethodResult:
-    """``probability`` = P(Y > threshold), its coefficient of variation ``cov``, the
-    ``total_runs`` it took and the crude Monte Carlo runs that would give the same COV."""
-    method: str
-    threshold: float
-    probability: float
-    cov: float
-    total_runs: int
-    failed_runs: int = 0
-    notes: list[str] = field(default_factory=list)
-    levels: list["LevelResult"] = field(default_factory=list)
-
-    @property
-    def crude_equivalent_runs(self) -> float | None:
-        p, d = self.probability, self.cov
-        if not p or not d or not math.isfinite(d):
-            return None
-        return (1.0 - p) / (p * d * d)
-
-    @property
-    def thresholds(self) -> list[float]:
-        return [lv.threshold for lv in self.levels]
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"method": self.method, "threshold": self.threshold,
-                "probability": self.probability, "cov": self.cov,
-                "total_runs": self.total_runs, "failed_runs": self.failed_runs,
-                "crude_equivalent_runs": self.crude_equivalent_runs, "notes": list(self.notes),
-                "levels": [lv.as_dict() for lv in self.levels]}
-
-
-@dataclass
-class LevelResult:
-    """One level: its samples' ``responses`` (state order: chain-major), the threshold
-    ``threshold`` = b_{j+1} the level defines (the final threshold at the last level),
-    ``conditional_probability`` P(Y > threshold | level), ``cov`` delta_j,
-    ``gamma`` (chain correlation factor), ``acceptance`` (mean, chains only) and
-    ``runs`` (new evaluations)."""
-    level: int
-    threshold: float
-    conditional_probability: float
-    cov: float
-    gamma: float
-    responses: np.ndarray
-    chain: np.ndarray
-    step: np.ndarray
-    runs: int
-    seeds: int
-    acceptance: float | None = None
-    lambdas: list[float] = field(default_factory=list)
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"level": self.level, "threshold": self.threshold,
-                "conditional_probability": self.conditional_probability,
-                "cov": self.cov, "gamma": self.gamma, "runs": self.runs,
-                "seeds": self.seeds, "acceptance": self.acceptance,
-                "lambdas": list(self.lambdas), "responses": self.responses.tolist()}
-
-
-class CampaignMethod(Protocol):
-    """Ask/tell protocol of a campaign method (module docstring)."""
-    name: str
-
-    def next_batch(self) -> list[Sample] | None:
-        """The samples to evaluate next (independent of each other), or None when done."""
-
-    def tell(self, responses: Sequence[float]) -> None:
-        """The responses of the last batch, in its order (NaN: the evaluation failed)."""
-
-    def result(self) -> MethodResult:
-        """The estimate (after ``next_batch()`` returned None)."""
-
-
-class _Coroutine:
-    """next_batch/tell on top of a generator that yields batches and receives responses."""
-    name = "?"
-
-    def _process(self) -> Iterator[list[Sample]]:  # pragma: no cover - abstract
-        raise NotImplementedError
-
-    def _start(self) -> None:
-        self._gen = self._process()
-        self._batch: list[Sample] | None = None
-        self._result: MethodResult | None = None
-        self.failed_runs = 0
-
-    def next_batch(self) -> list[Sample] | None:
-        if self._batch is not None:
-            return self._batch
-        if self._result is not None:
-            return None
-        try:
-            self._batch = next(self._gen)
-        except StopIteration as stop:
-            self._result = stop.value
-            return None
-        return self._batch
-
-    def tell(self, responses: Sequence[float]) -> None:
-        if self._batch is None:
-            raise RuntimeError("tell() without a pending batch")
-        y = np.asarray(responses, dtype=float).reshape(-1)
-        if len(y) != len(self._batch):
-            raise SubsetError(f"{len(y)} responses for a batch of {len(self._batch)} samples")
-        bad = ~np.isfinite(y)
-        if bad.any():
-            if self.on_failure == "raise":
-                k = int(np.argmax(bad))
-                raise SubsetError(f"response of sample {self._batch[k].key} is {y[k]}: "
-                                  "responses must be finite numbers (or on_failure='reject')")
-            self.failed_runs += int(bad.sum())
-            y = np.where(bad, -np.inf, y)     # a failed run exceeds no threshold
-        self._batch = None
-        try:
-            self._batch = self._gen.send(y)
-        except StopIteration as stop:
-            self._result = stop.value
-
-    def result(self) -> MethodResult:
-        if self._result is None:
-            raise RuntimeError("the method has not finished: evaluate its batches first")
-        return self._result
-
-
-def _check_common(threshold: float, n: int, on_failure: str) -> None:
-    if not isinstance(threshold, (int, float)) or not math.isfinite(threshold):
-        raise SubsetError(f"threshold {threshold!r}: expected a finite number")
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise SubsetError(f"-n {n!r}: the samples per level must be a positive integer")
-    if on_failure not in ("raise", "reject"):
-        raise SubsetError(f"on_failure {on_failure!r}: allowed 'raise', 'reject'")
-
-
-class CrudeMonteCarlo(_Coroutine):
-    """Crude Monte Carlo: ``n`` samples in one batch, P = k/n, COV = sqrt((1-P)/(n P))."""
-    name = "crude"
-
-    def __init__(self, threshold: float, n: int, seed: int = 0,
-                 noise_from_seed: Callable[[int], np.ndarray] | None = None,
-                 dim: int | None = None, on_failure: str = "raise"):
-        _check_common(threshold, n, on_failure)
-        self.threshold, self.n, self.seed = float(threshold), int(n), int(seed)
-        self.noise_from_seed = noise_from_seed or standard_noise(int(dim or 1))
-        self.on_failure = on_failure
-        self._start()
-
-    def _process(self):
-        samples = [Sample(0, i, 0, seed=realization_seed(self.seed, i)) for i in range(self.n)]
-        y = yield samples
-        k = int(np.count_nonzero(y > self.threshold))
-        p = k / self.n
-        cov = math.sqrt((1 - p) / (self.n * p)) if k else math.inf
-        lv = LevelResult(0, self.threshold, p, cov, 0.0, y, np.arange(self.n),
-                         np.zeros(self.n, int), self.n, 0)
-        return MethodResult("crude", self.threshold, p, cov, self.n, self.failed_runs,
-                            levels=[lv])
 
 
 def chain_correlation_factor(indicator: np.ndarray, mask: np.ndarray | None = None) -> float:
@@ -353,7 +152,7 @@ def _intermediate_threshold(y: np.ndarray, keys: np.ndarray, n_seeds: int
     return hi, np.sort(order[:n_seeds])
 
 
-class SubsetSimulation(_Coroutine):
+class SubsetSimulation(BatchMethod):
     """Subset simulation with adaptive conditional sampling (module docstring).
 
     ``threshold``: failure is ``Y > threshold``; ``n``: samples per level; ``p0``:
@@ -365,11 +164,11 @@ class SubsetSimulation(_Coroutine):
     ``p0 ** max_levels``; ``label``: the failure event in messages."""
     name = "subset"
 
-    def __init__(self, threshold: float, n: int = 1000, p0: float = 0.1, seed: int = 0,
+    def __init__(self, threshold: float, n: int = 1000, p0: float = 0.1, seed: int = 0, *,
                  noise_from_seed: Callable[[int], np.ndarray] | None = None,
                  dim: int | None = None, on_failure: str = "raise", max_levels: int = 20,
                  label: str | None = None):
-        _check_common(threshold, n, on_failure)
+        check_common(threshold, n, on_failure)
         self.label = label or f"Y > {threshold!r}"
         if isinstance(p0, bool) or not isinstance(p0, (int, float)) or not 0.0 < p0 <= 0.5:
             raise SubsetError(f"--p0 {p0!r}: the level probability must be in (0, 0.5]")
@@ -502,18 +301,6 @@ class SubsetSimulation(_Coroutine):
             store = {k: v for k, v in store.items() if v[0] >= keep}
         acc_mean = float(np.mean(rates)) if rates else None
         return ys, mask, keys, store, lam, (acc_mean, lambdas), runs
-
-
-def run_method(method: CampaignMethod, response: Callable[[np.ndarray], Any],
-               vectorised: bool = True) -> MethodResult:
-    """Evaluate ``method`` with ``response``: a function of an (k, d) array of noise
-    vectors returning k responses (``vectorised``), or of one vector returning a number."""
-    while (batch := method.next_batch()) is not None:
-        z = np.stack([s.noise if s.noise is not None else method.noise_from_seed(s.seed)
-                      for s in batch])
-        y = response(z) if vectorised else [response(row) for row in z]
-        method.tell(np.asarray(y, dtype=float))
-    return method.result()
 
 
 def subset_simulation(response: Callable[[np.ndarray], Any], dim: int, threshold: float,
