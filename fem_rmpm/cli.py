@@ -28,6 +28,7 @@ from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.io.field_output import plot_realization, plot_variogram, write_field_vtu
 from fem_rmpm.io.output import OutputError, write_json
 from fem_rmpm.io.rundir import output_dir_for
+from fem_rmpm.measures import table as measure_table
 from fem_rmpm.random_field import (
     apply_to_points,
     embeddings_for,
@@ -102,9 +103,10 @@ def _cmd_run(a) -> int:
         steps = f"{s['steps']} steps to t = {s['simulated_time']:.3g} s ({s['stop_reason']})"
     print(f"{scene.scene.name}: {s['scheme']} run of {s['particles']} material points, {steps} "
           f"in {s['wall_time']:.1f} s wall ({s['ns_per_particle_step']:.0f} ns per point-step); "
-          f"max displacement {m['max_displacement']:.3g} m, failed = {m['failed']}, run-out "
-          f"{m['runout_distance']:.2f} m, retrogression {m['retrogression_distance']:.2f} m, "
-          f"sliding area {m['sliding_area']:.1f} m2; {s['frozen_points']['count']} points "
+          f"{measure_table.value_text('max_displacement', m['max_displacement'], '.3g')}, "
+          f"failed = {m['failed']}, "
+          + ", ".join(measure_table.value_text(k, m[k]) for k in measure_table.headline())
+          + f"; {s['frozen_points']['count']} points "
           f"frozen at the grid edge. Output: {a.out}")
     return 0
 
@@ -139,11 +141,6 @@ def campaign_cases(scene: Scene, scene_path: str | Path | None = None) -> list[s
     return ["scene"]
 
 
-_MECHANISM_TEXT = (("slip_surface_height", "slip-surface height", " m"),
-                   ("intact_blocks", "intact blocks", ""),
-                   ("sliding_area_early", "early sliding area", " m2"))
-
-
 def summary_text(res: campaign.CampaignResult) -> str:
     """The final one-paragraph-per-case summary printed by ``fem-rmpm mc``."""
     lines = []
@@ -172,12 +169,9 @@ def summary_text(res: campaign.CampaignResult) -> str:
             lines.append(head + campaign.fs_text(s.get("fs")))
             continue
         if c.deterministic:
-            r, t, a = (s[k]["mean"] for k in ("runout_distance", "retrogression_distance",
-                                              "sliding_area"))
-            mech = "".join(f", {lab} {s[k]['mean']:.2f}{unit}"
-                           for k, lab, unit in _MECHANISM_TEXT if k in s)
-            lines.append(head + f"failed = {bool(s['slope_failures'])}, run-out {r:.2f} m, "
-                         f"retrogression {t:.2f} m, sliding area {a:.1f} m2{mech}"
+            lines.append(head + f"failed = {bool(s['slope_failures'])}, " + ", ".join(
+                measure_table.value_text(k, s[k]["mean"]) for k in
+                measure_table.headline() + measure_table.mechanism() if k in s)
                          + (f"; {campaign.fs_text(s['fs'])}" if s.get("fs") else ""))
             continue
         lo, hi = s["wilson95"]
@@ -185,16 +179,16 @@ def summary_text(res: campaign.CampaignResult) -> str:
                f"Wilson 95 % [{lo:.2f}, {hi:.2f}])")
         if s.get("measure_runs", s["ok"]) < s["mpm_runs"]:    # [montecarlo] runs_to_rest
             txt += f"; measures over the {s['measure_runs']} run(s) to rest"
-        for key, lab, unit in (("runout_distance", "run-out", "m"), ("retrogression_distance",
-                               "retrogression", "m"), ("sliding_area", "sliding area", "m2")):
+        for key in measure_table.headline():
             d = s[key]
             txt += "" if d["mean"] is None else (
-                f"; {lab} mean {d['mean']:.2f} +- {d['se']:.2f} {unit} "
+                f"; {measure_table.label(key)} mean {d['mean']:.2f} +- {d['se']:.2f} "
+                f"{measure_table.unit(key)} "
                 f"(5/50/95 %: {d['q05']:.2f}/{d['q50']:.2f}/{d['q95']:.2f})")
-        mech = [(k, lab, unit) for k, lab, unit in _MECHANISM_TEXT if k in s]
+        mech = [k for k in measure_table.mechanism() if k in s]
         if mech:
-            txt += "; mean " + ", ".join(f"{lab} {s[k]['mean']:.2f}{unit}"
-                                         for k, lab, unit in mech)
+            txt += "; mean " + ", ".join(measure_table.value_text(k, s[k]["mean"])
+                                         for k in mech)
         conv = s.get("convergence")
         if conv and s["ok"] >= 4:
             idx = sorted({s["ok"] // 4 - 1, s["ok"] // 2 - 1, s["ok"] - 1})
@@ -520,11 +514,10 @@ def _add_mc(sub) -> None:
                    help="crude Monte Carlo (default) or subset simulation of a small "
                    "probability (then -n is the samples per level, default 1000)")
     m.add_argument("--response", default=None,
-                   help="subset: runout_distance, sliding_area, retrogression_distance, "
-                   "max_displacement (failure: above --threshold) or factor_of_safety "
-                   "(failure: below --threshold, default 1)")
+                   help=f"subset: {measure_table.responses_text()}; failure above or below "
+                   "--threshold (factor_of_safety: default 1)")
     m.add_argument("--threshold", type=float, default=None,
-                   help="subset: the failure threshold (m, m2 or FS)")
+                   help="subset: the failure threshold, in the response's unit")
     m.add_argument("--p0", type=float, default=None,
                    help="subset: level probability in (0, 0.5] (default 0.1)")
     m.set_defaults(func=_cmd_mc)

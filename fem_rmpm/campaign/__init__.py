@@ -162,7 +162,7 @@ from fem_rmpm.campaign.cases import (
 _LAZY = {"start_local_cluster": ".cluster", "worker_environment": ".cluster",
          "parse_keep_vtk": ".keep_vtk", "CampaignResult": ".runner", "run_campaign": ".runner",
          "case_statistics": ".statistics", "wilson_interval": ".statistics",
-         "RESULT_COLUMNS": ".store", "read_results": ".store", "result_columns": ".store",
+         "RECORD_COLUMNS": ".store", "read_results": ".store", "result_columns": ".store",
          "write_results": ".store", "run_realization": ".task", "CampaignMethod": ".subset",
          "CrudeMonteCarlo": ".subset", "SubsetSimulation": ".subset",
          "subset_simulation": ".subset", "run_subset_campaign": ".subset_runner",
@@ -184,5 +184,5 @@ __all__ = ["CampaignError", "Case", "LITERATURE_CASES", "parse_case", "literatur
            "realization_seed", "without_random_field", "run_realization", "run_campaign",
            "CampaignResult", "case_statistics", "wilson_interval", "read_results",
            "write_results", "result_columns", "parse_keep_vtk", "worker_environment",
-           "start_local_cluster", "RESULT_COLUMNS", "CampaignMethod", "CrudeMonteCarlo",
+           "start_local_cluster", "RECORD_COLUMNS", "CampaignMethod", "CrudeMonteCarlo",
            "SubsetSimulation", "subset_simulation", "run_subset_campaign"]
