@@ -88,6 +88,8 @@ def test_every_entry_is_consistent():
     assert table.headline() == ["runout_distance", "retrogression_distance", "sliding_area"]
     assert table.unit("sliding_area") == table.unit("sliding_area_early") == "m2/m"
     assert column_unit("sliding_area") == "m2/m" and column_unit("steps") == "count"
+    doc = table.markdown().splitlines()
+    assert len(doc) == 2 + len(MEASURES) and doc[2].startswith("| `failed` | 0/1 | flag |")
     with pytest.raises(ValueError, match="unit 'm2 per m' is not one of"):
         Measure("x", "m2 per m", "x", "x")
     with pytest.raises(ValueError, match="response 'up' is not one of"):

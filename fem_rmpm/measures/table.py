@@ -27,7 +27,7 @@ pointing down-slope, *counted* the points of the deposit
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -40,12 +40,9 @@ from fem_rmpm.measures.geometry import (
     surface_profile,
 )
 
-if TYPE_CHECKING:
-    from fem_rmpm.measures.deposit import Deposit
-
 __all__ = ["Measure", "MEASURES", "UNIT_SPELLINGS", "KINDS", "ROLES", "DIRECTIONS", "unit",
            "label", "axis_label", "value_text", "core", "headline", "mechanism", "summarised",
-           "responses", "responses_text", "response_aliases", "resolve_response"]
+           "responses", "responses_text", "response_aliases", "resolve_response", "markdown"]
 
 UNIT_SPELLINGS = ("m", "m2/m", "m2", "s", "count", "0/1", "-")
 #: ``scalar``: a number; ``count``: a whole number; ``flag``: true or false; ``profile``: a
@@ -68,7 +65,9 @@ class Measure:
     unit: str
     label: str
     definition: str
-    compute: Callable[["Deposit"], Any] | None = None
+    #: A function of the realization's :class:`fem_rmpm.measures.deposit.Deposit` (not
+    #: imported here: the deposit module reads this table), or None.
+    compute: Callable[[Any], Any] | None = None
     kind: str = "scalar"
     role: str | None = None
     #: Recorded by every run to rest: one of the first columns of ``results.csv`` (kept even
@@ -94,38 +93,38 @@ class Measure:
 
 
 # ----------------------------------------------------------------------------- computations
-# Each takes the realization's Deposit and returns a Python value (float, int, bool, None,
-# or a list for a profile).
+# Each takes the realization's Deposit ``d`` (fem_rmpm.measures.deposit.Deposit) and returns a
+# Python value (float, int, bool, None, or a list for a profile).
 
-def _failed(d: "Deposit") -> bool:
+def _failed(d) -> bool:
     return bool(d.sliding.any())
 
 
-def _sliding_area(d: "Deposit") -> float:
+def _sliding_area(d) -> float:
     return float(d.pts.volume0[d.sliding].sum())
 
 
-def _runout(d: "Deposit") -> float:
+def _runout(d) -> float:
     front = float(d.X[:, 0].max()) if len(d.X) else float(d.X0[:, 0].max())
     return float(max(0.0, front - d.X0[:, 0].max()))
 
 
-def _retrogression(d: "Deposit") -> float:
+def _retrogression(d) -> float:
     if not d.sliding.any():
         return 0.0
     crest = to_true_frame(crest_position(d.pts, float(d.cell[1]))[None], d.frame_angle_deg)[0]
     return float(max(0.0, crest[0] - d.X0[d.sliding, 0].min()))
 
 
-def _max_displacement(d: "Deposit") -> float:
+def _max_displacement(d) -> float:
     return float(d.displacement[d.counted].max(initial=0.0))
 
 
-def _slip_surface_height(d: "Deposit") -> float:
+def _slip_surface_height(d) -> float:
     return slip_surface_height(d.pts.x0[d.counted], d.sliding[d.counted], float(d.cell[0]))
 
 
-def _intact_blocks(d: "Deposit") -> int | None:
+def _intact_blocks(d) -> int | None:
     if d.mechanism is None:
         return None
     xs, gs = d.mechanism
@@ -134,21 +133,21 @@ def _intact_blocks(d: "Deposit") -> int | None:
                          min_area=d.intact_block_area)
 
 
-def _sliding_area_early(d: "Deposit") -> float | None:
+def _sliding_area_early(d) -> float | None:
     if d.mechanism is None:
         return None
     return moved_area(d.mechanism[0], d.pts.x0, d.pts.volume0, d.pts.active, d.threshold)
 
 
-def _points(mask_of: str) -> Callable[["Deposit"], int]:
+def _points(mask_of: str) -> Callable[[Any], int]:
     return lambda d: int(getattr(d, mask_of).sum())
 
 
-def _volume(mask_of: str) -> Callable[["Deposit"], float]:
+def _volume(mask_of: str) -> Callable[[Any], float]:
     return lambda d: float(d.pts.volume0[getattr(d, mask_of)].sum())
 
 
-def _profile(d: "Deposit", X: np.ndarray) -> list[tuple[float, float]]:
+def _profile(d, X: np.ndarray) -> list[tuple[float, float]]:
     return surface_profile(X, float(np.min(d.cell)))
 
 
@@ -319,3 +318,14 @@ def resolve_response(text: str) -> str | None:
     key = text.strip().lower()
     key = response_aliases().get(key, key)
     return key if key in responses() else None
+
+
+def markdown() -> str:
+    """The table as a Markdown table (name, unit, kind, subset response, definition), for
+    the documentation."""
+    rows = ["| measure | unit | kind | subset response | definition |", "|---|---|---|---|---|"]
+    for m in MEASURES.values():
+        resp = f"failure {m.response}" if m.response else ""
+        source = "" if m.compute is not None else f" (recorded by {m.source})"
+        rows.append(f"| `{m.name}` | {m.unit} | {m.kind} | {resp} | {m.definition}{source} |")
+    return "\n".join(rows) + "\n"
