@@ -156,7 +156,7 @@ def plot_convergence(path: Path, cases, stats, runouts: dict) -> Path:
     a1.set_ylim(-0.02, 1.05)
     a1.set_title("P(failure); band and thin line: Wilson 95 % lower bound", fontsize=10)
     a2.set_xlabel("realizations run to rest, n (count)")
-    a2.set_ylabel("mean run-out (m)")
+    a2.set_ylabel(f"mean {table.axis_label('runout_distance')}")
     a2.set_title("mean run-out; band: +- 1.96 SE", fontsize=10)
     for a in (a1, a2):
         a.xaxis.set_major_locator(MaxNLocator(integer=True))

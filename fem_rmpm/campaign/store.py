@@ -305,8 +305,9 @@ def _drop_constant(columns: list[str], rows: list[dict]) -> tuple[list[str], dic
 
 
 def read_results(path: str | Path) -> list[dict]:
-    """Rows of a ``results.csv`` with numbers parsed (empty cells -> None); the columns
-    left out as constant (``results.units.json``) are restored in every row."""
+    """Rows of a ``results.csv`` with numbers parsed (empty cells -> None; the measure
+    table's flags -> bool); the columns left out as constant (``results.units.json``) are
+    restored in every row."""
     rows = []
     side = _sidecar(Path(path))
     constant = json.loads(side.read_text()).get("constant", {}) if side.exists() else {}
@@ -319,7 +320,7 @@ def read_results(path: str | Path) -> list[dict]:
                     out[k] = None
                 elif k in ("index", "seed", "steps", "particles", "frozen_points"):
                     out[k] = int(v)
-                elif k == "failed":
+                elif getattr(table.MEASURES.get(k), "kind", None) == "flag":
                     out[k] = v == "1"
                 elif k in ("case", "status", "stop_reason", "scheme", "error"):
                     out[k] = v
