@@ -74,7 +74,8 @@ class Measure:
     #: when constant) and, when summarised, in the statistics of every campaign.
     core: bool = False
     #: Summarised over the realizations (mean, standard error, quantiles) when every run of
-    #: the sample recorded a number; False for flags, profiles and echoed settings.
+    #: the sample recorded a number; False for flags, profiles, echoed settings and the
+    #: run's own times (time to rest, decision time).
     statistic: bool = True
     response: str | None = None
     aliases: tuple[str, ...] = ()
