@@ -4,14 +4,14 @@ consumer reads it.
 The extension test adds a toy measure — the mean initial height of the sliding points, in m
 — as one entry of the table and finds it in every output of a tiny crude Monte Carlo
 campaign (``tests/data/mc_tiny.toml``: each run's ``summary.json``, the records,
-``results.csv`` and its units, the statistics of ``summary.json``, ``report.html``) and as the
-response of a tiny subset-simulation campaign.
+``results.csv`` and its units, the statistics of ``summary.json``, ``report.html``) and as
+the response of a tiny subset-simulation campaign.
 
-The campaigns run on the session's Dask cluster (``dask_client`` of ``tests/conftest.py``:
-two worker *processes*), so a monkeypatch of the table in this process alone would not reach
-the realizations.  The entry is installed in this process with ``monkeypatch`` and in every
-worker with ``Client.run`` (this module's functions are pickled by value, so the workers need
-not import it), and removed from the workers afterwards.
+The campaigns run on the shared Dask cluster of the test run (``dask_client`` of
+``tests/conftest.py``: two worker *processes*), so a monkeypatch of the table in this
+process alone would not reach the realizations. The entry is installed in this process with
+``monkeypatch`` and in every worker with ``Client.run`` (this module's functions are pickled
+by value, so the workers need not import it), and removed from the workers afterwards.
 """
 from __future__ import annotations
 
