@@ -35,6 +35,7 @@ from fem_rmpm.io.output import PvdSeries, write_grid, write_json
 from fem_rmpm.io.plots import plot_profile, plot_snapshots
 from fem_rmpm.io.rundir import RunDirError, check_run_dir, run_files, start_run_dir
 from fem_rmpm.materials import invalid_points
+from fem_rmpm.measures import table as measure_table
 from fem_rmpm.measures.deposit import compute_measures, excluded_summary
 from fem_rmpm.random_field import apply_to_points, field_noise, noise_shape, sample_point_properties
 from fem_rmpm.runtime.budget import check_budget, explicit_numba
@@ -307,8 +308,9 @@ def _figures(out, scene, grid, snapshots, measures, label: str | None = None):
     who = label or scene.scene.name
     plot_snapshots(out / "plastic_shear_strain.png", [snapshots[i] for i in pick],
                    scene.scene.frame_angle_deg, spacing, scene=scene, mechanism_time=mech,
-                   title=f"{who}: plastic shear strain (run-out {measures['runout_distance']:.1f}"
-                   f" m, sliding area {measures['sliding_area']:.0f} m2)")
+                   title=f"{who}: plastic shear strain (" + ", ".join(
+                       measure_table.value_text(k, measures[k], ".1f")
+                       for k in ("runout_distance", "sliding_area")) + ")")
     plot_profile(out / "profile.png", measures["initial_profile"], measures["final_profile"],
                  title=f"{who}: surface before and after", scene=scene)
 

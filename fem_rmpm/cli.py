@@ -26,6 +26,7 @@ from fem_rmpm.campaign.summary_text import subset_summary_text, summary_text
 from fem_rmpm.io import field_output
 from fem_rmpm.io.output import OutputError
 from fem_rmpm.io.rundir import output_dir_for
+from fem_rmpm.measures import table as measure_table
 from fem_rmpm.runtime.errors import InputError
 from fem_rmpm.scene import (
     Scene,
@@ -83,9 +84,10 @@ def _cmd_run(a) -> int:
         steps = f"{s['steps']} steps to t = {s['simulated_time']:.3g} s ({s['stop_reason']})"
     print(f"{scene.scene.name}: {s['scheme']} run of {s['particles']} material points, {steps} "
           f"in {s['wall_time']:.1f} s wall ({s['ns_per_particle_step']:.0f} ns per point-step); "
-          f"max displacement {m['max_displacement']:.3g} m, failed = {m['failed']}, run-out "
-          f"{m['runout_distance']:.2f} m, retrogression {m['retrogression_distance']:.2f} m, "
-          f"sliding area {m['sliding_area']:.1f} m2; {s['frozen_points']['count']} points "
+          f"{measure_table.value_text('max_displacement', m['max_displacement'], '.3g')}, "
+          f"failed = {m['failed']}, "
+          + ", ".join(measure_table.value_text(k, m[k]) for k in measure_table.headline())
+          + f"; {s['frozen_points']['count']} points "
           f"frozen at the grid edge. Output: {a.out}")
     return 0
 
@@ -304,11 +306,10 @@ def _add_mc(sub) -> None:
                    help="; ".join(f"{k}: {e.help}" for k, e in campaign.METHODS.items())
                    + " (default crude; for subset -n is the samples per level, default 1000)")
     m.add_argument("--response", default=None,
-                   help="subset: runout_distance, sliding_area, retrogression_distance, "
-                   "max_displacement (failure: above --threshold) or factor_of_safety "
-                   "(failure: below --threshold, default 1)")
+                   help=f"subset: {measure_table.responses_text()}; failure above or below "
+                   "--threshold (factor_of_safety: default 1)")
     m.add_argument("--threshold", type=float, default=None,
-                   help="subset: the failure threshold (m, m2 or FS)")
+                   help="subset: the failure threshold, in the response's unit")
     m.add_argument("--p0", type=float, default=None,
                    help="subset: level probability in (0, 0.5] (default 0.1)")
     m.set_defaults(func=_cmd_mc)

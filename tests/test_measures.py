@@ -1,4 +1,4 @@
-"""Measures of a realization and points leaving the grid (issue 4)."""
+"""Measures of a realization and points leaving the grid."""
 from __future__ import annotations
 
 import json
@@ -11,7 +11,9 @@ from fem_rmpm import api
 from fem_rmpm.cli import main
 from fem_rmpm.discretise.grid import make_grid
 from fem_rmpm.discretise.points import seed_particles
-from fem_rmpm.measures.deposit import compute_measures, intact_blocks, surface_profile
+from fem_rmpm.measures.blocks import intact_blocks
+from fem_rmpm.measures.deposit import compute_measures
+from fem_rmpm.measures.geometry import surface_profile
 from fem_rmpm.scene import load_scene, with_values
 
 
@@ -106,7 +108,7 @@ def test_points_leaving_the_grid_stop_the_run_if_asked(meshes, tmp_path, capsys)
 
 
 def test_reference_slope_case_i_fails_and_comes_to_rest(meshes, tmp_path):
-    """Issue 4 acceptance 3 (explicit; ~30 s on one core): the homogeneous reference slope
+    """The explicit scheme (~30 s on one core): the homogeneous reference slope
     (infinite-slope factor of safety c/(gamma H sin b cos b) = 0.62 at peak, 0.12 at
     residual strength; Wang, Vardon & Hicks 2017) fails under its own weight, runs out and comes to
     rest inside the valley; summary.json holds every measure, nothing is NaN and no point
@@ -138,7 +140,7 @@ def test_slip_surface_height_and_intact_blocks_of_prescribed_slides(meshes):
     """A slide of everything above y = 1.5 m has its failure surface at the highest point
     that stayed (the Gauss point just below 1.5 m); two separate, unsheared moved blocks
     count as two intact blocks, and the same blocks fully sheared count as none."""
-    from fem_rmpm.measures.deposit import intact_blocks, slip_surface_height
+    from fem_rmpm.measures.geometry import slip_surface_height
     scene, grid, pts = _slope(meshes)
     upper = (pts.x0[:, 1] > 1.5) & (pts.x0[:, 0] > 10) & (pts.x0[:, 0] < 50)
     pts.x[upper, 0] += 2.0
@@ -183,7 +185,7 @@ def _with_copies(pts, idx):
 
 
 def test_runout_ignores_frozen_and_stray_points(meshes):
-    """Issue 12 acceptance 1: a slid deposit, then one point frozen at the top edge of the
+    """A slid deposit, then one point frozen at the top edge of the
     grid far beyond it and four stray points 3 m beyond its front (one or two cells apart,
     as debris climbing the valley side).  The run-out moves by no more than one cell
     (achieves 0 m) and the five points are counted as excluded, with their volume."""

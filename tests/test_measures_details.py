@@ -1,10 +1,10 @@
-"""Exact checks of each measure on hand-made point sets (issue 21, mutation testing:
-``python validation/mutation.py measures``).  Every expected value is worked out in the
-test from the definitions in :mod:`fem_rmpm.measures.deposit` (its module docstring): which
-points count (8-neighbour bodies of occupied cells, >= 1 % of the active volume, the
+"""Exact checks of each measure on hand-made point sets (they also serve mutation testing:
+``python validation/mutation.py measures``). Every expected value is worked out in the test
+from the definitions in :mod:`fem_rmpm.measures.table` and :mod:`fem_rmpm.measures.deposit`:
+which points count (8-neighbour bodies of occupied cells, >= 1 % of the active volume, the
 largest always), sliding (counted and moved more than the threshold, strictly), run-out,
-retrogression, slip surface height, intact blocks (4-neighbour, >= 4 cells, gamma_p <
-0.1 strictly) and the surface profiles.
+retrogression, slip surface height, intact blocks (4-neighbour, >= 4 cells, gamma_p < 0.1
+strictly) and the surface profiles.
 """
 from __future__ import annotations
 
@@ -15,16 +15,14 @@ import pytest
 
 from fem_rmpm.discretise.points import Particles
 from fem_rmpm.materials import MaterialPoints, model_id
+from fem_rmpm.measures.blocks import intact_blocks
 from fem_rmpm.measures.deposit import (
     MIN_BODY_FRACTION,
     compute_measures,
-    crest_position,
     deposit_points,
     excluded_summary,
-    intact_blocks,
-    slip_surface_height,
-    surface_profile,
 )
+from fem_rmpm.measures.geometry import crest_position, slip_surface_height, surface_profile
 
 
 def _points(x0, x=None, volume0=None, active=None) -> Particles:
@@ -115,7 +113,7 @@ def test_least_intact_block_is_an_area_the_same_on_every_mesh():
     The old 4-cell rule counts 1 / 2 / 2 (the fragment is 2 cells at 0.5 m, 8 at
     0.25 m): finer meshes counted smaller fragments.  Also: 1 m2 is exactly 16 cells of
     0.25 m (no rounding up to 17); a cell larger than the area still needs one cell."""
-    from fem_rmpm.measures.deposit import INTACT_BLOCK_AREA, least_cells
+    from fem_rmpm.measures.blocks import INTACT_BLOCK_AREA, least_cells
     assert INTACT_BLOCK_AREA == 1.0
     assert [least_cells(1.0, [h, h]) for h in (0.5, 0.25, 0.125)] == [4, 16, 64]
     assert least_cells(1.0, [0.6, 0.4]) == 5 and least_cells(0.1, [0.5, 0.5]) == 1

@@ -1,15 +1,15 @@
-"""The deposit and mechanism measures against independent brute-force references, on
-random point sets (issue 21, mutation testing of :mod:`fem_rmpm.measures.deposit`).
+"""The deposit and mechanism measures against independent brute-force references, on random
+point sets (they also serve mutation testing of :mod:`fem_rmpm.measures`).
 
-The references below are written from the definitions in the module docstring of
-:mod:`fem_rmpm.measures.deposit`, in plain Python (dicts of cells, breadth-first search), sharing
-no code with the vectorised module: a point belongs to the cell ``floor((x - origin) /
-cell)``; occupied cells form bodies by 8-neighbour contact (deposit) or 4-neighbour
-contact (intact blocks, cells clipped into the grid); a body counts when it holds at least
-1 % of the active volume, and the largest always counts.  The random sets use an origin
-that is not a multiple of the cell and rectangular cells, so a sign or an axis mix-up in
-the binning changes the answer.  The hand-made cases pin the boundaries the random sets
-rarely hit (a body of exactly 1 %, more than 100 bodies, an empty deposit).
+The references below are written from the definitions in :mod:`fem_rmpm.measures.table` and
+the module docstring of :mod:`fem_rmpm.measures.deposit`, in plain Python (dicts of cells,
+breadth-first search), sharing no code with the vectorised module: a point belongs to the
+cell ``floor((x - origin) / cell)``; occupied cells form bodies by 8-neighbour contact
+(deposit) or 4-neighbour contact (intact blocks, cells clipped into the grid); a body counts
+when it holds at least 1 % of the active volume, and the largest always counts. The random
+sets use an origin that is not a multiple of the cell and rectangular cells, so a sign or an
+axis mix-up in the binning changes the answer. The hand-made cases pin the boundaries the
+random sets rarely hit (a body of exactly 1 %, more than 100 bodies, an empty deposit).
 """
 from __future__ import annotations
 
@@ -20,13 +20,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fem_rmpm.measures.deposit import (
-    compute_measures,
-    deposit_points,
-    excluded_summary,
-    intact_blocks,
-    slip_surface_height,
-)
+from fem_rmpm.measures.blocks import intact_blocks
+from fem_rmpm.measures.deposit import compute_measures, deposit_points, excluded_summary
+from fem_rmpm.measures.geometry import slip_surface_height
 from tests.test_measures_details import _points
 
 N8 = [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1) if (a, b) != (0, 0)]
@@ -213,4 +209,4 @@ def test_excluded_summary_rule_text():
     assert excluded_summary(m)["rule"] == (
         "frozen: frozen at the grid edge; stray: active but in no connected body "
         "(8-neighbour occupied grid cells) holding >= 1% of the active volume; "
-        "volume = initial, m2 per m")
+        "volume = initial, m2/m")

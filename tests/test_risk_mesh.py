@@ -1,4 +1,4 @@
-"""The critical strength factor search of validation/risk_mesh.py (issue 17): bracketing
+"""The critical strength factor search of validation/risk_mesh.py: bracketing
 from lambda = 1 and bisection, on a stand/fail rule given in closed form."""
 from __future__ import annotations
 

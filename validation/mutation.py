@@ -66,7 +66,8 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
                    ["tests/test_montecarlo.py::test_statistics_standard_error_and_wilson_interval",
                     "tests/test_statistics.py",
                     "tests/test_campaign_decide.py::test_measure_sample_is_the_runs_to_rest_below_k"]),
-    "measures": (["fem_rmpm/measures/deposit.py"],
+    "measures": (["fem_rmpm/measures/deposit.py", "fem_rmpm/measures/table.py",
+                  "fem_rmpm/measures/geometry.py", "fem_rmpm/measures/blocks.py"],
                  ["tests/test_measures.py", "tests/test_measures_details.py",
                   "tests/test_measures_reference.py", "-k",
                   "not reference_slope and not leaving and not ends_cleanly and not "

@@ -1,8 +1,9 @@
 """Figures of a Monte Carlo campaign (matplotlib, Agg backend), one PNG each.
 
 * ``exceedance.png`` — empirical exceedance curves P[X > x] = (number of ``ok``
-  realizations with X > x) / N of run-out, retrogression and sliding area, one
-  curve per case (a deterministic case is a vertical dashed line);
+  realizations with X > x) / N of the headline measures (:mod:`fem_rmpm.measures.table`:
+  run-out, retrogression, sliding area), one curve per case (a deterministic case is a
+  vertical dashed line);
 * ``histograms.png`` — their histograms (shared bins per measure), and those of the
   measures of the mechanism when recorded (slip-surface height, intact blocks, sliding
   area at the mechanism time: the literature's distinctions between the cases);
@@ -25,18 +26,10 @@ import numpy as np
 
 from fem_rmpm.io.output import to_true_frame
 from fem_rmpm.io.plots import _plt, strain_norm, strain_panel
+from fem_rmpm.measures import table
 
 __all__ = ["campaign_figures", "plot_exceedance", "plot_histograms", "plot_convergence",
            "plot_cases", "final_snapshot"]
-
-_MEASURES = (("runout_distance", "run-out distance (m)"),
-             ("retrogression_distance", "retrogression distance (m)"),
-             ("sliding_area", "sliding area (m$^2$ per m)"))
-#: Measures of the mechanism (fem_rmpm.measures.deposit), shown in the histograms when recorded.
-_MECHANISM = (("slip_surface_height", "slip-surface height above the base (m)"),
-              ("intact_blocks", "intact blocks at the mechanism time (count)"),
-              ("sliding_area_early", "sliding area at the mechanism time (m$^2$)"))
-
 
 def _values(records, case: str, key: str) -> np.ndarray:
     return np.array([float(r["measures"][key]) for r in records
@@ -46,8 +39,10 @@ def _values(records, case: str, key: str) -> np.ndarray:
 
 def plot_exceedance(path: Path, cases, records) -> Path:
     plt = _plt()
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    for ax, (key, lab) in zip(axes, _MEASURES):
+    keys = table.headline()
+    fig, axes = plt.subplots(1, len(keys), figsize=(13 * len(keys) / 3, 3.8), squeeze=False)
+    axes = axes[0]
+    for ax, key in zip(axes, keys):
         for k, c in enumerate(cases):
             x = np.sort(_values(records, c.name, key))
             if len(x) == 0:
@@ -60,7 +55,7 @@ def plot_exceedance(path: Path, cases, records) -> Path:
             p = 1.0 - np.arange(1, n + 1) / n            # P[X > x_(i)]
             ax.step(np.r_[x[0], x], np.r_[1.0, p], where="post", color=col,
                     ls=_STYLES[k % len(_STYLES)][1], label=f"{c.label} (N = {n})")
-        ax.set_xlabel(lab)
+        ax.set_xlabel(table.axis_label(key))
         ax.set_ylabel("P[X > x] (-)")
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
@@ -76,20 +71,20 @@ def plot_histograms(path: Path, cases, records) -> Path:
     plt = _plt()
     from matplotlib.ticker import MaxNLocator  # lazy, as _plt: matplotlib only for figures
     ok = [r for r in records if r["status"] == "ok"]
-    panels = list(_MEASURES) + [(k, lab) for k, lab in _MECHANISM
-                                if ok and all((r["measures"] or {}).get(k) is not None
-                                              for r in ok)]
+    panels = table.headline() + [k for k in table.mechanism()
+                                 if ok and all((r["measures"] or {}).get(k) is not None
+                                               for r in ok)]
     rows = (len(panels) + 2) // 3
     fig, axes = plt.subplots(rows, 3, figsize=(13, 0.6 + 3.3 * rows), squeeze=False)
     axes = axes.ravel()
     for ax in axes[len(panels):]:
         ax.set_visible(False)
-    for ax, (key, lab) in zip(axes, panels):
+    for ax, key in zip(axes, panels):
         allv = np.concatenate([_values(records, c.name, key) for c in cases] or [np.zeros(0)])
         if len(allv) == 0:
             continue
         lo, hi = float(allv.min()), float(allv.max())
-        if key == "intact_blocks":       # counts: one bin per integer
+        if table.MEASURES[key].kind == "count":       # one bin per integer
             bins = np.arange(lo - 0.5, hi + 1.5)
             ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         else:
@@ -103,7 +98,7 @@ def plot_histograms(path: Path, cases, records) -> Path:
             else:
                 ax.hist(v, bins=bins, histtype="step", lw=1.6, color=f"C{k}",
                         label=f"{c.label} (N = {len(v)})")
-        ax.set_xlabel(lab)
+        ax.set_xlabel(table.axis_label(key))
         ax.set_ylabel("realizations (count)")
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         ax.grid(alpha=0.3)
@@ -161,7 +156,7 @@ def plot_convergence(path: Path, cases, stats, runouts: dict) -> Path:
     a1.set_ylim(-0.02, 1.05)
     a1.set_title("P(failure); band and thin line: Wilson 95 % lower bound", fontsize=10)
     a2.set_xlabel("realizations run to rest, n (count)")
-    a2.set_ylabel("mean run-out (m)")
+    a2.set_ylabel(f"mean {table.axis_label('runout_distance')}")
     a2.set_title("mean run-out; band: +- 1.96 SE", fontsize=10)
     for a in (a1, a2):
         a.xaxis.set_major_locator(MaxNLocator(integer=True))
@@ -253,10 +248,9 @@ def campaign_figures(out: Path, cases, stats, records, layout, scene) -> list[Pa
                 x, g, t = snap
                 m = r["measures"]
                 who = "" if c.deterministic else f" #{r['index']} (seed {r['seed']})"
-                what = (f"run-out {m['runout_distance']:.1f} m, retrogression "
-                        f"{m['retrogression_distance']:.1f} m, sliding area "
-                        f"{m['sliding_area']:.0f} m2" if when is None else
-                        f"{m.get('intact_blocks')} intact blocks")
+                what = (", ".join(table.value_text(k, m[k], ".1f") for k in table.headline())
+                        if when is None else table.value_text("intact_blocks",
+                                                              m.get("intact_blocks"), "d"))
                 panels.append((f"{c.label}{who}, t = {t:.1f} s: {what}", x, g))
                 break
         if panels:

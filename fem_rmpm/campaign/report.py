@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from fem_rmpm.io.output import _atomic_write_bytes
+from fem_rmpm.measures import table
 from fem_rmpm.runtime.machine import tally
 
 __all__ = ["write_report", "report_html", "ReportError"]
@@ -54,12 +55,6 @@ FIGURES = (
     ("risk_modes.png", "Risk study: failure modes per case (rule in the section above) and "
                        "the failure surface's height above the base, given failure."),
 )
-
-#: Measures shown first in the per-case table (others follow in the summary's order).
-MAIN_MEASURES = (("runout_distance", "run-out (m)"),
-                 ("retrogression_distance", "retrogression (m)"),
-                 ("sliding_area", "sliding area (m²/m)"))
-
 
 class ReportError(ValueError):
     """The directory is not a finished campaign (no ``summary.json``), or it is unreadable."""
@@ -186,17 +181,9 @@ def _workers_text(machines: list[dict], shown: int = 6) -> str:
     return _esc("; ".join(parts) + " realization(s)")
 
 
-#: Units of the measures the campaign records (shown in the measures table).
-UNITS = {"runout_distance": "m", "retrogression_distance": "m", "sliding_area": "m²/m",
-         "max_displacement": "m", "slip_surface_height": "m", "sliding_area_early": "m²/m",
-         "intact_blocks": "count", "time_to_rest": "s", "mechanism_time": "s",
-         "factor_of_safety": "–", "excluded_frozen_points": "count",
-         "excluded_stray_points": "count", "excluded_frozen_volume": "m²/m",
-         "excluded_stray_volume": "m²/m"}
-
-
 def _measure_keys(cases: list[dict]) -> list[str]:
-    keys = [m for m, _ in MAIN_MEASURES]
+    """The headline measures of the table first, then the others in the summary's order."""
+    keys = table.headline()
     for c in cases:
         keys += [k for k, v in c.items() if isinstance(v, dict) and "mean" in v and k not in keys]
     return keys
@@ -222,11 +209,12 @@ def _results(summary: dict) -> str:
     k_rest = summary.get("runs_to_rest")
     decided = ("" if k_rest is None else
                f" Realizations with index ≥ {_num(k_rest)} stopped once their failure was "
-               "decided (1 m² of points moved more than the failure displacement); they count "
+               "decided (1 m2/m of points moved more than the failure displacement); they count "
                "in P(failure) only.")
     mrows = []
     for key in _measure_keys(cases):
-        row = [f"{_esc(key.replace('_', ' '))} <small>({_esc(UNITS.get(key, '?'))})</small>"]
+        row = [f'<span title="{_esc(key)}">{_esc(table.label(key))}</span> '
+               f"<small>({_esc(table.unit(key))})</small>"]
         for c in cases:
             s = c.get(key)
             row.append("–" if not isinstance(s, dict) else
@@ -313,10 +301,11 @@ def _risk_study(campaign: Path) -> str:
     return ("<h2>Risk study</h2><p>" + _esc(rule) + "</p>"
             + _table(("case", "N", "run to rest: n (failed)", "P(failure) [Wilson 95 %]",
                       "P(FS < 1)",
-                      "sliding area given failure: mean (COV)",
-                      "run-out given failure: mean (COV)",
+                      f"{table.axis_label('sliding_area')} given failure: mean (COV)",
+                      f"{table.axis_label('runout_distance')} given failure: mean (COV)",
                       "toe slump / translational / retrogressive",
-                      "failure-surface height: median m (n above base)"), rows)
+                      f"{table.axis_label('slip_surface_height')}: median (n above base)"),
+                     rows)
             + _decided_check(study) + _mesh_check(study))
 
 
@@ -350,11 +339,12 @@ def _mesh_check(study: dict) -> str:
                      f"{_num(m.get('area_abs_difference_mean'))} ({_num(m.get('both_failed'))})"])
     if not rows:
         return ""
+    area = table.unit("sliding_area")
     return ("<h3>Mesh check</h3><p>The same realizations (same random field) on the scene's "
             "mesh and on a finer one (" + _esc(study.get("mesh_campaign") or "") + ").</p>"
             + _table(("case", "pairs", "P(failure) scene / finer", "agree",
-                      "sliding area given failure (m2) scene / finer",
-                      "mean |difference| where both failed (m2) (n)"), rows))
+                      f"sliding area given failure ({area}) scene / finer",
+                      f"mean |difference| where both failed ({area}) (n)"), rows))
 
 
 def _failures(records: list[dict]) -> str:
@@ -380,6 +370,12 @@ def _figures(campaign: Path) -> str:
     return "<h2>Figures</h2>" + ("".join(parts) or "<p>No figure was written.</p>")
 
 
+def _measures_text(m: dict) -> str:
+    """The headline measures of a record, ``label value unit`` each, escaped."""
+    return ", ".join(_esc(table.label(k)) + f" {_num(m.get(k))} " + _esc(table.unit(k))
+                     for k in table.headline())
+
+
 def _representatives(campaign: Path, records: list[dict]) -> str:
     by_case: dict[str, list[dict]] = {}
     for r in records:
@@ -403,8 +399,7 @@ def _representatives(campaign: Path, records: list[dict]) -> str:
             fig = vtk / "plastic_shear_strain.png"
             m = r["measures"]
             text = (f"{_esc(what)} among {len(kept)} kept: realization {r['index']} "
-                    f"(seed {r['seed']}), run-out {_num(m.get('runout_distance'))} m, "
-                    f"sliding area {_num(m.get('sliding_area'))} m², "
+                    f"(seed {r['seed']}), {_measures_text(m)}, "
                     f"failed: {_num(m.get('failed'))}. "
                     f'<a href="{_esc(r["vtk"])}/particles.pvd">particles.pvd</a> · '
                     f'<a href="{_esc(r["vtk"])}/grid.vtu">grid.vtu</a>')

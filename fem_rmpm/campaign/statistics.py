@@ -8,13 +8,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from fem_rmpm.campaign.decide import in_measure_sample
-from fem_rmpm.campaign.store import MEASURE_KEYS, RESULT_COLUMNS
+from fem_rmpm.campaign.store import RECORD_COLUMNS
+from fem_rmpm.measures import table
 
 __all__ = ["wilson_interval", "case_statistics"]
-
-#: Measures that are settings, not results (left out of the statistics).
-_NOT_STATISTICS = ("failed", "failure_displacement", "mechanism_time", "time_to_rest",
-                   "intact_block_area", "decided_time", "decided_area")
 
 
 def wilson_interval(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
@@ -81,13 +78,16 @@ def case_statistics(rows: Sequence[dict], requested: int | None = None,
 
 
 def _statistic_names(ok: Sequence[dict]) -> list[str]:
-    """Numeric result measures present in every row (records or results.csv rows)."""
-    core = ["runout_distance", "retrogression_distance", "sliding_area", "max_displacement"]
+    """The measures summarised over the rows ``ok`` (records or results.csv rows): the
+    core summarised measures of :mod:`fem_rmpm.measures.table` always (in table order), then
+    every other measure the table does not mark as not summarised (flags, profiles,
+    settings) that is a number in every row (sorted)."""
+    core = [k for k in table.core() if table.summarised(k)]
     if not ok:
         return core
-    other = set(RESULT_COLUMNS) - set(MEASURE_KEYS)
-    names = [set((r.get("measures") or {}) if "measures" in r else set(r) - other) for r in ok]
-    extra = sorted(set.intersection(*names) - set(core) - set(_NOT_STATISTICS))
+    names = [set((r.get("measures") or {}) if "measures" in r else set(r) - set(RECORD_COLUMNS))
+             for r in ok]
+    extra = sorted(k for k in set.intersection(*names) - set(core) if table.summarised(k))
     extra = [k for k in extra if all(isinstance(_measure(r, k), (int, float))
                                      and not isinstance(_measure(r, k), bool) for r in ok)]
     return core + extra

@@ -19,21 +19,21 @@ from typing import Any, Iterable, Sequence
 from fem_rmpm import scene as S
 from fem_rmpm.campaign.cases import CampaignError, Case, realization_seed
 from fem_rmpm.io.output import _atomic_write_bytes, write_json
-from fem_rmpm.measures.deposit import UNITS
+from fem_rmpm.measures import table
 from fem_rmpm.scene import Scene, scene_to_dict
 
-__all__ = ["FORMAT", "MEASURE_KEYS", "RESULT_COLUMNS", "result_columns", "write_results",
+__all__ = ["FORMAT", "RECORD_COLUMNS", "result_columns", "column_unit", "write_results",
            "read_results", "import_records"]
 
 FORMAT = "fem_rmpm campaign 1"
-#: The first measure columns of ``results.csv``; every other scalar measure of
-#: :func:`fem_rmpm.measures.deposit.compute_measures` (slip-surface height, intact blocks, ...)
-#: follows in alphabetical order.  Profiles (lists) go to ``profiles/``.
-MEASURE_KEYS = ("failed", "sliding_area", "runout_distance", "retrogression_distance",
-                "max_displacement", "time_to_rest")
-#: Columns of ``results.csv`` (extra measure columns are inserted before ``stop_reason``).
-RESULT_COLUMNS = ("case", "index", "seed", "status", *MEASURE_KEYS, "stop_reason", "steps",
-                  "simulated_time", "particles", "frozen_points", "scheme", "error")
+#: The columns of ``results.csv`` that describe a realization's run, not its slope, with
+#: their units: ``case``, ``index``, ``seed``, ``status`` come first, then the core measures
+#: (:func:`fem_rmpm.measures.table.core`), every other scalar measure a record holds (in
+#: alphabetical order; profiles go to ``profiles/``), then the rest.
+RECORD_COLUMNS = {"case": "-", "index": "-", "seed": "-", "status": "ok | failed",
+                  "stop_reason": "-", "steps": "count", "simulated_time": "s",
+                  "particles": "count", "frozen_points": "count", "scheme": "-", "error": "-"}
+_FIRST = ("case", "index", "seed", "status")
 #: Keys that do not change a realization (left out of the campaign identity).
 _NOT_IDENTITY = {"montecarlo": ("realizations", "keep_vtk", "cases", "runs_to_rest"),
                  "output": None,
@@ -245,11 +245,17 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
+def column_unit(name: str) -> str:
+    """The unit of a ``results.csv`` column (a measure's from the table)."""
+    return RECORD_COLUMNS.get(name) or table.unit(name)
+
+
 def result_columns(records: Iterable[dict]) -> list[str]:
-    """RESULT_COLUMNS with the extra scalar measures of ``records`` (sorted) inserted."""
-    extra = sorted({k for r in records for k in (r.get("measures") or {})} - set(MEASURE_KEYS))
-    i = RESULT_COLUMNS.index("stop_reason")
-    return [*RESULT_COLUMNS[:i], *extra, *RESULT_COLUMNS[i:]]
+    """The columns of ``results.csv`` for ``records`` (see :data:`RECORD_COLUMNS`)."""
+    core = table.core()
+    extra = sorted({k for r in records for k in (r.get("measures") or {})} - set(core))
+    rest = [k for k in RECORD_COLUMNS if k not in _FIRST]
+    return [*_FIRST, *core, *extra, *rest]
 
 
 def _row(rec: dict, columns: Sequence[str]) -> dict:
@@ -271,12 +277,13 @@ def write_results(path: Path, records: Iterable[dict], order: Sequence[str]) -> 
         w.writerow(_row(r, columns))
     _atomic_write_bytes(path, buf.getvalue().encode())
     _atomic_write_bytes(_sidecar(path), json.dumps(
-        {"units": {k: UNITS.get(k, "-") for k in columns}, "constant": constant,
-         "constant_units": {k: UNITS.get(k, "-") for k in constant}}, indent=1).encode())
+        {"units": {k: column_unit(k) for k in columns}, "constant": constant,
+         "constant_units": {k: column_unit(k) for k in constant}}, indent=1).encode())
 
 
-#: Columns kept even when constant over the rows (identity and the main measures).
-_ALWAYS_KEPT = ("case", "index", "seed", "status", *MEASURE_KEYS)
+def _always_kept() -> set[str]:
+    """Columns kept even when constant over the rows (identity and the core measures)."""
+    return {*_FIRST, *table.core()}
 
 
 def _sidecar(path: Path) -> Path:
@@ -286,19 +293,21 @@ def _sidecar(path: Path) -> Path:
 
 
 def _drop_constant(columns: list[str], rows: list[dict]) -> tuple[list[str], dict]:
-    """Columns without those (other than :data:`_ALWAYS_KEPT`) equal in every row (when
+    """Columns without those (other than :func:`_always_kept`) equal in every row (when
     there are at least 2 rows); returns (columns, {dropped column: its value})."""
     if len(rows) < 2:
         return columns, {}
+    kept = _always_kept()
     cells = {k: {_row(r, [k])[k] for r in rows} for k in columns}
     constant = {k: _row(rows[0], [k])[k] for k in columns
-                if k not in _ALWAYS_KEPT and len(cells[k]) == 1}
+                if k not in kept and len(cells[k]) == 1}
     return [k for k in columns if k not in constant], constant
 
 
 def read_results(path: str | Path) -> list[dict]:
-    """Rows of a ``results.csv`` with numbers parsed (empty cells -> None); the columns
-    left out as constant (``results.units.json``) are restored in every row."""
+    """Rows of a ``results.csv`` with numbers parsed (empty cells -> None; the measure
+    table's flags -> bool); the columns left out as constant (``results.units.json``) are
+    restored in every row."""
     rows = []
     side = _sidecar(Path(path))
     constant = json.loads(side.read_text()).get("constant", {}) if side.exists() else {}
@@ -311,7 +320,7 @@ def read_results(path: str | Path) -> list[dict]:
                     out[k] = None
                 elif k in ("index", "seed", "steps", "particles", "frozen_points"):
                     out[k] = int(v)
-                elif k == "failed":
+                elif getattr(table.MEASURES.get(k), "kind", None) == "flag":
                     out[k] = v == "1"
                 elif k in ("case", "status", "stop_reason", "scheme", "error"):
                     out[k] = v

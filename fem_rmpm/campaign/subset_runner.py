@@ -8,10 +8,11 @@ scene's random field: a realization is a pure function of (scene, noise),
 :func:`fem_rmpm.random_field.noise_shape` standard normals.  The samples run through the
 campaign runner (:mod:`fem_rmpm.campaign.runner`).
 
-* **Responses** (:data:`RESPONSES`): the realization's measures ``runout_distance``,
-  ``sliding_area``, ``retrogression_distance``, ``max_displacement`` (m, m2, m, m;
-  failure: above the threshold) or ``factor_of_safety`` (strength reduction; failure:
-  FS below the threshold, 1 by default).  Aliases: ``runout``, ``run-out``, ``fs``.
+* **Responses**: the measures the table marks as responses
+  (:func:`fem_rmpm.measures.table.responses`): ``runout_distance``,
+  ``retrogression_distance``, ``sliding_area``, ``max_displacement`` (failure: above the
+  threshold) or ``factor_of_safety`` (strength reduction; failure: FS below the threshold,
+  1 by default).  Aliases: ``runout``, ``run-out``, ``retrogression``, ``fs``.
 * **Batches.** Level 0 is one batch of ``N`` realizations, which are the crude Monte
   Carlo realizations ``0 .. N-1`` (same seeds, same fields); every step of the Markov
   chains is one batch of ``N p0`` independent realizations.  Batches run on the same
@@ -76,6 +77,7 @@ from fem_rmpm.campaign.subset_plots import plot_levels
 from fem_rmpm.campaign.task import run_realization
 from fem_rmpm.discretise.grid import make_grid
 from fem_rmpm.io.output import _atomic_write_bytes, write_json
+from fem_rmpm.measures import table as measure_table
 from fem_rmpm.random_field import field_noise
 from fem_rmpm.runtime.machine import describe as describe_machine
 from fem_rmpm.runtime.machine import tally
@@ -83,30 +85,24 @@ from fem_rmpm.scene import Scene
 from fem_rmpm.schemes.common import SimulationError
 from fem_rmpm.schemes.implicit.strength_reduction import FSOptions, factor_of_safety
 
-__all__ = ["SUBSET_FORMAT", "RESPONSES", "Response", "parse_response", "run_subset_sample",
+__all__ = ["SUBSET_FORMAT", "Response", "parse_response", "run_subset_sample",
            "run_subset_campaign", "SubsetCampaignResult",
            "sample_noise", "sample_noises"]
 
 SUBSET_FORMAT = "fem_rmpm subset campaign 1"
 FS_RESPONSE = "factor_of_safety"
-#: Responses and their units; failure is ``value > threshold`` except for the FS (``<``).
-RESPONSES = {"runout_distance": "m", "sliding_area": "m2", "retrogression_distance": "m",
-             "max_displacement": "m", FS_RESPONSE: ""}
-_ALIASES = {"runout": "runout_distance", "run-out": "runout_distance",
-            "retrogression": "retrogression_distance", "fs": FS_RESPONSE,
-            "factor-of-safety": FS_RESPONSE}
 
 
 @dataclass(frozen=True)
 class Response:
     """A response of a realization and its failure threshold (``value > threshold``, or
-    ``value < threshold`` for the factor of safety)."""
+    ``value < threshold`` for a response failing below, the factor of safety)."""
     name: str
     threshold: float
 
     @property
     def below(self) -> bool:
-        return self.name == FS_RESPONSE
+        return getattr(measure_table.MEASURES.get(self.name), "response", None) == "below"
 
     def exceedance(self, value: float | None) -> float:
         """The subset variable Y (failure: Y > y_threshold); NaN for a missing value."""
@@ -119,24 +115,26 @@ class Response:
         return -self.threshold if self.below else self.threshold
 
     def describe(self) -> str:
-        unit = RESPONSES[self.name]
+        unit = measure_table.unit(self.name)
         return f"{self.name} {'<' if self.below else '>'} {self.threshold:g}" + (
-            f" {unit}" if unit else "")
+            f" {unit}" if unit != "-" else "")
 
 
 def parse_response(name: str | None, threshold: float | None) -> Response:
-    """The response named on the command line (an alias or a :data:`RESPONSES` key)."""
-    allowed = ", ".join(RESPONSES) + " (aliases: " + ", ".join(_ALIASES) + ")"
+    """The response named on the command line (a response of the measure table or an
+    alias)."""
+    allowed = (", ".join(measure_table.responses()) + " (aliases: "
+               + ", ".join(measure_table.response_aliases()) + ")")
     if not name:
         raise CampaignError(f"--method subset needs --response NAME; allowed: {allowed}")
-    key = _ALIASES.get(name.strip().lower(), name.strip().lower())
-    if key not in RESPONSES:
+    key = measure_table.resolve_response(name)
+    if key is None:
         raise CampaignError(f"--response {name!r}: not a response of a realization; "
                             f"allowed: {allowed}")
     if threshold is None:
         if key != FS_RESPONSE:
             raise CampaignError(f"--response {key} needs --threshold X (failure: "
-                                f"{key} > X, in {RESPONSES[key]})")
+                                f"{key} > X, in {measure_table.unit(key)})")
         threshold = 1.0
     if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) \
             or not math.isfinite(threshold):
@@ -325,7 +323,7 @@ def run_subset_campaign(scene: Scene, out: str | Path, response: str | Response,
                         method: str = "subset") -> SubsetCampaignResult:
     """Run (or finish, or extend) a subset-simulation campaign in ``out`` (module docstring).
 
-    ``response``: a :data:`RESPONSES` name or alias (or a :class:`Response`);
+    ``response``: a response's name or alias (or a :class:`Response`);
     ``threshold``: failure above it (below it for the FS, default 1); ``p0``: level
     probability in (0, 0.5]; ``n``: samples per level (default 1000; ``n p0 >= 10``);
     ``workers`` / ``scheduler`` / ``client`` / ``cluster``: as for crude Monte Carlo
@@ -450,7 +448,7 @@ def _finish(res: SubsetCampaignResult, scene: Scene, method: SubsetSimulation,
     write_json(res.out / "summary.json", summary)
     if figures:
         res.figures = [plot_levels(res.out / "subset_levels.png", r, resp, scene.scene.name,
-                                   RESPONSES[resp.name]),
+                                   measure_table.unit(resp.name)),
                        write_report(res.out)]
 
 

@@ -6,17 +6,13 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from fem_rmpm.campaign.factor_of_safety import fs_text
+from fem_rmpm.measures import table as measure_table
 
 if TYPE_CHECKING:
     from fem_rmpm.campaign.case_campaign import CampaignResult
     from fem_rmpm.campaign.subset_runner import SubsetCampaignResult
 
 __all__ = ["summary_text", "subset_summary_text"]
-
-_MECHANISM_TEXT = (("slip_surface_height", "slip-surface height", " m"),
-                   ("intact_blocks", "intact blocks", ""),
-                   ("sliding_area_early", "early sliding area", " m2"))
-
 
 def summary_text(res: CampaignResult) -> str:
     """The final one-paragraph-per-case summary printed by ``fem-rmpm mc``."""
@@ -46,12 +42,9 @@ def summary_text(res: CampaignResult) -> str:
             lines.append(head + fs_text(s.get("fs")))
             continue
         if c.deterministic:
-            r, t, a = (s[k]["mean"] for k in ("runout_distance", "retrogression_distance",
-                                              "sliding_area"))
-            mech = "".join(f", {lab} {s[k]['mean']:.2f}{unit}"
-                           for k, lab, unit in _MECHANISM_TEXT if k in s)
-            lines.append(head + f"failed = {bool(s['slope_failures'])}, run-out {r:.2f} m, "
-                         f"retrogression {t:.2f} m, sliding area {a:.1f} m2{mech}"
+            lines.append(head + f"failed = {bool(s['slope_failures'])}, " + ", ".join(
+                measure_table.value_text(k, s[k]["mean"]) for k in
+                measure_table.headline() + measure_table.mechanism() if k in s)
                          + (f"; {fs_text(s['fs'])}" if s.get("fs") else ""))
             continue
         lo, hi = s["wilson95"]
@@ -59,16 +52,16 @@ def summary_text(res: CampaignResult) -> str:
                f"Wilson 95 % [{lo:.2f}, {hi:.2f}])")
         if s.get("measure_runs", s["ok"]) < s["mpm_runs"]:    # [montecarlo] runs_to_rest
             txt += f"; measures over the {s['measure_runs']} run(s) to rest"
-        for key, lab, unit in (("runout_distance", "run-out", "m"), ("retrogression_distance",
-                               "retrogression", "m"), ("sliding_area", "sliding area", "m2")):
+        for key in measure_table.headline():
             d = s[key]
             txt += "" if d["mean"] is None else (
-                f"; {lab} mean {d['mean']:.2f} +- {d['se']:.2f} {unit} "
+                f"; {measure_table.label(key)} mean {d['mean']:.2f} +- {d['se']:.2f} "
+                f"{measure_table.unit(key)} "
                 f"(5/50/95 %: {d['q05']:.2f}/{d['q50']:.2f}/{d['q95']:.2f})")
-        mech = [(k, lab, unit) for k, lab, unit in _MECHANISM_TEXT if k in s]
+        mech = [k for k in measure_table.mechanism() if k in s]
         if mech:
-            txt += "; mean " + ", ".join(f"{lab} {s[k]['mean']:.2f}{unit}"
-                                         for k, lab, unit in mech)
+            txt += "; mean " + ", ".join(measure_table.value_text(k, s[k]["mean"])
+                                         for k in mech)
         conv = s.get("convergence")
         if conv and s["ok"] >= 4:
             idx = sorted({s["ok"] // 4 - 1, s["ok"] // 2 - 1, s["ok"] - 1})
