@@ -171,7 +171,7 @@ def configs(quick):
             out.append(("slope", "explicit numba Q4", "explicit", "numba", "standard", h, ppc))
         if h >= 0.25:
             out.append(("slope", "explicit numpy Q4", "explicit", "numpy", "standard", h, 2))
-        if h >= 0.25:       # at 1/8 m the uGIMP run (to t_end, see README) takes ~10 min
+        if h >= 0.25:       # at 1/8 m the uGIMP run (to t_end) takes ~10 min
             out.append(("slope", "explicit numba uGIMP", "explicit", "numba", "gimp", h, 2))
         out.append(("slope", "implicit Q4", "implicit", None, "standard", h, 2))
         out.append(("slope", "implicit uGIMP", "implicit", None, "gimp", h, 2))

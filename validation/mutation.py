@@ -27,7 +27,8 @@ kernel paths) — is left out by the tool itself; nothing to configure.  What is
 the numpy side: von Mises' ``update`` / ``cohesion`` / ``check``, the shared Hencky
 kinematics, Mohr–Coulomb's checks, strength laws and the numpy wrapper of its update,
 the explicit step's numpy reference (``explicit_step_numpy``, ``map_to_nodes``,
-``solve_on_mesh``, the time loop), ``schemes/explicit/loop.py``, ``schemes/common.py``
+``solve_on_mesh``, the step, the time loop), ``schemes/explicit/reference.py``,
+``step.py``, ``loop.py``, ``schemes/common.py``
 and ``measures/deposit.py``.  The compiled code is
 guarded by the kernel-equality tests (numba = numpy to 1e-12, tests/test_kernels.py,
 test_material_extension.py, test_mohr_coulomb.py), so a mutant of the numpy reference
@@ -91,7 +92,8 @@ TARGETS: dict[str, tuple[list[str], list[str]]] = {
                    "not column and not newton and not nonconvergence and not summary and "
                    "not pyamg and not newmark and not geostatic and not gimp and not q4 and "
                    "not one_static"]),
-    "explicit": (["fem_rmpm/schemes/explicit/loop.py", "fem_rmpm/schemes/common.py"],
+    "explicit": (["fem_rmpm/schemes/explicit/loop.py", "fem_rmpm/schemes/explicit/step.py",
+                  "fem_rmpm/schemes/explicit/reference.py", "fem_rmpm/schemes/common.py"],
                  ["tests/test_explicit.py", "tests/test_kernels.py", "tests/test_documented.py",
                   "tests/test_explicit_details.py", "tests/test_run_guards.py",
                   "tests/test_locking.py", "tests/test_explicit_wiring.py",

@@ -215,7 +215,7 @@ def blocks_at_mechanism_time(r: dict, **rule) -> int:
 
 def compact_table(runs) -> str:
     """One row per slope and softening, entries coarse / medium / fine mesh and the
-    medium mesh against the finest in per cent (the README's table)."""
+    medium mesh against the finest in per cent (the table of the regularisation page)."""
     cols = ("sliding_area", "retrogression_distance", "runout_distance", "slip_surface_height",
             "intact_blocks", "intact_blocks_4cells", "band_width", "band_width_3s",
             "softened_width", "t", "frozen_points")

@@ -36,7 +36,7 @@ random field in both, the seeds being ``SeedSequence([campaign_seed, i])``): P(F
 case and its agreement with the MPM outcome, realization by realization.
 
 Written into the campaign directory (so ``report.html``, rewritten at the end, shows them):
-``risk_study.json`` (every number below), ``risk_study.md`` (the README table),
+``risk_study.json`` (every number below), ``risk_study.md`` (the table of the risk-study page),
 ``risk_exceedance.png`` (exceedance curves of sliding area, run-out and retrogression,
 unconditional and given failure), ``risk_modes.png`` (failure modes and depth of the
 failure surface per case).
@@ -299,7 +299,7 @@ def _pct(x: dict | None, key: str = "mean", fmt: str = "{:.1f}") -> str:
 
 
 def markdown_table(summary: dict[str, dict], fs: dict[str, dict | None]) -> str:
-    """The README's per-case table: P(failure) over all N realizations; the measures over
+    """The per-case table of the risk-study page: P(failure) over all N realizations; the measures over
     the n realizations run to rest (the failures among them: the sample given failure)."""
     head = ("| case | N | P(failure) | SE | Wilson 95 % | P(FS < 1) (N) | run to rest: n "
             "(failed) | sliding area given failure: mean (COV) | run-out given failure: mean "

@@ -7,7 +7,7 @@ per m, initial volume) of active points have moved more than ``[montecarlo]
 failure_displacement`` since the start of the large-deformation phase (``x - x0``: the
 geostatic phase moves no point); such a run stops there, its record has ``stop_reason =``
 :data:`DECIDED` and carries only ``failed = true``, the decision time ``decided_time`` (s)
-and the area moved then ``decided_area`` (m2 per m).  A run never decided so runs on to
+and the area moved then ``decided_area`` (m2/m).  A run never decided so runs on to
 rest (or ``t_end``) and is in every way a run to rest: same measures, same record.
 
 Why it is exact for P(failure), and how it is checked: a realization is a pure function of
@@ -35,14 +35,14 @@ __all__ = ["DECIDED", "DECIDED_FAILURE_AREA", "FailureWatch", "in_measure_sample
 
 #: ``stop_reason`` of a run stopped once decided (failed).
 DECIDED = "failure decided"
-#: m2 per m (initial volume) of points moved more than failure_displacement that decides
+#: m2/m (initial volume) of points moved more than failure_displacement that decides
 #: a failure: 4 points of a 0.5 m mesh, 16 of a 0.25 m one.
 DECIDED_FAILURE_AREA = 1.0
 
 
 class FailureWatch:
     """Output callback of a realization (``api.run(stop_when=...)``): notes the first output
-    time ``time`` (s) at which at least ``area`` m2 per m of active points have moved more
+    time ``time`` (s) at which at least ``area`` m2/m of active points have moved more
     than ``threshold`` m (``x - x0``), and the area then, ``moved_area``; with ``stop`` it
     then returns :data:`DECIDED` (stop the run), else None (the run goes on)."""
 

@@ -17,8 +17,7 @@ vector registers between intrinsics).  A nodal vector array (interleaved x, y:
 bounds-checked (the kernels' node numbers are valid, as for every kernel access).
 
 Used by the map to nodes and the map back (:mod:`.transfer`): case (i), one thread,
-0.92-0.95x the time of the scalar code (9 interleaved pairs; the README's
-cost section).
+0.92-0.95x the time of the scalar code (9 interleaved pairs).
 """
 from __future__ import annotations
 
