@@ -223,7 +223,8 @@ _ALWAYS_COMPILED_THREADED = (kernels.map_to_nodes_parallel, kernels.solve_and_mo
 def _always_compiled(threads: int, fbar: bool) -> tuple:
     """The dispatchers whose cache says whether an explicit run on ``threads`` threads
     (with F-bar or not) compiles: two threads without F-bar run the one-region driver
-    (:func:`.schemes.explicit.step.advance`), F-bar and more threads the driver with a region per stage."""
+    (:func:`.schemes.explicit.step.advance`), F-bar and more threads the driver with a
+    region per stage."""
     if threads <= 1:
         return _ALWAYS_COMPILED
     return _ALWAYS_COMPILED_PAIR if pair_driver_fits(threads, fbar) else _ALWAYS_COMPILED_THREADED
@@ -247,9 +248,10 @@ def kernels_cold(threads: int = 1, fbar: bool = False) -> bool:
 
 def with_run_threads(scene: Scene) -> Scene:
     """``scene`` with ``[solver] threads = 0`` (auto) replaced by the count
-    :func:`.schemes.explicit.threads.auto_threads` gives now, for an explicit numba run (else ``scene``):
-    resolved once, so that the compile notice and the run agree (each asking on its own,
-    the count of free cores could change in between: 2 in the notice, 1 in the run)."""
+    :func:`.schemes.explicit.threads.auto_threads` gives now, for an explicit numba run
+    (else ``scene``): resolved once, so that the compile notice and the run agree (each
+    asking on its own, the count of free cores could change in between: 2 in the notice,
+    1 in the run)."""
     sv = scene.solver
     if not explicit_numba(sv) or int(getattr(sv, "threads", 0)) > 0:
         return scene
@@ -258,8 +260,9 @@ def with_run_threads(scene: Scene) -> Scene:
 
 def compile_notice(scene: Scene) -> str | None:
     """The line announcing the one-time compile of an explicit numba run of ``scene`` on
-    the threads it will use (``[solver] threads``, 0: :func:`.schemes.explicit.threads.auto_threads`), or
-    None when those kernels are cached (or the run is not an explicit numba run)."""
+    the threads it will use (``[solver] threads``, 0:
+    :func:`.schemes.explicit.threads.auto_threads`), or None when those kernels are cached
+    (or the run is not an explicit numba run)."""
     sv = scene.solver
     if not explicit_numba(sv):
         return None
