@@ -25,6 +25,18 @@ from fem_rmpm.schemes.common import SimulationError
 from fem_rmpm.schemes.explicit.loop import run_explicit
 
 
+COLUMNS = (0, 1, 2)          # the state columns: plastic shear strain, softening variable,
+#                              the strain at the last averaging (von Mises' REGULARISABLE)
+
+
+def test_von_mises_declares_its_regularisable_state_by_name():
+    """The regularisation reads the state columns the model declares: von Mises' are
+    the plastic shear strain, the softening variable and the strain at the last
+    averaging, columns 0, 1, 2 of its STATE."""
+    from fem_rmpm import materials
+    assert R.state_columns(materials.model_id("von_mises_softening")) == COLUMNS
+
+
 def _points(n=24, h=0.25, ppc=2):
     """A square block of n x n cells of h (m), ppc x ppc points per cell, state (m, 3)."""
     g = (np.arange(n * ppc) + 0.5) * h / ppc
@@ -40,11 +52,11 @@ def _average(method, x, vol, act, state, ell, h, n, m=1.0):
     st = state.copy()
     origin = np.zeros(2)
     if method == "points":
-        R.nonlocal_average(x, vol, act, st, sel, length, full, fac, origin, h, n, n)
+        R.nonlocal_average(x, vol, act, st, sel, length, full, fac, origin, h, n, n, COLUMNS)
     else:
         da, db, w = R.stencil(ell, h, h)
         R.cell_average(x, vol, act, st, sel, np.ones(len(x), dtype=bool), full, fac, origin,
-                       h, h, n, n, da, db, w)
+                       h, h, n, n, da, db, w, COLUMNS)
     return st[:, 1]
 
 
