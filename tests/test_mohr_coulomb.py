@@ -76,8 +76,8 @@ def _compression(confining, prm, steps=60, d_axial=-1e-3):
 @pytest.mark.parametrize("confining", [50.0, 100.0, 200.0])
 def test_plane_strain_compression_reaches_mohr_coulomb(confining):
     """c = 10 kPa, phi = 30 deg, psi = 0, perfectly plastic: the axial stress levels off at
-    sigma_3 N_phi + 2 c sqrt(N_phi) (achieves 1e-13 relative; asserts 0.5 %, the issue's
-    bound, and 1e-9)."""
+    sigma_3 N_phi + 2 c sqrt(N_phi) (achieves 1e-13 relative; asserts 0.5 % and
+    1e-9)."""
     c, phi = 10.0, 30.0
     axial, _ = _compression(confining, _params(c, phi))
     nphi = (1 + math.sin(math.radians(phi))) / (1 - math.sin(math.radians(phi)))

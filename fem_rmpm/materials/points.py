@@ -45,10 +45,10 @@ def new_state(soil: MaterialPoints) -> np.ndarray:
 def cohesion(state: np.ndarray, soil: MaterialPoints) -> np.ndarray:
     """Current strength per point (kPa) from the models' ``cohesion`` hook (of the
     softening variable where the model declares one (``REGULARISABLE``), else of the
-    plastic shear strain); inf where a model has none (linear elastic).  With one model the hook
-    gets the soil's own parameter rows, in their own memory order (no copy: the rows are
-    column-major, and a row-major copy of the reference slope's took half of this
-    function's 0.55 ms, measured): hooks read them, never write."""
+    plastic shear strain); inf where a model has none (linear elastic).  With one model
+    the hook gets the soil's own parameter rows, in their own memory order (no copy: the
+    rows are column-major, and a row-major copy took half of this function's time): hooks
+    read them, never write."""
     state = state[:, None] if state.ndim == 1 else state
     out = np.full(len(soil), math.inf)
     models = soil.model

@@ -193,8 +193,7 @@ class MaterialPoints:
         self.model = np.asarray(model, dtype=np.int64)
         # column-major (a copy), as the state (points.new_state): a model update reads a
         # few columns of every point's row, and the explicit stress pass streams just those
-        # (case (i) on ~1e6 points, one thread: 0.87-0.91x the time of row-major rows, which
-        # it read whole; 0.98x on the reference slope; bitwise the same run)
+        # (faster than row-major rows, which it read whole; bitwise the same run)
         self.params = np.array(params, dtype=float, ndmin=2, order="F")
         for name, values in named.items():
             self._set(name, values)

@@ -278,8 +278,8 @@ def _returned(e0, e1, e2, e3, scale, G, lam):
 @njit(inline="always", fastmath=False, error_model="numpy")
 def _softening_branch(q, c0, G, cp, cr, gs):
     """(dgamma, deviator scale) of the return onto the linear softening branch: one
-    division gives both (case (i), t = 8 s, 86 % of the points yielding: stress pass
-    -1.2 ns per point against dgamma first, then scale = 1 - G dgamma / q, measured)."""
+    division gives both (one division fewer per yielding point than dgamma first, then
+    scale = 1 - G dgamma / q)."""
     hs = (cp - cr) / gs
     num = q - c0
     r = 1.0 / ((G - hs) * q)
@@ -398,8 +398,7 @@ def _radial_return(Z, state, params, soft, b, m):
     point's are its trial strains and :func:`_trial`'s stress again (the same operations,
     so the same bits as pass 1's), not pass 1's reloaded.  Reloading a value to store it
     back where it was made LLVM write ``Z`` with masked stores (``vmaskmovpd``: 18 in this
-    loop), which AMD's Zen 1 runs in microcode: case (i) on an AMD EPYC Zen 1 VM, whole
-    run, one thread, 0.93-0.96x the time (3 interleaved pairs), bitwise the same run."""
+    loop), which AMD's Zen 1 runs in microcode (slower there; bitwise the same run)."""
     assume_columns(Z, BLOCK_COLUMNS)
     for j in range(m):
         i = b + j

@@ -36,11 +36,11 @@ softening-strain parameter, by name) and the keys below as parameters lets each
     the m = 1 consistency condition is a Fredholm equation of the first kind, whose
     solution localises).  With m > 1 a point that deforms more than its neighbourhood
     softens less than it, which spreads the plastic flow over a width set by ``l``.
-    Measured (README): on case (i) the strain width at band formation (1.5 s) is
-    0.87 / 0.67 / 0.51 m at 0.5 / 0.25 / 0.125 m cells with m = 1, 1.14 / 1.30 / 1.23 m
-    with m = 2.  The increment is kept >= 0: softening is irreversible (the total form
-    ``m gamma_bar + (1 - m) gamma_p`` would let a point that outruns its neighbours
-    regain strength).  The default ``l = 0.5 m`` is the vertical scale of fluctuation of
+    On the reference slope the band at its formation narrows with the cell for m = 1
+    and keeps about the same width, set by l, for m = 2 (the validation pages of the
+    documentation give the measured widths).  The increment is kept >= 0: softening is
+    irreversible (the total form ``m gamma_bar + (1 - m) gamma_p`` would let a point that
+    outruns its neighbours regain strength).  The default ``l = 0.5 m`` is the vertical scale of fluctuation of
     the reference random fields (theta_v = 0.5 m: strength varies on that scale, so a
     band cannot be thinner) and two 0.25 m cells, the least that resolves the
     averaging; ``l`` below one cell is refused (the average would see no neighbour).
@@ -64,7 +64,7 @@ grid (counting sort, O(n)); a point looks only at the cells within ``2 l`` and o
 when one of them holds a plastic increment; fully softened points (linear law past
 ``softening_strain``) are skipped.  The cost per point-step is linear in the number
 of points, times the number of neighbours (about 13 (l/h)^2 per point at 4 points per
-cell) (figures in the README).
+cell).
 """
 from __future__ import annotations
 

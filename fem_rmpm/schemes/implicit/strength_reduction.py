@@ -32,10 +32,10 @@ reached (a lower bound of FS: at ``F = lambda`` every strength is at least that 
 state that stood at ``lambda`` x gravity), or at ``f_min`` (0.1; failing there: "FS <
 0.1").  Then bisection in ``ln F`` until ``F_hi / F_lo - 1 <= tolerance`` (default 0.01);
 the reported FS is the geometric midpoint, so the search error is below ``tolerance / 2``.
-Griffiths slope (4000 points): 8 static solves, 356 Newton iterations, FS 1.464, 8.1 s
-CPU; with ``continuation = False`` (gravity anew at every trial: ``F = 1``, ``f_max`` or
-``f_min``, then bisection) 10 solves, 257 iterations, FS 1.466, 11.0 s CPU (brackets
-overlap; a failed continued trial costs up to three solves, its halvings).
+With ``continuation = False`` gravity is applied anew at every trial (``F = 1``,
+``f_max`` or ``f_min``, then bisection): the same FS within the bracket, at more cost (a
+failed continued trial costs up to three solves, its halvings, but every converged one
+only a few Newton iterations).
 
 **Non-physical Newton failures** are told apart and raised as :class:`NonPhysicalFailure`
 (never taken as an FS): before the search a *probe* applies ``probe_load`` (1e-3) x gravity
