@@ -40,10 +40,11 @@ softening-strain parameter, by name) and the keys below as parameters lets each
     and keeps about the same width, set by l, for m = 2 (the validation pages of the
     documentation give the measured widths).  The increment is kept >= 0: softening is
     irreversible (the total form ``m gamma_bar + (1 - m) gamma_p`` would let a point that
-    outruns its neighbours regain strength).  The default ``l = 0.5 m`` is the vertical scale of fluctuation of
-    the reference random fields (theta_v = 0.5 m: strength varies on that scale, so a
-    band cannot be thinner) and two 0.25 m cells, the least that resolves the
-    averaging; ``l`` below one cell is refused (the average would see no neighbour).
+    outruns its neighbours regain strength).  The default ``l = 0.5 m`` is the vertical
+    scale of fluctuation of the reference random fields (theta_v = 0.5 m: strength varies
+    on that scale, so a band cannot be thinner) and two 0.25 m cells, the least that
+    resolves the averaging; ``l`` below one cell is refused (the average would see no
+    neighbour).
 ``"displacement"``
     the softening strain is ``softening_displacement / h`` (h = cell size, m): the
     displacement across the band at which the strength reaches the residual is fixed,
