@@ -256,6 +256,22 @@ def test_von_mises_invalid_points_mask():
     assert "softening modulus is not below the shear modulus" in why
 
 
+def test_a_rejected_von_mises_point_is_reported_with_its_position_and_values():
+    """materials.point_problem: the first rejected point, where it is and, in the von
+    Mises model's words, the peak cohesion it drew and the shear modulus it must stay
+    below (the message a random-field realization stops with)."""
+    from fem_rmpm.materials import MaterialPoints, point_problem
+    h_eq = 16.0 / G
+    rows = np.array([[G, K, CP, CR, GS, 0], [G, K, CP, CR, h_eq, 0]])
+    soil = MaterialPoints(np.full(2, model_id(von_mises.NAME)), rows)
+    x0 = np.array([[1.0, 2.0], [3.5, 0.25]])
+    assert point_problem(soil, x0) == (
+        f"material point 1 at x = 3.50, y = 0.25 m draws cohesion_peak = {CP:.4g} kPa, "
+        f"whose linear softening modulus is not below the shear modulus {G:.4g} kPa (or is "
+        "not positive); increase [[soil]] softening_strain or lower [random_field] cov")
+    assert point_problem(soil.take([0]), x0[:1]) is None
+
+
 def test_von_mises_cohesion_laws_and_derivatives():
     """Linear: c_p - (c_p - c_r) g / g_s and slope -(c_p - c_r)/g_s before g_s, c_r and 0
     after; exponential: c_r + (c_p - c_r) e^{-g/g_s}, slope -(c_p - c_r)/g_s e^{-g/g_s};

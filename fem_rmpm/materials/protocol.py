@@ -33,7 +33,7 @@ Optional, what the rest of the package asks a model (none of it names a model):
     the same for per-point values (n, P), e.g. drawn by a random field.
 ``point_problem(row) -> str``
     what is wrong with one rejected parameter row, in the model's own words, naming its
-    values and what to change (:func:`fem_rmpm.materials.points.check_points` puts it
+    values and what to change (:func:`fem_rmpm.materials.points.point_problem` puts it
     after the point's position); default: the ``reason`` of ``invalid_points``.
 ``cohesion(state, params)``
     the current strength per point in kPa for outputs (default: infinite).
