@@ -34,7 +34,7 @@ from fem_rmpm.discretise.points import Particles, seed_particles, soil_cells
 from fem_rmpm.io.output import PvdSeries, write_grid, write_json
 from fem_rmpm.io.plots import plot_profile, plot_snapshots
 from fem_rmpm.io.rundir import RunDirError, check_run_dir, run_files, start_run_dir
-from fem_rmpm.materials import invalid_points
+from fem_rmpm.materials import point_problem
 from fem_rmpm.measures import table as measure_table
 from fem_rmpm.measures.deposit import compute_measures, excluded_summary
 from fem_rmpm.random_field import apply_to_points, field_noise, noise_shape, sample_point_properties
@@ -83,19 +83,11 @@ def prepare(scene: Scene, seed: int | None = None, noise=None) -> tuple[Grid, Pa
 
 
 def _check_point_strength(scene: Scene, pts: Particles, seed) -> None:
-    """A random field scales peak and residual cohesion together, so a strong point has a
-    steeper softening modulus h = (c_p - c_r) / softening_strain; the return mapping needs
-    h < G (else the local problem snaps back).  Stop with a clear error otherwise."""
-    s = pts.soil
-    bad, _ = invalid_points(s)
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise SimulationError(
-            f"realization seed {seed}: material point {i} at x = {pts.x0[i, 0]:.2f}, "
-            f"y = {pts.x0[i, 1]:.2f} m draws cohesion_peak = {s.cohesion_peak[i]:.4g} kPa, "
-            f"whose linear softening modulus is not below the shear modulus "
-            f"{s.shear_modulus[i]:.4g} kPa (or is not positive); increase [[soil]] "
-            "softening_strain or lower [random_field] cov")
+    """Stop with the model's own message when a random field drew values at a point that
+    its material model rejects (:func:`fem_rmpm.materials.point_problem`)."""
+    problem = point_problem(pts.soil, pts.x0)
+    if problem:
+        raise SimulationError(f"realization seed {seed}: {problem}")
 
 
 def _run_scheme(scene, grid, pts, on_output, progress):

@@ -1,4 +1,4 @@
-"""Soil at a material point: von Mises with cohesion softening (issue 4, acceptance 1, 2).
+"""Soil at a material point: von Mises with cohesion softening.
 
 References: radial return for J2 plasticity (Simo & Hughes 1998, ch. 3; de Souza Neto
 et al. 2008, ch. 7) in Hencky log-strain space (Simo 1992); the softening laws are the
@@ -122,9 +122,9 @@ def test_log_exp_roundtrip_and_repeated_eigenvalues():
 
 
 def test_block_in_simple_shear_yields_at_predicted_load(meshes):
-    """Issue 4 acceptance 2: a plane-strain block (bottom fixed, top moved sideways) in simple
-    shear; the shear load on its top, F = sum of nodal internal forces, grows as G g L and
-    first yield occurs when F = c_peak L (von Mises, sqrt(J2) = tau_xy = c): within 1 %."""
+    """A plane-strain block (bottom fixed, top moved sideways) in simple shear; the shear
+    load on its top, F = sum of nodal internal forces, grows as G g L and first yield
+    occurs when F = c_peak L (von Mises, sqrt(J2) = tau_xy = c): within 1 %."""
     scene = load_scene(meshes / "column.toml")
     L, H = 2.0, 1.0
     scene = with_values(scene, {"grid.size": [L, H], "grid.cell": [0.25, 0.25],
@@ -152,3 +152,22 @@ def test_block_in_simple_shear_yields_at_predicted_load(meshes):
         prev_load = load
     assert load_at_yield is not None
     assert abs(load_at_yield / (CP * L) - 1) < 0.01
+
+
+def test_models_share_the_defaults_of_the_soil_fields():
+    """A model's parameter that is also a field of SoilSpec (the keys softening models
+    share) is read from that field, so the field's default is the model's: a model either
+    requires the key (default None; validation then needs a value, or the model's own check
+    refuses the field's infinite strength) or declares the field's default."""
+    import dataclasses
+
+    from fem_rmpm import materials
+    from fem_rmpm.scene import SoilSpec
+    fields = {f.name: f.default for f in dataclasses.fields(SoilSpec)}
+    shared = 0
+    for m in materials.models():
+        for p in m.PARAMETERS:
+            if p.name in fields:
+                shared += 1
+                assert p.default is None or p.default == fields[p.name], (m.NAME, p.name)
+    assert shared >= 4          # von Mises' and Mohr-Coulomb's cohesions, law and strain

@@ -1,5 +1,5 @@
-"""Exact checks of the materials' numpy parts, one property at a time (issue 21, mutation
-testing: ``python validation/mutation.py materials``).
+"""Exact checks of the materials' numpy parts, one property at a time (each guards lines a
+mutation would otherwise leave passing: ``python validation/mutation.py materials``).
 
 Each test compares with a formula written out here, independently of the code:
 
@@ -256,6 +256,22 @@ def test_von_mises_invalid_points_mask():
     assert "softening modulus is not below the shear modulus" in why
 
 
+def test_a_rejected_von_mises_point_is_reported_with_its_position_and_values():
+    """materials.point_problem: the first rejected point, where it is and, in the von
+    Mises model's words, the peak cohesion it drew and the shear modulus it must stay
+    below (the message a random-field realization stops with)."""
+    from fem_rmpm.materials import MaterialPoints, point_problem
+    h_eq = 16.0 / G
+    rows = np.array([[G, K, CP, CR, GS, 0], [G, K, CP, CR, h_eq, 0]])
+    soil = MaterialPoints(np.full(2, model_id(von_mises.NAME)), rows)
+    x0 = np.array([[1.0, 2.0], [3.5, 0.25]])
+    assert point_problem(soil, x0) == (
+        f"material point 1 at x = 3.50, y = 0.25 m draws cohesion_peak = {CP:.4g} kPa, "
+        f"whose linear softening modulus is not below the shear modulus {G:.4g} kPa (or is "
+        "not positive); increase [[soil]] softening_strain or lower [random_field] cov")
+    assert point_problem(soil.take([0]), x0[:1]) is None
+
+
 def test_von_mises_cohesion_laws_and_derivatives():
     """Linear: c_p - (c_p - c_r) g / g_s and slope -(c_p - c_r)/g_s before g_s, c_r and 0
     after; exponential: c_r + (c_p - c_r) e^{-g/g_s}, slope -(c_p - c_r)/g_s e^{-g/g_s};
@@ -353,6 +369,39 @@ def test_mohr_coulomb_invalid_points_mask():
     bad, why = mohr_coulomb.invalid_points(rows)
     assert bad.tolist() == [False, True, True, True, True, False, True]
     assert "no strength" in why
+
+
+def test_mohr_coulomb_names_the_bound_a_rejected_point_breaks():
+    """Each rejected row of the mask test above gets its own words: the cohesions out of
+    order, the friction angles out of order, no strength, the snap-back modulus."""
+    base = [G, K, 10.0, 5.0, 30.0, 25.0, 5.0, 0.0, 0.5, 0.0]
+    rows = np.array([base] * 4)
+    rows[0, 3] = 11.0
+    rows[1, 5] = 31.0
+    rows[2, 2:6] = 0.0
+    rows[3, 8] = 5.0 / G
+    said = [mohr_coulomb.point_problem(r) for r in rows]
+    assert said[0].startswith("draws cohesion_peak = 10 kPa and cohesion_residual = 11 kPa")
+    assert said[1].startswith("draws friction_angle_peak = 30 deg below "
+                              "friction_angle_residual = 31 deg")
+    assert said[2].startswith("draws no strength")
+    assert said[3].startswith(f"draws cohesion_peak = 10 kPa, whose linear cohesion softening "
+                              f"modulus {G:.4g} kPa is not below the shear modulus {G:.4g} kPa")
+    assert all(mohr_coulomb.invalid_points(rows)[0])
+
+
+def test_no_model_is_named_where_the_package_reads_the_protocol():
+    """The strength reduction, the regularisation of softening and the Python API know
+    the models only through the protocol: no model's name appears in them."""
+    from pathlib import Path
+
+    import fem_rmpm
+    from fem_rmpm.materials import names
+    root = Path(fem_rmpm.__file__).parent
+    for rel in ("schemes/implicit/strength_reduction.py", "schemes/regularisation.py",
+                "api.py"):
+        text = (root / rel).read_text()
+        assert not [n for n in names() if n in text], rel
 
 
 def test_mohr_coulomb_softened_strengths():
@@ -470,3 +519,21 @@ def test_small_strain_update_of_a_zero_gradient_changes_nothing():
         assert np.array_equal(eps, eps0) and np.array_equal(st, g0)
         assert np.all(np.isfinite(tau))
         assert np.array_equal(tau, hencky_stress(eps0.copy(), np.full(2, G), np.full(2, K)))
+
+
+def test_register_refuses_declarations_that_name_what_the_model_lacks():
+    """A STRENGTHS row or a REGULARISABLE name that is not the model's own parameter or
+    state variable is refused when the model is registered."""
+    import types
+
+    from fem_rmpm.materials import Parameter, Regularisable, Strength, registry
+    m = types.SimpleNamespace(NAME="declared_test", PARAMETERS=(Parameter("su", "kPa"),),
+                              STATE=("plastic_shear_strain",), update=None, point_update=None,
+                              STRENGTHS=(Strength("cohesion", "c/F"),))
+    with pytest.raises(TypeError, match="STRENGTHS names cohesion"):
+        registry.register(m)
+    m.STRENGTHS = (Strength("su", "c/F"),)
+    m.REGULARISABLE = Regularisable()
+    with pytest.raises(TypeError, match="REGULARISABLE names softening_variable"):
+        registry.register(m)
+    assert "declared_test" not in registry.names()

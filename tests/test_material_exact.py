@@ -1,6 +1,6 @@
-"""Exact properties of the materials' numpy code that the mutation run of issue 21 found
-unguarded (``python validation/mutation.py materials``; the survivors this file kills and
-those left as equivalent are listed in validation/mutation_survivors.md).
+"""Exact properties of the materials' numpy code, each guarding a line that a mutation of
+it would otherwise leave passing (``python validation/mutation.py materials``; the
+mutations left as equivalent are listed in validation/mutation_survivors.md).
 
 References, each written out here independently of the code:
 
@@ -35,6 +35,7 @@ from fem_rmpm.materials import (
     mohr_coulomb,
     return_map,
     sqrt_j2,
+    strength,
     stress_update,
     von_mises,
 )
@@ -221,7 +222,7 @@ def test_reduce_strength_leaves_the_scene_rows_alone():
     given are unchanged."""
     rows = np.tile(MC_ROW, (3, 1))
     keep = rows.copy()
-    out = mohr_coulomb.reduce_strength(rows, 1.5, softening=True)
+    out = strength.reduce_strength(mohr_coulomb.NAME, rows, 1.5, softening=True)
     assert np.array_equal(rows, keep) and out is not rows
     assert out[0, 2] == pytest.approx(10.0 / 1.5, rel=1e-15, abs=0)
     assert out[0, 4] == pytest.approx(math.degrees(math.atan(math.tan(math.radians(30)) / 1.5)),

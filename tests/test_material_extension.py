@@ -1,12 +1,15 @@
-"""A material model added in one file, run through the explicit scheme (issue 11, acc. 4).
+"""A material model added in one file, run through both schemes and the factor of safety.
 
 This test module *is* the model: Tresca, perfectly plastic (undrained shear strength
 ``su``, yield ``(tau_1 - tau_3) / 2 <= su`` on the principal Kirchhoff stresses
 including ``tau_zz``), written to the protocol of :mod:`fem_rmpm.materials.protocol`
-(``NAME``, ``PARAMETERS``, ``STATE``, a numpy ``update`` and a numba ``point_update``)
-and registered by a fixture.  No kernel, scheme or scene code knows it: the scene
-validation reads its parameter, the explicit kernels reach it through the generated
-dispatch, the numpy reference step through its ``update``.
+(``NAME``, ``PARAMETERS``, ``STATE``, a numpy ``update``, a numba ``point_update``, and
+its strength table ``STRENGTHS`` and its own message for a rejected point) and
+registered by a fixture.  No kernel, scheme, strength-reduction or scene code knows it:
+the scene validation reads its parameter, the explicit kernels reach it through the
+generated dispatch, the numpy reference step and the implicit scheme through its
+``update``, the strength reduction through ``STRENGTHS``.  It declares no regularisable
+state (it does not soften), so the regularisation of softening leaves its points alone.
 
 Return mapping in principal log-strain space (isotropic, so the principal directions do
 not change): the main plane, or the right / left corner when the main-plane return would
@@ -28,7 +31,7 @@ from soil_points import tangents_agree
 from fem_rmpm import materials
 from fem_rmpm.discretise.grid import make_grid
 from fem_rmpm.discretise.points import seed_particles
-from fem_rmpm.materials import MaterialPoints, Parameter
+from fem_rmpm.materials import MaterialPoints, Parameter, Strength
 from fem_rmpm.scene import SceneError, load_scene, scene_from_dict, scene_to_dict
 from fem_rmpm.schemes.explicit import kernels as K
 from fem_rmpm.schemes.explicit.loop import run_explicit
@@ -37,7 +40,19 @@ NAME = "tresca_test"
 PARAMETERS = (Parameter("undrained_shear_strength", "kPa", 0.0, math.inf,
                         description="half the largest principal stress difference at yield"),)
 STATE = ("plastic_shear_strain",)
+STRENGTHS = (Strength("undrained_shear_strength", "c/F"),)     # su / F
 TINY = Path(__file__).parent / "data" / "mc_tiny.toml"
+
+
+def invalid_points(params):
+    """Points without strength (su not positive, or not a number): mask and reason."""
+    return ~(params[:, 2] > 0), "it has no undrained shear strength"
+
+
+def point_problem(row):
+    """The model's own words for a rejected point."""
+    return (f"draws undrained_shear_strength = {row[2]:.4g} kPa; allowed: a positive "
+            "strength (lower [random_field] cov)")
 
 
 # ------------------------------------------------------------------ the model (numpy)
@@ -70,6 +85,10 @@ def update(eps_tr, state, params):
     q = np.where(r.real > 0, rn / np.where(r.real > 0, r, 1.0), 0.0)
     mn = 0.5 * (ea + eb)
     eps = np.stack([mn + q * d, mn - q * d, e[:, 2] - de[:, 2], q * exy], 1)
+    # an elastic point keeps its trial strain as given: the rotation back is then exact,
+    # and so is the complex-step tangent at an isotropic in-plane strain (r = 0, e.g. the
+    # unstrained state where a static solve starts)
+    eps = np.where((A.real > 0)[:, None], eps, eps_tr)
     st = state + 0 * de[:, :1]                                   # a copy (complex if de is)
     st[:, 0] = state[:, 0] + np.sqrt(2 * (de * de).sum(1))
     vol = eps[:, 0] + eps[:, 1] + eps[:, 2]
@@ -225,7 +244,7 @@ def test_explicit_run_numba_equals_numpy(tresca):
     """The tiny slope (152 points) in Tresca clay, 1 s of gravity-driven dynamics (111
     steps), run by the compiled kernels and by the numpy reference step: the same run up
     to round-off grown by the failing slope (achieves 3.6e-7 relative on the velocities,
-    2.3e-7 on the stresses, session 32, the kernels compiled without FMA contraction; 3.4e-7
+    2.3e-7 on the stresses with the kernels compiled without FMA contraction; 3.4e-7
     and 1.9e-7 with it: the two steps round differently in every point at every step, and
     the failing slope grows those differences by ~1e8 over the run; asserts 2e-6, an error
     in either implementation shows as 1e-3 or more), and
@@ -276,3 +295,64 @@ def test_implicit_tangent_and_run_use_the_models_update(tresca):
     assert (pts.plastic_shear_strain > 0.01).sum() > 20
     tau = pts.stress * (pts.volume / pts.volume0)[:, None]
     assert _principal_gap(tau).max() <= 4.0 * (1 + 1e-9)
+
+
+# ------------------------------------------------------------------ strength reduction
+def _infinite_slope(meshes, z=5.0, beta=20.0, rows=20, hx=0.5, length=12.0, su=20.0):
+    """meshes/infinite_slope.toml in Tresca clay: vertical depth z (m), angle beta (deg),
+    ``rows`` cells over the normal thickness t = z cos(beta), cells ``hx`` t long, a layer
+    ``length`` t long on the fixed bedrock, both ends free."""
+    data = scene_to_dict(load_scene(meshes / "infinite_slope.toml"))
+    t = z * math.cos(math.radians(beta))
+    L = length * t
+    soil = data["soil"][0]
+    for k in ("cohesion_peak", "cohesion_residual", "softening", "softening_strain"):
+        soil.pop(k, None)
+    soil.update(model=NAME, undrained_shear_strength=su,
+                polygon=[[0, 0], [L, 0], [L, t], [0, t]])
+    data["scene"]["frame_angle_deg"] = beta
+    data["grid"].update(size=[L, t], cell=[hx * t, t / rows])
+    return scene_from_dict(data, "tresca_infinite_slope.toml")
+
+
+def test_strength_reduction_scales_the_declared_strength(tresca):
+    """The strength reduction reads the model's STRENGTHS: su / F, nothing else."""
+    from fem_rmpm.materials import strength
+    from fem_rmpm.schemes.implicit.strength_reduction import strength_parameters
+    assert strength_parameters(NAME) == ("undrained_shear_strength",)
+    rows = np.array([[400.0, 900.0, 12.0], [400.0, 900.0, 3.0]])
+    out = strength.reduce_strength(NAME, rows, 1.5, softening=False)
+    assert np.array_equal(out[:, :2], rows[:, :2]) and np.array_equal(out[:, 2], rows[:, 2] / 1.5)
+    assert NAME in strength.models_with_strength()
+
+
+def test_factor_of_safety_of_the_undrained_infinite_slope(tresca, meshes):
+    """Closed form: the undrained infinite slope FS = su / (gamma z sin(beta) cos(beta))
+    (limit equilibrium of a slice; Duncan & Wright 2005, ch. 6), here 20 / (20 x 5 x
+    sin 20 cos 20) = 0.622.  Plane-strain simple shear along the slope keeps tau_zz
+    intermediate, where Tresca's (tau_1 - tau_3) / 2 is von Mises' sqrt(J2).  On the mesh
+    of the von Mises layer of tests/test_strength_reduction.py (20 rows over the
+    thickness, 1920 points) it achieves FS 0.625 (+0.5 %) in 6 static solves; asserts
+    that test's 2 %."""
+    from fem_rmpm import api
+    from fem_rmpm.schemes.implicit.strength_reduction import factor_of_safety
+    scene = _infinite_slope(meshes)
+    grid, pts = api.prepare(scene)
+    res = factor_of_safety(scene, grid=grid, pts=pts)
+    b = math.radians(20.0)
+    exact = 20.0 / (20.0 * 5.0 * math.sin(b) * math.cos(b))
+    assert res.bound == "=" and res.bracket[1] / res.bracket[0] - 1 <= 0.01
+    assert abs(res.fs / exact - 1) < 0.02, (res.fs, exact)
+
+
+def test_a_rejected_point_is_told_in_the_models_words(tresca):
+    """A point whose model rejects its values (here a strength of 0) is reported with the
+    model's own message, after the point's position."""
+    soil = MaterialPoints(np.full(3, tresca), np.array([[400.0, 900.0, 4.0],
+                                                        [400.0, 900.0, 0.0],
+                                                        [400.0, 900.0, 4.0]]))
+    x0 = np.array([[0.0, 0.0], [1.25, 0.5], [2.0, 0.0]])
+    assert materials.point_problem(soil, x0) == (
+        "material point 1 at x = 1.25, y = 0.50 m draws undrained_shear_strength = 0 kPa; "
+        "allowed: a positive strength (lower [random_field] cov)")
+    assert materials.point_problem(soil.take([0, 2]), x0[[0, 2]]) is None

@@ -1,4 +1,4 @@
-"""Mesh-objective softening (issue 14): the non-local mean, the staggered update, the
+"""Mesh-objective softening: the non-local mean, the staggered update, the
 displacement-scaled softening, the biaxial convergence test and the bad input.
 
 References: Galavi & Schweiger 2010 (Int. J. Geomech. 10(1) 30-44: the weight
@@ -25,6 +25,18 @@ from fem_rmpm.schemes.common import SimulationError
 from fem_rmpm.schemes.explicit.loop import run_explicit
 
 
+COLUMNS = (0, 1, 2)          # the state columns: plastic shear strain, softening variable,
+#                              the strain at the last averaging (von Mises' REGULARISABLE)
+
+
+def test_von_mises_declares_its_regularisable_state_by_name():
+    """The regularisation reads the state columns the model declares: von Mises' are
+    the plastic shear strain, the softening variable and the strain at the last
+    averaging, columns 0, 1, 2 of its STATE."""
+    from fem_rmpm import materials
+    assert R.state_columns(materials.model_id("von_mises_softening")) == COLUMNS
+
+
 def _points(n=24, h=0.25, ppc=2):
     """A square block of n x n cells of h (m), ppc x ppc points per cell, state (m, 3)."""
     g = (np.arange(n * ppc) + 0.5) * h / ppc
@@ -40,11 +52,11 @@ def _average(method, x, vol, act, state, ell, h, n, m=1.0):
     st = state.copy()
     origin = np.zeros(2)
     if method == "points":
-        R.nonlocal_average(x, vol, act, st, sel, length, full, fac, origin, h, n, n)
+        R.nonlocal_average(x, vol, act, st, sel, length, full, fac, origin, h, n, n, COLUMNS)
     else:
         da, db, w = R.stencil(ell, h, h)
         R.cell_average(x, vol, act, st, sel, np.ones(len(x), dtype=bool), full, fac, origin,
-                       h, h, n, n, da, db, w)
+                       h, h, n, n, da, db, w, COLUMNS)
     return st[:, 1]
 
 
@@ -158,15 +170,15 @@ def _biaxial(tmp_path, h, mode, ell=0.2):
 
 
 def test_biaxial_softening_converges_with_nonlocal_not_with_local(tmp_path):
-    """Acceptance 2 (meshes/biaxial_softening.toml: 1 x 2 m unconfined plane-strain
+    """The biaxial test (meshes/biaxial_softening.toml: 1 x 2 m unconfined plane-strain
     specimen, c 10 -> 5 kPa, weak seed cell, implicit small-strain load steps to 6 %
     axial strain) on cells of 0.1 and 0.05 m.  Local softening: the band is one cell
     wide, so the force after the peak falls with the cell (at 4 % axial strain 18.5
     kN/m on 0.1 m, 11.4 on 0.05 m: the coarse one 63 % higher; asserts > 25 %).
     Non-local with l = 0.2 m (nonlocal_factor 2, the default): the curves agree within
     4.4 % over the whole post-peak branch (asserts 8 %; validation/biaxial_softening.py
-    adds 0.025 m cells).  Newton converges in every non-local load step (about 4 iterations per step); with
-    local softening Newton may fail just after the peak on the finer mesh (a failure
+    adds 0.025 m cells).  Newton converges in every non-local load step (about 4
+    iterations per step); with local softening Newton may fail just after the peak on the finer mesh (a failure
     counts as not converging)."""
     curves = {(m, h): _biaxial(tmp_path, h, m) for m in ("local", "nonlocal") for h in (0.1, 0.05)}
     grid = np.linspace(0.05, 0.12, 15)              # post-peak: the peak is at ~0.04 m
@@ -206,7 +218,7 @@ def test_biaxial_softening_converges_with_nonlocal_not_with_local(tmp_path):
     ({"soil.regularisation": "gradient"}, "soil.regularisation", "'nonlocal'"),
 ])
 def test_bad_regularisation_input(meshes, changes, key, words):
-    """Acceptance 5: l <= 0, l below a cell (0.1 m on 0.25 m cells: the mean would see
+    """Bad input: l <= 0, l below a cell (0.1 m on 0.25 m cells: the mean would see
     no neighbour), both regularisations at once, a key of the other regularisation,
     displacement without its length or with one so short the softening modulus
     exceeds G: a SceneError naming the [[soil]] key and what is allowed."""

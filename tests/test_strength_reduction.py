@@ -1,4 +1,4 @@
-"""Factor of safety by strength reduction (fem_rmpm.schemes.implicit.strength_reduction, issue 15).
+"""Factor of safety by strength reduction (fem_rmpm.schemes.implicit.strength_reduction).
 
 References: the undrained infinite slope FS = c / (gamma z sin(beta) cos(beta)) (limit
 equilibrium of a slice; Duncan & Wright 2005, ch. 6) and Taylor's (1937) stability chart
@@ -69,7 +69,7 @@ def test_reduce_strength_peak_and_softening(meshes):
 
 
 def test_mohr_coulomb_reduces_c_and_tan_phi(meshes):
-    """Mohr–Coulomb declares its reduction (materials hook ``reduce_strength``): c / F,
+    """Mohr–Coulomb declares its reduction (its ``STRENGTHS`` table): c / F,
     tan(phi_F) = tan(phi) / F, psi_F = min(psi, phi_F), peak and residual alike (Griffiths
     & Lane 1999; Dawson, Roth & Drescher 1999); without softening residual = reduced peak."""
     sc = api.load_scene(meshes / "slope_drained.toml")    # c' 5 -> 1, phi' 22 -> 18, psi 0
@@ -105,7 +105,7 @@ def test_mohr_coulomb_reduces_c_and_tan_phi(meshes):
     ("soil[0].angle_of_repose=30.0", "angle_of_repose"),
 ])
 def test_bad_mohr_coulomb_input_exits_2_with_one_line(meshes, tmp_path, capsys, setting, key):
-    """Issue 16 acc 6 through the command line: phi outside [0, 60), psi > phi, residual
+    """Bad Mohr–Coulomb input through the command line: phi outside [0, 60), psi > phi, residual
     above peak, a key the model does not have: exit 2, one line on stderr naming the key,
     nothing written."""
     out = tmp_path / "fs"
@@ -135,12 +135,12 @@ def drained(meshes, fs=1.1, rows=20, length=48.0):
 
 @pytest.mark.parametrize("fs, achieved", [(1.1, 0.042), (0.9, 0.011)])
 def test_drained_infinite_slope_coarse(meshes, fs, achieved):
-    """Issue 16 acc 3, coarse (10 rows, layer 24 t, 1920 points, about 4 s CPU; the scene's
+    """Drained infinite slope, coarse (10 rows, layer 24 t, 1920 points, about 4 s CPU; the scene's
     one in-plane mean stress per cell): the strength-reduction FS of the Mohr–Coulomb layer
     against c / (gamma z sin b cos b) + tan(phi) / tan(b).  Achieves +4.5 % (1.1: 1.149)
     and +2.1 % (0.9: 0.919): the mesh (+h/2t on the cohesion part, +2.1 % at FS 1.1) and
     the buttress's base cohesion (+1.9 % at 24 t); asserts 6 %.  (B-bar, one volume change
-    per cell: +5.7 % and +2.9 %.)  The acceptance's 3 %: the slow test below at 20 rows
+    per cell: +5.7 % and +2.9 %.)  The 3 % bound: the slow test below at 20 rows
     and 48 t."""
     res = fos(drained(meshes, fs, rows=10, length=24.0))
     assert res.bound == "=" and res.static_solves <= 15
@@ -151,9 +151,9 @@ def test_drained_infinite_slope_coarse(meshes, fs, achieved):
 @pytest.mark.slow
 @pytest.mark.parametrize("fs", [1.1, 0.9])
 def test_drained_infinite_slope_closed_form(meshes, fs):
-    """Issue 16 acc 3: the scene as shipped (20 rows, 48 t, 7680 points, about 17 s CPU,
+    """Drained infinite slope, the scene as shipped (20 rows, 48 t, 7680 points, about 17 s CPU,
     one in-plane mean stress per cell): achieves +2.0 % (1.1 design: 1.1215) and +0.7 %
-    (0.9 design: 0.9064); asserts the acceptance's 3 %.  With B-bar (one volume change
+    (0.9 design: 0.9064); asserts 3 %.  With B-bar (one volume change
     per cell, which locks under the dilatant flow psi = phi) 1.1288 (+2.6 %) and 0.9064."""
     res = fos(drained(meshes, fs))
     assert abs(res.fs / fs - 1) < 0.03, res.fs
@@ -161,7 +161,7 @@ def test_drained_infinite_slope_closed_form(meshes, fs):
 
 def test_infinite_slope_coarse(meshes):
     """z = 5 m, beta = 20 deg, 20 rows over the thickness (1920 points): achieves 0.2 %
-    (the bisection stops at a 1 % bracket); asserts the acceptance's 2 %."""
+    (the bisection stops at a 1 % bracket); asserts 2 %."""
     sc = infinite_slope(meshes, 5.0, 20.0, rows=20, hx=0.5)
     res = fos(sc)
     exact = closed_form(20.0, 20.0, 5.0, 20.0)
@@ -179,7 +179,7 @@ def test_infinite_slope_closed_form(meshes, z, beta):
     -1.0 % (z 5, beta 20) and -1.3 % (z 2.5, beta 20; the free ends weaken the layer, the
     thinner the more); beta 30 within 2 % at both depths (gravity anew per trial: +0.3 %
     at z 5); a shear band along the bedrock sits half a row above it (+1.25 % at 40 rows).
-    Asserts the acceptance's 2 %."""
+    Asserts 2 %."""
     res = fos(infinite_slope(meshes, z, beta))
     assert abs(res.fs / closed_form(20.0, 20.0, z, beta) - 1) < 0.02
 
@@ -250,7 +250,7 @@ def griffiths(meshes, C=0.25):
 
 def test_griffiths_slope_taylor(meshes):
     """C = 0.25, 1 m cells (H / 10, 4600 points): achieves FS = 1.466 (-0.3 % from Taylor's
-    1.47) in 10 static solves; asserts the acceptance's 3 %."""
+    1.47) in 10 static solves; asserts 3 %."""
     res = fos(griffiths(meshes))
     assert res.bound == "=" and abs(res.fs / 1.47 - 1) < 0.03, res.fs
     assert res.static_solves <= 15
@@ -259,7 +259,7 @@ def test_griffiths_slope_taylor(meshes):
 @pytest.mark.slow
 def test_griffiths_fs_proportional_to_cohesion(meshes):
     """Undrained (phi = 0): FS / C is constant; searched to a 0.2 % bracket, the midpoints
-    agree to 0.2 %; asserts the acceptance's 1 % across C = 0.15 .. 0.3."""
+    agree to 0.2 %; asserts 1 % across C = 0.15 .. 0.3."""
     o = FSOptions(tolerance=0.002)
     ratios = [fos(griffiths(meshes, C), options=o).fs / C
               for C in (0.15, 0.2, 0.3)]
@@ -298,7 +298,7 @@ def _perfect_correlation_sample(meshes, n, tolerance):
 
 
 def test_perfect_correlation_matches_the_single_variable_closed_form(meshes):
-    """Acceptance 3, fast: theta = 1e4 m (one random variable), COV 0.3, N = 50 on the
+    """Perfect correlation, fast: theta = 1e4 m (one random variable), COV 0.3, N = 50 on the
     Griffiths slope with 5 m cells (160 points; FS_hom 1.46 to a 5 % bracket); per realization
     one static solve at F = 1 (``stable_at``: exactly the event FS < 1 of the search).  The closed form
     uses the homogeneous FS of the same mesh.  Bound: 3 binomial standard errors of the
@@ -312,7 +312,7 @@ def test_perfect_correlation_matches_the_single_variable_closed_form(meshes):
 
 @pytest.mark.slow
 def test_perfect_correlation_n400_within_two_standard_errors(meshes):
-    """Acceptance 3: as above with N = 400 (5 m cells), one static solve at F = 1 per
+    """Perfect correlation: as above with N = 400 (5 m cells), one static solve at F = 1 per
     realization (``stable_at``: the event FS < 1); within 2 binomial standard errors of
     the closed form (N = 400: SE = 0.017 at p = 0.13)."""
     n = 400
@@ -322,7 +322,7 @@ def test_perfect_correlation_n400_within_two_standard_errors(meshes):
 
 @pytest.fixture(scope="module")
 def client(dask_client):
-    """The session's shared local cluster (tests/conftest.py)."""
+    """The test run's shared local cluster (tests/conftest.py)."""
     return dask_client
 
 

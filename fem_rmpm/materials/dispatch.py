@@ -5,17 +5,13 @@
 like ``version``): -1 for any model, or the id of the one model all points of the call
 share — then the body is that model's update alone (no chain over the other models:
 their code is not compiled into the kernel, and the loop around it optimises as if the
-model were written there: the material part of the stress pass (then its own finish
-pass) of the reference slope costs 6.3 ns per point
-against 9.8-10.4 through the chain, and 6.5 before the model registry existed).  It is a
-numba
+model were written there, about a third faster than through the chain).  It is a numba
 ``overload`` whose body (an if-chain over the registered models) is written when a
 kernel calling it is compiled, so a model registered anywhere — a new module, or a test
 — runs in the kernels without any kernel code changing.  The overload is inlined
 (``inline="always"``) into the calling kernel: compiled as a function of its own it was
 a call per point (the 8-tuple returned through memory, the state and parameter arrays
-passed as arguments), and that finish pass cost 18.7 ns per point against 14.4 inlined
-(finite strain; 19.1 / 13.3 geostatic; measured on the reference slope).
+passed as arguments), and that pass cost about a third more than inlined.
 
 Why the ``version`` argument (:func:`.registry.version`): numba compiles the chain into
 the calling kernel and caches that kernel on disk (``cache=True``: no recompilation in

@@ -8,7 +8,8 @@ import numpy as np
 from fem_rmpm.materials import registry
 from fem_rmpm.materials.protocol import MaterialPoints
 
-__all__ = ["material_points", "soil_values", "cohesion", "invalid_points", "new_state"]
+__all__ = ["material_points", "soil_values", "cohesion", "invalid_points", "point_problem",
+           "new_state"]
 
 
 def soil_values(spec) -> dict:
@@ -43,11 +44,11 @@ def new_state(soil: MaterialPoints) -> np.ndarray:
 
 def cohesion(state: np.ndarray, soil: MaterialPoints) -> np.ndarray:
     """Current strength per point (kPa) from the models' ``cohesion`` hook (of the
-    ``softening_variable`` state column where the model has one, else of the plastic
-    shear strain); inf where a model has none (linear elastic).  With one model the hook
-    gets the soil's own parameter rows, in their own memory order (no copy: the rows are
-    column-major, and a row-major copy of the reference slope's took half of this
-    function's 0.55 ms, measured): hooks read them, never write."""
+    softening variable where the model declares one (``REGULARISABLE``), else of the
+    plastic shear strain); inf where a model has none (linear elastic).  With one model
+    the hook gets the soil's own parameter rows, in their own memory order (no copy: the
+    rows are column-major, and a row-major copy took half of this function's time): hooks
+    read them, never write."""
     state = state[:, None] if state.ndim == 1 else state
     out = np.full(len(soil), math.inf)
     models = soil.model
@@ -55,8 +56,9 @@ def cohesion(state: np.ndarray, soil: MaterialPoints) -> np.ndarray:
     for k in (models[:1] if one else np.unique(models)):
         m = registry.model(int(k))
         if hasattr(m, "cohesion"):
-            col = m.STATE.index("softening_variable") if (
-                "softening_variable" in m.STATE and state.shape[1] > 1) else 0
+            reg = getattr(m, "REGULARISABLE", None)
+            col = m.STATE.index(reg.variable) if (
+                reg is not None and state.shape[1] > 1) else 0
             if one:      # the same values as the masked copies, without copying
                 out[:] = m.cohesion(np.ascontiguousarray(state[:, col]), soil.params)[0]
             else:
@@ -78,3 +80,19 @@ def invalid_points(soil: MaterialPoints) -> tuple[np.ndarray, str]:
             bad[idx] = b
             reason = reason or (why if b.any() else "")
     return bad, reason
+
+
+def point_problem(soil: MaterialPoints, x0: np.ndarray) -> str | None:
+    """What is wrong with the first point whose model rejects its parameter values
+    (:func:`invalid_points`), e.g. values drawn by a random field: ``"material point i at
+    x = .., y = .. m "`` and the model's own words (its ``point_problem`` hook, else its
+    ``invalid_points`` reason); None if every point is valid.  ``x0`` (n, 2): the points'
+    initial positions (m)."""
+    bad, reason = invalid_points(soil)
+    if not bad.any():
+        return None
+    i = int(np.argmax(bad))
+    m = registry.model(int(soil.model[i]))
+    hook = getattr(m, "point_problem", None)
+    what = hook(soil.params[i]) if hook is not None else reason
+    return f"material point {i} at x = {x0[i, 0]:.2f}, y = {x0[i, 1]:.2f} m {what}"

@@ -24,29 +24,49 @@ A model is one module with these attributes (see :mod:`.von_mises` for a full on
     writing ``state[i, :]``; the explicit kernels call it through one dispatch on the
     point's model id (:mod:`.dispatch`).  It must allocate nothing.
 
-Optional: ``check(values) -> (key, message) | None`` (scene check of one ``[[soil]]``
-across parameters; ``values`` maps the parameter names, ``shear_modulus`` and
-``bulk_modulus`` to numbers), ``invalid_points(params) -> (mask, reason)`` (the same for
-per-point values, e.g. drawn by a random field) and ``cohesion(state, params)`` (the
-current strength per point in kPa for outputs; default: infinite) and
-``reduce_strength(params, F, softening) -> params`` (the parameter rows (n, P) with the
-strengths divided by the trial factor ``F`` of a factor-of-safety search by strength
-reduction, e.g. ``c / F`` and ``tan(phi) / F``; without ``softening`` residual = reduced
-peak; a model without it has its ``STRENGTHS`` names, or the default table of
-:mod:`fem_rmpm.schemes.implicit.strength_reduction`, divided by ``F``; see there), and
-``tangent(eps_tr, state, params) -> D`` (the consistent tangent ``d tau / d eps_tr``
-(n, 4, 4) of ``update`` at the trial log strains, columns ``[xx, yy, zz, xy]``; the
-implicit scheme uses it instead of the complex step of ``update``, which is ~10x slower;
-a test must show the two agree), and ``block_update(Z, state, params, active, b, m)``
-(``point_update`` of the points ``b .. b + m - 1`` at once, written without branches so
-that LLVM vectorises it: the trial strains of point ``b + j`` in ``Z[0:4, j]``, its
-strains into ``Z[4:8, j]`` and Kirchhoff stress into ``Z[8:12, j]`` (rows 12-15 are its
-own), the state of the ``active`` points updated; ``Z`` is the kernels' block scratch,
-:data:`BLOCK_ROWS` x :data:`BLOCK_COLUMNS`, compiled with :data:`fem_rmpm.runtime.compiled.jit`;
-the results must be bitwise ``point_update``'s: the kernels use it where all points have
-the model, else ``point_update``) with ``block_eligible(params) -> bool`` (whether
-``block_update`` computes points with these parameter rows (n, P), e.g. not a law it
-leaves to ``point_update``; asked once per run, for all its points; default: True).
+Optional, what the rest of the package asks a model (none of it names a model):
+
+``check(values) -> (key, message) | None``
+    scene check of one ``[[soil]]`` across parameters; ``values`` maps the parameter
+    names, ``shear_modulus`` and ``bulk_modulus`` to numbers.
+``invalid_points(params) -> (mask, reason)``
+    the same for per-point values (n, P), e.g. drawn by a random field.
+``point_problem(row) -> str``
+    what is wrong with one rejected parameter row, in the model's own words, naming its
+    values and what to change (:func:`fem_rmpm.materials.points.point_problem` puts it
+    after the point's position); default: the ``reason`` of ``invalid_points``.
+``cohesion(state, params)``
+    the current strength per point in kPa for outputs (default: infinite).
+``STRENGTHS`` (tuple of :class:`Strength`)
+    the strength parameters and how a strength reduction by the trial factor ``F``
+    scales each (:data:`REDUCTIONS`: ``c / F``, ``atan(tan(phi) / F)``, at most another
+    reduced parameter), and which residual takes its peak's reduced value when the soil
+    is reduced perfectly plastic (:func:`fem_rmpm.materials.strength.reduce_strength`);
+    default: none, the model has no strength to reduce.
+``REGULARISABLE`` (:class:`Regularisable`)
+    the state columns and parameter a mesh regularisation of softening acts on, by name
+    (:mod:`fem_rmpm.schemes.regularisation`); such a model also declares the
+    regularisation's keys as parameters (``regularisation``, ``internal_length``,
+    ``nonlocal_factor``, ``softening_displacement``) and the hooks
+    ``fully_softened(params)`` (the softening variable (n,) past which the strength no
+    longer falls) and ``softening_modulus(values)`` (kPa, the drop of strength per unit
+    softening variable of one ``[[soil]]``'s values, for the check of a displacement-scaled
+    softening strain).
+``tangent(eps_tr, state, params) -> D``
+    the consistent tangent ``d tau / d eps_tr`` (n, 4, 4) of ``update`` at the trial log
+    strains, columns ``[xx, yy, zz, xy]``; the implicit scheme uses it instead of the
+    complex step of ``update``, which is ~10x slower; a test must show the two agree.
+``block_update(Z, state, params, active, b, m)``
+    ``point_update`` of the points ``b .. b + m - 1`` at once, written without branches so
+    that LLVM vectorises it: the trial strains of point ``b + j`` in ``Z[0:4, j]``, its
+    strains into ``Z[4:8, j]`` and Kirchhoff stress into ``Z[8:12, j]`` (rows 12-15 are its
+    own), the state of the ``active`` points updated; ``Z`` is the kernels' block scratch,
+    :data:`BLOCK_ROWS` x :data:`BLOCK_COLUMNS`, compiled with
+    :data:`fem_rmpm.runtime.compiled.jit`; the results must be bitwise ``point_update``'s:
+    the kernels use it where all points have the model, else ``point_update``.  With it
+    ``block_eligible(params) -> bool``: whether ``block_update`` computes points with these
+    parameter rows (n, P), e.g. not a law it leaves to ``point_update`` (asked once per
+    run, for all its points; default: True).
 """
 from __future__ import annotations
 
@@ -58,7 +78,8 @@ import numpy as np
 
 from fem_rmpm.materials import registry
 
-__all__ = ["Parameter", "MaterialPoints", "ELASTIC_COLUMNS", "BLOCK_ROWS", "BLOCK_COLUMNS"]
+__all__ = ["Parameter", "Strength", "Regularisable", "MaterialPoints", "ELASTIC_COLUMNS",
+           "BLOCK_ROWS", "BLOCK_COLUMNS", "REDUCTIONS"]
 
 # The block scratch ``Z`` a model's ``block_update`` gets (per chunk, i.e. per thread, of
 # the kernels): BLOCK_ROWS rows of BLOCK_COLUMNS float64, at least the kernels' block of
@@ -112,6 +133,48 @@ class Parameter:
         return float(self.choices.index(value)) if self.choices else float(value)
 
 
+#: How a strength reduction scales a parameter (:class:`Strength` ``rule``), F the trial
+#: factor: a cohesion or strength in kPa is divided by F; a friction angle in degrees
+#: becomes ``atan(tan(phi) / F)``; "at most" keeps a value (e.g. a dilation angle, deg)
+#: but not above the reduced value of the parameter ``bound``.
+REDUCTIONS = ("c/F", "atan(tan(phi)/F)", "at most")
+
+
+@dataclass(frozen=True)
+class Strength:
+    """One row of a model's ``STRENGTHS``: parameter ``name``, how a strength reduction
+    scales it (``rule``, one of :data:`REDUCTIONS`), the parameter it may not exceed
+    (``bound``, rule "at most"), and for a residual value the peak parameter whose reduced
+    value it takes when the soil is reduced perfectly plastic (``peak``)."""
+    name: str
+    rule: str
+    peak: str | None = None
+    bound: str | None = None
+
+    def __post_init__(self):
+        if self.rule not in REDUCTIONS:
+            raise ValueError(f"strength {self.name!r}: rule {self.rule!r} not one of "
+                             f"{', '.join(REDUCTIONS)}")
+        if (self.rule == "at most") != (self.bound is not None):
+            raise ValueError(f"strength {self.name!r}: a bound goes with the rule 'at most'")
+
+
+@dataclass(frozen=True)
+class Regularisable:
+    """A softening model's state a mesh regularisation acts on, by the names of its
+    ``STATE`` columns and ``PARAMETERS`` (:mod:`fem_rmpm.schemes.regularisation`):
+
+    ``strain``: the local plastic shear strain whose increments the non-local average
+    takes; ``variable``: the softening variable the strength falls with (the non-local
+    pass adds to it); ``averaged``: the ``strain`` at the last averaging (the increments
+    are counted from it); ``softening_strain``: the parameter the displacement-scaled
+    softening replaces by ``softening_displacement / h``."""
+    strain: str = "plastic_shear_strain"
+    variable: str = "softening_variable"
+    averaged: str = "plastic_shear_strain_averaged"
+    softening_strain: str = "softening_strain"
+
+
 @dataclass(init=False, eq=False)
 class MaterialPoints:
     """Material of n points: model id (n,) int64, parameter rows (n, P) float64 (stored
@@ -130,8 +193,7 @@ class MaterialPoints:
         self.model = np.asarray(model, dtype=np.int64)
         # column-major (a copy), as the state (points.new_state): a model update reads a
         # few columns of every point's row, and the explicit stress pass streams just those
-        # (case (i) on ~1e6 points, one thread: 0.87-0.91x the time of row-major rows, which
-        # it read whole; 0.98x on the reference slope; bitwise the same run)
+        # (faster than row-major rows, which it read whole; bitwise the same run)
         self.params = np.array(params, dtype=float, ndmin=2, order="F")
         for name, values in named.items():
             self._set(name, values)

@@ -26,6 +26,7 @@ def register(module: ModuleType) -> int:
     if module.STATE and module.STATE[0] != "plastic_shear_strain":
         raise TypeError(f"material model {module.NAME!r}: the first state variable must be "
                         "plastic_shear_strain")
+    _check_declarations(module)
     for k, m in enumerate(_MODELS):
         if m.NAME == module.NAME:
             _MODELS[k] = module
@@ -35,6 +36,29 @@ def register(module: ModuleType) -> int:
         k = len(_MODELS) - 1
     _VERSION[0] = _source_hash()
     return k
+
+
+def _check_declarations(module: ModuleType) -> None:
+    """The names a model's ``STRENGTHS`` and ``REGULARISABLE`` give are its own parameters
+    and state variables, and a regularisable model has the hooks the regularisation calls."""
+    params = {p.name for p in module.PARAMETERS}
+    for s in getattr(module, "STRENGTHS", ()):
+        unknown = [n for n in (s.name, s.peak, s.bound) if n is not None and n not in params]
+        if unknown:
+            raise TypeError(f"material model {module.NAME!r}: STRENGTHS names "
+                            f"{', '.join(unknown)}, not among its PARAMETERS")
+    reg = getattr(module, "REGULARISABLE", None)
+    if reg is None:
+        return
+    unknown = [n for n in (reg.strain, reg.variable, reg.averaged) if n not in module.STATE]
+    unknown += [] if reg.softening_strain in params else [reg.softening_strain]
+    if unknown:
+        raise TypeError(f"material model {module.NAME!r}: REGULARISABLE names "
+                        f"{', '.join(unknown)}, not among its STATE and PARAMETERS")
+    missing = [h for h in ("fully_softened", "softening_modulus") if not hasattr(module, h)]
+    if missing:
+        raise TypeError(f"material model {module.NAME!r}: REGULARISABLE without the hooks "
+                        f"{', '.join(missing)}")
 
 
 def unregister(name: str) -> None:

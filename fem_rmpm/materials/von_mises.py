@@ -35,7 +35,7 @@ import numpy as np
 from numba import njit
 
 from fem_rmpm.materials.hencky import hencky_stress, sqrt_j2
-from fem_rmpm.materials.protocol import BLOCK_COLUMNS, Parameter
+from fem_rmpm.materials.protocol import BLOCK_COLUMNS, Parameter, Regularisable, Strength
 from fem_rmpm.runtime.compiled import assume_columns, jit
 
 NAME = "von_mises_softening"
@@ -67,10 +67,17 @@ PARAMETERS = (
                           "1: plain mean, default 2: over-non-local)"),
 )
 STATE = ("plastic_shear_strain", "softening_variable", "plastic_shear_strain_averaged")
+STRENGTHS = (Strength("cohesion_peak", "c/F"),
+             Strength("cohesion_residual", "c/F", peak="cohesion_peak"))
+REGULARISABLE = Regularisable(strain="plastic_shear_strain", variable="softening_variable",
+                              averaged="plastic_shear_strain_averaged",
+                              softening_strain="softening_strain")
 _CP, _CR, _GS, _EXP, _REG = 2, 3, 4, 5, 6     # columns of the parameter row
 _NONLOCAL = 1.0                               # regularisation index of "nonlocal"
 _KEYS = {"internal_length": "nonlocal", "nonlocal_factor": "nonlocal",
          "softening_displacement": "displacement"}
+_EXP_FULL = 14.0                              # exponential law: c - c_r < 1e-6 (c_p - c_r)
+#                                               past 14 e-folds
 
 
 def _check_regularisation(values: dict):
@@ -124,6 +131,30 @@ def invalid_points(params: np.ndarray):
     bad |= ~(cp > 0)
     return bad, ("its linear softening modulus is not below the shear modulus "
                  "(or it is not positive)")
+
+
+def point_problem(row: np.ndarray) -> str:
+    """What is wrong with one parameter row that :func:`invalid_points` rejects, naming
+    its peak cohesion and shear modulus and what to change."""
+    return (f"draws cohesion_peak = {row[_CP]:.4g} kPa, whose linear softening modulus is "
+            f"not below the shear modulus {row[0]:.4g} kPa (or is not positive); increase "
+            "[[soil]] softening_strain or lower [random_field] cov")
+
+
+def fully_softened(params: np.ndarray) -> np.ndarray:
+    """The softening variable (n,) past which the cohesion no longer falls: the softening
+    strain (linear law), 14 e-folds of it (exponential: within 1e-6 of the drop)."""
+    return np.where(params[:, _EXP] == 1.0, _EXP_FULL, 1.0) * params[:, _GS]
+
+
+def softening_modulus(values: dict) -> float:
+    """Drop of the cohesion per unit softening variable (kPa) of one ``[[soil]]``'s values
+    (``values`` as for :func:`check`): ``(c_p - c_r) / softening_strain`` for the linear
+    law; 0 for the exponential one (its modulus falls with the strain; the return's
+    Newton iteration needs no bound)."""
+    if values["softening"] != "linear":
+        return 0.0
+    return (values["cohesion_peak"] - values["cohesion_residual"]) / values["softening_strain"]
 
 
 def cohesion(gamma_p, params: np.ndarray):
@@ -247,8 +278,8 @@ def _returned(e0, e1, e2, e3, scale, G, lam):
 @njit(inline="always", fastmath=False, error_model="numpy")
 def _softening_branch(q, c0, G, cp, cr, gs):
     """(dgamma, deviator scale) of the return onto the linear softening branch: one
-    division gives both (case (i), t = 8 s, 86 % of the points yielding: stress pass
-    -1.2 ns per point against dgamma first, then scale = 1 - G dgamma / q, measured)."""
+    division gives both (one division fewer per yielding point than dgamma first, then
+    scale = 1 - G dgamma / q)."""
     hs = (cp - cr) / gs
     num = q - c0
     r = 1.0 / ((G - hs) * q)
@@ -367,8 +398,7 @@ def _radial_return(Z, state, params, soft, b, m):
     point's are its trial strains and :func:`_trial`'s stress again (the same operations,
     so the same bits as pass 1's), not pass 1's reloaded.  Reloading a value to store it
     back where it was made LLVM write ``Z`` with masked stores (``vmaskmovpd``: 18 in this
-    loop), which AMD's Zen 1 runs in microcode: case (i) on an AMD EPYC Zen 1 VM, whole
-    run, one thread, 0.93-0.96x the time (3 interleaved pairs), bitwise the same run."""
+    loop), which AMD's Zen 1 runs in microcode (slower there; bitwise the same run)."""
     assume_columns(Z, BLOCK_COLUMNS)
     for j in range(m):
         i = b + j

@@ -81,10 +81,12 @@ class BoundarySpec:
 
 @dataclass(frozen=True)
 class SoilSpec:
-    """One ``[[soil]]`` table.  The keys of its material model (``model``, see
-    :mod:`fem_rmpm.materials`) are validated against the model's declared parameters;
-    those of the built-in von Mises model are fields here, those of other models are
-    kept in ``parameters`` (read any of them with :meth:`value`)."""
+    """One ``[[soil]]`` table.  Which keys belong to its material model (``model``) and
+    their units and ranges are the model's declaration (``PARAMETERS``, see
+    :mod:`fem_rmpm.materials`), against which the keys are validated.  Four keys that
+    softening models share are fields here, with the defaults every model declaring them
+    shares (``tests/test_material.py`` checks that); all other keys of a model are kept
+    in ``parameters``.  Read any of them with :meth:`value`."""
     polygon: tuple[tuple[float, float], ...]
     unit_weight: float                  # kN/m3
     youngs_modulus: float               # kPa
@@ -92,12 +94,12 @@ class SoilSpec:
     name: str = "soil"
     points_per_cell_dir: int = 2
     model: str = "linear_elastic"
-    cohesion_peak: float = math.inf     # kPa (undrained shear strength, sqrt(J2) at yield)
-    cohesion_residual: float = math.inf  # kPa
-    softening: str = "linear"
-    softening_strain: float = 0.5       # plastic shear strain (-) at which c reaches residual
-    #                                     (linear) or the e-folding strain (exponential)
-    parameters: tuple = ()              # ((name, value), ...) of other models' parameters
+    cohesion_peak: float = math.inf     # kPa, peak strength (its meaning: the model's)
+    cohesion_residual: float = math.inf  # kPa, strength after softening
+    softening: str = "linear"           # softening law: "linear" | "exponential"
+    softening_strain: float = 0.5       # plastic shear strain (-) at which the strength
+    #                                     reaches the residual (linear) or e-folding (exponential)
+    parameters: tuple = ()              # ((name, value), ...) of the model's other parameters
 
     def value(self, name: str, default: Any = None) -> Any:
         """The value of parameter ``name`` of this soil's model (or ``default``)."""

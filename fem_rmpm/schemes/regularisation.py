@@ -1,8 +1,11 @@
 """Mesh-objective softening: non-local averaging of the plastic shear strain, and the
 displacement-scaled softening rate.
 
-A softening soil (``model = "von_mises_softening"``) chooses with ``[[soil]]
-regularisation``:
+A softening model that declares its regularisable state (``REGULARISABLE``,
+:class:`fem_rmpm.materials.Regularisable`: the state columns of the local plastic shear
+strain, of the softening variable and of the strain at the last averaging, and its
+softening-strain parameter, by name) and the keys below as parameters lets each
+``[[soil]]`` choose with ``regularisation``:
 
 ``"local"`` (default)
     the strength falls with the point's own plastic shear strain ``gamma_p``.  The
@@ -33,14 +36,15 @@ regularisation``:
     the m = 1 consistency condition is a Fredholm equation of the first kind, whose
     solution localises).  With m > 1 a point that deforms more than its neighbourhood
     softens less than it, which spreads the plastic flow over a width set by ``l``.
-    Measured (README): on case (i) the strain width at band formation (1.5 s) is
-    0.87 / 0.67 / 0.51 m at 0.5 / 0.25 / 0.125 m cells with m = 1, 1.14 / 1.30 / 1.23 m
-    with m = 2.  The increment is kept >= 0: softening is irreversible (the total form
-    ``m gamma_bar + (1 - m) gamma_p`` would let a point that outruns its neighbours
-    regain strength).  The default ``l = 0.5 m`` is the vertical scale of fluctuation of
-    the reference random fields (theta_v = 0.5 m: strength varies on that scale, so a
-    band cannot be thinner) and two 0.25 m cells, the least that resolves the
-    averaging; ``l`` below one cell is refused (the average would see no neighbour).
+    On the reference slope the band at its formation narrows with the cell for m = 1
+    and keeps about the same width, set by l, for m = 2 (the validation pages of the
+    documentation give the measured widths).  The increment is kept >= 0: softening is
+    irreversible (the total form ``m gamma_bar + (1 - m) gamma_p`` would let a point that
+    outruns its neighbours regain strength).  The default ``l = 0.5 m`` is the vertical
+    scale of fluctuation of the reference random fields (theta_v = 0.5 m: strength varies
+    on that scale, so a band cannot be thinner) and two 0.25 m cells, the least that
+    resolves the averaging; ``l`` below one cell is refused (the average would see no
+    neighbour).
 ``"displacement"``
     the softening strain is ``softening_displacement / h`` (h = cell size, m): the
     displacement across the band at which the strength reaches the residual is fixed,
@@ -52,16 +56,16 @@ is perfectly plastic at the strength ``c(gamma*)`` of the step's start (so an im
 step is a well-posed perfectly plastic problem: Newton needs no softening tangent);
 :func:`average_softening`, called once after each explicit step and each converged
 implicit step, then adds the step's increment ``d gamma*`` to ``gamma*``.  The softening
-lags one step (explicit steps are ~1e-3 s).  State columns of the von Mises model:
-``[plastic_shear_strain (local, for outputs), softening_variable (gamma*),
-plastic_shear_strain_averaged (the local value at the last averaging)]``.
+lags one step (explicit steps are ~1e-3 s).  The state columns (``REGULARISABLE``):
+the local plastic shear strain (for outputs too), the softening variable ``gamma*`` and
+the local value at the last averaging.
 
 Neighbour search: the points are sorted into the cells of the structured background
 grid (counting sort, O(n)); a point looks only at the cells within ``2 l`` and only
 when one of them holds a plastic increment; fully softened points (linear law past
 ``softening_strain``) are skipped.  The cost per point-step is linear in the number
 of points, times the number of neighbours (about 13 (l/h)^2 per point at 4 points per
-cell) (figures in the README).
+cell).
 """
 from __future__ import annotations
 
@@ -83,7 +87,6 @@ DEFAULT_INTERNAL_LENGTH = 0.5      # m (theta_v of the reference fields; 2 cells
 DEFAULT_FACTOR = 2.0               # over-non-local m (Vermeer & Brinkgreve 1994)
 CUTOFF = 2.0                       # the weight is truncated at CUTOFF * l
 MODES = ("local", "nonlocal", "displacement")
-_EXP_FULL = 14.0                   # exponential law: c - c_r < 1e-6 (c_p - c_r) past 14 e-folds
 _PLANS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _BUFFERS: dict = {}                # id(grid) -> (weakref to the grid, work arrays)
 
@@ -97,22 +100,35 @@ def galavi_weight(r: np.ndarray, length: float) -> np.ndarray:
 
 
 def _columns(model_id: int):
-    """(regularisation, internal_length, softening_strain, softening, nonlocal_factor)
-    columns of a model, or None if the model has no regularisation parameter."""
+    """(regularisation, internal_length, nonlocal_factor) parameter columns of a model,
+    or None if the model has no regularisation parameter or declares no regularisable
+    state."""
+    if getattr(registry.model(model_id), "REGULARISABLE", None) is None:
+        return None
     cols = [registry.column(model_id, n) for n in
-            ("regularisation", "internal_length", "softening_strain", "softening",
-             "nonlocal_factor")]
+            ("regularisation", "internal_length", "nonlocal_factor")]
     return None if cols[0] is None else cols
+
+
+def state_columns(model_id: int) -> tuple[int, int, int]:
+    """The state columns (strain, softening variable, strain at the last averaging) of a
+    model that declares ``REGULARISABLE``."""
+    m = registry.model(model_id)
+    reg = m.REGULARISABLE
+    return (m.STATE.index(reg.strain), m.STATE.index(reg.variable),
+            m.STATE.index(reg.averaged))
 
 
 def _plan(soil):
     """Indices of the non-local points, their internal length (m), the softening
-    variable past which they are fully softened and their factor m; cached per
-    :class:`MaterialPoints` object (a changed material is a new object: ``replace`` copies)."""
+    variable past which they are fully softened, their factor m and the state columns
+    (strain, softening variable, averaged strain) of their models; cached per
+    :class:`MaterialPoints` object (a changed material is a new object: ``replace``
+    copies)."""
     key = soil
     if key in _PLANS:           # also a cached None (no non-local soil): one look-up a step
         return _PLANS[key]
-    sel, length, full, factor = [], [], [], []
+    sel, length, full, factor, columns = [], [], [], [], set()
     nonlocal_code = float(MODES.index("nonlocal"))
     for k in np.unique(soil.model):
         cols = _columns(int(k))
@@ -125,12 +141,16 @@ def _plan(soil):
         ell = p[:, cols[1]]
         sel.append(idx)
         length.append(np.where(np.isfinite(ell), ell, DEFAULT_INTERNAL_LENGTH))
-        full.append(np.where(p[:, cols[3]] == 1.0, _EXP_FULL, 1.0) * p[:, cols[2]])
-        fac = p[:, cols[4]] if cols[4] is not None else np.full(len(idx), np.nan)
+        full.append(registry.model(int(k)).fully_softened(p))
+        fac = p[:, cols[2]] if cols[2] is not None else np.full(len(idx), np.nan)
         factor.append(np.where(np.isfinite(fac), fac, DEFAULT_FACTOR))
+        columns.add(state_columns(int(k)))
+    if len(columns) > 1:
+        raise ValueError("non-local soils of models with different regularisable state "
+                         f"columns {sorted(columns)}: one average needs one layout")
     if sel:
         plan = (np.concatenate(sel).astype(np.int64), np.concatenate(length),
-                np.concatenate(full), np.concatenate(factor))
+                np.concatenate(full), np.concatenate(factor), columns.pop())
     else:
         plan = None
     _PLANS[key] = plan
@@ -162,20 +182,21 @@ def average_softening(grid, pts, method: str = "cells") -> None:
     plan = _plan(pts.soil)
     if plan is None:
         return
-    sel, length, full, factor = plan
+    sel, length, full, factor, columns = plan
     origin = np.asarray(grid.origin, dtype=float)
     nx, ny = int(grid.shape[0]), int(grid.shape[1])
     if method == "points":
         nonlocal_average(pts.x, pts.volume, pts.active, pts.state, sel, length, full,
-                         factor, origin, float(np.max(grid.cell)), nx, ny)
+                         factor, origin, float(np.max(grid.cell)), nx, ny, columns)
         return
     hx, hy = float(grid.cell[0]), float(grid.cell[1])
     for ell in np.unique(length):          # one stencil per internal length (usually one)
         rec = length == ell
         da, db, w = stencil(float(ell), hx, hy)
         cell_average(pts.x, pts.volume, pts.active, pts.state, sel, rec, full, factor, origin,
-                     hx, hy, nx, ny, da, db, w, _buffers_of(grid, nx * ny))
-    pts.state[sel, 2] = pts.state[sel, 0]
+                     hx, hy, nx, ny, da, db, w, columns, _buffers_of(grid, nx * ny))
+    strain, _, averaged = columns
+    pts.state[sel, averaged] = pts.state[sel, strain]
 
 
 def _buffers_of(grid, nc: int) -> tuple:
@@ -206,22 +227,24 @@ def stencil(length: float, hx: float, hy: float):
 
 
 def cell_average(x, volume, active, state, sel, rec, full, factor, origin, hx, hy, nx, ny,
-                 da, db, w, buffers=None) -> None:
+                 da, db, w, columns, buffers=None) -> None:
     """The non-local mean on the background cells: each cell sums the volume and the
     volume-weighted plastic increment of its points; at every cell centre a receiver
     needs, numerator and denominator of the mean are the stencil sums ``sum w I`` and
     ``sum w V`` over the cells within ``CUTOFF * l``; a receiver point (``rec``, not
     fully softened) adds the ratio of their bilinear interpolations to its softening
-    variable (its own increment if no neighbour is within reach).  Column 2 is left
-    to the caller.  ``buffers`` (:func:`_cell_buffers`, zero on entry and left zero):
+    variable (its own increment if no neighbour is within reach).  ``columns``: the
+    state columns (strain, softening variable, strain at the last averaging); the last is
+    left to the caller.  ``buffers`` (:func:`_cell_buffers`, zero on entry and left zero):
     work arrays over the grid's cells, kept between steps, so a step costs
     O(points + needed cells x stencil) whatever the size of the grid (allocating and
     clearing arrays over every cell of a long run-out floor cost more than the step).
     """
     if buffers is None:
         buffers = _cell_buffers(nx * ny)
+    strain, variable, averaged = columns
     _cell_average(x, volume, active, state, sel, rec, full, factor, origin, hx, hy, nx, ny,
-                  da, db, w, *buffers)
+                  da, db, w, strain, variable, averaged, *buffers)
 
 
 def _cell_buffers(nc: int) -> tuple:
@@ -231,7 +254,7 @@ def _cell_buffers(nc: int) -> tuple:
 
 @njit(cache=True)
 def _cell_average(x, volume, active, state, sel, rec, full, factor, origin, hx, hy, nx, ny,
-                  da, db, w, inc_sum, vol_sum, num, den, need):
+                  da, db, w, strain, variable, averaged, inc_sum, vol_sum, num, den, need):
     """Kernel of :func:`cell_average`; the five work arrays are zero on entry and on exit
     (only the entries touched are cleared)."""
     m = len(sel)
@@ -243,13 +266,13 @@ def _cell_average(x, volume, active, state, sel, rec, full, factor, origin, hx, 
         cx = min(max(int((x[i, 0] - origin[0]) / hx), 0), nx - 1)
         cy = min(max(int((x[i, 1] - origin[1]) / hy), 0), ny - 1)
         home[k] = cy * nx + cx
-        inc_sum[home[k]] += volume[i] * (state[i, 0] - state[i, 2])
+        inc_sum[home[k]] += volume[i] * (state[i, strain] - state[i, averaged])
         vol_sum[home[k]] += volume[i]
     needed = np.empty(4 * m, dtype=np.int64)
     nn = 0
     for k in range(m):
         i = sel[k]
-        if not (rec[k] and active[i]) or state[i, 1] >= full[k]:
+        if not (rec[k] and active[i]) or state[i, variable] >= full[k]:
             continue
         ax, ay, _, _ = _corner(x[i, 0], x[i, 1], origin, hx, hy, nx, ny)
         for c in (ay * nx + ax, ay * nx + ax + 1, (ay + 1) * nx + ax, (ay + 1) * nx + ax + 1):
@@ -270,7 +293,7 @@ def _cell_average(x, volume, active, state, sel, rec, full, factor, origin, hx, 
         num[c], den[c] = sn, sd
     for k in range(m):
         i = sel[k]
-        if not (rec[k] and active[i]) or state[i, 1] >= full[k]:
+        if not (rec[k] and active[i]) or state[i, variable] >= full[k]:
             continue
         ax, ay, tx, ty = _corner(x[i, 0], x[i, 1], origin, hx, hy, nx, ny)
         c00, c10 = ay * nx + ax, ay * nx + ax + 1
@@ -279,8 +302,8 @@ def _cell_average(x, volume, active, state, sel, rec, full, factor, origin, hx, 
                + (1 - tx) * ty * num[c01] + tx * ty * num[c11])
         d_i = ((1 - tx) * (1 - ty) * den[c00] + tx * (1 - ty) * den[c10]
                + (1 - tx) * ty * den[c01] + tx * ty * den[c11])
-        own = state[i, 0] - state[i, 2]
-        state[i, 1] += _increment(n_i / d_i if d_i > 0.0 else own, own, factor[k])
+        own = state[i, strain] - state[i, averaged]
+        state[i, variable] += _increment(n_i / d_i if d_i > 0.0 else own, own, factor[k])
     for k in range(m):                    # leave the work arrays zero for the next call
         if home[k] >= 0:
             inc_sum[home[k]] = 0.0
@@ -339,25 +362,35 @@ def _bins(x, active, sel, origin, h, nx, ny):
     return count, order, cell
 
 
-@njit(cache=True)
-def nonlocal_average(x, volume, active, state, sel, length, full, factor, origin, h, nx, ny):
+def nonlocal_average(x, volume, active, state, sel, length, full, factor, origin, h, nx, ny,
+                     columns) -> int:
     """Add to the softening variable of the points ``sel`` the Galavi-weighted mean of
-    the plastic increments of the selected points within ``CUTOFF * length``
-    (state columns 0: plastic shear strain, 1: softening variable, 2: column 0 at the
-    last call).  Returns the number of point pairs evaluated (for the cost figures)."""
+    the plastic increments of the selected points within ``CUTOFF * length`` (``columns``:
+    the state columns of the plastic shear strain, the softening variable and the strain
+    at the last call).  Returns the number of point pairs evaluated (for the cost
+    figures)."""
+    strain, variable, averaged = columns
+    return _nonlocal_average(x, volume, active, state, sel, length, full, factor, origin, h,
+                             nx, ny, strain, variable, averaged)
+
+
+@njit(cache=True)
+def _nonlocal_average(x, volume, active, state, sel, length, full, factor, origin, h, nx, ny,
+                      strain, variable, averaged):
+    """Kernel of :func:`nonlocal_average`."""
     m = len(sel)
     start, order, cell = _bins(x, active, sel, origin, h, nx, ny)
     inc = np.zeros(m)
     plastic = np.zeros(nx * ny, dtype=np.bool_)
     for k in range(m):
         i = sel[k]
-        inc[k] = state[i, 0] - state[i, 2]
+        inc[k] = state[i, strain] - state[i, averaged]
         if cell[k] >= 0 and inc[k] > 0.0:
             plastic[cell[k]] = True
     pairs = 0
     for k in range(m):
         i = sel[k]
-        if cell[k] < 0 or state[i, 1] >= full[k]:
+        if cell[k] < 0 or state[i, variable] >= full[k]:
             continue
         ell = length[k]
         rc = CUTOFF * ell
@@ -390,10 +423,11 @@ def nonlocal_average(x, volume, active, state, sel, length, full, factor, origin
                     den += w
                     pairs += 1
         # no neighbour within reach: its own increment
-        state[i, 1] += _increment(num / den if den > 0.0 else inc[k], inc[k], factor[k])
+        state[i, variable] += _increment(num / den if den > 0.0 else inc[k], inc[k],
+                                         factor[k])
     for k in range(m):
         i = sel[k]
-        state[i, 2] = state[i, 0]
+        state[i, averaged] = state[i, strain]
     return pairs
 
 
@@ -421,17 +455,20 @@ def prepare_softening(scene, grid, soil, soil_id: np.ndarray):
         elif mode == "displacement":
             ur = so.value("softening_displacement")
             gs = ur / h
-            drop = so.cohesion_peak - so.cohesion_residual
-            if so.softening == "linear" and drop / gs >= so.shear_modulus:
+            model = registry.model(so.model)
+            name = model.REGULARISABLE.softening_strain
+            values = {**materials.soil_values(so), name: gs}
+            modulus, G = model.softening_modulus(values), values["shear_modulus"]
+            if modulus >= G:
                 raise SceneError(
                     f"{scene.source}: [soil[{k}].softening_displacement] {ur:g} m over a "
                     f"{h:g} m cell gives the softening strain {gs:g} and a softening modulus "
-                    f"{drop / gs:g} kPa >= shear modulus {so.shear_modulus:g} kPa (the local "
+                    f"{modulus:g} kPa >= shear modulus {G:g} kPa (the local "
                     f"return mapping snaps back); allowed: softening_displacement > "
-                    f"{drop / so.shear_modulus * h:g} m")
+                    f"{ur * modulus / G:g} m")
             if params is None:
                 params = soil.params.copy()
-            params[soil_id == k, registry.column(so.model, "softening_strain")] = gs
+            params[soil_id == k, registry.column(so.model, name)] = gs
     if params is None:
         return soil
     return materials.MaterialPoints(soil.model, params)

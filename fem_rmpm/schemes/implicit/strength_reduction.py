@@ -5,14 +5,11 @@ applied with the implicit solver's small-strain static load steps on the fixed i
 geometry (``gravity_phase = "geostatic"``, quasi-static, exactly what an RFEM analysis
 does).  The factor of safety ``FS`` is the smallest ``F`` at which full gravity can no
 longer be brought to equilibrium.  How a soil's strengths reduce is declared by its
-material model: the optional hook ``reduce_strength(params, F, softening)`` of the model
-module (Mohr–Coulomb: ``c / F``, ``tan(phi_F) = tan(phi) / F`` and ``psi_F = min(psi,
-phi_F)``, peak and residual alike), else the default: its strength columns
-(``STRENGTHS`` of the module, or :data:`STRENGTH_PARAMETERS`; the von Mises clay:
-``cohesion_peak`` and ``cohesion_residual``) divided by ``F``.  Peak
-strength by default (RFEM practice: ``cohesion_residual`` is set to the reduced peak, a
-perfectly plastic soil); ``softening=True`` keeps the softening law with both values
-divided by ``F``.
+material model (``STRENGTHS``, :mod:`fem_rmpm.materials.strength`): e.g. ``c / F`` for a
+cohesion, ``tan(phi_F) = tan(phi) / F`` for a friction angle, a dilation angle at most
+the reduced friction angle.  Peak strength by default (RFEM practice: every residual
+strength is set to the reduced peak, a perfectly plastic soil); ``softening=True`` keeps
+the softening law with peak and residual reduced alike.
 
 **Failure criterion** (documented in ``fs.json`` as ``criterion``).  The first trial,
 ``F = 1``, applies gravity in ``load_steps`` small-strain load steps; it *fails* when
@@ -35,10 +32,10 @@ reached (a lower bound of FS: at ``F = lambda`` every strength is at least that 
 state that stood at ``lambda`` x gravity), or at ``f_min`` (0.1; failing there: "FS <
 0.1").  Then bisection in ``ln F`` until ``F_hi / F_lo - 1 <= tolerance`` (default 0.01);
 the reported FS is the geometric midpoint, so the search error is below ``tolerance / 2``.
-Griffiths slope (4000 points): 8 static solves, 356 Newton iterations, FS 1.464, 8.1 s
-CPU; with ``continuation = False`` (gravity anew at every trial: ``F = 1``, ``f_max`` or
-``f_min``, then bisection) 10 solves, 257 iterations, FS 1.466, 11.0 s CPU (brackets
-overlap; a failed continued trial costs up to three solves, its halvings).
+With ``continuation = False`` gravity is applied anew at every trial (``F = 1``,
+``f_max`` or ``f_min``, then bisection): the same FS within the bracket, at more cost (a
+failed continued trial costs up to three solves, its halvings, but every converged one
+only a few Newton iterations).
 
 **Non-physical Newton failures** are told apart and raised as :class:`NonPhysicalFailure`
 (never taken as an FS): before the search a *probe* applies ``probe_load`` (1e-3) x gravity
@@ -70,7 +67,7 @@ from fem_rmpm.discretise.points import Particles
 from fem_rmpm.io.output import to_true_frame, write_json, write_particles
 from fem_rmpm.io.plots import _plt, plot_field
 from fem_rmpm.io.rundir import check_run_dir
-from fem_rmpm.materials import MaterialPoints, registry
+from fem_rmpm.materials import MaterialPoints, strength
 from fem_rmpm.runtime.errors import InputError
 from fem_rmpm.scene import Scene, SceneError, with_values
 from fem_rmpm.schemes.common import SimulationError
@@ -82,16 +79,8 @@ from fem_rmpm.schemes.implicit import (
     run_implicit,
 )
 
-__all__ = ["STRENGTH_PARAMETERS", "FSOptions", "Trial", "FSResult", "NonPhysicalFailure",
-           "strength_parameters", "reduce_strength", "factor_of_safety", "stable_at",
-           "write_outputs"]
-
-#: The default reduction, for material models with neither a ``reduce_strength`` hook nor
-#: ``STRENGTHS`` (the per-point parameters divided by F) in their module.
-STRENGTH_PARAMETERS: dict[str, tuple[str, ...]] = {
-    "linear_elastic": (),
-    "von_mises_softening": ("cohesion_peak", "cohesion_residual"),
-}
+__all__ = ["FSOptions", "Trial", "FSResult", "NonPhysicalFailure", "strength_parameters",
+           "reduce_strength", "factor_of_safety", "stable_at", "write_outputs"]
 
 #: Newton failure reasons that are never a mechanism (substrings of the solver's message).
 #: A failed linear solve is one only in the elastic probe: the small-strain elastic tangent
@@ -199,61 +188,31 @@ CONTINUED = (", or, for a trial continued from the converged state of a smaller 
 
 # ----------------------------------------------------------------------------- strengths
 def strength_parameters(model: str) -> tuple[str, ...]:
-    """The per-point parameters of material ``model`` that are divided by ``F`` when the
-    model has no ``reduce_strength`` hook: the model module's ``STRENGTHS``
-    (:mod:`fem_rmpm.materials`), else :data:`STRENGTH_PARAMETERS`."""
-    try:
-        declared = getattr(registry.model(model), "STRENGTHS", None)
-    except KeyError:
-        declared = None
-    return tuple(STRENGTH_PARAMETERS.get(model, ()) if declared is None else declared)
-
-
-def _has_strength(spec) -> bool:
-    """Does one ``[[soil]]`` have a strength to reduce?  A model with a ``reduce_strength``
-    hook does (its scene check refuses a soil without strength); otherwise some declared
-    strength parameter must be finite."""
-    if hasattr(registry.model(spec.model), "reduce_strength"):
-        return True
-    return any(math.isfinite(float(spec.value(n, math.inf)))
-               for n in strength_parameters(spec.model))
+    """The per-point parameters of material ``model`` that a strength reduction scales by
+    ``F``, as the model declares them (:func:`fem_rmpm.materials.strength.strength_parameters`)."""
+    return strength.strength_parameters(model)
 
 
 def _check_has_strength(scene: Scene) -> None:
-    if not any(_has_strength(s) for s in scene.soils):
+    if not any(strength.has_strength(s) for s in scene.soils):
         models = ", ".join(sorted({s.model for s in scene.soils}))
+        declared = " | ".join(f'"{m}"' for m in strength.models_with_strength())
         raise SceneError(f"{scene.source}: [soil.model] no soil has a strength to reduce "
-                         f"(models: {models}); allowed for a factor of safety: a soil with "
-                         f"model = \"von_mises_softening\" and a finite cohesion_peak, or "
-                         f"model = \"mohr_coulomb_softening\"")
-
-
-def _divide_declared(model: int, params: np.ndarray, F: float, softening: bool) -> np.ndarray:
-    """The default reduction: every declared strength column divided by ``F`` (infinite
-    values stay infinite); without ``softening`` ``cohesion_residual`` = reduced peak."""
-    p = params.copy()
-    cols = {n: registry.column(model, n) for n in strength_parameters(registry.model(model).NAME)}
-    for col in cols.values():
-        p[:, col] = np.where(np.isfinite(p[:, col]), p[:, col] / F, p[:, col])
-    if not softening and {"cohesion_peak", "cohesion_residual"} <= set(cols):
-        p[:, cols["cohesion_residual"]] = p[:, cols["cohesion_peak"]]
-    return p
+                         f"(models: {models}); allowed for a factor of safety: a soil whose "
+                         f"model declares a strength ({declared}) with a finite value of it")
 
 
 def reduce_strength(pts: Particles, scene: Scene, F: float, softening: bool = False) -> None:
-    """Divide the strengths of ``pts`` (in place) by ``F``, per material model: the model's
-    ``reduce_strength(params, F, softening)`` hook (Mohr–Coulomb: ``c / F`` and
-    ``tan(phi) / F``), else its declared strength columns divided by ``F``
-    (:func:`strength_parameters`; von Mises: the cohesions).  Without ``softening`` the
-    residual strengths are set to the reduced peak (perfectly plastic).  Elastic points
-    keep c = inf.  ``scene`` is not read (kept for the callers' signature)."""
+    """Reduce the strengths of ``pts`` (in place) by the trial factor ``F``, each point as
+    its material model declares (:func:`fem_rmpm.materials.strength.reduce_strength`:
+    e.g. ``c / F`` and ``atan(tan(phi) / F)``).  Without ``softening`` the residual
+    strengths are set to the reduced peak (perfectly plastic).  Elastic points keep
+    c = inf.  ``scene`` is not read (kept for the callers' signature)."""
     s = pts.soil
     params = s.params.copy()
     for k in np.unique(s.model):
         mask = s.model == k
-        hook = getattr(registry.model(int(k)), "reduce_strength", None)
-        params[mask] = (hook(params[mask], F, softening) if hook is not None
-                        else _divide_declared(int(k), params[mask], F, softening))
+        params[mask] = strength.reduce_strength(int(k), params[mask], F, softening)
     pts.soil = MaterialPoints(s.model, params)
 
 
