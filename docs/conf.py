@@ -25,6 +25,7 @@ extensions = [
     "sphinx.ext.autodoc",
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",   # MathJax served from the site itself: equations render offline
     "sphinx.ext.viewcode",
     "docstrings",
     "scene_reference",
