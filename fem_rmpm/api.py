@@ -310,16 +310,19 @@ def _figures(out, scene, grid, snapshots, measures, label: str | None = None):
                  title=f"{who}: surface before and after", scene=scene)
 
 
-def fem(scene: Scene, out: str | Path | None = None) -> FemResult:
-    """Static small-strain FEM reference (scikit-fem); writes ``fem.vtu`` and a summary."""
+def fem(scene: Scene, out: str | Path | None = None, *, force: bool = False) -> FemResult:
+    """Static small-strain FEM reference (scikit-fem); writes ``fem.vtu`` and a summary.
+
+    ``out`` follows :func:`run`'s rule: a new or empty directory, or ``force=True``
+    replaces the run in it (:mod:`fem_rmpm.io.rundir`)."""
     t0 = time.perf_counter()
     if out is not None:
-        check_run_dir(out, force=True)          # only refuses a file
+        check_run_dir(out, force)
     check_budget(scene)
     res = solve_static(scene)
     if out is not None:
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
+        out = start_run_dir(out, {"scene": scene_to_dict(scene), "scene_file": scene.source,
+                                  "scheme": "fem"})
         used = np.unique(res.grid.cells[res.cells])
         remap = -np.ones(res.grid.n_nodes, dtype=np.int64)
         remap[used] = np.arange(len(used))
@@ -334,7 +337,8 @@ def fem(scene: Scene, out: str | Path | None = None) -> FemResult:
             "scene": scene_to_dict(scene), "scene_file": scene.source, "scheme": "fem",
             "elements": int(len(res.cells)), "dofs": int(2 * len(used)),
             "max_displacement": float(np.abs(res.displacement).max()),
-            "min_sigma_yy": float(res.stress[:, 1].min()), "wall_time": time.perf_counter() - t0})
+            "min_sigma_yy": float(res.stress[:, 1].min()), "wall_time": time.perf_counter() - t0,
+            "status": "ok", "files": run_files(out)})
     return res
 
 

@@ -94,7 +94,7 @@ def _cmd_run(a) -> int:
 
 def _cmd_fem(a) -> int:
     scene = scene_from_args(a)
-    res = api.fem(scene, out=a.out)
+    res = api.fem(scene, out=a.out, force=a.force)
     print(f"{scene.scene.name}: static FEM on {len(res.cells)} Q4 elements; max |u| = "
           f"{np.abs(res.displacement).max():.4g} m, min sigma_yy = {res.stress[:, 1].min():.4g} "
           f"kPa. Output: {a.out}")
@@ -174,7 +174,7 @@ def _cmd_field(a) -> int:
     scene, note = field_output.field_scene(a.scene)
     k, rf = field_output.field_property(scene, getattr(a, "property", None))
     seed = scene.montecarlo.seed if getattr(a, "seed", None) is None else check_seed(a.seed)
-    with output_dir_for(a.out) as out:          # bad input leaves no directory behind
+    with output_dir_for(a.out, force=a.force) as out:   # bad input leaves no directory behind
         fit_text = ""
         if getattr(a, "fit", None):
             line, fit_text = field_output.fit_measurements(a.fit, rf, out)
@@ -234,6 +234,8 @@ _SET_HELP = ("change a scene value before running, e.g. --set solver.t_end=5 --s
              "'grid.cell=[0.5, 0.5]' --set soil[0].cohesion_peak=20 (repeatable; values are "
              "TOML literals, a bare word is a string)")
 
+_FORCE_HELP = "write into a directory holding another result (default: refuse a non-empty one)"
+
 
 def _subcommand(sub, name: str, help: str, description: str | None = None):
     """A subcommand parser with the exit codes in its ``--help``."""
@@ -260,8 +262,9 @@ def _add_run(sub) -> None:
 def _add_fem(sub) -> None:
     f = _subcommand(sub, "fem", "static small-strain FEM gravity reference (scikit-fem)")
     _scene_arg(f, optional=True)
-    f.add_argument("--out", required=True, help="output directory (created): fem.vtu, "
-                   "summary.json")
+    f.add_argument("--out", required=True, help="output directory: new or empty (created), "
+                   "or one holding a result with --force: fem.vtu, summary.json")
+    f.add_argument("--force", action="store_true", help=_FORCE_HELP)
     f.add_argument("--set", action="append", metavar="KEY=VALUE", help=_SET_HELP)
     f.set_defaults(func=_cmd_fem)
 
@@ -325,7 +328,9 @@ def _add_fs(sub) -> None:
     fs.add_argument("--seed", type=int, default=None,
                     help="random-field seed, an integer >= 0 (default: the scene's "
                     "[montecarlo] seed)")
-    fs.add_argument("--out", required=True, help="output directory (created)")
+    fs.add_argument("--out", required=True, help="output directory: new or empty (created), "
+                    "or one holding a result with --force")
+    fs.add_argument("--force", action="store_true", help=_FORCE_HELP)
     fs.add_argument("--tolerance", type=float, default=0.01,
                     help="stop when the bracket F_hi / F_lo - 1 is below this (default 0.01)")
     fs.add_argument("--softening", action="store_true",
@@ -342,7 +347,9 @@ def _add_field(sub) -> None:
                     help="random-field seed, an integer >= 0 (default: the scene's "
                     "[montecarlo] seed)")
     fl.add_argument("--out", required=True,
-                    help="output directory (created): field.vtu, field.png, field.json")
+                    help="output directory: new or empty (created), or one holding a "
+                    "result with --force: field.vtu, field.png, field.json")
+    fl.add_argument("--force", action="store_true", help=_FORCE_HELP)
     fl.add_argument("--data", default=None,
                     help="CSV with header x,y,value (grid frame m, kPa) to condition the "
                     "field on (simple kriging); default: the scene's [random_field] data")
@@ -375,12 +382,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _check_paths(a) -> None:
+    """Refuse an empty ``--out`` (it would write into the current directory) and an empty
+    ``--case`` (it would silently run the scene's own case)."""
+    if getattr(a, "out", None) is not None and not a.out.strip():
+        raise InputError(f"--out {a.out!r}: [] empty path; allowed: a directory path")
+    for spec in getattr(a, "case", None) or ():
+        if not spec.strip():
+            raise InputError(f"--case {spec!r}: [] empty case; allowed: 'homogeneous', "
+                             "'xi=12', 'scene' or '<section.key>=<value>' changes joined by ';'")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
     if getattr(a, "scene", "x") is None:
         a.scene = str(default_scene_path())
     try:
+        _check_paths(a)
         return int(a.func(a) or 0)
     except (SceneError, InputError) as exc:
         if a.debug:

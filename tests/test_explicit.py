@@ -160,10 +160,10 @@ def test_rigid_rotation_creates_no_stress():
 
 
 def test_too_large_cfl_stops_with_clear_error(tmp_path, capsys, meshes):
-    """cfl = 5 exceeds the explicit stability limit (CFL:
+    """cfl = 3 (the top of its range) exceeds the explicit stability limit (CFL:
     dt <= h / (c_p + |v|)); the run stops with an error naming the step and suggesting a
     smaller cfl, exit code 3, and no NaN/Inf in any file written."""
-    text = (meshes / "column.toml").read_text().replace("cfl = 0.5", "cfl = 5.0")
+    text = (meshes / "column.toml").read_text().replace("cfl = 0.5", "cfl = 3.0")
     scene = tmp_path / "unstable.toml"
     scene.write_text(text)
     out = tmp_path / "out"

@@ -684,7 +684,8 @@ def test_field_cli_writes_vtu_png_and_summary(tmp_path, capsys):
     assert cli_main(["field", str(plain), "--seed", "3", "--out", str(tmp_path / "plain")]) == 0
     assert "default field" in capsys.readouterr().out
     bad = _write_csv(tmp_path / "rf_bad.csv", [(30.0, 1.0, 20.0)])
-    assert cli_main(["field", str(scene_path), "--out", str(out), "--data", str(bad)]) == 2
+    assert cli_main(["field", str(scene_path), "--out", str(out), "--force",   # over the field
+                     "--data", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "lies outside" in err
 

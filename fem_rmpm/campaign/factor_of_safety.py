@@ -125,8 +125,9 @@ def plot_factor_of_safety(path: Path, cases, stats: dict, records: Sequence[dict
     """Histogram of FS per case (FS = 1 marked; legend with P(FS < 1) and its interval);
     with MPM runs, FS against the MPM's maximum displacement, failed realizations red."""
     plt = _plt()
-    have_mpm = any(_get(r, "failed") is not None and _get(r, "factor_of_safety") is not None
-                   for r in records)
+    # a run stopped once decided has ``failed`` but no measures to rest (no displacement)
+    have_mpm = any(_get(r, "max_displacement") is not None
+                   and _get(r, "factor_of_safety") is not None for r in records)
     fig, axes = plt.subplots(1, 2 if have_mpm else 1, figsize=(12 if have_mpm else 7, 4.2),
                              squeeze=False)
     ax = axes[0, 0]
@@ -149,7 +150,8 @@ def plot_factor_of_safety(path: Path, cases, stats: dict, records: Sequence[dict
         for failed, col, lab in ((False, "tab:blue", "MPM: not failed"),
                                  (True, "tab:red", "MPM: failed")):
             pts = [(float(_get(r, "factor_of_safety")), float(_get(r, "max_displacement")))
-                   for r in records if r["status"] == "ok" and _get(r, "failed") is not None
+                   for r in records if r["status"] == "ok"
+                   and _get(r, "max_displacement") is not None
                    and _get(r, "factor_of_safety") is not None
                    and bool(_get(r, "failed")) == failed]
             if pts:

@@ -436,6 +436,18 @@ window.addEventListener('load', function () {
 """
 
 
+def _check_campaign_summary(campaign: Path, summary: Any) -> None:
+    """Refuse a ``summary.json`` that is not a campaign's: one of ``fem-rmpm run``/``fem``
+    (it names a ``scheme``), or one without the per-case results (``cases``/``subset``)."""
+    allowed = "allowed: a campaign directory written by `fem-rmpm mc ... --out DIR`"
+    if isinstance(summary, dict) and "scheme" in summary and "cases" not in summary:
+        raise ReportError(f"{campaign}: a run directory (summary.json of a "
+                          f"{summary['scheme']!s:.20} run), not a campaign; {allowed}")
+    if not isinstance(summary, dict) or not ("cases" in summary or "subset" in summary):
+        raise ReportError(f"{campaign}: summary.json holds no campaign results (no cases); "
+                          f"{allowed}")
+
+
 def report_html(campaign_dir: str | Path) -> str:
     """The report page of a campaign directory, as one HTML string (see the module doc)."""
     campaign = Path(campaign_dir)
@@ -444,6 +456,7 @@ def report_html(campaign_dir: str | Path) -> str:
     except FileNotFoundError:
         raise ReportError(f"{campaign}: no summary.json here (not a finished campaign "
                           "directory; run `fem-rmpm mc ... --out DIR` first)") from None
+    _check_campaign_summary(campaign, summary)
     try:
         identity = _read_json(campaign / "campaign.json")
     except FileNotFoundError:

@@ -81,11 +81,12 @@ def run_files(out: str | Path) -> list[str]:
 
 
 @contextlib.contextmanager
-def output_dir_for(out: str | Path, option: str = "--out"):
-    """Create ``out`` (not a file) for a command that writes into it; if bad input
+def output_dir_for(out: str | Path, option: str = "--out", force: bool = False):
+    """Create ``out`` for a command that writes into it: a new or empty directory, or
+    with ``force`` any directory (:func:`check_run_dir`); if bad input
     (:class:`InputError`, :class:`SceneError`) stops the command, a directory this
     created is removed again, so bad input leaves nothing behind."""
-    out = check_run_dir(out, force=True, option=option)
+    out = check_run_dir(out, force=force, option=option)
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     try:

@@ -102,6 +102,28 @@ def resolve_data_path(scene: Scene, data, spec: RandomFieldSpec | None = None) -
     return Path(data)
 
 
+def _check_one_value_per_point(meas: Measurements, key: str) -> None:
+    """Refuse two different values at one point (same x and y): kriging is exact at the
+    data points, so they contradict each other (averaging them would hide it)."""
+    xy = np.stack([meas.x, meas.y], axis=1)
+    _, inv = np.unique(xy, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    lo = np.full(inv.max() + 1, np.inf)
+    hi = np.full(inv.max() + 1, -np.inf)
+    np.minimum.at(lo, inv, meas.value)
+    np.maximum.at(hi, inv, meas.value)
+    bad = np.nonzero(lo != hi)[0]
+    if len(bad):
+        rows = np.nonzero(inv == bad[0])[0]
+        r1 = rows[0]
+        r2 = rows[np.nonzero(meas.value[rows] != meas.value[r1])[0][0]]
+        raise SceneError(
+            f"{meas.source}: [{key}] rows {meas.rows[r1]} and {meas.rows[r2]}: two values at "
+            f"the point ({meas.x[r1]:g}, {meas.y[r1]:g}) m, {meas.value[r1]:g} and "
+            f"{meas.value[r2]:g}; allowed: one value per point (kriging is exact at the data "
+            "points)")
+
+
 def data_cells(scene: Scene, grid, layout: FieldLayout, meas: Measurements,
                key: str = "random_field.data",
                spec: RandomFieldSpec | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -109,6 +131,7 @@ def data_cells(scene: Scene, grid, layout: FieldLayout, meas: Measurements,
     (default the scene's ``[random_field]``), checked to lie in the field's soil and in
     the range of the property's distribution."""
     rf = spec or scene.random_field
+    _check_one_value_per_point(meas, key)
     pts = np.stack([meas.x, meas.y], axis=1)
     fidx, inside = layout.locate(pts)
     gcell, _, ginside = locate(grid, pts)

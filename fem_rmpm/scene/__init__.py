@@ -88,6 +88,10 @@ def with_values(scene: Scene, changes: dict[str, Any]) -> Scene:
             targets = data[base] if idx is None else [data[base][idx]]
             for t in targets:
                 t[name] = value
+                if name == "model":      # a default "no strength" is not a value for the new
+                    for k in ("cohesion_peak", "cohesion_residual"):   # model to check
+                        if t.get(k) == "inf":
+                            del t[k]
         elif section == "random_field" and "random_field" not in data:
             data["random_field"] = {name: value}
         else:

@@ -22,6 +22,7 @@ from fem_rmpm import materials
 from fem_rmpm.materials.points import soil_values
 from fem_rmpm.runtime.errors import InputError
 from fem_rmpm.scene.fields import build_random_field, check_random_field, random_field_to_dict
+from fem_rmpm.scene.overlap import overlap_point
 from fem_rmpm.scene.spec import (
     _SOIL_FIELDS,
     BedrockSpec,
@@ -49,6 +50,7 @@ _SECTIONS = {"scene": SceneInfo, "grid": GridSpec, "boundary": BoundarySpec, "so
              "montecarlo": MonteCarloSpec, "output": OutputSpec}
 
 _LISTS = ("soil", "bedrock", "prescribed")     # sections that are arrays of tables
+_SOIL_DEFAULT = {f.name: f.default for f in dataclasses.fields(SoilSpec)}
 
 
 def _build_soil(source: str, data: Any) -> SoilSpec:
@@ -73,7 +75,8 @@ def _build_soil(source: str, data: Any) -> SoilSpec:
             err = p.check(data[key])
             if err:
                 raise _fail(source, f"soil.{key}", f"{err}; allowed: {p.allowed()}")
-        elif p.default is None and key not in _SOIL_FIELDS:
+        elif p.default is None and (key not in _SOIL_FIELDS or p.check(_SOIL_DEFAULT[key])):
+            # a shared field's default (c = inf: no strength) stands in only where allowed
             raise _fail(source, f"soil.{key}", f"missing required key of model {name!r}; "
                         f"allowed: {p.allowed()}")
     extra = tuple(sorted((k, v) for k, v in data.items() if k not in _SOIL_FIELDS))
@@ -138,6 +141,19 @@ def _check_polygons(s: Scene) -> None:
                             "at least 3 distinct points, non-zero area (m)")
 
 
+def _check_soil_overlap(s: Scene) -> None:
+    """Refuse two soils that share area (which soil a shared cell takes would be the
+    file's order, not the user's choice); touching edges are fine."""
+    for j, b in enumerate(s.soils):
+        for i, a in enumerate(s.soils[:j]):
+            at = overlap_point(a.polygon, b.polygon)
+            if at is not None:
+                raise _fail(s.source, f"soil[{j}].polygon", f"soils {a.name!r} (soil[{i}]) "
+                            f"and {b.name!r} (soil[{j}]) overlap, e.g. at ({at[0]:.6g}, "
+                            f"{at[1]:.6g}) m; allowed: soils that share no area (touching "
+                            "edges are fine)")
+
+
 def _check_scene(s: Scene) -> None:
     src = s.source
     _check_polygons(s)
@@ -158,6 +174,7 @@ def _check_scene(s: Scene) -> None:
     names = [so.name for so in s.soils]
     if len(set(names)) != len(names):
         raise _fail(src, "soil.name", f"soil names must be unique, got {names}")
+    _check_soil_overlap(s)
     for i, so in enumerate(s.soils):
         key = f"soil[{i}]"
         check = getattr(materials.model(so.model), "check", None)

@@ -191,4 +191,5 @@ def _check_jump(jump: float, h_min: float, step: int, t: float, cfl: float) -> N
         raise SimulationError(
             f"step {step} (t = {t:.4g} s): a material point moved {jump:.3g} m "
             f"in one step (> half a cell); the explicit scheme is unstable — reduce [solver] "
-            f"cfl (now {cfl:g}; the CFL limit is 1, default 0.5)")
+            f"cfl (now {cfl:g}, default 0.5, allowed (0, 3]; the estimate dt = h / (c_p + "
+            "|v|) is cfl 1, the measured limits are 1.08 to 1.65)")

@@ -42,9 +42,11 @@ only a few Newton iterations).
 in one step at ``F = 1``, an elastic response which must converge in one step (a failed
 linear solve there is a singular elastic tangent: a mesh or boundary problem; a diverging
 first iteration is a broken material or solver); and a trial that ends in a non-finite
-residual is not a mechanism.  Once the probe has passed, a failed linear solve during a
-trial is the mechanism (the small-strain elastic tangent does not depend on the load; the
-perfectly plastic tangent of a collapse mechanism is singular) and counts as failure.
+residual or in a failed linear solve (a singular tangent, or a non-finite solution) is not
+a mechanism either: a collapse shows as Newton not converging (the residual stalls or
+grows), while a singular tangent means the solver could not resolve the state at all
+(e.g. a drained layer whose free end faces fail first, at trial strengths far above the
+soil's).  Such a trial stops the search with the numerical cause and no FS.
 
 **Discretisation.**  A displacement-based mesh overestimates the collapse load: a shear
 band cannot be thinner than one element row, so a sliding surface along the bedrock sits
@@ -82,11 +84,10 @@ from fem_rmpm.schemes.implicit import (
 __all__ = ["FSOptions", "Trial", "FSResult", "NonPhysicalFailure", "strength_parameters",
            "reduce_strength", "factor_of_safety", "stable_at", "write_outputs"]
 
-#: Newton failure reasons that are never a mechanism (substrings of the solver's message).
-#: A failed linear solve is one only in the elastic probe: the small-strain elastic tangent
-#: does not depend on the load, so once the probe has passed, a singular tangent at a
-#: larger load is the plastic mechanism itself (perfect plasticity, B-bar).
-_NON_PHYSICAL = ("non-finite residual",)
+#: Newton failure reasons that are never a mechanism (substrings of the solver's message):
+#: a non-finite residual, and a failed linear solve (singular tangent or non-finite
+#: solution, :class:`~fem_rmpm.schemes.implicit.linear.LinearSolveError`).
+_NON_PHYSICAL = ("non-finite residual", "linear solve failed")
 
 
 class NonPhysicalFailure(SimulationError):
@@ -299,6 +300,13 @@ def _continue(scene: Scene, grid: Grid, base: Particles, start: Particles, F0: f
                  F0, reached), pts
 
 
+def _numerical(reason: str) -> str:
+    """A short name of a numerical Newton failure ``reason``."""
+    if "linear solve failed" in reason:
+        return "linear solve non-finite" if "non-finite" in reason else "linear solve singular"
+    return "non-finite residual"
+
+
 def _probe(scene: Scene, grid: Grid, base: Particles, o: FSOptions) -> None:
     one = dataclasses.replace(o, load_steps=1, max_cuts=0)
     t, _ = _solve(with_values(scene, {"solver.load_steps": 1, "solver.max_cuts": 0}), grid,
@@ -366,10 +374,11 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
         if not t.converged and any(k in t.reason for k in _NON_PHYSICAL):
             res = _result(trials, "=", (math.nan, math.nan), o, wall0, seed, best, grid)
             raise NonPhysicalFailure(
-                f"{scene.source}: strength reduction at F = {F:.4g}: Newton failed for a "
-                f"reason that is not a mechanism ({t.reason}) at load factor "
-                f"{t.load_factor:.3g}; FS not determined. Try [solver] linear_solver or a "
-                "finer mesh", cause=t.reason, result=res)
+                f"{scene.source}: strength reduction: {_numerical(t.reason)} at F = {F:.4g}"
+                f" (load factor {t.load_factor:.3g}): the mechanism is not resolved, this is "
+                f"not a slope failure; FS not determined ({t.reason}). Check the geometry "
+                "(free faces that fail first), a finer mesh or [solver] linear_solver",
+                cause=t.reason, result=res)
         done = F if t.converged else t.reached       # a failed continuation's last solve
         if done > 0 and done >= best.get("F", -1.0) and (t.converged or done > t.start):
             best.update(F=done, pts=state)
@@ -514,7 +523,7 @@ def fs_cli(a, scene: Scene, grid: Grid, pts: Particles) -> int:
         raise InputError(f"--tolerance {a.tolerance:g}: allowed 0 < tolerance < 1 "
                          "(relative bracket width)")
     o = FSOptions(tolerance=a.tolerance, softening=a.softening)
-    check_run_dir(a.out, force=True)            # refuses a file, before any computing
+    check_run_dir(a.out, force=getattr(a, "force", False))   # before any computing
 
     def show(t: Trial) -> None:
         if not a.quiet:
