@@ -228,10 +228,21 @@ def load_scene(path: str | Path) -> Scene:
     if path.is_dir():
         raise SceneError(f"{source}: [] is a directory; allowed: a path to a TOML scene file")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))   # a UTF-8 BOM is accepted
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        text = path.read_text(encoding="utf-8-sig")    # a UTF-8 BOM is accepted
+    except UnicodeDecodeError as exc:
         raise SceneError(f"{source}: [] not valid TOML ({exc}); allowed: a TOML scene file "
                          "(see meshes/*.toml)") from None
+    except OSError as exc:
+        raise SceneError(f"{source}: [] cannot be read ({exc.strerror}); needed: read "
+                         "permission on the scene file") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{source}: [] not valid TOML ({exc}); allowed: a TOML scene file "
+                         "(see meshes/*.toml)") from None
+    except RecursionError:
+        raise SceneError(f"{source}: [] arrays or tables nested too deeply to read; allowed: "
+                         "a TOML scene file (see meshes/*.toml)") from None
     return scene_from_dict(data, source)
 
 
