@@ -33,13 +33,20 @@ from fem_rmpm.discretise.grid import Grid, make_grid
 from fem_rmpm.discretise.points import Particles, seed_particles, soil_cells
 from fem_rmpm.io.output import PvdSeries, write_grid, write_json
 from fem_rmpm.io.plots import plot_profile, plot_snapshots
-from fem_rmpm.io.rundir import RunDirError, check_run_dir, run_files, start_run_dir
+from fem_rmpm.io.rundir import (
+    RunDirError,
+    check_run_dir,
+    mark_interrupted,
+    run_files,
+    start_run_dir,
+)
 from fem_rmpm.materials import point_problem
 from fem_rmpm.measures import table as measure_table
 from fem_rmpm.measures.deposit import compute_measures, excluded_summary
 from fem_rmpm.random_field import apply_to_points, field_noise, noise_shape, sample_point_properties
 from fem_rmpm.runtime.budget import check_budget, explicit_numba
 from fem_rmpm.runtime.machine import describe as describe_machine
+from fem_rmpm.runtime.signals import interrupt_name, raise_if_interrupted
 from fem_rmpm.scene import Scene, SceneError, check_seed, load_scene, scene_to_dict, with_value
 from fem_rmpm.schemes.common import RunRecord, SimulationError
 from fem_rmpm.schemes.explicit import kernels
@@ -138,6 +145,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
     snapshots: list = []
 
     def on_output(t, p):
+        raise_if_interrupted()          # a signal whose exception a native callback dropped
         snapshots.append((t, p.x.copy(), p.plastic_shear_strain.copy()))
         if series is not None:
             series.add(t, p)
@@ -163,6 +171,10 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
         error = exc
         rec = getattr(exc, "record", None) or RunRecord(scheme=scene.solver.scheme)
         rec.error, rec.stop_reason = str(exc), "error"
+    except KeyboardInterrupt as exc:          # Ctrl-C or SIGTERM: the summary says so
+        if out is not None:
+            mark_interrupted(out, f"interrupted ({interrupt_name(exc)})")
+        raise
     finally:
         if bar:
             bar.close()

@@ -13,7 +13,8 @@ anything (:class:`RunDirError`, exit 2 on the command line, nothing changed);
 3. the run writes its VTK and figures; the final ``summary.json`` (``"ok"`` or
    ``"failed"``, with ``"files"``: every file the run wrote) is written *last*.
 
-A run killed at any point therefore leaves either the earlier, complete run
+A run stopped by Ctrl-C or SIGTERM rewrites its summary as ``"interrupted"``
+(:func:`mark_interrupted`).  A run killed at any point therefore leaves either the earlier, complete run
 untouched, or a summary saying ``"running"``: never an ``"ok"`` beside output of
 another run or beside partial output.
 """
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import fnmatch
+import json
 import os
 import shutil
 from pathlib import Path
@@ -30,7 +32,7 @@ from fem_rmpm.runtime.errors import InputError
 from fem_rmpm.scene import SceneError
 
 __all__ = ["RunDirError", "RUN_FILES", "check_run_dir", "start_run_dir", "run_files",
-           "output_dir_for", "make_dir"]
+           "output_dir_for", "make_dir", "mark_interrupted"]
 
 #: File name patterns a run writes (and ``--force`` removes); ``.*.tmp*``: temporaries.
 RUN_FILES = ("summary.json", "particles.pvd", "particles_*.vtu", "grid.vtu", "fem.vtu",
@@ -105,6 +107,19 @@ def start_run_dir(out: str | Path, running_summary: dict) -> Path:
         if name != "summary.json" and _is_run_file(name) and (out / name).is_file():
             (out / name).unlink()
     return out
+
+
+def mark_interrupted(out: str | Path, reason: str = "interrupted") -> None:
+    """Rewrite the ``"running"`` summary of ``out`` as ``"interrupted"`` (with the files
+    written so far), after Ctrl-C or SIGTERM stopped the run; nothing if there is none."""
+    path = Path(out) / "summary.json"
+    try:
+        summary = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return
+    if isinstance(summary, dict) and summary.get("status") == "running":
+        write_json(path, {**summary, "status": "interrupted", "stop_reason": reason,
+                          "files": run_files(out)})
 
 
 def run_files(out: str | Path) -> list[str]:
