@@ -75,9 +75,11 @@ def start_local_cluster(workers: int, threads: int = 1):
     with dask.config.set(env):
         # ":0": the scheduler's HTTP server (and the dashboard, if bokeh is installed) on a
         # free port; None would still bind 8787 and warn when another cluster holds it
-        with sigint_ignored_by_children():     # Ctrl-C stops the command, not its workers
+        # silence_logs: a lost realization is the campaign's own news (its record, "lost");
+        # Dask's logs of a cluster closed under busy workers (Ctrl-C) are not the user's
+        with sigint_ignored_by_children():      # Ctrl-C stops the command, not its workers
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0", silence_logs=logging.ERROR)
+                                   dashboard_address=":0", silence_logs=logging.CRITICAL)
     for key, val in saved.items():
         if val is None:
             os.environ.pop(key, None)

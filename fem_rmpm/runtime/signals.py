@@ -8,6 +8,7 @@ by that signal.
 from __future__ import annotations
 
 import contextlib
+import logging
 import signal
 import threading
 
@@ -33,6 +34,9 @@ def _on_signal(signum, frame) -> None:
     break the clean-up it starts: closing the workers, the lock), then raise."""
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_IGN)
+    # a SIGTERM sent to the whole job stops the local Dask workers too: their scheduler's
+    # complaints about them during the clean-up are not the user's news
+    logging.getLogger("distributed").setLevel(logging.CRITICAL + 1)
     _pending.append(signum)
     raise _exception(signum)
 
