@@ -97,10 +97,16 @@ def _check_point_strength(scene: Scene, pts: Particles, seed) -> None:
         raise SimulationError(f"realization seed {seed}: {problem}")
 
 
-def _run_scheme(scene, grid, pts, on_output, progress):
-    if scene.solver.scheme == "implicit":
-        return run_implicit(scene, grid, pts, on_output=on_output, progress=progress)
-    return run_explicit(scene, grid, pts, on_output=on_output, progress=progress)
+def _run_scheme(scene, grid, pts, on_output, progress, out=None):
+    """The scheme's run; Ctrl-C or SIGTERM marks the summary in ``out`` interrupted."""
+    try:
+        if scene.solver.scheme == "implicit":
+            return run_implicit(scene, grid, pts, on_output=on_output, progress=progress)
+        return run_explicit(scene, grid, pts, on_output=on_output, progress=progress)
+    except KeyboardInterrupt as exc:
+        if out is not None:
+            mark_interrupted(out, f"interrupted ({interrupt_name(exc)})")
+        raise
 
 
 class _Stopped(Exception):
@@ -163,7 +169,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
     error = None
     try:
         with threads_from_auto(solved is not scene):      # auto: no busy-cores warning
-            rec = _run_scheme(solved, grid, pts, on_output, bar.update_to if bar else None)
+            rec = _run_scheme(solved, grid, pts, on_output, bar.update_to if bar else None, out)
     except _Stopped as stop:
         rec = RunRecord(scheme=scene.solver.scheme, time=stop.t, stop_reason=stop.reason,
                         frozen_points=np.nonzero(~pts.active)[0].tolist())
@@ -171,10 +177,6 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
         error = exc
         rec = getattr(exc, "record", None) or RunRecord(scheme=scene.solver.scheme)
         rec.error, rec.stop_reason = str(exc), "error"
-    except KeyboardInterrupt as exc:          # Ctrl-C or SIGTERM: the summary says so
-        if out is not None:
-            mark_interrupted(out, f"interrupted ({interrupt_name(exc)})")
-        raise
     finally:
         if bar:
             bar.close()

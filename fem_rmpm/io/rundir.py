@@ -14,9 +14,10 @@ anything (:class:`RunDirError`, exit 2 on the command line, nothing changed);
    ``"failed"``, with ``"files"``: every file the run wrote) is written *last*.
 
 A run stopped by Ctrl-C or SIGTERM rewrites its summary as ``"interrupted"``
-(:func:`mark_interrupted`).  A run killed at any point therefore leaves either the earlier, complete run
-untouched, or a summary saying ``"running"``: never an ``"ok"`` beside output of
-another run or beside partial output.
+(:func:`mark_interrupted`).  A run killed at any point therefore leaves either the
+earlier, complete run untouched, or a summary saying ``"running"`` or
+``"interrupted"``: never an ``"ok"`` beside output of another run or beside partial
+output.
 """
 from __future__ import annotations
 
