@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import fcntl
 import json
+import logging
 import os
 import shutil
 import signal
@@ -403,3 +404,28 @@ def test_entry_restores_what_it_changed():
     with pytest.raises(SystemExit):
         main(["--help"])
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+
+
+def test_interrupt_inside_a_native_callback_is_raised_after_it(monkeypatch):
+    """A signal that arrives while numba loads a kernel (inside llvmlite's ctypes callback,
+    where ctypes would print the exception's traceback and drop it) is raised a moment
+    later, once Python code outside the callback runs."""
+    from types import SimpleNamespace
+
+    from fem_rmpm.runtime import signals
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGALRM)}
+    monkeypatch.setattr(logging.getLogger("distributed"), "level",
+                        logging.getLogger("distributed").level)
+    callback = SimpleNamespace(f_code=SimpleNamespace(
+        co_filename="/venv/site-packages/llvmlite/binding/executionengine.py"), f_back=None)
+    try:
+        with pytest.raises(signals.Terminated):
+            with signals.graceful_interrupts():
+                signals._on_signal(signal.SIGTERM, callback)      # returns: deferred
+                assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+                time.sleep(2.0)                                   # the retry raises here
+        assert not signals._pending
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        for s, handler in saved.items():
+            signal.signal(s, handler)

@@ -29,6 +29,35 @@ def _exception(signum: int) -> KeyboardInterrupt:
     return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
+#: Seconds between two tries to raise an interrupt that arrived inside a native callback.
+RETRY_SECONDS = 0.05
+
+
+def _in_native_callback(frame) -> bool:
+    """True when ``frame`` runs inside llvmlite's callbacks from native code (numba
+    loading or storing a compiled kernel): an exception raised there is printed with
+    its traceback and dropped by ctypes."""
+    depth = 0
+    while frame is not None and depth < 200:
+        if "llvmlite" in frame.f_code.co_filename:
+            return True
+        frame, depth = frame.f_back, depth + 1
+    return False
+
+
+def _raise_or_retry(signum: int, frame) -> None:
+    if _in_native_callback(frame):         # try again once the callback has returned
+        signal.signal(signal.SIGALRM, _retry)
+        signal.setitimer(signal.ITIMER_REAL, RETRY_SECONDS)
+        return
+    raise _exception(signum)
+
+
+def _retry(signum, frame) -> None:
+    if _pending:
+        _raise_or_retry(_pending[0], frame)
+
+
 def _on_signal(signum, frame) -> None:
     """The first SIGINT or SIGTERM: ignore both from now on (a second Ctrl-C must not
     break the clean-up it starts: closing the workers, the lock), then raise."""
@@ -38,7 +67,7 @@ def _on_signal(signum, frame) -> None:
     # complaints about them during the clean-up are not the user's news
     logging.getLogger("distributed").setLevel(logging.CRITICAL + 1)
     _pending.append(signum)
-    raise _exception(signum)
+    _raise_or_retry(signum, frame)
 
 
 def interrupt_exit_code(exc: BaseException) -> int:
