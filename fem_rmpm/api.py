@@ -33,13 +33,20 @@ from fem_rmpm.discretise.grid import Grid, make_grid
 from fem_rmpm.discretise.points import Particles, seed_particles, soil_cells
 from fem_rmpm.io.output import PvdSeries, write_grid, write_json
 from fem_rmpm.io.plots import plot_profile, plot_snapshots
-from fem_rmpm.io.rundir import RunDirError, check_run_dir, run_files, start_run_dir
+from fem_rmpm.io.rundir import (
+    RunDirError,
+    check_run_dir,
+    mark_interrupted,
+    run_files,
+    start_run_dir,
+)
 from fem_rmpm.materials import point_problem
 from fem_rmpm.measures import table as measure_table
 from fem_rmpm.measures.deposit import compute_measures, excluded_summary
 from fem_rmpm.random_field import apply_to_points, field_noise, noise_shape, sample_point_properties
 from fem_rmpm.runtime.budget import check_budget, explicit_numba
 from fem_rmpm.runtime.machine import describe as describe_machine
+from fem_rmpm.runtime.signals import interrupt_name, raise_if_interrupted
 from fem_rmpm.scene import Scene, SceneError, check_seed, load_scene, scene_to_dict, with_value
 from fem_rmpm.schemes.common import RunRecord, SimulationError
 from fem_rmpm.schemes.explicit import kernels
@@ -90,10 +97,16 @@ def _check_point_strength(scene: Scene, pts: Particles, seed) -> None:
         raise SimulationError(f"realization seed {seed}: {problem}")
 
 
-def _run_scheme(scene, grid, pts, on_output, progress):
-    if scene.solver.scheme == "implicit":
-        return run_implicit(scene, grid, pts, on_output=on_output, progress=progress)
-    return run_explicit(scene, grid, pts, on_output=on_output, progress=progress)
+def _run_scheme(scene, grid, pts, on_output, progress, out=None):
+    """The scheme's run; Ctrl-C or SIGTERM marks the summary in ``out`` interrupted."""
+    try:
+        if scene.solver.scheme == "implicit":
+            return run_implicit(scene, grid, pts, on_output=on_output, progress=progress)
+        return run_explicit(scene, grid, pts, on_output=on_output, progress=progress)
+    except KeyboardInterrupt as exc:
+        if out is not None:
+            mark_interrupted(out, f"interrupted ({interrupt_name(exc)})")
+        raise
 
 
 class _Stopped(Exception):
@@ -138,6 +151,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
     snapshots: list = []
 
     def on_output(t, p):
+        raise_if_interrupted()          # a signal whose exception a native callback dropped
         snapshots.append((t, p.x.copy(), p.plastic_shear_strain.copy()))
         if series is not None:
             series.add(t, p)
@@ -155,7 +169,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
     error = None
     try:
         with threads_from_auto(solved is not scene):      # auto: no busy-cores warning
-            rec = _run_scheme(solved, grid, pts, on_output, bar.update_to if bar else None)
+            rec = _run_scheme(solved, grid, pts, on_output, bar.update_to if bar else None, out)
     except _Stopped as stop:
         rec = RunRecord(scheme=scene.solver.scheme, time=stop.t, stop_reason=stop.reason,
                         frozen_points=np.nonzero(~pts.active)[0].tolist())

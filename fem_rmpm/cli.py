@@ -3,13 +3,15 @@
 It parses the arguments, calls :mod:`fem_rmpm.api`, :mod:`fem_rmpm.campaign` or
 :mod:`fem_rmpm.io.field_output`, and prints their results.  Exit codes: 0 success, 2 bad
 input (scene, data file, options), 3 the simulation failed (unstable, Newton did not
-converge, ...), 130 interrupted.
+converge, ...), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM).
 Errors are one line on stderr, never a traceback (``--debug`` shows it).
 The CLI is the top layer: nothing in the package imports it.
 """
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 import time
 import tomllib
@@ -28,6 +30,7 @@ from fem_rmpm.io.output import OutputError
 from fem_rmpm.io.rundir import output_dir_for
 from fem_rmpm.measures import table as measure_table
 from fem_rmpm.runtime.errors import InputError
+from fem_rmpm.runtime.signals import graceful_interrupts, interrupt_exit_code, interrupt_name
 from fem_rmpm.scene import (
     Scene,
     SceneError,
@@ -229,7 +232,8 @@ EXIT_CODES = """exit codes:
   2    bad input (scene, data file or option): one line on stderr, nothing written
   3    the simulation failed (unstable, Newton did not converge, ...); for mc:
        realizations were lost (their workers died): re-run the command to finish
-  130  interrupted (Ctrl-C): finished output is kept"""
+  130  interrupted (Ctrl-C): finished output is kept
+  143  terminated (SIGTERM, e.g. a batch system's time limit): as 130"""
 _SET_HELP = ("change a scene value before running, e.g. --set solver.t_end=5 --set "
              "'grid.cell=[0.5, 0.5]' --set soil[0].cohesion_peak=20 (repeatable; values are "
              "TOML literals, a bare word is a string)")
@@ -394,13 +398,20 @@ def _check_paths(a) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    with graceful_interrupts():          # SIGTERM takes Ctrl-C's path: exit 143
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
     if getattr(a, "scene", "x") is None:
         a.scene = str(default_scene_path())
     try:
         _check_paths(a)
-        return int(a.func(a) or 0)
+        code = int(a.func(a) or 0)
+        sys.stdout.flush()       # a closed pipe is reported here, not at the interpreter's exit
+        return code
     except (SceneError, InputError) as exc:
         if a.debug:
             raise
@@ -411,9 +422,23 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"fem-rmpm: simulation failed: {exc}", file=sys.stderr)
         return 3
-    except KeyboardInterrupt:
-        print("fem-rmpm: interrupted; finished output is kept", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        print(f"fem-rmpm: interrupted ({interrupt_name(exc)}); finished output is kept",
+              file=sys.stderr)
+        return interrupt_exit_code(exc)
+    except BrokenPipeError:      # the reader of stdout left (`| head -1`): end quietly
+        _quiet_stdout()
+        return 128 + signal.SIGPIPE
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null, so that the interpreter's final flush into the closed
+    pipe does not report a second BrokenPipeError."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):
+        pass
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -34,6 +34,7 @@ from fem_rmpm.campaign.store import (
 from fem_rmpm.campaign.task import campaign_threads, run_realization
 from fem_rmpm.io.output import write_json
 from fem_rmpm.runtime.machine import describe as describe_machine
+from fem_rmpm.runtime.budget import estimate_run
 from fem_rmpm.runtime.machine import tally
 from fem_rmpm.scene import Scene
 
@@ -65,6 +66,29 @@ class CampaignResult:
 
 def _case_realizations(case: Case, n: int) -> int:
     return 1 if case.deterministic else n
+
+
+#: At most this many realizations in one campaign: a task (a few hundred bytes) is built
+#: for each before the campaign starts, so a larger N is refused at once, with its cost.
+MAX_REALIZATIONS = 1_000_000
+
+
+def check_campaign_size(case_list: list[Case], counts: dict[str, int]) -> None:
+    """Raise :class:`CampaignError` (with the estimated core-hours, from the budget of one
+    realization per case) when the campaign has more than :data:`MAX_REALIZATIONS`
+    realizations; constant time in N (nothing is built per realization)."""
+    total = sum(counts.values())
+    if total <= MAX_REALIZATIONS:
+        return
+    seconds = 0.0
+    for c in case_list:       # one thread per realization, as the campaign's workers run
+        e = estimate_run(c.scene)
+        seconds += counts[c.name] * e.points * e.steps * e.steps_factor * e.ns_per_point_step
+    hours = seconds * 1e-9 / 3600.0
+    raise CampaignError(f"-n {max(counts.values())}: {total} realizations in all "
+                        f"({len(case_list)} case(s)), about {hours:.3g} core-hours by the "
+                        f"budget's estimate; allowed: at most {MAX_REALIZATIONS} realizations "
+                        "in one campaign")
 
 
 def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
@@ -155,6 +179,7 @@ def pending_work(scene: Scene, out: Path, n: int, cases: Sequence[str | Case] | 
     if len(set(names)) != len(names):
         raise CampaignError(f"case names must be unique, got {names}")
     counts = {c.name: _case_realizations(c, n) for c in case_list}
+    check_campaign_size(case_list, counts)
     doc = campaign_doc(case_list, scene.montecarlo.seed)
     check_directory(out, doc)
     fs_mode = "only" if fs_only else ("before" if scene.montecarlo.factor_of_safety else "off")

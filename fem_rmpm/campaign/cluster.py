@@ -12,6 +12,7 @@ from distributed import Client, LocalCluster
 from fem_rmpm.campaign.cases import CampaignError
 from fem_rmpm.campaign.task import MALLOC_THRESHOLDS
 from fem_rmpm.runtime.machine import usable_cores as _usable_cpus
+from fem_rmpm.runtime.signals import sigint_ignored_by_children
 
 __all__ = ["worker_environment", "local_worker_count", "local_workers_text",
            "start_local_cluster", "start_client"]
@@ -74,8 +75,11 @@ def start_local_cluster(workers: int, threads: int = 1):
     with dask.config.set(env):
         # ":0": the scheduler's HTTP server (and the dashboard, if bokeh is installed) on a
         # free port; None would still bind 8787 and warn when another cluster holds it
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR)
+        # silence_logs: a lost realization is the campaign's own news (its record, "lost");
+        # Dask's logs of a cluster closed under busy workers (Ctrl-C) are not the user's
+        with sigint_ignored_by_children():      # Ctrl-C stops the command, not its workers
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0", silence_logs=logging.CRITICAL)
     for key, val in saved.items():
         if val is None:
             os.environ.pop(key, None)

@@ -13,7 +13,7 @@ from dask.utils import parse_bytes
 from fem_rmpm.campaign.cases import CampaignError
 
 __all__ = ["BATCH_SYSTEMS", "BatchSystem", "CLUSTER_KINDS", "ClusterError", "ClusterSpec",
-           "parse_adapt", "validate"]
+           "check_scheduler_address", "parse_adapt", "validate"]
 
 
 @dataclass(frozen=True)
@@ -96,6 +96,23 @@ def _memory_bytes(text: str, option: str = "--memory") -> float:
     return float(parse_bytes(f"{m.group(1)} {unit}"))
 
 
+#: A Dask scheduler address: ``[scheme://]host:port`` (host a name, an IPv4 address or
+#: a bracketed IPv6 address), or an in-process ``inproc://`` address.
+_ADDRESS = re.compile(r"(?:[a-z][a-z0-9+.-]*://)?(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
+                      r":(\d{1,5})/?")
+
+
+def check_scheduler_address(address: str) -> None:
+    """Raise :class:`ClusterError` when ``address`` is not the syntax of a scheduler
+    address (checked before connecting: no connect timeout for a typing mistake)."""
+    if address.startswith("inproc://"):
+        return
+    m = _ADDRESS.fullmatch(address.strip())
+    if m is None or not 0 < int(m.group(1)) < 65536:
+        raise ClusterError(f"--scheduler {address!r}: not a scheduler address; allowed: "
+                           "[scheme://]host:port, e.g. tcp://node12:8786")
+
+
 def validate(spec: ClusterSpec) -> ClusterSpec:
     """Check a spec (raises :class:`ClusterError` naming the option); returns it."""
     if spec.kind not in CLUSTER_KINDS:
@@ -111,6 +128,8 @@ def validate(spec: ClusterSpec) -> ClusterSpec:
     if spec.scheduler and spec.kind != "local":
         raise ClusterError(f"--scheduler joins a running Dask cluster; --cluster {spec.kind} "
                            "starts one on the batch system: give one of the two")
+    if spec.scheduler:
+        check_scheduler_address(spec.scheduler)
     if spec.scheduler and spec.workers is not None:
         raise ClusterError("--workers starts a local cluster; with --scheduler the "
                            "cluster's own workers are used: give one of the two")

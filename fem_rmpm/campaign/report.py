@@ -461,6 +461,10 @@ def report_html(campaign_dir: str | Path) -> str:
         identity = _read_json(campaign / "campaign.json")
     except FileNotFoundError:
         identity = {}
+    for name, value in (("summary.json", summary), ("campaign.json", identity)):
+        if not isinstance(value, dict):
+            raise ReportError(f"{campaign / name}: holds a JSON {type(value).__name__}, not "
+                              "the object a campaign writes (not a campaign directory?)")
     records = _records(campaign)
     title = f"fem_rmpm campaign report: {summary.get('scene', campaign.name)}"
     made = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
@@ -480,5 +484,10 @@ def write_report(campaign_dir: str | Path) -> Path:
     """Write ``report.html`` into the campaign directory (atomically) and return its path."""
     campaign = Path(campaign_dir)
     path = campaign / "report.html"
-    _atomic_write_bytes(path, report_html(campaign).encode("utf-8"))
+    page = report_html(campaign).encode("utf-8")
+    try:
+        _atomic_write_bytes(path, page)
+    except OSError as exc:
+        raise ReportError(f"{path}: cannot be written ({exc.strerror}); needed: write "
+                          f"permission on {campaign}") from None
     return path

@@ -46,6 +46,9 @@ def read_measurements(path, key: str = "random_field.data") -> Measurements:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise SceneError(f"{src}: [{key}] not a text file; allowed: {allowed}") from None
+    except OSError as exc:
+        raise SceneError(f"{src}: [{key}] cannot be read ({exc.strerror}); needed: read "
+                         "permission on the file") from None
     lines = [ln for ln in text.splitlines()]
     reader = csv.reader(lines)
     header, start = None, 0

@@ -146,6 +146,11 @@ def _embedding_cached(mkey, cell, shape, averaging, pad_thetas,
         if lmin >= -1e-10 * lmax:
             break
         pads = [2 * p + 8 for p in pads]
+    if not lmax > 0:             # every eigenvalue 0 (or NaN): no variance left to sample
+        raise ValueError(f"theta_v {model.theta_v:g} m, theta_h {model.theta_h:g} m are so far "
+                         f"below the field cells ({cell[0]:g} x {cell[1]:g} m) that the cell "
+                         "averages keep no variance (the covariance underflows to 0); allowed: "
+                         "scales of at least ~1/1000 of the field cell")
     neg = -eig[eig < 0].sum()
     clipped = float(neg / np.abs(eig).sum())
     if lmin < -1e-10 * lmax and clipped > 1e-6:

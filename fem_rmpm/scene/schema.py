@@ -94,6 +94,58 @@ def check_seed(seed, option: str = "--seed") -> int | None:
     return seed
 
 
+def _candidate_pairs(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs ``i < j`` of non-adjacent edges (edge k: ``p[k] -> q[k]``) that share a
+    bucket of a uniform grid: every pair that can cross (a pair may repeat).  Each edge is
+    cut into pieces no longer than a bucket and lies in the buckets of its pieces'
+    bounding boxes (slightly widened against rounding), so a long edge covers a line of
+    buckets, not its bounding box.  The buckets are about the size of the median edge,
+    doubled until there are at most ~4 pieces per edge: near-linear in the number of
+    edges for a polygon's edges."""
+    n = len(p)
+    extent = np.abs(q - p).max(axis=1)
+    side = max(float(np.median(extent)), 1e-300)
+    while True:
+        pieces = np.maximum(np.ceil(extent / side).astype(np.int64), 1)
+        if pieces.sum() <= 4 * n + 64:
+            break
+        side *= 2.0
+    owner = np.repeat(np.arange(n), pieces)
+    t = (np.arange(len(owner)) - np.repeat(np.cumsum(pieces) - pieces, pieces))[:, None]
+    m = pieces[owner][:, None]
+    u = p[owner] + (q[owner] - p[owner]) * (t / m)
+    v = p[owner] + (q[owner] - p[owner]) * ((t + 1) / m)
+    pad = 1e-9 * side
+    origin = np.minimum(p, q).min(axis=0) - 2 * pad
+    k0 = np.floor((np.minimum(u, v) - pad - origin) / side).astype(np.int64)
+    k1 = np.floor((np.maximum(u, v) + pad - origin) / side).astype(np.int64)
+    span = k1 - k0 + 1
+    cells = span[:, 0] * span[:, 1]
+    piece = np.repeat(np.arange(len(owner)), cells)  # one entry per (piece, bucket)
+    offset = np.arange(len(piece)) - np.repeat(np.cumsum(cells) - cells, cells)
+    bx = k0[piece, 0] + offset % span[piece, 0]
+    by = k0[piece, 1] + offset // span[piece, 0]
+    bucket = by * (int(k1[:, 0].max()) + 1) + bx
+    edge = owner[piece]
+    order = np.lexsort((edge, bucket))
+    bucket, edge = bucket[order], edge[order]
+    first = np.ones(len(edge), dtype=bool)            # an edge once per bucket
+    first[1:] = (bucket[1:] != bucket[:-1]) | (edge[1:] != edge[:-1])
+    bucket, edge = bucket[first], edge[first]
+    pairs_i, pairs_j = [], []
+    for step in range(1, len(edge)):                 # entries ``step`` apart in one bucket
+        same = bucket[step:] == bucket[:-step]
+        if not same.any():
+            break
+        pairs_i.append(edge[:-step][same])
+        pairs_j.append(edge[step:][same])
+    if not pairs_i:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    i, j = np.concatenate(pairs_i), np.concatenate(pairs_j)
+    keep = (j - i >= 2) & ~((i == 0) & (j == n - 1))  # adjacent edges share a point
+    return i[keep], j[keep]
+
+
 def polygon_problem(poly) -> str | None:
     """What is wrong with a polygon [(x, y), ...] (m), or None: a repeated point, zero
     area (collinear points), or two edges that cross or touch (a bow-tie).  A last
@@ -107,22 +159,19 @@ def polygon_problem(poly) -> str | None:
     if short.any():
         k = (int(np.argmax(short)) + 1) % len(p)       # the repeated point (0-based)
         return f"point {k + 1} ({p[k][0]:g}, {p[k][1]:g}) repeats the point before it"
-    a, b = p[:, None, :], q[:, None, :]            # edge i: a -> b;  edge j: c -> d
-    c, d = p[None, :, :], q[None, :, :]
+    i, j = _candidate_pairs(p, q)
+    a, b, c, d = p[i], q[i], p[j], q[j]            # edge i: a -> b;  edge j: c -> d
 
     def orient(u, v, w):
         return np.sign((v[..., 0] - u[..., 0]) * (w[..., 1] - u[..., 1])
                        - (v[..., 1] - u[..., 1]) * (w[..., 0] - u[..., 0]))
-    cross = (orient(a, b, c) * orient(a, b, d) <= 0) & (orient(c, d, a) * orient(c, d, b) <= 0)
+    hit = (orient(a, b, c) * orient(a, b, d) <= 0) & (orient(c, d, a) * orient(c, d, b) <= 0)
     for k in (0, 1):                               # bounding boxes overlap
-        cross &= (np.minimum(a[..., k], b[..., k]) <= np.maximum(c[..., k], d[..., k])) & \
-                 (np.minimum(c[..., k], d[..., k]) <= np.maximum(a[..., k], b[..., k]))
-    n = len(p)
-    i, j = np.triu_indices(n, k=2)
-    keep = ~((i == 0) & (j == n - 1))              # adjacent through the closing edge
-    hit = cross[i[keep], j[keep]]
+        hit &= (np.minimum(a[..., k], b[..., k]) <= np.maximum(c[..., k], d[..., k])) & \
+               (np.minimum(c[..., k], d[..., k]) <= np.maximum(a[..., k], b[..., k]))
     if hit.any():
-        e1, e2 = int(i[keep][hit][0]), int(j[keep][hit][0])
+        first = np.lexsort((j[hit], i[hit]))[0]     # the first pair in (i, j) order
+        e1, e2 = int(i[hit][first]), int(j[hit][first])
         return (f"is self-intersecting: edge {e1 + 1} (from point {e1 + 1}) crosses or touches "
                 f"edge {e2 + 1} (from point {e2 + 1}); a bow-tie cannot be filled")
     area = 0.5 * float(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]))
@@ -131,9 +180,22 @@ def polygon_problem(poly) -> str | None:
     return None
 
 
+#: The most points of one polygon: seeding tests every cell centre near the polygon once
+#: per edge (:func:`fem_rmpm.discretise.grid.points_in_polygon`), so a finer outline costs
+#: time in every run and adds nothing at the grid's resolution.
+MAX_POLYGON_POINTS = 100_000
+#: The largest scene file read (bytes), checked before parsing: a scene is a few tables
+#: (large data are CSV files named in it); a bigger file is refused at once.
+MAX_SCENE_BYTES = 16 * 2**20
+
+
 def _check_polygons(s: Scene) -> None:
     for base, items in (("soil", s.soils), ("bedrock", s.bedrock), ("prescribed", s.prescribed)):
         for k, item in enumerate(items):
+            if len(item.polygon) > MAX_POLYGON_POINTS:
+                raise _fail(s.source, f"{base}[{k}].polygon", f"the polygon has "
+                            f"{len(item.polygon)} points; allowed: at most "
+                            f"{MAX_POLYGON_POINTS} points (finer than the grid adds nothing)")
             what = polygon_problem(item.polygon)
             if what:
                 raise _fail(s.source, f"{base}[{k}].polygon", f"the polygon {what}; allowed: "
@@ -245,10 +307,26 @@ def load_scene(path: str | Path) -> Scene:
     if path.is_dir():
         raise SceneError(f"{source}: [] is a directory; allowed: a path to a TOML scene file")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))   # a UTF-8 BOM is accepted
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        size = path.stat().st_size
+        if size > MAX_SCENE_BYTES:
+            raise SceneError(f"{source}: [] a file of {size / 2**20:.0f} MiB; allowed: a scene "
+                             f"file of at most {MAX_SCENE_BYTES // 2**20} MiB (give large data "
+                             "as CSV files named in it)")
+        text = path.read_text(encoding="utf-8-sig")    # a UTF-8 BOM is accepted
+    except UnicodeDecodeError as exc:
         raise SceneError(f"{source}: [] not valid TOML ({exc}); allowed: a TOML scene file "
                          "(see meshes/*.toml)") from None
+    except OSError as exc:
+        raise SceneError(f"{source}: [] cannot be read ({exc.strerror}); needed: read "
+                         "permission on the scene file") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{source}: [] not valid TOML ({exc}); allowed: a TOML scene file "
+                         "(see meshes/*.toml)") from None
+    except RecursionError:
+        raise SceneError(f"{source}: [] arrays or tables nested too deeply to read; allowed: "
+                         "a TOML scene file (see meshes/*.toml)") from None
     return scene_from_dict(data, source)
 
 
