@@ -13,31 +13,31 @@ from __future__ import annotations
 
 from fem_rmpm.materials import linear_elastic, mohr_coulomb, von_mises
 from fem_rmpm.materials.hencky import (
-                     exp_sym2,
-                     hencky_stress,
-                     hughes_winget_increment,
-                     kirchhoff_stress,
-                     log_sym2,
-                     return_map,
-                     small_strain_update,
-                     spatial_tangent,
-                     sqrt_j2,
-                     stress_update,
+    exp_sym2,
+    hencky_stress,
+    hughes_winget_increment,
+    kirchhoff_stress,
+    log_sym2,
+    return_map,
+    small_strain_update,
+    spatial_tangent,
+    sqrt_j2,
+    stress_update,
 )
 from fem_rmpm.materials.points import (
-                     cohesion,
-                     invalid_points,
-                     material_points,
-                     new_state,
-                     point_problem,
-                     soil_values,
+    cohesion,
+    invalid_points,
+    material_points,
+    new_state,
+    point_problem,
+    soil_values,
 )
 from fem_rmpm.materials.protocol import (
-                     ELASTIC_COLUMNS,
-                     MaterialPoints,
-                     Parameter,
-                     Regularisable,
-                     Strength,
+    ELASTIC_COLUMNS,
+    MaterialPoints,
+    Parameter,
+    Regularisable,
+    Strength,
 )
 from fem_rmpm.materials.registry import model, model_id, models, names, register, version
 

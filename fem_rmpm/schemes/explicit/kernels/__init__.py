@@ -46,33 +46,33 @@ whose ``prange`` body calls the compiled half or worker function the serial kern
 from __future__ import annotations
 
 from fem_rmpm.schemes.explicit.kernels.arrays import (
-                     Mesh,
-                     NodeArrays,
-                     PointArrays,
-                     Scratch,
-                     StepOptions,
-                     Workspace,
-                     mesh_of,
-                     node_arrays,
-                     point_arrays,
-                     top_of,
+    Mesh,
+    NodeArrays,
+    PointArrays,
+    Scratch,
+    StepOptions,
+    Workspace,
+    mesh_of,
+    node_arrays,
+    point_arrays,
+    top_of,
 )
 from fem_rmpm.schemes.explicit.kernels.basis import gimp_shape, q4_shape
 from fem_rmpm.schemes.explicit.kernels.common import BLOCK, block_bounds, half_split
 from fem_rmpm.schemes.explicit.kernels.stress import (
-                     _direct,
-                     material_kernels,
-                     small_strain_update_points,
-                     stress_update_points,
-                     update_stress,
+    _direct,
+    material_kernels,
+    small_strain_update_points,
+    stress_update_points,
+    update_stress,
 )
 from fem_rmpm.schemes.explicit.kernels.transfer import (
-                     map_to_nodes,
-                     map_to_nodes_parallel,
-                     nodal_velocities,
-                     nodal_velocities_parallel,
-                     solve_and_move,
-                     solve_and_move_parallel,
+    map_to_nodes,
+    map_to_nodes_parallel,
+    nodal_velocities,
+    nodal_velocities_parallel,
+    solve_and_move,
+    solve_and_move_parallel,
 )
 
 __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Workspace",
