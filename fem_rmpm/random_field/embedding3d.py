@@ -33,15 +33,21 @@ import scipy.fft as sfft
 from fem_rmpm.random_field.memory import bytes_cached
 from fem_rmpm.random_field.model3d import MarkovModel3D
 from fem_rmpm.random_field.quadrature3d import lattice_covariance_3d
-from fem_rmpm.runtime.budget import memory_limit_bytes
+from fem_rmpm.runtime.budget import BudgetError, memory_limit_bytes
 
-__all__ = ["Embedding3D", "SingleVariable3D", "EmbeddingEstimate", "circulant_embedding_3d",
-           "estimate_embedding_3d", "padded_shape_3d", "REPORT_BYTES"]
+__all__ = ["Embedding3D", "SingleVariable3D", "EmbeddingEstimate", "FieldTooLarge",
+           "circulant_embedding_3d", "estimate_embedding_3d", "padded_shape_3d", "REPORT_BYTES"]
 
 #: Estimates above this many bytes are printed (stderr) before the embedding is set up.
 REPORT_BYTES = 256 * 2**20
 #: Work arrays of one plane of lags in the covariance quadrature (float64 each).
 QUADRATURE_ARRAYS = 32
+
+
+class FieldTooLarge(BudgetError, MemoryError):
+    """The field's embedding would exceed the memory limit (one line with the estimate);
+    a :class:`~fem_rmpm.runtime.budget.BudgetError` (a scene error: exit 2 on the command
+    line) and a ``MemoryError``."""
 
 
 @dataclass(frozen=True)
@@ -237,8 +243,8 @@ def circulant_embedding_3d(model: MarkovModel3D, cell, shape, averaging: bool = 
     (m); a :class:`SingleVariable3D` when the field is perfectly correlated across it.
 
     The memory is estimated first (:func:`estimate_embedding_3d`): above ``limit_bytes``
-    (default the memory limit, :func:`fem_rmpm.runtime.budget.memory_limit_bytes`) a
-    :class:`MemoryError` carrying the estimate is raised at once; above
+    (default the memory limit, :func:`fem_rmpm.runtime.budget.memory_limit_bytes`)
+    :class:`FieldTooLarge` carrying the estimate is raised at once; above
     :data:`REPORT_BYTES` the estimate is passed to ``report`` (default: a line on stderr)."""
     cell = tuple(float(c) for c in cell)
     shape = tuple(int(s) for s in shape)
@@ -252,8 +258,10 @@ def circulant_embedding_3d(model: MarkovModel3D, cell, shape, averaging: bool = 
     if limit_bytes is None:
         limit_bytes = memory_limit_bytes()
     if est.peak_bytes > limit_bytes:
-        raise MemoryError(f"{est.describe()}; this exceeds the memory limit of "
-                          f"{_fmt(limit_bytes)}")
+        raise FieldTooLarge(f"[random_field.cell_size] {est.describe()}; this exceeds the "
+                            f"memory limit of {_fmt(limit_bytes)}; allowed: a coarser "
+                            "cell_size, a smaller box or a higher limit with "
+                            "FEM_RMPM_MEMORY_LIMIT_GB=<GiB>")
     if est.peak_bytes > REPORT_BYTES:
         (report or (lambda s: print(s, file=sys.stderr, flush=True)))(est.describe())
     return _embedding_3d_cached(model.key(), cell, shape, bool(averaging), float(pad_thetas),

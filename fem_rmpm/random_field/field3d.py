@@ -270,7 +270,8 @@ def sample_cell_field_3d(spec: RandomFieldSpec, centres, sizes, seed: int | None
     property), in the property's unit; ``theta_z``: the strike scale (m; default
     :func:`~.model3d.model_from_spec_3d`); ``box`` and ``cell_size``: the fixed lattice
     (default ``spec.cell_size`` and, for a 6-value ``spec.box``, that box).  Raises
-    ``MemoryError`` (with the estimate) for a field over the memory limit, ``ValueError``
+    :class:`~.embedding3d.FieldTooLarge` (a scene error and a ``MemoryError``, with the
+    estimate) for a field over the memory limit, ``ValueError``
     for bad input.  ``data``, ``data_mean``: measurements of the first property to
     condition on (:func:`gaussian_fields_3d`; ``data_mean`` defaults to a scalar ``means``)."""
     lattice = _lattice_for(spec, centres, sizes, box, cell_size)
