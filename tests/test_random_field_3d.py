@@ -37,7 +37,7 @@ from fem_rmpm.random_field.memory import ByteBoundedCache
 from fem_rmpm.random_field.model import MarkovModel, local_average_covariance_1d
 from fem_rmpm.random_field.model3d import MarkovModel3D, model_from_spec_3d
 from fem_rmpm.random_field.quadrature import lattice_covariance
-from fem_rmpm.random_field.quadrature3d import lattice_covariance_3d
+from fem_rmpm.random_field.quadrature3d import lattice_covariance_3d, quadrature_error_3d
 from fem_rmpm.scene import RandomFieldSpec, SceneError
 from fem_rmpm.scene.spec import PropertyFieldSpec
 
@@ -84,6 +84,15 @@ def test_separable_model_with_turned_layering_is_the_section_times_the_strike_te
     assert np.abs(c3 - ref).max() < 1e-15
     quad = lattice_covariance_3d(m, cell, K, L, M, method="quadrature")
     assert np.abs(quad - ref).max() < 1e-3
+
+
+def test_error_estimate_against_a_finer_rule():
+    """:func:`quadrature_error_3d` (difference to the graded rule with twice the levels and
+    7 points per panel) at the kink lags of an isotropic field: below 1e-8 (measured
+    2.9e-10)."""
+    err = quadrature_error_3d(MarkovModel3D(1.0, 1.0, 1.0), (0.5, 0.5, 0.5),
+                              [0, 1, 0, 3], [0, 0, 1, 1], [0, 1, 1, 0])
+    assert err.max() < 1e-8
 
 
 def test_point_covariance_and_symmetry():
