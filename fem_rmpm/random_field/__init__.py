@@ -7,7 +7,14 @@ embedding; :meth:`Embedding.from_noise` maps standard-normal noise to a field),
 Cholesky factor of the cross-correlation matrix), :mod:`.layout` (the field cells of a
 scene), :mod:`.conditioning` (measurements, kriging), :mod:`.points` (the fields of a
 seed or a noise array on the material points) and
-:mod:`.variogram` (scale estimation).  Figures and VTU of ``fem-rmpm field`` are in
+:mod:`.variogram` (scale estimation); :mod:`.memory` (the embedding cache, bounded by the
+bytes it holds).  Three dimensions (hexahedral cells; ``x`` along the slope, ``y``
+vertical, ``z`` along the strike): :mod:`.model3d` (correlation with three scales),
+:mod:`.quadrature3d` (covariance of cell averages), :mod:`.embedding3d` (circulant
+embedding, its memory estimated before allocation), :mod:`.field3d` (the lattice of the
+``box`` rule, values on cells and points: ``sample_cell_field_3d(spec, centres, sizes,
+seed, means=...)``), :mod:`.conditioning3d` (measurements ``x,y,z,value``, kriging).
+Figures and VTU of ``fem-rmpm field`` are in
 :mod:`fem_rmpm.io.field_output`, its command line in :mod:`fem_rmpm.cli`.
 
 What a realization is
@@ -140,6 +147,19 @@ from fem_rmpm.random_field.embedding import (
     dense_covariance,
     sample_dense,
 )
+from fem_rmpm.random_field.embedding3d import (
+    Embedding3D,
+    circulant_embedding_3d,
+    estimate_embedding_3d,
+)
+from fem_rmpm.random_field.field3d import (
+    Lattice3D,
+    field_lattice_3d,
+    gaussian_fields_3d,
+    sample_cell_field_3d,
+    sample_point_field_3d,
+    subset_noise_3d,
+)
 from fem_rmpm.random_field.layout import FieldLayout, field_layout
 from fem_rmpm.random_field.model import (
     KINDS,
@@ -164,7 +184,9 @@ from fem_rmpm.random_field.points import (
     sample_point_properties,
     sample_point_property,
 )
+from fem_rmpm.random_field.model3d import MarkovModel3D, model_from_spec_3d
 from fem_rmpm.random_field.quadrature import lattice_covariance
+from fem_rmpm.random_field.quadrature3d import lattice_covariance_3d
 from fem_rmpm.random_field.variogram import FitResult, empirical_variogram, fit_scales
 
 __all__ = [
@@ -176,4 +198,7 @@ __all__ = [
     "noise_shape", "field_noise", "empirical_variogram", "fit_scales", "FitResult",
     "beta_shape", "cholesky_factor", "mix_noise", "coherence", "embeddings_for",
     "gaussian_fields", "point_fields", "sample_point_properties", "apply_to_points",
+    "MarkovModel3D", "model_from_spec_3d", "lattice_covariance_3d", "Embedding3D",
+    "circulant_embedding_3d", "estimate_embedding_3d", "Lattice3D", "field_lattice_3d",
+    "gaussian_fields_3d", "sample_cell_field_3d", "sample_point_field_3d", "subset_noise_3d",
 ]

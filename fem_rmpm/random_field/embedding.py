@@ -2,7 +2,6 @@
 cells from white noise by one rfft2/irfft2 pair; the dense Cholesky check for tests."""
 from __future__ import annotations
 
-import functools
 import math
 import time
 from dataclasses import dataclass
@@ -10,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft as sfft
 
+from fem_rmpm.random_field.memory import bytes_cached
 from fem_rmpm.random_field.model import MarkovModel
 from fem_rmpm.random_field.quadrature import lattice_covariance
 
@@ -129,7 +129,7 @@ def _table(model, cell, m1, m2, averaging) -> np.ndarray:
     return tab
 
 
-@functools.lru_cache(maxsize=16)
+@bytes_cached
 def _embedding_cached(mkey, cell, shape, averaging, pad_thetas,
                       min_padded=(0, 0)) -> Embedding:
     t0 = time.perf_counter()

@@ -36,7 +36,8 @@ PACKAGE = Path(__file__).resolve().parents[1]
 #: (every ``.py`` in them) or files.  ``tests/test_numba_cache.py`` checks that every
 #: module using numba is listed here.
 COMPILED_SOURCES = ("runtime/compiled.py", "schemes/explicit/kernels", "materials",
-                    "schemes/implicit", "schemes/regularisation.py")
+                    "schemes/implicit", "schemes/regularisation.py",
+                    "random_field/quadrature3d.py")
 
 
 @functools.lru_cache(maxsize=None)
