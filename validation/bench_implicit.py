@@ -28,6 +28,10 @@ per repeat and appends it to ``validation/out/bench_implicit_case_i.jsonl``.  It
 ``run_implicit`` and the run record, so the same file measures another checkout:
 ``PYTHONPATH=/path/to/other nice python validation/bench_implicit.py --case-i --label other``
 interleaved with ``--label this``.
+
+``--fs N``: the factor of safety of realizations 0..N-1 of the risk slope (xi = 12)
+against the MPM run of the same realization stopped once decided, both in CPU seconds on
+one numba thread (:mod:`fs_cost`, ``--risk``), and the median ratio.
 """
 from __future__ import annotations
 
@@ -143,6 +147,22 @@ def case_i(t_end: float, label: str, linear_solver: str | None) -> dict:
             "load_average": os.getloadavg()}
 
 
+def fs_against_mpm(n: int, label: str) -> None:
+    """One line per realization and the summary: CPU of the FS over CPU of the decided
+    MPM run (one numba thread, as a campaign worker)."""
+    import sys
+    import numba
+    sys.path.insert(0, str(HERE))
+    from fs_cost import risk_rows
+    numba.set_num_threads(1)
+    rows = risk_rows("xi=12", n, label)
+    ratios = sorted(r["cpu_fs"] / r["cpu_mpm_decided"] for r in rows)
+    print(f"FS against the decided MPM run, {n} realizations of xi = 12: CPU ratio median "
+          f"{ratios[len(ratios) // 2]:.2f} (range {ratios[0]:.2f}-{ratios[-1]:.2f}); FS CPU "
+          f"{sum(r['cpu_fs'] for r in rows):.1f} s, MPM CPU "
+          f"{sum(r['cpu_mpm_decided'] for r in rows):.1f} s in all", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--small", action="store_true", help="only the 4600-element slope")
@@ -152,8 +172,14 @@ def main():
     ap.add_argument("--t-end", type=float, default=1.0, help="--case-i: simulated time (s)")
     ap.add_argument("--label", default="", help="--case-i: a name for this code version")
     ap.add_argument("--linear-solver", default=None, help="--case-i: override the scene's")
+    ap.add_argument("--fs", type=int, default=0, metavar="N",
+                    help="the FS of realizations 0..N-1 of the risk slope (xi = 12) against "
+                         "their MPM runs stopped once decided, CPU (validation/fs_cost.py)")
     a = ap.parse_args()
     OUT.mkdir(exist_ok=True)
+    if a.fs:
+        fs_against_mpm(a.fs, a.label or "this")
+        return
     if a.case_i:
         for _ in range(a.repeat):
             r = case_i(a.t_end, a.label, a.linear_solver)

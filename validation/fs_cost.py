@@ -10,6 +10,16 @@ figures compare on a loaded machine; wall times are printed with the load averag
     nice python validation/fs_cost.py [--scene meshes/slope_reference.toml] [--repeats 2]
 
 Writes ``validation/out/fs_cost.json``.
+
+``--risk N``: realizations 0..N-1 of a case of the risk slope (meshes/slope_risk.toml,
+``--case xi=12``, seeds from the campaign seed as a campaign draws them), each: the FS
+(default search) and the MPM run stopped once decided (as a campaign's realization with
+index >= runs_to_rest), both in CPU seconds of this process on one numba thread.  One
+JSON line per realization is printed and appended to
+``validation/out/fs_cost_risk_<label>.jsonl``; ``--compare OTHER.jsonl`` prints, per seed,
+the relative FS difference to another checkout's lines and the largest one.  It uses only
+``api``, the campaign's seeds and ``factor_of_safety``, so another checkout runs it too:
+``PYTHONPATH=/path/to/other python validation/fs_cost.py --risk 10 --label other``.
 """
 from __future__ import annotations
 
@@ -48,14 +58,78 @@ def mpm_run(scene) -> dict:
             "simulated_time": res.summary["simulated_time"]}
 
 
+def risk_rows(case: str, n: int, label: str) -> list[dict]:
+    """FS and decided MPM run of realizations 0..n-1 of ``case`` of the risk slope."""
+    from fem_rmpm.campaign.cases import parse_case, realization_seed
+    from fem_rmpm.campaign.decide import FailureWatch
+    base = api.load_scene(str(ROOT / "meshes" / "slope_risk.toml"))
+    scene = parse_case(case, base).scene
+    rows = []
+    dest = ROOT / "validation" / "out"
+    dest.mkdir(parents=True, exist_ok=True)
+    for i in range(n):
+        seed = realization_seed(scene.montecarlo.seed, i)
+        res, cpu_fs, wall_fs = timed(lambda: _fs_seed(scene, seed))
+        watch = FailureWatch(scene.montecarlo.failure_displacement, stop=True)
+        run, cpu_mpm, wall_mpm = timed(lambda: api.run(
+            scene, out=None, seed=seed, progress=False, vtk=False, figures=False,
+            stop_when=watch))
+        row = {"label": label, "case": case, "index": i, "seed": seed, "fs": res.fs,
+               "text": res.text, "bracket": list(res.bracket),
+               "static_solves": res.static_solves,
+               "newton_iterations": sum(t.iterations for t in res.trials),
+               "cpu_fs": cpu_fs, "wall_fs": wall_fs, "cpu_mpm_decided": cpu_mpm,
+               "wall_mpm_decided": wall_mpm, "mpm_stop": run.summary["stop_reason"],
+               "load": os.getloadavg()[0]}
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+        with open(dest / f"fs_cost_risk_{label}.jsonl", "a") as fh:
+            fh.write(json.dumps(row) + "\n")
+    return rows
+
+
+def _fs_seed(scene, seed):
+    grid, pts = api.prepare(scene, seed)
+    return factor_of_safety(scene, seed=seed, options=FSOptions(), grid=grid, pts=pts)
+
+
+def compare(rows: list[dict], other: Path) -> None:
+    """Relative FS difference per seed against another checkout's JSON lines."""
+    ref = {}
+    for line in other.read_text().splitlines():
+        r = json.loads(line)
+        ref[r["seed"]] = r
+    worst = 0.0
+    for r in rows:
+        o = ref.get(r["seed"])
+        if o is None:
+            continue
+        d = r["fs"] / o["fs"] - 1.0
+        worst = max(worst, abs(d))
+        print(f"realization {r['index']}: FS {r['fs']:.4f} vs {o['fs']:.4f} ({100 * d:+.2f} %); "
+              f"CPU FS {r['cpu_fs']:.1f} s (was {o['cpu_fs']:.1f} s), decided MPM run "
+              f"{r['cpu_mpm_decided']:.1f} s, ratio {r['cpu_fs'] / r['cpu_mpm_decided']:.2f}")
+    print(f"largest |FS difference| {100 * worst:.2f} %")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default=str(ROOT / "meshes" / "slope_reference.toml"))
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--no-classic", action="store_true",
                     help="skip the plain search (gravity anew at every trial)")
+    ap.add_argument("--risk", type=int, default=0, metavar="N",
+                    help="realizations 0..N-1 of the risk slope: FS and decided MPM run")
+    ap.add_argument("--case", default="xi=12")
+    ap.add_argument("--label", default="this")
+    ap.add_argument("--compare", type=Path, default=None)
     a = ap.parse_args()
     numba.set_num_threads(1)
+    if a.risk:
+        rows = risk_rows(a.case, a.risk, a.label)
+        if a.compare:
+            compare(rows, a.compare)
+        return
     scene = api.load_scene(a.scene)
     kinds = {"fs_continuation": lambda: fs_run(scene, True),
              "fs_gravity_anew": lambda: fs_run(scene, False),

@@ -38,6 +38,11 @@ class StepSystem:
         self.grid = grid
         fixed = grid.fixed if fixed is None else fixed      # (n_nodes, 2) prescribed DOFs
         self.host = host_cells(grid, x)                     # F-bar cells
+        # the host cells numbered 0..n_host-1: the cell sums over the points (bincount in
+        # point order, the same sums as over grid cells) on arrays of the used cells only
+        _, cell = np.unique(self.host, return_inverse=True)
+        self.cell = cell.ravel().astype(np.int64)
+        self.n_host = int(self.cell.max()) + 1 if len(self.cell) else 0
         _, nodes, N, dN, _ = shape_at_points(grid, x, shape, half_width)
         self.nodes, self.N, self.dN = nodes, N, dN
         n, k = nodes.shape
@@ -82,6 +87,10 @@ class StepSystem:
         positions[keep] = self._pos
         self._positions = positions.reshape(ng, 4 * k * k)
         self._group = inv.astype(np.int64)
+        # Q4: the node sets are the host cells, so the B-bar terms are blocks of the
+        # pattern (compiled path of :meth:`bbar_tangent_into`)
+        self.groups_are_cells = k == 4 and bool(
+            np.all(self.host == self.host[first][self._group]))
 
     # --- kinematics
     def gradient(self, du: np.ndarray) -> np.ndarray:
@@ -129,6 +138,28 @@ class StepSystem:
         (:func:`fem_rmpm.schemes.locking.bbar_tangent_correction`)."""
         return bbar_tangent_correction(self.fnum[self.point_dofs], V0, g, D, w, self.host,
                                        self.n_free)
+
+    def tangent_with_bbar(self, V0: np.ndarray, g: np.ndarray, D: np.ndarray,
+                          w: np.ndarray, diagonal: np.ndarray | None = None) -> sp.csr_matrix:
+        """The small-strain B-bar tangent ``sum_p V0_p Bbar^T D Bbar`` (+ ``diag(diagonal)``)
+        on the free DOFs in one pass into the pattern: the standard blocks and the B-bar
+        terms (:func:`fem_rmpm.schemes.implicit.point_kernels.assemble_bbar_tangent`; the
+        same sum as :meth:`tangent` + :meth:`bbar_tangent`, which a Q4 grid does not
+        need).  Only where ``groups_are_cells``."""
+        if not self.groups_are_cells:
+            raise ValueError("tangent_with_bbar needs node sets equal to host cells (Q4)")
+        data = np.zeros(self.nnz)
+        pk.assemble_tangent(g, D, V0, self._group, self._positions, data)
+        if diagonal is not None:
+            data[self._diag] += diagonal
+        t1, t2, t3 = np.zeros(self.nnz), np.zeros(self.nnz), np.zeros(self.nnz)
+        pk.assemble_bbar_tangent(g, D, V0, w, self._group, self.n_groups, self._positions,
+                                 t1, t2, t3)
+        t1 += t2
+        t1 += t3
+        data += t1
+        return sp.csr_matrix((data, self._indices, self._indptr),
+                             shape=(self.n_free, self.n_free))
 
     def fbar_work_tangent(self, V0: np.ndarray, g: np.ndarray, A: np.ndarray,
                           tau4: np.ndarray, w: np.ndarray) -> sp.csr_matrix:

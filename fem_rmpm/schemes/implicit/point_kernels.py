@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["assemble_tangent", "displacement_gradient", "internal_force"]
+__all__ = ["assemble_tangent", "assemble_bbar_tangent", "displacement_gradient",
+           "internal_force"]
 
 
 @njit(cache=True, error_model="numpy")
@@ -40,6 +41,67 @@ def assemble_tangent(g, A, V0, group, positions, data):
                         e += 1
                         if q >= 0:
                             data[q] += c0 * g[p, b, 0] + c1 * g[p, b, 1]
+
+
+@njit(cache=True, error_model="numpy")
+def assemble_bbar_tangent(g, D, V0, w, group, n_groups, positions, t1, t2, t3):
+    """The three B-bar terms of the small-strain tangent beyond the standard one
+    (:func:`fem_rmpm.schemes.locking.bbar_tangent_correction`), each summed over the
+    points in ``t1``, ``t2``, ``t3`` (data arrays of the pattern, zeroed by the caller):
+    for every point ``p`` of node set ``c`` (a Q4 host cell: its points share the cell's
+    nodes, so every term is a block of that cell)::
+
+        t1[a, i, l, b] += u_ai d_bl,   t2 += d_ai v_bl,   t3 += (d_ai V0_p kappa_p) d_bl
+
+    with ``d = bbar_c - g_p``, ``bbar_c = sum_{q in c} w_q g_q``, ``u = V0 g Q^T``,
+    ``Q_ij = 1/2 (D_ij00 + D_ij11)``, ``v = V0 g P^T``, ``P_lm = 1/2 (D_00lm + D_11lm)``,
+    ``kappa = 1/2 (P_00 + P_11)``.  Every product and every sum is taken in the order of
+    the sparse products of the reference (points in ascending order), so ``(t1 + t2) + t3``
+    is that correction to the last bit (a tangent near a mechanism is then singular, or
+    not, in both alike).  ``g`` (n, k, 2), ``D`` (n, 2, 2, 2, 2), ``w`` (n,) the cell
+    weights; layout of ``positions`` as :func:`assemble_tangent`."""
+    n, k = g.shape[0], g.shape[1]
+    bbar = np.zeros((n_groups, k, 2))
+    for p in range(n):
+        c = group[p]
+        for a in range(k):
+            bbar[c, a, 0] += g[p, a, 0] * w[p]
+            bbar[c, a, 1] += g[p, a, 1] * w[p]
+    u = np.empty((k, 2))
+    v = np.empty((k, 2))
+    d = np.empty((k, 2))
+    for p in range(n):
+        c = group[p]
+        vol = V0[p]
+        q00 = 0.5 * (D[p, 0, 0, 0, 0] + D[p, 0, 0, 1, 1])
+        q01 = 0.5 * (D[p, 0, 1, 0, 0] + D[p, 0, 1, 1, 1])
+        q10 = 0.5 * (D[p, 1, 0, 0, 0] + D[p, 1, 0, 1, 1])
+        q11 = 0.5 * (D[p, 1, 1, 0, 0] + D[p, 1, 1, 1, 1])
+        p00 = 0.5 * (D[p, 0, 0, 0, 0] + D[p, 1, 1, 0, 0])
+        p01 = 0.5 * (D[p, 0, 0, 0, 1] + D[p, 1, 1, 0, 1])
+        p10 = 0.5 * (D[p, 0, 0, 1, 0] + D[p, 1, 1, 1, 0])
+        p11 = 0.5 * (D[p, 0, 0, 1, 1] + D[p, 1, 1, 1, 1])
+        kv = vol * (0.5 * (p00 + p11))
+        for a in range(k):
+            g0, g1 = g[p, a, 0], g[p, a, 1]
+            u[a, 0] = (g0 * q00 + g1 * q01) * vol
+            u[a, 1] = (g0 * q10 + g1 * q11) * vol
+            v[a, 0] = (g0 * p00 + g1 * p01) * vol
+            v[a, 1] = (g0 * p10 + g1 * p11) * vol
+            d[a, 0] = bbar[c, a, 0] - g0
+            d[a, 1] = bbar[c, a, 1] - g1
+        row = positions[c]
+        e = 0
+        for a in range(k):
+            for i in range(2):
+                for l in range(2):
+                    for b in range(k):
+                        q = row[e]
+                        e += 1
+                        if q >= 0:
+                            t1[q] += u[a, i] * d[b, l]
+                            t2[q] += d[a, i] * v[b, l]
+                            t3[q] += (d[a, i] * kv) * d[b, l]
 
 
 @njit(cache=True, error_model="numpy")

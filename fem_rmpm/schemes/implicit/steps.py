@@ -85,8 +85,13 @@ class ImplicitSystem:
     """What all steps of an implicit run share: scene, grid, points (changed only by a
     step's ``commit``), prescribed regions, the linear solver and the point accelerations."""
 
-    def __init__(self, scene: Scene, grid: Grid, pts: Particles, solver: LinearSolver):
+    def __init__(self, scene: Scene, grid: Grid, pts: Particles, solver: LinearSolver,
+                 pattern_cache: dict | None = None):
         self.scene, self.grid, self.pts, self.solver = scene, grid, pts, solver
+        # the last step's StepSystem, reused while the active points have not moved
+        # (geostatic steps, strength reduction: the basis, DOF numbering and sparsity
+        # pattern are the same); a dict shared by several systems on one geometry
+        self.pattern_cache = {} if pattern_cache is None else pattern_cache
         self.sv = scene.solver
         self.fbar = bool(self.sv.fbar)
         self.cell_pressure = self.fbar and getattr(self.sv, "locking_constraint",
@@ -118,9 +123,7 @@ class ImplicitSystem:
         if len(act) == 0:
             raise SimulationError("no active material point left (all frozen at the grid "
                                   "edge); enlarge [grid] size")
-        S = StepSystem(self.grid, pts.x[act], self.sv.shape,
-                       pts.half_width[act] if pts.half_width is not None else None,
-                       fixed=self.fixed)
+        S = self._step_system(act)
         mass = pts.mass[act]
         presc = None
         if self.presc_mask.any():
@@ -130,6 +133,25 @@ class ImplicitSystem:
         return StepData(S, act, pts.volume0[act], pts.volume[act], mass, pts.log_strain[act],
                         pts.state[act], pts.soil.take(act),
                         S.body_force(mass, lf_new * self.g_full), lf_new, lf_old, presc, dt)
+
+    def _step_system(self, act: np.ndarray) -> StepSystem:
+        """The StepSystem at the active points' positions: the cached one if the same
+        points sit at the same positions (same half widths, same prescribed DOFs and
+        grid), else a new one (then cached)."""
+        pts, c = self.pts, self.pattern_cache
+        x = pts.x[act]
+        hw = pts.half_width[act] if pts.half_width is not None else None
+        S = c.get("S")
+        if S is not None and c["grid"] is self.grid and c["shape"] == self.sv.shape \
+                and np.array_equal(c["act"], act) and np.array_equal(c["x"], x) \
+                and np.array_equal(c["fixed"], self.fixed) \
+                and (hw is None) == (c["hw"] is None) \
+                and (hw is None or np.array_equal(c["hw"], hw)):
+            return S
+        S = StepSystem(self.grid, x, self.sv.shape, hw, fixed=self.fixed)
+        c.update(S=S, grid=self.grid, shape=self.sv.shape, act=act.copy(), x=x.copy(),
+                 fixed=self.fixed.copy(), hw=None if hw is None else hw.copy())
+        return S
 
     def reactions(self, st: StepData, du: np.ndarray, tau: np.ndarray,
                   g: np.ndarray) -> dict:
@@ -262,7 +284,19 @@ class Geostatic(StepKind):
     def force_stress(self, st, tau):
         if not self.sys.fbar:
             return tau
-        return bbar_force_stress(tau, st.V0, st.Vn, st.S.host, self.sys.grid.n_cells)
+        return bbar_force_stress(tau, st.V0, st.Vn, st.S.cell, st.S.n_host)
+
+    def tangent(self, st):
+        S = st.S
+        if not (self.sys.fbar and S.groups_are_cells and not self.sys.cell_pressure):
+            return super().tangent(st)
+        t0 = time.perf_counter()
+        A, _, w = self.point_tangent(st)
+        t1 = time.perf_counter()
+        K = S.tangent_with_bbar(st.V0, st.cache["g"], A, w, diagonal=self.diagonal(st))
+        st.clock["material"] += t1 - t0
+        st.clock["assembly"] += time.perf_counter() - t1
+        return K
 
     def coupling_tangent(self, st, g, A, Q, w):
         K = st.S.bbar_tangent(st.V0, g, A, w)
@@ -272,13 +306,13 @@ class Geostatic(StepKind):
 
     def material(self, st, H):
         sys_ = self.sys
-        Hm = bbar_gradient(H, st.Vn, st.S.host, sys_.grid.n_cells) if sys_.fbar else H
+        Hm = bbar_gradient(H, st.Vn, st.S.cell, st.S.n_host) if sys_.fbar else H
         t1 = time.perf_counter()
         if sys_.cell_pressure:       # one in-plane mean stress per cell (locking_constraint)
             try:
                 Hm, delta, (ls, q, tau), _ = uniform_cell_pressure(
                     lambda Hx: sys_.small_strain_update(Hx, st.ls0, st.state0, st.soil), Hm,
-                    st.Vn, st.S.host, sys_.grid.n_cells, st.cache.get("delta"))
+                    st.Vn, st.S.cell, st.S.n_host, st.cache.get("delta"))
             except ArithmeticError as exc:
                 raise NewtonFailure(str(exc), []) from None
             st.cache["delta"] = delta
@@ -289,11 +323,11 @@ class Geostatic(StepKind):
         return ls, q, tau, st.S.dN, None
 
     def point_tangent(self, st):
-        _, A = small_strain_tangent(st.cache["H"], st.ls0, st.state0, st.soil)
+        _, A = small_strain_tangent(st.cache["H"], st.ls0, st.state0, st.soil, stress=False)
         if not self.sys.fbar:
             return A, None, None
         S, Vn = st.S, st.Vn
-        w = Vn / np.bincount(S.host, Vn, minlength=self.sys.grid.n_cells)[S.host]
+        w = Vn / np.bincount(S.cell, Vn, minlength=S.n_host)[S.cell]
         return A, fbar_q(A, None), w
 
     def commit(self, st, res):
@@ -318,8 +352,7 @@ class QuasiStatic(StepKind):
     def force_stress(self, st, tau):
         if not self.sys.fbar:
             return tau
-        return fbar_work_stress(tau, st.V0, st.Vn, st.cache["J"], st.S.host,
-                                self.sys.grid.n_cells)
+        return fbar_work_stress(tau, st.V0, st.Vn, st.cache["J"], st.S.cell, st.S.n_host)
 
     def coupling_tangent(self, st, g, A, Q, w):
         f = self.stiffness_factor(st)
@@ -341,8 +374,8 @@ class QuasiStatic(StepKind):
             raise NewtonFailure(f"material point {i} inverted (det dF = {det.min():.3g})", [],
                                 inverted=True)
         if sys_.fbar:
-            dFm, J, _ = fbar_increment(dF, st.Vn, st.S.host, sys_.grid.n_cells)
-            st.cache["w"] = fbar_weights(st.Vn, J, st.S.host, sys_.grid.n_cells)
+            dFm, J, _ = fbar_increment(dF, st.Vn, st.S.cell, st.S.n_host)
+            st.cache["w"] = fbar_weights(st.Vn, J, st.S.cell, st.S.n_host)
             st.cache["J"] = J
         else:
             dFm = dF
@@ -436,8 +469,8 @@ class NewmarkDynamic(QuasiStatic):
         if alpha > 0:
             tau_n = pts.stress[act] * (st.Vn / st.V0)[:, None]
             if self.sys.fbar:        # the work-conjugate F-bar force at dF = I
-                tau_n = fbar_work_stress(tau_n, st.V0, st.Vn, np.ones(len(act)), S.host,
-                                         self.sys.grid.n_cells)
+                tau_n = fbar_work_stress(tau_n, st.V0, st.Vn, np.ones(len(act)), S.cell,
+                                         S.n_host)
             st.cache["f_n"] = (S.body_force(mass, st.lf_old * self.sys.g_full)
                                - S.internal_force(st.V0, tau_n, S.dN))
         return dt * v_n + 0.5 * dt * dt * a_n

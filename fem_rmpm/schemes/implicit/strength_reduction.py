@@ -37,6 +37,14 @@ With ``continuation = False`` gravity is applied anew at every trial (``F = 1``,
 failed continued trial costs up to three solves, its halvings, but every converged one
 only a few Newton iterations).
 
+**Cost.**  The solves of one search share what the fixed geometry fixes (the
+:class:`~fem_rmpm.schemes.implicit.assembly.StepSystem`: basis, DOF numbering, sparsity
+pattern; and the linear solver with its symbolic factorization, :class:`KnownFailures`);
+the tangent is factorized by CHOLMOD (``linear_solver = "cholmod"``, the implicit
+scheme's policy: SuperLU for a tangent that is not symmetric positive definite); a
+continuation solve known to fail (same start state, same target) is not run again.
+None of these changes a decision of the search.
+
 **Non-physical Newton failures** are told apart and raised as :class:`NonPhysicalFailure`
 (never taken as an FS): before the search a *probe* applies ``probe_load`` (1e-3) x gravity
 in one step at ``F = 1``, an elastic response which must converge in one step (a failed
@@ -111,7 +119,7 @@ class FSOptions:
     newton_tolerance: float = 1e-8  # relative residual
     fbar: bool = True             # B-bar against volumetric locking
     probe_load: float = 1e-3      # gravity fraction of the elastic probe at F = 1
-    linear_solver: str = "superlu"
+    linear_solver: str = "cholmod"  # the implicit scheme's policy (SuperLU where not SPD)
     continuation: bool = True     # a trial starts from the largest converged F's state
     march: float = 1.25           # first upward ratio of F from a converged state (doubles in ln F)
     continuation_cuts: int = 2    # halvings of a continuation solve before the trial fails
@@ -257,7 +265,8 @@ def _solve(scene: Scene, grid: Grid, base: Particles, F: float, o: FSOptions,
 
 
 def _continue(scene: Scene, grid: Grid, base: Particles, start: Particles, F0: float,
-              F: float, o: FSOptions) -> tuple[Trial, Particles]:
+              F: float, o: FSOptions, known: "KnownFailures | None" = None,
+              start_id: int = 0) -> tuple[Trial, Particles, int]:
     """Strength continuation: from ``start``, the converged state at full gravity and
     trial factor ``F0``, the strengths of ``base`` are reduced to ``F`` at full gravity in
     small-strain geostatic Newton solves (one solve for the whole change; a solve that
@@ -269,35 +278,83 @@ def _continue(scene: Scene, grid: Grid, base: Particles, start: Particles, F0: f
     collapse factor of a perfectly plastic soil does not depend on the path
     (associated flow: the limit theorems), so this finds the same FS as applying gravity
     anew at every trial, at a fraction of the cost: far from collapse one or two Newton
-    iterations, and the bisection's last trials change F by under 1 %."""
+    iterations, and the bisection's last trials change F by under 1 %.
+
+    ``known`` (:class:`KnownFailures`): the solves that failed in earlier trials, by the
+    identity of their start state (``start_id`` for ``start``) and their target; such a
+    solve is not repeated (the search's next trial often begins with the very solve its
+    predecessor ended on: same state, same target, the same Newton iterations to the same
+    failure).  Returns the trial, its last converged state and that state's identity."""
     pts = start.copy()
-    system = ImplicitSystem(scene, grid, pts, LinearSolver(o.linear_solver))
+    known = KnownFailures() if known is None else known
+    state_id = start_id
+    system = ImplicitSystem(scene, grid, pts, known.solver(o.linear_solver),
+                            pattern_cache=known.patterns)
     kind = Geostatic(system)
     t0 = time.perf_counter()
     at, h, cuts, its, reason = math.log(F0), math.log(F / F0), 0, 0, ""
     end = math.log(F)
     while abs(end - at) > 1e-12 and not reason:
         h = end - at if abs(end - at) < 1.05 * abs(h) else h
-        pts.soil = base.soil
-        reduce_strength(pts, scene, math.exp(at + h), o.softening)
-        try:
-            out = kind.solve(1.0, 1.0)
-        except NewtonFailure as exc:
-            its += len(exc.residuals) - 1
-            if cuts >= o.continuation_cuts:
-                reason = exc.reason
+        failed = known.get(state_id, at + h)
+        if failed is None:
+            pts.soil = base.soil
+            reduce_strength(pts, scene, math.exp(at + h), o.softening)
+            try:
+                out = kind.solve(1.0, 1.0)
+            except NewtonFailure as exc:
+                its += len(exc.residuals) - 1
+                failed = known.add(state_id, at + h, exc.reason)
             else:
-                cuts, h = cuts + 1, 0.5 * h
-            continue
-        out.commit()
-        its += out.result.iterations
-        at += h
+                out.commit()
+                its += out.result.iterations
+                at += h
+                state_id = known.new_state()
+                continue
+        if cuts >= o.continuation_cuts:
+            reason = failed
+        else:
+            cuts, h = cuts + 1, 0.5 * h
     reached = F if not reason else math.exp(at)
     pts.soil = base.soil
     reduce_strength(pts, scene, reached, o.softening)
     umax = float(np.sqrt(np.max(np.sum(pts.u_geostatic ** 2, axis=1), initial=0.0)))
     return Trial(F, not reason, umax, 1.0, its, cuts, time.perf_counter() - t0, reason,
-                 F0, reached), pts
+                 F0, reached), pts, state_id
+
+
+class KnownFailures:
+    """The continuation solves of one search that failed: ``(start state, target ln F)``
+    -> Newton's reason; the start states are numbered (:meth:`new_state`) as the search
+    converges them, so a solve is known only from the very state it started from.  Also
+    holds what the search's solves share on the fixed geometry: the StepSystem (basis,
+    DOF numbering, sparsity pattern) and the linear solver (its symbolic factorization)."""
+
+    def __init__(self):
+        self._failed: dict = {}
+        self._states = 0
+        self.patterns: dict = {}
+        self._solvers: dict = {}
+
+    def solver(self, kind: str) -> LinearSolver:
+        if kind not in self._solvers:
+            self._solvers[kind] = LinearSolver(kind)
+        return self._solvers[kind]
+
+    def new_state(self) -> int:
+        self._states += 1
+        return self._states
+
+    @staticmethod
+    def _key(state_id: int, target: float):
+        return state_id, round(target, 12)
+
+    def get(self, state_id: int, target: float) -> str | None:
+        return self._failed.get(self._key(state_id, target))
+
+    def add(self, state_id: int, target: float, reason: str) -> str:
+        self._failed[self._key(state_id, target)] = reason
+        return reason
 
 
 def _numerical(reason: str) -> str:
@@ -362,12 +419,15 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
     srm, grid, pts = _prepared(scene, seed, o, grid, pts)
     trials: list[Trial] = []
     best: dict = {}
+    known = KnownFailures()
 
     def run(F, continue_from=None):
+        state_id = None
         if continue_from is None:
             t, state = _solve(srm, grid, pts, F, o)
         else:
-            t, state = _continue(srm, grid, pts, best["pts"], continue_from, F, o)
+            t, state, state_id = _continue(srm, grid, pts, best["pts"], continue_from, F, o,
+                                           known, best["id"])
         trials.append(t)
         if progress:
             progress(t)
@@ -381,7 +441,8 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
                 cause=t.reason, result=res)
         done = F if t.converged else t.reached       # a failed continuation's last solve
         if done > 0 and done >= best.get("F", -1.0) and (t.converged or done > t.start):
-            best.update(F=done, pts=state)
+            best.update(F=done, pts=state,
+                        id=known.new_state() if state_id is None else state_id)
         return t.converged
 
     if not o.continuation:

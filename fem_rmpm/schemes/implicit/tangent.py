@@ -40,7 +40,7 @@ _IN_PLANE = [0, 1, 3]     # trial strain components a plane-strain perturbation 
 
 
 def small_strain_tangent(grad_du: np.ndarray, log_strain: np.ndarray, state: np.ndarray,
-                         soil: MaterialPoints, step: float = 1e-30):
+                         soil: MaterialPoints, step: float = 1e-30, stress: bool = True):
     """Consistent tangent of the small-strain (geostatic) update.
 
     Returns ``(tau, D)``: ``tau`` (n, 4) [xx, yy, zz, xy] from
@@ -49,10 +49,11 @@ def small_strain_tangent(grad_du: np.ndarray, log_strain: np.ndarray, state: np.
     return mapping (:func:`trial_stiffness` at the trial strain ``eps + sym(grad du)``).
     ``K_ai,bl = sum_p V_p dN_aj D_ijlm dN_bm``: the same contraction as the
     finite-strain tangent with ``g = dN``.  The update depends on ``sym(grad du)``
-    only, so ``D_ij01 = D_ij10``.
+    only, so ``D_ij01 = D_ij10``.  ``stress=False``: ``tau`` is None (the caller has
+    it from the residual; the update is not run again).
     """
     n = grad_du.shape[0]
-    _, _, tau = small_strain_update(grad_du, log_strain, state, soil)
+    tau = small_strain_update(grad_du, log_strain, state, soil)[2] if stress else None
     e = np.array(log_strain, dtype=float)
     e[:, 0] += grad_du[:, 0, 0]
     e[:, 1] += grad_du[:, 1, 1]

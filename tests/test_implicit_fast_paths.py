@@ -1,0 +1,94 @@
+"""The fast paths of the implicit scheme and of strength reduction against their
+references: the compiled B-bar tangent against the sparse products of
+:func:`fem_rmpm.schemes.locking.bbar_tangent_correction`, the StepSystem reused on a fixed
+geometry, and the search that skips continuation solves already known to fail against
+the search that runs them again (the same decisions, the same FS)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fem_rmpm import api
+from fem_rmpm.scene import with_values
+from fem_rmpm.schemes.implicit import LinearSolver, strength_reduction
+from fem_rmpm.schemes.implicit.assembly import StepSystem
+from fem_rmpm.schemes.implicit.steps import ImplicitSystem
+from fem_rmpm.schemes.implicit.strength_reduction import (
+    FSOptions,
+    KnownFailures,
+    factor_of_safety,
+)
+
+
+def infinite_slope(meshes, c, rows=8, hx=1.0, z=5.0, beta=30.0, length=12.0):
+    sc = api.load_scene(meshes / "infinite_slope.toml")
+    t = z * math.cos(math.radians(beta))
+    L = length * t
+    return with_values(sc, {"scene.frame_angle_deg": beta, "grid.size": [L, t],
+                            "grid.cell": [hx * t, t / rows],
+                            "soil.polygon": [[0, 0], [L, 0], [L, t], [0, t]],
+                            "soil.cohesion_peak": c, "soil.cohesion_residual": c})
+
+
+def test_compiled_bbar_tangent_equals_sparse_products(meshes):
+    """Random symmetric point tangents D on the reference slope's points: the one-pass
+    compiled B-bar tangent equals the standard tangent plus the sparse-product B-bar
+    correction to round-off (1e-14 of the largest entry; seen: 5e-16), and is symmetric."""
+    sc = api.load_scene(meshes / "slope_reference.toml")
+    grid, pts = api.prepare(sc)
+    S = StepSystem(grid, pts.x, "standard")
+    assert S.groups_are_cells
+    rng = np.random.default_rng(1)
+    n = S.n
+    D = rng.normal(size=(n, 2, 2, 2, 2))
+    D = D + D.transpose(0, 3, 4, 1, 2)
+    w = rng.uniform(0.2, 1.0, n)
+    w = w / np.bincount(S.cell, w)[S.cell]
+    V0 = rng.uniform(0.01, 0.1, n)
+    ref = S.tangent(V0, S.dN, D) + S.bbar_tangent(V0, S.dN, D, w)
+    K = S.tangent_with_bbar(V0, S.dN, D, w)
+    scale = abs(ref).max()
+    assert abs(K - ref).max() <= 1e-14 * scale
+    assert abs(K - K.T).max() <= 1e-14 * scale
+
+
+def test_step_system_reused_while_points_stay(meshes):
+    """Same active points at the same positions: the cached StepSystem; a moved point or
+    another active set: a new one."""
+    sc = api.load_scene(meshes / "slope_elastic.toml")
+    grid, pts = api.prepare(sc)
+    sys_ = ImplicitSystem(sc, grid, pts, LinearSolver("cholmod"))
+    act = np.nonzero(pts.active)[0]
+    S1 = sys_._step_system(act)
+    assert sys_._step_system(act) is S1
+    pts.x[0, 0] += 1e-9
+    assert sys_._step_system(act) is not S1
+    assert sys_._step_system(act[1:]) is not sys_._step_system(act)
+
+
+def test_known_failures_skip_without_changing_the_search(meshes, monkeypatch):
+    """Infinite slope (c = 60 kPa: FS 1.48 on this mesh, 7 trials) searched twice: with the
+    continuation solves known to fail skipped, and with every solve run again.  Same
+    trials (F, converged, reached), same FS; at least one skip (fewer iterations)."""
+    sc = infinite_slope(meshes, c=60.0)
+    grid, pts = api.prepare(sc)
+    fast = factor_of_safety(sc, options=FSOptions(), grid=grid, pts=pts)
+    monkeypatch.setattr(KnownFailures, "get", lambda self, state_id, target: None)
+    grid, pts = api.prepare(sc)
+    plain = factor_of_safety(sc, options=FSOptions(), grid=grid, pts=pts)
+    assert fast.bound == plain.bound == "="
+    assert fast.fs == pytest.approx(plain.fs, rel=1e-12)
+    assert [t.converged for t in fast.trials] == [t.converged for t in plain.trials]
+    for a, b in zip(fast.trials, plain.trials, strict=True):
+        assert (a.F, a.reached) == pytest.approx((b.F, b.reached), rel=1e-12)
+    its = sum(t.iterations for t in fast.trials)
+    assert its < sum(t.iterations for t in plain.trials)
+
+
+def test_search_uses_one_solver_policy():
+    """Strength reduction factorizes as the implicit scheme does (CHOLMOD by default)."""
+    assert FSOptions().linear_solver == "cholmod"
+    assert strength_reduction.FSOptions.__dataclass_fields__["linear_solver"].default == \
+        "cholmod"
