@@ -2,4 +2,4 @@
 once (name, unit, label, kind, subset response, how it is computed); :mod:`.deposit`
 selects the points that count and computes the table's measures; :mod:`.geometry`
 (surface profile, crest, slip surface, moved area) and :mod:`.blocks` (intact blocks)
-hold the computations."""
+hold the computations; :mod:`.deposit3d` the measures of a three-dimensional run."""
