@@ -20,7 +20,9 @@ the seed's own noise (``grid = prepare(scene)[0]``), so that
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -117,6 +119,45 @@ def _run_scheme(scene, grid, pts, on_output, progress, out=None):
         raise
 
 
+#: Bytes of snapshot positions and plastic strains :func:`run` keeps in memory; the
+#: snapshots beyond are memory maps of unlinked temporary files (pages on disk, not in
+#: RAM; the same values bitwise): 5 million points x 40 outputs would otherwise hold
+#: ~5 GB of positions for the measures and figures that read a few of them.
+SNAPSHOT_MEMORY_BYTES = 256 * 2**20
+
+
+class SnapshotStore(list):
+    """``[(t, x, gamma_p)]`` of a run's outputs: copies in memory up to ``limit`` bytes
+    (default :data:`SNAPSHOT_MEMORY_BYTES`), then disk-backed (:func:`_on_disk`)."""
+
+    def __init__(self, limit: float | None = None):
+        super().__init__()
+        self.limit = SNAPSHOT_MEMORY_BYTES if limit is None else limit
+        self.bytes = 0
+
+    def add(self, t: float, x: np.ndarray, gamma: np.ndarray) -> None:
+        size = x.nbytes + gamma.nbytes
+        if self.bytes + size > self.limit:
+            self.append((t, _on_disk(x), _on_disk(gamma)))
+        else:
+            self.bytes += size
+            self.append((t, x.copy(), gamma.copy()))
+
+
+def _on_disk(a: np.ndarray) -> np.ndarray:
+    """A copy of ``a`` as a memory map of a temporary ``.npy`` file, unlinked at once (the
+    mapping keeps it until the array is freed)."""
+    fd, name = tempfile.mkstemp(prefix="fem_rmpm_snapshot_", suffix=".npy")
+    os.close(fd)
+    try:
+        m = np.lib.format.open_memmap(name, mode="w+", dtype=a.dtype, shape=a.shape)
+        m[...] = a
+        m.flush()
+    finally:
+        os.unlink(name)
+    return m
+
+
 class _Stopped(Exception):
     """Raised from the output callback of :func:`run` when ``stop_when`` gives a reason."""
 
@@ -158,11 +199,11 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
     vtk = scene.output.vtk if vtk is None else vtk
     figures = scene.output.png if figures is None else figures
     series = PvdSeries(out) if (out is not None and vtk) else None
-    snapshots: list = []
+    snapshots = SnapshotStore()
 
     def on_output(t, p):
         raise_if_interrupted()          # a signal whose exception a native callback dropped
-        snapshots.append((t, p.x.copy(), p.plastic_shear_strain.copy()))
+        snapshots.add(t, p.x, p.plastic_shear_strain)
         if series is not None:
             series.add(t, p)
         reason = stop_when(t, p) if stop_when is not None else None
@@ -256,7 +297,8 @@ def _run_3d(scene: Scene, out, seed, *, progress: bool, vtk: bool | None,
     rec.wall_time, rec.cpu_time = time.perf_counter() - wall0, time.process_time() - cpu0
     measures = compute_measures_3d(pts, grid, scene.scene.frame_angle_deg,
                                    scene.montecarlo.failure_displacement,
-                                   rec.time if rec.stop_reason == "at rest" else None)
+                                   rec.time if rec.stop_reason == "at rest" else None,
+                                   scene.montecarlo.intact_block_area)
     summary = _summary(scene, seed, pts, rec, measures, machine, estimate)
     summary["excluded_points"] = {"frozen": {"points": measures["excluded_frozen_points"],
                                              "volume": measures["excluded_frozen_volume"]}}

@@ -15,15 +15,40 @@ is cut into slices one grid cell long (by each point's initial z); in each slice
 ``runout_distance`` and ``retrogression_distance`` are the largest over the slices (with
 ``_mean`` the mean and ``_profile`` the list [(z, value)]); ``sliding_volume`` (m3) is the
 initial volume of the sliding points and ``sliding_area`` (m2/m) that volume per metre of
-the strike length of the soil (its slices), the plane-strain figure of an extruded slope.
+the strike length of the soil (its slices), the plane-strain figure of an extruded slope;
+``intact_blocks`` counts the 3-D connected components of the cells of sliding intact
+points (:func:`intact_blocks_3d`).
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from scipy import ndimage
 
-__all__ = ["compute_measures_3d"]
+__all__ = ["compute_measures_3d", "intact_blocks_3d", "INTACT_STRAIN"]
+
+#: A point is intact below this plastic shear strain (-), as in plane strain.
+INTACT_STRAIN = 0.1
+
+
+def intact_blocks_3d(pts, grid, threshold: float, least_area: float) -> int:
+    """Connected groups (face-neighbour grid cells, 3-D connected components) of cells
+    holding sliding (moved more than ``threshold``, m), intact (``gamma_p`` below
+    :data:`INTACT_STRAIN`) active points, of at least the volume of a cube whose face is
+    the least block area ``least_area`` (m2, ``[montecarlo] intact_block_area``)."""
+    sel = pts.active & (np.linalg.norm(pts.x - pts.x0, axis=1) > threshold) \
+        & (pts.plastic_shear_strain < INTACT_STRAIN)
+    if not sel.any():
+        return 0
+    ijk = np.clip(np.floor((pts.x[sel] - grid.origin) / grid.cell).astype(np.int64), 0,
+                  np.array(grid.shape) - 1)
+    img = np.zeros(grid.shape, dtype=bool)
+    img[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
+    labels, _ = ndimage.label(img)
+    sizes = np.bincount(labels.ravel())[1:]
+    least = max(1, math.ceil(least_area ** 1.5 / float(np.prod(grid.cell)) - 1e-9))
+    return int((sizes >= least).sum())
 
 
 def _true_horizontal(x: np.ndarray, frame_angle_deg: float) -> np.ndarray:
@@ -56,9 +81,10 @@ def _profiles(pts, grid, frame_angle_deg: float, sliding: np.ndarray):
 
 
 def compute_measures_3d(pts, grid, frame_angle_deg: float, threshold: float,
-                        time_to_rest: float | None) -> dict:
+                        time_to_rest: float | None, least_block_area: float = 1.0) -> dict:
     """The measures (module docstring) of points ``pts`` on ``grid``; ``threshold`` the
-    failure displacement (m), ``time_to_rest`` (s or None)."""
+    failure displacement (m), ``time_to_rest`` (s or None), ``least_block_area`` (m2) of
+    :func:`intact_blocks_3d`."""
     d = np.linalg.norm(pts.displacement, axis=1)
     counted = pts.active
     sliding = counted & (d > threshold)
@@ -77,6 +103,7 @@ def compute_measures_3d(pts, grid, frame_angle_deg: float, threshold: float,
         "sliding_area": volume / length,
         "max_displacement": float(d[counted].max(initial=0.0)),
         "time_to_rest": time_to_rest,
+        "intact_blocks": intact_blocks_3d(pts, grid, threshold, least_block_area),
         "runout_profile": runout,
         "retrogression_profile": retro,
         "strike_length": length,

@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import math
 
-from fem_rmpm.runtime.compiled import inline
+import numpy as np
 
-__all__ = ["von_mises_return_3d", "MODEL_ELASTIC", "MODEL_VON_MISES"]
+from fem_rmpm.runtime.compiled import inline, jit
+
+__all__ = ["von_mises_return_3d", "von_mises_points_3d", "MODEL_ELASTIC", "MODEL_VON_MISES"]
 
 MODEL_ELASTIC = 0
 MODEL_VON_MISES = 1
@@ -66,3 +68,13 @@ def von_mises_return_3d(eps, G, cp, cr, gs, expo, gamma):
     for m in range(3, 6):
         eps[m] *= scale
     return dg
+
+
+@jit
+def von_mises_points_3d(eps, G, cp, cr, gs, expo, gamma):
+    """:func:`von_mises_return_3d` on every row of ``eps`` (n, 6) in place (scalars the
+    same for all; ``gamma`` (n,)); returns the increments (n,).  For the tests."""
+    out = np.empty(eps.shape[0])
+    for i in range(eps.shape[0]):
+        out[i] = von_mises_return_3d(eps[i], G, cp, cr, gs, expo, gamma[i])
+    return out
