@@ -36,7 +36,7 @@ from fem_rmpm.discretise.grid3d import make_grid_3d, soil_cells_3d
 from fem_rmpm.discretise.points3d import seed_particles_3d
 from fem_rmpm.discretise.points import Particles, seed_particles, soil_cells
 from fem_rmpm.io.output import PvdSeries, write_grid, write_json
-from fem_rmpm.io.output3d import write_grid_3d
+from fem_rmpm.io.output3d import VTK_HEX_ORDER, write_grid_3d
 from fem_rmpm.io.plots import plot_profile, plot_snapshots
 from fem_rmpm.io.rundir import (
     RunDirError,
@@ -61,6 +61,7 @@ from fem_rmpm.schemes.explicit.loop import run_explicit
 from fem_rmpm.schemes.explicit.threads import auto_threads, threads_from_auto
 from fem_rmpm.schemes.explicit3d import run_explicit_3d
 from fem_rmpm.schemes.fem import FemResult, solve_static
+from fem_rmpm.schemes.fem3d import Fem3DResult, solve_static_3d
 from fem_rmpm.schemes.implicit import run_implicit, strength_reduction
 
 __all__ = ["load_scene", "with_value", "prepare", "run", "fem", "factor_of_safety", "RunResult",
@@ -446,6 +447,8 @@ def fem(scene: Scene, out: str | Path | None = None, *, force: bool = False) -> 
     if out is not None:
         check_run_dir(out, force)
     check_budget(scene)
+    if scene.grid.dimension == 3:
+        return _fem_3d(scene, out, t0)
     res = solve_static(scene)
     if out is not None:
         out = start_run_dir(out, {"scene": scene_to_dict(scene), "scene_file": scene.source,
@@ -469,6 +472,31 @@ def fem(scene: Scene, out: str | Path | None = None, *, force: bool = False) -> 
     return res
 
 
+def _fem_3d(scene: Scene, out, t0: float) -> Fem3DResult:
+    """:func:`fem` of a three-dimensional scene (:mod:`fem_rmpm.schemes.fem3d`): the
+    soil hexahedra with their displacement and mean Gauss-point stress in ``fem.vtu``."""
+    res = solve_static_3d(scene)
+    if out is None:
+        return res
+    out = start_run_dir(out, {"scene": scene_to_dict(scene), "scene_file": scene.source,
+                              "scheme": "fem"})
+    conn = res.grid.cells[res.cells][:, VTK_HEX_ORDER]
+    used = np.unique(conn)
+    remap = -np.ones(res.grid.n_nodes, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    stress = res.stress.reshape(len(res.cells), -1, 6).mean(axis=1)
+    meshio.Mesh(res.grid.nodes[used], [("hexahedron", remap[conn])],
+                point_data={"displacement": res.displacement[used]},
+                cell_data={"stress": [stress]}).write(out / "fem.vtu", binary=True)
+    write_json(out / "summary.json", {
+        "scene": scene_to_dict(scene), "scene_file": scene.source, "scheme": "fem",
+        "dimension": 3, "elements": int(len(res.cells)), "dofs": int(3 * len(used)),
+        "max_displacement": float(np.abs(res.displacement).max()),
+        "min_sigma_yy": float(res.stress[:, 1].min()), "wall_time": time.perf_counter() - t0,
+        "status": "ok", "files": run_files(out)})
+    return res
+
+
 def factor_of_safety(scene: Scene, seed: int | None = None, out: str | Path | None = None,
                      **options):
     """Factor of safety by strength reduction (:mod:`fem_rmpm.schemes.implicit.strength_reduction`)
@@ -478,6 +506,10 @@ def factor_of_safety(scene: Scene, seed: int | None = None, out: str | Path | No
     ``fs_displacement.png`` and the mechanism (``mechanism.vtu``/``.png``) to ``out`` if
     given.  Returns an :class:`~fem_rmpm.schemes.implicit.strength_reduction.FSResult` (``.fs``,
     ``.text``)."""
+    if scene.grid.dimension == 3:
+        raise SceneError(f"{scene.source}: [grid.size] a three-dimensional scene; allowed: "
+                         "a plane-strain scene for the factor of safety (the implicit "
+                         "strength reduction is plane strain only)")
     grid, pts = prepare(scene, seed)
     res = strength_reduction.factor_of_safety(
         scene, seed=seed, options=strength_reduction.FSOptions(**options), grid=grid, pts=pts)

@@ -123,3 +123,23 @@ def test_shipped_3d_scenes_seed_their_extruded_sections():
         perimeter = np.linalg.norm(np.roll(poly, -1, 0) - poly, axis=1).sum()
         band = perimeter * float(np.max(grid.cell)) / 2 * scene.grid.size[2]
         assert abs(pts.volume0.sum() - full) <= 0.1 * band, (f.name, pts.volume0.sum(), full)
+
+
+def test_fem_command_solves_a_3d_scene_and_fs_refuses_it(tmp_path, capsys):
+    """``fem-rmpm fem`` on the 3-D column: the top settlement of the closed form
+    u_y(H) = -gamma H^2 / (2 M) (M the constrained modulus) within the trilinear
+    element's error (exact at the nodes for this 1-D problem: 1e-9);
+    ``api.factor_of_safety`` refuses a 3-D scene with a one-line SceneError."""
+    import json
+
+    from fem_rmpm import api
+    from fem_rmpm.scene import SceneError
+
+    out = tmp_path / "fem"
+    assert main(["fem", str(MESHES / "column_3d.toml"), "--out", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    M = 1000.0 * 0.67 / (1.33 * 0.34)
+    assert abs(s["max_displacement"] / (20.0 * 25.0 / (2 * M)) - 1) < 1e-9
+    assert (out / "fem.vtu").exists()
+    with pytest.raises(SceneError, match="plane strain only"):
+        api.factor_of_safety(load_scene(MESHES / "column_3d.toml"))

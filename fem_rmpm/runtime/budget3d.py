@@ -33,10 +33,12 @@ BYTES_PER_POINT_3D = 440.0
 #: Per node: fixed flags, the step's nodal arrays (10 numbers), coordinates and cell
 #: tables built for the output and the FEM reference.
 BYTES_PER_NODE_3D = 200.0
-#: Whole-run cost per point-step of the 3-D explicit step, one thread (ns): the
-#: extruded elastic slope, measured on a loaded 2-core AMD EPYC VM (Zen 4) (the
-#: benchmark: ``validation/bench_explicit_3d.py``).
-NS_PER_POINT_STEP_3D = 250.0
+#: Whole-run cost per point-step of the 3-D explicit step, one thread (ns of CPU): the
+#: extruded reference slope with von Mises softening (``meshes/slope_extruded_3d.toml``,
+#: 36 448 points, 7379 steps in 303 s of CPU, 1.1 us; a linear elastic slope: ~0.23 us),
+#: measured 2026-12-07 at commit 2f1116c on a loaded 2-core AMD EPYC VM (Zen 4)
+#: (``validation/bench_explicit_3d.py`` re-measures it).
+NS_PER_POINT_STEP_3D = 1100.0
 
 
 def _clipped_area(poly, lo, hi) -> float:
@@ -86,4 +88,5 @@ def estimate_run_3d(scene: Scene) -> dict:
                 memory_bytes=float(memory), dt=float(dt), steps=int(steps),
                 ns_per_point_step=NS_PER_POINT_STEP_3D,
                 wall_time=steps * points * NS_PER_POINT_STEP_3D * 1e-9,
-                machine="3-D step, loaded 2-core AMD EPYC VM, Zen 4", threads=1)
+                machine="3-D step, von Mises slab, loaded 2-core AMD EPYC VM, Zen 4",
+                threads=1)
