@@ -20,7 +20,9 @@ the seed's own noise (``grid = prepare(scene)[0]``), so that
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,8 +32,11 @@ import numpy as np
 from tqdm import tqdm
 
 from fem_rmpm.discretise.grid import Grid, make_grid
+from fem_rmpm.discretise.grid3d import make_grid_3d, soil_cells_3d
+from fem_rmpm.discretise.points3d import seed_particles_3d
 from fem_rmpm.discretise.points import Particles, seed_particles, soil_cells
 from fem_rmpm.io.output import PvdSeries, write_grid, write_json
+from fem_rmpm.io.output3d import VTK_HEX_ORDER, write_grid_3d
 from fem_rmpm.io.plots import plot_profile, plot_snapshots
 from fem_rmpm.io.rundir import (
     RunDirError,
@@ -43,6 +48,7 @@ from fem_rmpm.io.rundir import (
 from fem_rmpm.materials import point_problem
 from fem_rmpm.measures import table as measure_table
 from fem_rmpm.measures.deposit import compute_measures, excluded_summary
+from fem_rmpm.measures.deposit3d import compute_measures_3d
 from fem_rmpm.random_field import apply_to_points, field_noise, noise_shape, sample_point_properties
 from fem_rmpm.runtime.budget import check_budget, explicit_numba
 from fem_rmpm.runtime.machine import describe as describe_machine
@@ -53,7 +59,9 @@ from fem_rmpm.schemes.explicit import kernels
 from fem_rmpm.schemes.explicit.kernels.advance import pair_driver_fits, pair_worker
 from fem_rmpm.schemes.explicit.loop import run_explicit
 from fem_rmpm.schemes.explicit.threads import auto_threads, threads_from_auto
+from fem_rmpm.schemes.explicit3d import run_explicit_3d
 from fem_rmpm.schemes.fem import FemResult, solve_static
+from fem_rmpm.schemes.fem3d import Fem3DResult, solve_static_3d
 from fem_rmpm.schemes.implicit import run_implicit, strength_reduction
 
 __all__ = ["load_scene", "with_value", "prepare", "run", "fem", "factor_of_safety", "RunResult",
@@ -79,6 +87,9 @@ def prepare(scene: Scene, seed: int | None = None, noise=None) -> tuple[Grid, Pa
     field of the standard-normal ``noise`` array (which replaces the seed)."""
     check_seed(seed)
     check_budget(scene)                        # refuse before allocating (BudgetError)
+    if scene.grid.dimension == 3:              # (no random field in 3-D: refused)
+        grid3 = make_grid_3d(scene)
+        return grid3, seed_particles_3d(scene, grid3)
     grid = make_grid(scene)
     pts = seed_particles(scene, grid)
     if scene.random_field is not None:
@@ -109,6 +120,45 @@ def _run_scheme(scene, grid, pts, on_output, progress, out=None):
         raise
 
 
+#: Bytes of snapshot positions and plastic strains :func:`run` keeps in memory; the
+#: snapshots beyond are memory maps of unlinked temporary files (pages on disk, not in
+#: RAM; the same values bitwise): 5 million points x 40 outputs would otherwise hold
+#: ~5 GB of positions for the measures and figures that read a few of them.
+SNAPSHOT_MEMORY_BYTES = 256 * 2**20
+
+
+class SnapshotStore(list):
+    """``[(t, x, gamma_p)]`` of a run's outputs: copies in memory up to ``limit`` bytes
+    (default :data:`SNAPSHOT_MEMORY_BYTES`), then disk-backed (:func:`_on_disk`)."""
+
+    def __init__(self, limit: float | None = None):
+        super().__init__()
+        self.limit = SNAPSHOT_MEMORY_BYTES if limit is None else limit
+        self.bytes = 0
+
+    def add(self, t: float, x: np.ndarray, gamma: np.ndarray) -> None:
+        size = x.nbytes + gamma.nbytes
+        if self.bytes + size > self.limit:
+            self.append((t, _on_disk(x), _on_disk(gamma)))
+        else:
+            self.bytes += size
+            self.append((t, x.copy(), gamma.copy()))
+
+
+def _on_disk(a: np.ndarray) -> np.ndarray:
+    """A copy of ``a`` as a memory map of a temporary ``.npy`` file, unlinked at once (the
+    mapping keeps it until the array is freed)."""
+    fd, name = tempfile.mkstemp(prefix="fem_rmpm_snapshot_", suffix=".npy")
+    os.close(fd)
+    try:
+        m = np.lib.format.open_memmap(name, mode="w+", dtype=a.dtype, shape=a.shape)
+        m[...] = a
+        m.flush()
+    finally:
+        os.unlink(name)
+    return m
+
+
 class _Stopped(Exception):
     """Raised from the output callback of :func:`run` when ``stop_when`` gives a reason."""
 
@@ -120,7 +170,7 @@ class _Stopped(Exception):
 def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
         progress: bool = False, vtk: bool | None = None, figures: bool | None = None,
         force: bool = False, noise=None, label: str | None = None,
-        stop_when=None) -> RunResult:
+        stop_when=None) -> RunResult:  # long function: the run's steps in order, 3-D first
     """Run one realization; write VTK, PNG and ``summary.json`` to ``out`` if given.
     ``noise``: the random field's standard-normal noise array instead of ``seed``.
     ``stop_when(t, pts) -> str | None``: called at every output (t = 0, every
@@ -135,6 +185,8 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
     :class:`RunDirError` or :class:`BudgetError` (bad input, nothing written) and
     :class:`SimulationError` when the run cannot go on (after writing what it has to ``out``).
     """
+    if scene.grid.dimension == 3:
+        return _run_3d(scene, out, seed, progress=progress, vtk=vtk, force=force)
     out = check_run_dir(out, force) if out is not None else None
     check_seed(seed)
     solved = with_run_threads(scene)     # the notice, estimate and run use one thread count
@@ -148,11 +200,11 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
     vtk = scene.output.vtk if vtk is None else vtk
     figures = scene.output.png if figures is None else figures
     series = PvdSeries(out) if (out is not None and vtk) else None
-    snapshots: list = []
+    snapshots = SnapshotStore()
 
     def on_output(t, p):
         raise_if_interrupted()          # a signal whose exception a native callback dropped
-        snapshots.append((t, p.x.copy(), p.plastic_shear_strain.copy()))
+        snapshots.add(t, p.x, p.plastic_shear_strain)
         if series is not None:
             series.add(t, p)
         reason = stop_when(t, p) if stop_when is not None else None
@@ -197,6 +249,66 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
     if error is not None:
         raise error
     return RunResult(scene, seed, grid, pts, rec, measures, summary, out, snapshots)
+
+
+def _run_3d(scene: Scene, out, seed, *, progress: bool, vtk: bool | None,
+            force: bool) -> RunResult:
+    """:func:`run` of a three-dimensional scene (:mod:`fem_rmpm.schemes.explicit3d`): VTK
+    of the points at every output and of the soil cells, ``summary.json`` with the
+    strike-wise measures (:mod:`fem_rmpm.measures.deposit3d`).  No snapshot of the
+    positions is kept in memory (``snapshots`` holds the output times only)."""
+    out = check_run_dir(out, force) if out is not None else None
+    check_seed(seed)
+    estimate = check_budget(scene)
+    if progress:
+        print(f"{scene.scene.name}: {estimate.describe()}", file=sys.stderr, flush=True)
+    grid = make_grid_3d(scene)
+    pts = seed_particles_3d(scene, grid)
+    vtk = scene.output.vtk if vtk is None else vtk
+    series = PvdSeries(out) if (out is not None and vtk) else None
+    times: list = []
+
+    def on_output(t, p):
+        raise_if_interrupted()
+        times.append((t,))
+        if series is not None:
+            series.add(t, p)
+
+    if out is not None:
+        start_run_dir(out, {"scene": scene_to_dict(scene), "scene_file": scene.source,
+                            "seed": seed, "estimate": estimate.to_dict()})
+        if vtk:
+            write_grid_3d(out / "grid.vtu", grid, np.nonzero(soil_cells_3d(scene, grid) >= 0)[0])
+    bar = _Bar(scene) if progress else None
+    machine, wall0, cpu0 = describe_machine(), time.perf_counter(), time.process_time()
+    error = None
+    try:
+        rec = run_explicit_3d(scene, grid, pts, on_output=on_output,
+                              progress=bar.update_to if bar else None)
+    except SimulationError as exc:
+        error = exc
+        rec = RunRecord(scheme="explicit", error=str(exc), stop_reason="error")
+    except KeyboardInterrupt as exc:
+        if out is not None:
+            mark_interrupted(out, f"interrupted ({interrupt_name(exc)})")
+        raise
+    finally:
+        if bar:
+            bar.close()
+    rec.wall_time, rec.cpu_time = time.perf_counter() - wall0, time.process_time() - cpu0
+    measures = compute_measures_3d(pts, grid, scene.scene.frame_angle_deg,
+                                   scene.montecarlo.failure_displacement,
+                                   rec.time if rec.stop_reason == "at rest" else None,
+                                   scene.montecarlo.intact_block_area)
+    summary = _summary(scene, seed, pts, rec, measures, machine, estimate)
+    summary["excluded_points"] = {"frozen": {"points": measures["excluded_frozen_points"],
+                                             "volume": measures["excluded_frozen_volume"]}}
+    summary["dimension"] = 3
+    if out is not None:
+        write_json(out / "summary.json", {**summary, "files": run_files(out)})   # last
+    if error is not None:
+        raise error
+    return RunResult(scene, seed, grid, pts, rec, measures, summary, out, times)
 
 
 #: Mechanism time (s) after the start of the large-deformation phase (t = 0, or the end of a
@@ -298,7 +410,9 @@ def _summary(scene, seed, pts, rec, measures, machine: dict, estimate) -> dict:
         "dt_min": rec.dt_min, "dt_max": rec.dt_max,
         "frozen_points": {"count": len(rec.frozen_points), "indices": rec.frozen_points,
                           "policy": scene.solver.edge_policy},
-        "measures": measures, "excluded_points": excluded_summary(measures),
+        "measures": measures,
+        "excluded_points": excluded_summary(measures) if "excluded_stray_points" in measures
+        else None,
         "solver": rec.solver,
         "kinetic_energy": rec.energy[:: max(1, len(rec.energy) // 400)],
         "machine": machine,         # (fem_rmpm.runtime.machine.describe at the run's start)
@@ -333,6 +447,8 @@ def fem(scene: Scene, out: str | Path | None = None, *, force: bool = False) -> 
     if out is not None:
         check_run_dir(out, force)
     check_budget(scene)
+    if scene.grid.dimension == 3:
+        return _fem_3d(scene, out, t0)
     res = solve_static(scene)
     if out is not None:
         out = start_run_dir(out, {"scene": scene_to_dict(scene), "scene_file": scene.source,
@@ -356,6 +472,31 @@ def fem(scene: Scene, out: str | Path | None = None, *, force: bool = False) -> 
     return res
 
 
+def _fem_3d(scene: Scene, out, t0: float) -> Fem3DResult:
+    """:func:`fem` of a three-dimensional scene (:mod:`fem_rmpm.schemes.fem3d`): the
+    soil hexahedra with their displacement and mean Gauss-point stress in ``fem.vtu``."""
+    res = solve_static_3d(scene)
+    if out is None:
+        return res
+    out = start_run_dir(out, {"scene": scene_to_dict(scene), "scene_file": scene.source,
+                              "scheme": "fem"})
+    conn = res.grid.cells[res.cells][:, VTK_HEX_ORDER]
+    used = np.unique(conn)
+    remap = -np.ones(res.grid.n_nodes, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    stress = res.stress.reshape(len(res.cells), -1, 6).mean(axis=1)
+    meshio.Mesh(res.grid.nodes[used], [("hexahedron", remap[conn])],
+                point_data={"displacement": res.displacement[used]},
+                cell_data={"stress": [stress]}).write(out / "fem.vtu", binary=True)
+    write_json(out / "summary.json", {
+        "scene": scene_to_dict(scene), "scene_file": scene.source, "scheme": "fem",
+        "dimension": 3, "elements": int(len(res.cells)), "dofs": int(3 * len(used)),
+        "max_displacement": float(np.abs(res.displacement).max()),
+        "min_sigma_yy": float(res.stress[:, 1].min()), "wall_time": time.perf_counter() - t0,
+        "status": "ok", "files": run_files(out)})
+    return res
+
+
 def factor_of_safety(scene: Scene, seed: int | None = None, out: str | Path | None = None,
                      **options):
     """Factor of safety by strength reduction (:mod:`fem_rmpm.schemes.implicit.strength_reduction`)
@@ -365,6 +506,10 @@ def factor_of_safety(scene: Scene, seed: int | None = None, out: str | Path | No
     ``fs_displacement.png`` and the mechanism (``mechanism.vtu``/``.png``) to ``out`` if
     given.  Returns an :class:`~fem_rmpm.schemes.implicit.strength_reduction.FSResult` (``.fs``,
     ``.text``)."""
+    if scene.grid.dimension == 3:
+        raise SceneError(f"{scene.source}: [grid.size] a three-dimensional scene; allowed: "
+                         "a plane-strain scene for the factor of safety (the implicit "
+                         "strength reduction is plane strain only)")
     grid, pts = prepare(scene, seed)
     res = strength_reduction.factor_of_safety(
         scene, seed=seed, options=strength_reduction.FSOptions(**options), grid=grid, pts=pts)

@@ -1,1 +1,2 @@
-"""Output: VTK, JSON summaries, run directories and PNG figures."""
+"""Output: VTK, JSON summaries, run directories and PNG figures; ``output3d``: the
+hexahedral grid."""

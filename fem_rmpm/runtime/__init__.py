@@ -1,2 +1,2 @@
 """Run-time support: compiled-code configuration, numba's cache, the machine, size and cost
-estimates, and the input error."""
+estimates (``budget``, ``budget3d``), and the input error."""

@@ -49,6 +49,7 @@ import os
 from dataclasses import asdict, dataclass
 
 from fem_rmpm.discretise.grid import _grid_from_file
+from fem_rmpm.runtime.budget3d import estimate_run_3d
 from fem_rmpm.runtime.machine import cpu_signature
 from fem_rmpm.scene import Scene, SceneError
 
@@ -223,7 +224,10 @@ def _threads(scene: Scene) -> int:
 def estimate_run(scene: Scene, cpu: tuple[str, int, int] | None = None) -> RunEstimate:
     """Estimate points, nodes, memory, steps and wall time of one run of ``scene`` on a CPU
     ``cpu`` = (vendor_id, cpu family, model) (default: this machine's,
-    :func:`fem_rmpm.runtime.machine.cpu_signature`; it sets the explicit step's cost only)."""
+    :func:`fem_rmpm.runtime.machine.cpu_signature`; it sets the explicit step's cost only).
+    A three-dimensional scene: :func:`fem_rmpm.runtime.budget3d.estimate_run_3d`."""
+    if scene.grid.dimension == 3:
+        return RunEstimate(**estimate_run_3d(scene))
     origin, cell, (nx, ny) = _grid_geometry(scene)
     hi = (origin[0] + cell[0] * nx, origin[1] + cell[1] * ny)
     cell_area = cell[0] * cell[1]

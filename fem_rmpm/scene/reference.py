@@ -43,6 +43,8 @@ _TYPES = {
     "tuple[str,...]": "list of strings", "tuple[float,float]": "[x, y]",
     "tuple[float,float,float,float]|None": "[x0, y0, x1, y1]",
     "tuple[tuple[float,float],...]": "list of [x, y]",
+    "tuple[float,...]": "[x, y] or [x, y, z]", "tuple[float,float]|None": "[z0, z1]",
+    "tuple[tuple[float,float],...]|None": "list of [x, z]",
     "tuple[PropertyFieldSpec,...]": "array of tables",
     "tuple[tuple[float,...],...]": "list of rows of numbers",
 }

@@ -21,6 +21,7 @@ import numpy as np
 from fem_rmpm import materials
 from fem_rmpm.materials.points import soil_values
 from fem_rmpm.runtime.errors import InputError
+from fem_rmpm.scene.dimension import check_dimension, with_grid_dimension
 from fem_rmpm.scene.fields import build_random_field, check_random_field, random_field_to_dict
 from fem_rmpm.scene.overlap import overlap_point
 from fem_rmpm.scene.spec import (
@@ -201,6 +202,11 @@ def _check_polygons(s: Scene) -> None:
                 raise _fail(s.source, f"{base}[{k}].polygon", f"the polygon {what}; allowed: "
                             "a simple polygon (edges meet only at their shared points), "
                             "at least 3 distinct points, non-zero area (m)")
+    for k, so in enumerate(s.soils):                   # 3-D: the plan shape [[x, z], ...]
+        what = polygon_problem(so.plan) if so.plan is not None else None
+        if what:
+            raise _fail(s.source, f"soil[{k}].plan", f"the polygon {what}; allowed: a simple "
+                        "polygon [[x, z], ...] of non-zero area (m)")
 
 
 def _check_soil_overlap(s: Scene) -> None:
@@ -216,9 +222,30 @@ def _check_soil_overlap(s: Scene) -> None:
                             "edges are fine)")
 
 
+def _check_soils(s: Scene) -> None:
+    """At least one soil, unique names, no shared area, each model's own check."""
+    src = s.source
+    if not s.soils:
+        raise _fail(src, "soil", "at least one [[soil]] table is required")
+    names = [so.name for so in s.soils]
+    if len(set(names)) != len(names):
+        raise _fail(src, "soil.name", f"soil names must be unique, got {names}")
+    if s.grid.dimension == 2:         # 3-D soils may share a section over other strikes
+        _check_soil_overlap(s)
+    for i, so in enumerate(s.soils):
+        check = getattr(materials.model(so.model), "check", None)
+        bad = check(soil_values(so)) if check else None
+        if bad:
+            raise _fail(src, f"soil[{i}].{bad[0]}", bad[1])
+
+
 def _check_scene(s: Scene) -> None:
     src = s.source
     _check_polygons(s)
+    check_dimension(s)                  # keys of the other dimension; 3-D: its own checks
+    if s.grid.dimension == 3:
+        _check_soils(s)
+        return
     gx, gy = s.grid.size
     if s.grid.file is None:
         if gx <= 0 or gy <= 0:
@@ -231,18 +258,9 @@ def _check_scene(s: Scene) -> None:
             if abs(k - round(k)) > 1e-6 * max(1.0, k):
                 raise _fail(src, "grid.cell", f"grid size {L:g} m is not a whole number of "
                             f"cells of {h:g} m along {n}")
-    if not s.soils:
-        raise _fail(src, "soil", "at least one [[soil]] table is required")
-    names = [so.name for so in s.soils]
-    if len(set(names)) != len(names):
-        raise _fail(src, "soil.name", f"soil names must be unique, got {names}")
-    _check_soil_overlap(s)
+    _check_soils(s)
     for i, so in enumerate(s.soils):
         key = f"soil[{i}]"
-        check = getattr(materials.model(so.model), "check", None)
-        bad = check(soil_values(so)) if check else None
-        if bad:
-            raise _fail(src, f"{key}.{bad[0]}", bad[1])
         if s.grid.file is None:
             x0, y0 = s.grid.origin
             for (px, py) in so.polygon:
@@ -277,7 +295,8 @@ def scene_from_dict(data: dict, source: str = "<dict>") -> Scene:
     presc_raw = presc_raw if isinstance(presc_raw, list) else [presc_raw]
     scene = Scene(
         scene=_build(source, "scene", SceneInfo, data.get("scene", {})),
-        grid=_build(source, "grid", GridSpec, data.get("grid", {})),
+        grid=with_grid_dimension(source, _build(source, "grid", GridSpec, data.get("grid", {})),
+                                 data.get("grid", {})),
         boundary=_build(source, "boundary", BoundarySpec, data.get("boundary", {})),
         soils=soils,
         bedrock=tuple(_build(source, "bedrock", BedrockSpec, d) for d in rock_raw),

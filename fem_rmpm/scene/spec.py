@@ -59,14 +59,22 @@ class SceneInfo:
 
 @dataclass(frozen=True)
 class GridSpec:
-    """``[grid]``: the background grid of square or rectangular Q4 cells."""
-    origin: tuple[float, float] = scene_key((0.0, 0.0), "lower left corner [x, y]", "m")
-    size: tuple[float, float] = scene_key((1.0, 1.0), "extent [width, height]", "m")
-    cell: tuple[float, float] = scene_key(
-        (0.25, 0.25), "cell size [hx, hy] (one number: square cells); size must be a whole "
-        "number of cells", "m")
+    """``[grid]``: the background grid of square or rectangular Q4 cells; with three
+    sizes ``[Lx, Ly, Lz]`` a three-dimensional grid of hexahedra (y up, z the strike)."""
+    origin: tuple[float, ...] = scene_key((0.0, 0.0), "lower left corner [x, y] (3-D: "
+                                          "[x, y, z]; default the origin)", "m")
+    size: tuple[float, ...] = scene_key((1.0, 1.0), "extent [width, height] (3-D: [width, "
+                                        "height, length along the strike])", "m")
+    cell: tuple[float, ...] = scene_key(
+        (0.25, 0.25), "cell size [hx, hy] (3-D: [hx, hy, hz]; one number: square or cubic "
+        "cells); size must be a whole number of cells", "m")
     file: str | None = scene_key(
-        None, "a quad mesh read by meshio instead (path relative to the scene file)")
+        None, "a quad mesh read by meshio instead (path relative to the scene file; 2-D only)")
+
+    @property
+    def dimension(self) -> int:
+        """2 (plane strain, Q4 cells) or 3 (hexahedra): the number of sizes given."""
+        return len(self.size)
 
 
 @dataclass(frozen=True)
@@ -77,6 +85,10 @@ class BoundarySpec:
     right: str = scene_key("roller", "right edge, as left")
     bottom: str = scene_key("fixed", "bottom edge, as left")
     top: str = scene_key("free", "top edge, as left")
+    front: str | None = scene_key(None, "3-D only: the face z = z0 (strike start), as left "
+                                  "(default roller)")
+    back: str | None = scene_key(None, "3-D only: the face z = z0 + Lz (strike end), as left "
+                                 "(default roller)")
 
 
 @dataclass(frozen=True)
@@ -100,6 +112,12 @@ class SoilSpec:
     softening_strain: float = 0.5       # plastic shear strain (-) at which the strength
     #                                     reaches the residual (linear) or e-folding (exponential)
     parameters: tuple = ()              # ((name, value), ...) of the model's other parameters
+    strike: tuple[float, float] | None = scene_key(
+        None, "3-D only: the polygon (an x-y section) extruded along z from z0 to z1 "
+        "(default: the whole grid)", "m")
+    plan: tuple[tuple[float, float], ...] | None = scene_key(
+        None, "3-D only: plan shape [[x, z], ...]; a cell is soil when its centre is in the "
+        "section, the strike range and this polygon", "m")
 
     def value(self, name: str, default: Any = None) -> Any:
         """The value of parameter ``name`` of this soil's model (or ``default``)."""
@@ -124,7 +142,7 @@ class SoilSpec:
 
 _SOIL_FIELDS = ("polygon", "unit_weight", "youngs_modulus", "poisson_ratio", "name",
                 "points_per_cell_dir", "model", "cohesion_peak", "cohesion_residual", "softening",
-                "softening_strain")
+                "softening_strain", "strike", "plan")
 
 
 @dataclass(frozen=True)

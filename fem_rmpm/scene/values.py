@@ -72,6 +72,7 @@ _CHOICES: dict[str, tuple[str, ...]] = {
     "random_field.properties.distribution": DISTRIBUTIONS,
     "random_field.properties.correlation": CORRELATIONS,
     "solver.scheme": SCHEMES, "solver.shape": SHAPES, "solver.edge_policy": EDGE_POLICIES,
+    "boundary.front": BOUNDARY_KINDS, "boundary.back": BOUNDARY_KINDS,
     "solver.linear_solver": ("cholmod", "superlu", "pyamg"),
     "solver.gravity_phase": ("dynamic", "geostatic"),
     "solver.kernel": ("numba", "numpy"),
@@ -143,6 +144,8 @@ def _coerce(source: str, key: str, value: Any, default: Any, annotation: str,
         if not all(math.isfinite(v) for v in value):
             raise _fail(source, key, f"expected two finite numbers [x, y], got {value!r}")
         return (float(value[0]), float(value[1]))
+    if ann in _COERCE_3D:
+        return _COERCE_3D[ann](source, lookup, key, value)
     if ann == "tuple[float,float,float,float]|None":
         if value is None:
             return None
@@ -159,6 +162,37 @@ def _coerce(source: str, key: str, value: Any, default: Any, annotation: str,
             raise _fail(source, key, "expected a list of at least 3 points [[x, y], ...] in m")
         return tuple((float(p[0]), float(p[1])) for p in value)
     raise AssertionError(f"unhandled annotation {annotation}")  # pragma: no cover
+
+
+def _grid_numbers(source: str, lookup: str, key: str, value: Any) -> tuple[float, ...]:
+    """``[grid]`` origin, size, cell: two numbers (plane strain) or three (3-D); a cell
+    may be one number (the same in every direction)."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and lookup == "grid.cell":
+        value = [value]
+    if (not isinstance(value, list) or not 1 <= len(value) <= 3
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                       and math.isfinite(v) for v in value)
+            or (len(value) == 1 and lookup != "grid.cell")):
+        raise _fail(source, key, f"expected two numbers [x, y] or three [x, y, z] (m), "
+                    f"got {value!r}")
+    return tuple(float(v) for v in value)
+
+
+def _strike_range(source: str, lookup: str, key: str, value: Any):
+    if (not isinstance(value, list) or len(value) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                       and math.isfinite(v) for v in value)):
+        raise _fail(source, key, f"expected two finite numbers [z0, z1] (m), got {value!r}")
+    return (float(value[0]), float(value[1]))
+
+
+def _plan_polygon(source: str, lookup: str, key: str, value: Any):
+    return _coerce(source, lookup, value, None, "tuple[tuple[float,float],...]", key)
+
+
+#: The annotations of the three-dimensional keys (``[grid]``, ``[[soil]] strike / plan``).
+_COERCE_3D = {"tuple[float,...]": _grid_numbers, "tuple[float,float]|None": _strike_range,
+              "tuple[tuple[float,float],...]|None": _plan_polygon}
 
 
 def _build(source: str, section: str, cls: type, data: Any, label: str | None = None) -> Any:

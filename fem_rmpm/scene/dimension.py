@@ -1,0 +1,135 @@
+"""The dimension of a scene: two (plane strain) or three (hexahedra), read from the number
+of ``[grid] size`` values, and the checks that every key agrees with it.
+
+A three-dimensional scene is a grid ``origin = [x0, y0, z0]``, ``size = [Lx, Ly, Lz]``,
+``cell = [hx, hy, hz]`` (or one number), y up (gravity in the x-y plane) and z the strike.
+A soil is its ``polygon``, an x-y section, extruded along z over ``strike = [z0, z1]``
+(default: the whole grid) and cut in plan by ``plan = [[x, z], ...]`` (optional); a
+``[[bedrock]]`` polygon is extruded over the whole grid.  The boundary has six faces:
+``left``/``right`` (x), ``bottom``/``top`` (y), ``front``/``back`` (z = z0 / z0 + Lz,
+default roller).  What the three-dimensional scheme does not have yet is refused here,
+with the key that asks for it: random fields, prescribed displacements, the implicit
+scheme, uGIMP, F-bar, the numpy kernel, a mesh file, material models other than
+linear elastic and von Mises softening, and regularised softening.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+
+from fem_rmpm.scene.spec import GridSpec, Scene
+from fem_rmpm.scene.values import _fail
+
+__all__ = ["with_grid_dimension", "check_dimension", "strike_range", "MODELS_3D"]
+
+#: Material models the three-dimensional explicit scheme updates.
+MODELS_3D = ("linear_elastic", "von_mises_softening")
+
+
+def with_grid_dimension(source: str, grid: GridSpec, raw: dict) -> GridSpec:
+    """``grid`` with a one-number ``cell`` repeated per size and a default ``origin`` or
+    ``cell`` of the grid's dimension; one-line error when the three keys disagree."""
+    dim = grid.dimension
+    if dim not in (2, 3):
+        raise _fail(source, "grid.size", f"{dim} sizes; allowed: [Lx, Ly] (plane strain) or "
+                    "[Lx, Ly, Lz] (three-dimensional), m")
+    cell, origin = grid.cell, grid.origin
+    if len(cell) == 1 or "cell" not in raw:
+        cell = (cell[0],) * dim
+    if "origin" not in raw:
+        origin = (0.0,) * dim
+    for key, value in (("origin", origin), ("cell", cell)):
+        if len(value) != dim:
+            raise _fail(source, f"grid.{key}", f"{len(value)} numbers for a grid of {dim} "
+                        f"sizes; allowed: {dim} numbers, as many as [grid] size (2: plane "
+                        "strain, 3: three-dimensional)")
+    return dataclasses.replace(grid, origin=tuple(origin), cell=tuple(cell))
+
+
+def check_dimension(s: Scene) -> None:
+    """Refuse keys of the other dimension: in 2-D the strike keys, in 3-D what the
+    three-dimensional scheme does not do yet (module docstring)."""
+    if s.grid.dimension == 2:
+        _refuse_3d_keys(s)
+    else:
+        _check_3d(s)
+
+
+def _refuse_3d_keys(s: Scene) -> None:
+    why = ("allowed: only in a three-dimensional scene ([grid] size = [Lx, Ly, Lz])")
+    for face in ("front", "back"):
+        if getattr(s.boundary, face) is not None:
+            raise _fail(s.source, f"boundary.{face}", f"a face of a 2-D grid; {why}")
+    for i, so in enumerate(s.soils):
+        for key in ("strike", "plan"):
+            if getattr(so, key) is not None:
+                raise _fail(s.source, f"soil[{i}].{key}", f"set in a 2-D grid; {why}")
+
+
+def _check_3d(s: Scene) -> None:
+    src, g = s.source, s.grid
+    unsupported = (
+        (g.file is not None, "grid.file", "a mesh file", "a structured grid (origin, size, "
+         "cell)"),
+        (s.random_field is not None, "random_field", "a random field",
+         "a homogeneous 3-D scene (3-D random fields are not available yet)"),
+        (bool(s.prescribed), "prescribed", "prescribed displacements", "none in 3-D"),
+        (s.solver.scheme != "explicit", "solver.scheme", f"scheme {s.solver.scheme!r}",
+         "'explicit' (the implicit scheme is plane strain only)"),
+        (s.solver.shape != "standard", "solver.shape", f"shape {s.solver.shape!r}",
+         "'standard' (trilinear hexahedra; uGIMP is plane strain only)"),
+        (s.solver.fbar, "solver.fbar", "F-bar", "false (plane strain only)"),
+        (s.solver.kernel != "numba", "solver.kernel", f"kernel {s.solver.kernel!r}",
+         "'numba' (the numpy reference step is plane strain only)"),
+    )
+    for bad, key, what, allowed in unsupported:
+        if bad:
+            raise _fail(src, key, f"{what} in a three-dimensional scene; allowed: {allowed}")
+    lo, size, cell = g.origin, g.size, g.cell
+    for k, axis in enumerate("xyz"):
+        if size[k] <= 0:
+            raise _fail(src, "grid.size", f"grid size along {axis} must be positive (m)")
+        if cell[k] <= 0:
+            raise _fail(src, "grid.cell", "cell size must be positive (m)")
+        n = size[k] / cell[k]
+        if abs(n - round(n)) > 1e-6 * max(1.0, n):
+            raise _fail(src, "grid.cell", f"grid size {size[k]:g} m is not a whole number of "
+                        f"cells of {cell[k]:g} m along {axis}")
+    hi = [lo[k] + size[k] for k in range(3)]
+    tol = 1e-9 * max(size)
+    for i, so in enumerate(s.soils):
+        if so.model not in MODELS_3D:
+            raise _fail(src, f"soil[{i}].model", f"model {so.model!r} in a three-dimensional "
+                        f"scene; allowed: {' | '.join(repr(m) for m in MODELS_3D)}")
+        if so.model == "von_mises_softening" and \
+                so.value("regularisation", "local") != "local":
+            raise _fail(src, f"soil[{i}].regularisation", f"{so.value('regularisation')!r} "
+                        "in a three-dimensional scene; allowed: 'local'")
+        _inside(src, f"soil[{i}].polygon", so.polygon, (0, 1), lo, hi, tol)
+        if so.strike is not None:
+            z0, z1 = so.strike
+            if not (lo[2] - tol <= z0 < z1 <= hi[2] + tol):
+                raise _fail(src, f"soil[{i}].strike", f"[{z0:g}, {z1:g}] m; allowed: z0 < z1 "
+                            f"within the grid's [{lo[2]:g}, {hi[2]:g}] m")
+        if so.plan is not None:      # (a simple polygon: checked with the sections)
+            _inside(src, f"soil[{i}].plan", so.plan, (0, 2), lo, hi, tol)
+
+
+def _inside(src: str, key: str, poly, axes: tuple[int, int], lo, hi, tol: float) -> None:
+    a, b = axes
+    names = "xyz"
+    for p in poly:
+        if not (lo[a] - tol <= p[0] <= hi[a] + tol and lo[b] - tol <= p[1] <= hi[b] + tol):
+            raise _fail(src, key, f"point ({p[0]:g}, {p[1]:g}) m lies outside the grid "
+                        f"[{lo[a]:g}, {hi[a]:g}] x [{lo[b]:g}, {hi[b]:g}] m ({names[a]}, "
+                        f"{names[b]})")
+
+
+def strike_range(s: Scene, soil) -> tuple[float, float]:
+    """The z range (m) a soil is extruded over: its ``strike``, else the whole grid."""
+    if soil.strike is not None:
+        return soil.strike
+    return (s.grid.origin[2], s.grid.origin[2] + s.grid.size[2])
+
+
+

@@ -1,0 +1,144 @@
+"""The explicit scheme's time loop in three dimensions: the plane-strain loop's rules
+(:mod:`fem_rmpm.schemes.explicit.loop`) around the compiled hexahedral step
+(:func:`.kernels.step_3d`): the CFL step ``dt = cfl h_min / (c_p + |v|max)``, the gravity
+ramp, local damping while ``t < damping_time`` (always in the geostatic phase), the
+geostatic phase on the fixed geometry until at rest or ``geostatic_time``, the guards
+(non-finite state: an error naming the point; a point leaving the grid: frozen or the
+run stopped, ``edge_policy``; a point moving more than half a cell in a step: an error),
+the output callback, progress every 20 steps and the at-rest test
+(:func:`fem_rmpm.schemes.common.at_rest`).  One thread: the scatter runs in point order.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from fem_rmpm.discretise.grid3d import Grid3D
+from fem_rmpm.discretise.points3d import Particles3D
+from fem_rmpm.scene import Scene
+from fem_rmpm.schemes.common import RunRecord, SimulationError, at_rest
+from fem_rmpm.schemes.explicit3d.kernels import step_3d
+
+__all__ = ["run_explicit_3d", "wave_speed_3d", "RECORD_EVERY"]
+
+#: Steps between two kinetic-energy records and progress calls (as in plane strain).
+RECORD_EVERY = 20
+
+
+def wave_speed_3d(pts: Particles3D) -> float:
+    """Largest P-wave speed sqrt((lambda + 2 mu) / rho) of the active points (m/s)."""
+    act = pts.active
+    rho = pts.mass[act] / pts.volume[act]
+    return float(np.max(np.sqrt((pts.lame[act, 0] + 2 * pts.lame[act, 1]) / rho)))
+
+
+class _Workspace:
+    """The nodal arrays of the step and the points' cell coordinates, made once."""
+
+    def __init__(self, grid: Grid3D, n: int):
+        nn = grid.n_nodes
+        self.m, self.p, self.f, self.v2 = (np.zeros(nn), np.zeros((nn, 3)), np.zeros((nn, 3)),
+                                           np.zeros((nn, 3)))
+        self.cellxi = np.zeros((n, 3))
+        self.shape = np.array(grid.shape, dtype=np.int64)
+
+
+def _step(grid, pts, work, dt, g, damping, flip, geostatic) -> np.ndarray:
+    return step_3d(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.stress,
+                   pts.log_strain, pts.lame[:, 0].copy(), pts.lame[:, 1].copy(), pts.active,
+                   pts.u_geostatic, work.cellxi, grid.origin, grid.cell, work.shape,
+                   grid.fixed, work.m, work.p, work.f, work.v2, dt, g, damping, flip,
+                   geostatic, pts.model, pts.plastic, pts.state)
+
+
+def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None,
+                    progress=None) -> RunRecord:
+    """Advance ``pts`` to rest or ``t_end`` (the module docstring); ``on_output(t, pts)`` at
+    t = 0, every ``output_interval`` and the end; ``progress(t, step)`` every 20 steps."""
+    sv = scene.solver
+    work = _Workspace(grid, pts.n)
+    h_min = float(np.min(grid.cell))
+    g_full = np.array([*scene.gravity_vector, 0.0])
+    rec = RunRecord(scheme="explicit", solver={"threads": 1, "dimension": 3})
+    t, step, ke_peak, next_out = 0.0, 0, 0.0, sv.output_interval
+    geostatic = sv.gravity_phase == "geostatic"
+    speeds = (wave_speed_3d(pts), 0.0)
+    wall0 = time.perf_counter()
+    if on_output:
+        on_output(t, pts)
+    while t < sv.t_end - 1e-12:
+        dt = min(sv.cfl * h_min / (speeds[0] + speeds[1]), sv.t_end - t)
+        ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
+        damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
+        stats = _step(grid, pts, work, dt, ramp * g_full, damping, sv.flip, geostatic)
+        t, step = t + dt, step + 1
+        rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
+        ke, max_speed, wave, point_speed, n_bad, n_out = stats
+        if n_bad:
+            _non_finite(pts, step, t, sv.cfl)
+        if n_out and not _freeze(grid, pts, step, t, sv.edge_policy, rec):
+            rec.stop_reason = "all points left the grid"
+            break
+        if max_speed * dt > 0.5 * h_min:
+            raise SimulationError(
+                f"step {step} (t = {t:.4g} s): a material point moved {max_speed * dt:.3g} m "
+                f"in one step (> half a cell); the explicit scheme is unstable — reduce "
+                f"[solver] cfl (now {sv.cfl:g}, default 0.5, allowed (0, 3])")
+        speeds = (wave_speed_3d(pts), point_speed) if n_out else (wave, point_speed)
+        ke_peak = max(ke_peak, ke)
+        if step % RECORD_EVERY == 0:
+            rec.energy.append((t, ke))
+            if progress:
+                progress(t, step)
+        if on_output and t >= next_out - 1e-12:
+            on_output(t, pts)
+            next_out += sv.output_interval
+        rest = at_rest(t, sv.gravity_ramp_time, max_speed, ke, ke_peak, sv.rest_velocity,
+                       sv.rest_energy_ratio)
+        if geostatic and (rest or t >= sv.geostatic_time):
+            geostatic = False
+            rec.solver["geostatic_end_time"] = t
+            rec.solver["geostatic_at_rest"] = bool(rest)
+            continue
+        if rest:
+            rec.stop_reason = "at rest"
+            break
+    else:
+        rec.stop_reason = "t_end reached"
+    rec.steps, rec.time, rec.wall_time = step, t, time.perf_counter() - wall0
+    if on_output and next_out - sv.output_interval < t - 1e-12:
+        on_output(t, pts)
+    return rec
+
+
+def _non_finite(pts: Particles3D, step: int, t: float, cfl: float) -> None:
+    act = np.nonzero(pts.active)[0]
+    bad = ~(np.isfinite(pts.x[act]).all(1) & np.isfinite(pts.velocity[act]).all(1)
+            & np.isfinite(pts.stress[act]).all(1))
+    i = act[np.argmax(bad)]
+    x0 = pts.x0[i]
+    raise SimulationError(
+        f"step {step} (t = {t:.4g} s): non-finite state at material point {i} (started at "
+        f"x = {x0[0]:.3f}, y = {x0[1]:.3f}, z = {x0[2]:.3f} m); the explicit scheme went "
+        f"unstable — reduce [solver] cfl (now {cfl:g}, default 0.5) or check the material "
+        "constants")
+
+
+def _freeze(grid: Grid3D, pts: Particles3D, step: int, t: float, policy: str,
+            rec: RunRecord) -> bool:
+    """Points outside the grid box: frozen (inactive, listed) or, with ``policy`` "stop",
+    an error naming the first; False when no active point is left."""
+    act = np.nonzero(pts.active)[0]
+    out = ((pts.x[act] < grid.origin) | (pts.x[act] > grid.upper)).any(axis=1)
+    idx = act[out]
+    if len(idx) and policy == "stop":
+        i = idx[0]
+        raise SimulationError(
+            f"step {step} (t = {t:.4g} s): {len(idx)} material point(s) left the grid, first "
+            f"point {i} at x = {pts.x[i, 0]:.3f}, y = {pts.x[i, 1]:.3f}, z = {pts.x[i, 2]:.3f} "
+            "m; enlarge [grid] size or set [solver] edge_policy = \"freeze\"")
+    pts.active[idx] = False
+    pts.velocity[idx] = 0.0
+    rec.frozen_points.extend(int(i) for i in idx)
+    return bool(pts.active.any())
