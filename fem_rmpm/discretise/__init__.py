@@ -1,2 +1,2 @@
 """Discretisation: the background grid, the material points and their seeding, the basis functions
-at the points, and the points' order."""
+at the points, the points' order, and the contact nodes of frictional bedrock (``contact``)."""

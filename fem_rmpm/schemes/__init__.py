@@ -1,2 +1,3 @@
 """The MPM schemes: the run vocabulary both share, the explicit and the implicit scheme, volumetric
-locking, regularisation and the static FEM reference."""
+locking, regularisation, the static FEM reference and the nodal contact with frictional bedrock
+(``contact``)."""
