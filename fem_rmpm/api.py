@@ -31,13 +31,14 @@ import meshio
 import numpy as np
 from tqdm import tqdm
 
+from fem_rmpm.discretise.contact import refuse_frictional
 from fem_rmpm.discretise.grid import Grid, make_grid
 from fem_rmpm.discretise.grid3d import make_grid_3d, soil_cells_3d
 from fem_rmpm.discretise.points3d import seed_particles_3d
 from fem_rmpm.discretise.points import Particles, seed_particles, soil_cells
 from fem_rmpm.io.output import PvdSeries, write_grid, write_json
 from fem_rmpm.io.output3d import VTK_HEX_ORDER, write_grid_3d
-from fem_rmpm.io.plots import plot_profile, plot_snapshots
+from fem_rmpm.io.plots import plot_energy, plot_profile, plot_snapshots
 from fem_rmpm.io.rundir import (
     RunDirError,
     check_run_dir,
@@ -244,7 +245,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
         if figures and snapshots and error is None:
             who = label or (f"{scene.scene.name}, seed {seed}" if seed is not None
                             and scene.random_field is not None else scene.scene.name)
-            _figures(out, scene, grid, snapshots, measures, who)
+            _figures(out, scene, grid, snapshots, measures, who, rec)
         write_json(out / "summary.json", {**summary, "files": run_files(out)})   # last
     if error is not None:
         raise error
@@ -415,12 +416,15 @@ def _summary(scene, seed, pts, rec, measures, machine: dict, estimate) -> dict:
         else None,
         "solver": rec.solver,
         "kinetic_energy": rec.energy[:: max(1, len(rec.energy) // 400)],
+        # frictional bedrock: the energy the friction took so far (kJ/m), to the end
+        **({"friction_dissipation": rec.friction[-1::-max(1, len(rec.friction) // 400)][::-1]}
+           if rec.friction else {}),
         "machine": machine,         # (fem_rmpm.runtime.machine.describe at the run's start)
         "estimate": estimate.to_dict(),
     }
 
 
-def _figures(out, scene, grid, snapshots, measures, label: str | None = None):
+def _figures(out, scene, grid, snapshots, measures, label: str | None = None, rec=None):
     times = np.array([t for t, *_ in snapshots])
     mech = measures.get("mechanism_time")
     targets = list(times[-1] * np.array([0.0, 0.1, 0.25, 0.5, 1.0]))   # early failure in detail
@@ -436,6 +440,9 @@ def _figures(out, scene, grid, snapshots, measures, label: str | None = None):
                        for k in ("runout_distance", "sliding_area")) + ")")
     plot_profile(out / "profile.png", measures["initial_profile"], measures["final_profile"],
                  title=f"{who}: surface before and after", scene=scene)
+    if rec is not None and rec.friction:          # frictional bedrock
+        plot_energy(out / "energy.png", rec.energy, rec.friction,
+                    title=f"{who}: kinetic energy and frictional dissipation")
 
 
 def fem(scene: Scene, out: str | Path | None = None, *, force: bool = False) -> FemResult:
@@ -444,6 +451,7 @@ def fem(scene: Scene, out: str | Path | None = None, *, force: bool = False) -> 
     ``out`` follows :func:`run`'s rule: a new or empty directory, or ``force=True``
     replaces the run in it (:mod:`fem_rmpm.io.rundir`)."""
     t0 = time.perf_counter()
+    refuse_frictional(scene, "the static FEM reference")     # (no contact there)
     if out is not None:
         check_run_dir(out, force)
     check_budget(scene)

@@ -21,6 +21,7 @@ import meshio
 import numpy as np
 from skfem import MeshQuad
 
+from fem_rmpm.discretise.contact import ContactNodes, contact_nodes
 from fem_rmpm.scene import Scene, SceneError
 
 __all__ = ["Grid", "make_grid", "locate", "points_in_polygon", "fixed_dofs"]
@@ -34,6 +35,7 @@ class Grid:
     shape: tuple[int, int]    # (nx, ny) cells
     mesh: MeshQuad            # scikit-fem mesh of all cells
     fixed: np.ndarray         # (n_nodes, 2) bool: displacement component prescribed zero
+    contact: ContactNodes | None = None   # nodes of frictional bedrock (None: none)
 
     @property
     def n_nodes(self) -> int:
@@ -172,7 +174,8 @@ def fixed_dofs(scene: Scene, mesh: MeshQuad, origin, upper, cell) -> np.ndarray:
     """(n_nodes, 2) mask of prescribed (zero) displacement components.
 
     Edges: ``fixed`` holds both components, ``roller`` the normal one, ``free``
-    none.  Every node inside or on a ``[[bedrock]]`` polygon is fixed.
+    none.  Every node inside or on a rough ``[[bedrock]]`` polygon is fixed (a frictional
+    one's are contact nodes instead: :mod:`fem_rmpm.discretise.contact`).
     """
     p = mesh.p.T
     tol = 1e-9 * float(np.max(upper - origin))
@@ -186,6 +189,8 @@ def fixed_dofs(scene: Scene, mesh: MeshQuad, origin, upper, cell) -> np.ndarray:
         elif kind == "roller":
             fixed[on_edge, normal] = True
     for rock in scene.bedrock:
+        if rock.interface == "frictional":
+            continue
         fixed[_on_or_in_polygon(p, np.array(rock.polygon), 1e-6 * float(np.min(cell)))] = True
     return fixed
 
@@ -200,8 +205,10 @@ def make_grid(scene: Scene) -> Grid:
         shape = (int(round(scene.grid.size[0] / cell[0])), int(round(scene.grid.size[1] / cell[1])))
     mesh = _structured_mesh(origin, cell, shape)
     upper = origin + cell * np.array(shape)
-    return Grid(origin=origin, cell=cell, shape=shape, mesh=mesh,
-                fixed=fixed_dofs(scene, mesh, origin, upper, cell))
+    fixed = fixed_dofs(scene, mesh, origin, upper, cell)
+    return Grid(origin=origin, cell=cell, shape=shape, mesh=mesh, fixed=fixed,
+                contact=contact_nodes(scene, mesh.p.T, cell, origin, upper, _on_or_in_polygon,
+                                      fixed))
 
 
 def locate(grid: Grid, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

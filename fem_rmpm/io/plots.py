@@ -7,8 +7,8 @@ import numpy as np
 
 from fem_rmpm.io.output import to_true_frame
 
-__all__ = ["plot_snapshots", "plot_profile", "plot_field", "draw_ground", "strain_norm",
-           "strain_panel", "STRAIN_FLOOR"]
+__all__ = ["plot_snapshots", "plot_profile", "plot_energy", "plot_field", "draw_ground",
+           "strain_norm", "strain_panel", "STRAIN_FLOOR"]
 
 #: Lower end of the logarithmic plastic-strain colour scale: points below it (elastic or
 #: barely yielded) take the lowest colour.
@@ -123,6 +123,26 @@ def plot_profile(path: str | Path, initial: list, final: list, title: str = "",
     ax.legend(fontsize=8)
     if title:
         ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_energy(path: str | Path, kinetic: list, friction: list, title: str = "") -> None:
+    """Kinetic energy [(t, kJ/m)] and the frictional dissipation so far [(t, kJ/m)] of a
+    run with frictional bedrock, against time."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    for rows, lab, st in ((kinetic, "kinetic energy (grid)", "k-"),
+                          (friction, "dissipated by basal friction (cumulative)", "r-")):
+        if rows:
+            a = np.array(rows, float)
+            ax.plot(a[:, 0], a[:, 1], st, label=lab)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("energy (kJ per m)")
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -239,12 +239,37 @@ def _check_soils(s: Scene) -> None:
             raise _fail(src, f"soil[{i}].{bad[0]}", bad[1])
 
 
+def _check_interfaces(s: Scene) -> None:
+    """A rough bedrock takes no interface keys; a frictional one needs ``friction`` and
+    the explicit scheme (the implicit scheme has no contact: refused, not ignored)."""
+    for k, rock in enumerate(s.bedrock):
+        key = f"bedrock[{k}]"
+        if rock.interface == "rough":
+            given = [n for n in ("friction", "adhesion") if getattr(rock, n) is not None]
+            if given:
+                raise _fail(s.source, f"{key}.{given[0]}", "a rough bedrock (no slip) takes "
+                            "no friction or adhesion; allowed: interface = \"frictional\" "
+                            "with friction (and adhesion), or neither key")
+            continue
+        if rock.friction is None:
+            raise _fail(s.source, f"{key}.friction", "missing for interface = \"frictional\"; "
+                        "allowed: a Coulomb coefficient in [0, 10] (-)")
+        if s.solver.scheme != "explicit":
+            raise _fail(s.source, f"{key}.interface", "a frictional interface is supported "
+                        "by the explicit scheme only; allowed: interface = \"rough\" with "
+                        "[solver] scheme = \"implicit\"")
+
+
 def _check_scene(s: Scene) -> None:
     src = s.source
     _check_polygons(s)
     check_dimension(s)                  # keys of the other dimension; 3-D: its own checks
     if s.grid.dimension == 3:
         _check_soils(s)
+        for k, rock in enumerate(s.bedrock):     # 3-D bedrock is rough (its nodes fixed)
+            if rock.interface != "rough":
+                raise _fail(src, f"bedrock[{k}].interface", "a frictional interface is "
+                            "supported in two dimensions only; allowed in 3-D: \"rough\"")
         return
     gx, gy = s.grid.size
     if s.grid.file is None:
@@ -268,6 +293,7 @@ def _check_scene(s: Scene) -> None:
                 if not (x0 - tol <= px <= x0 + gx + tol and y0 - tol <= py <= y0 + gy + tol):
                     raise _fail(src, f"{key}.polygon", f"point ({px:g}, {py:g}) m lies outside "
                                 f"the grid [{x0:g}, {x0 + gx:g}] x [{y0:g}, {y0 + gy:g}] m")
+    _check_interfaces(s)
     for i, pr in enumerate(s.prescribed):
         if s.solver.scheme != "implicit" or s.solver.dynamic:
             raise _fail(src, f"prescribed[{i}]", "prescribed displacements need load steps; "
@@ -357,7 +383,8 @@ def scene_to_dict(scene: Scene) -> dict:
     out["soil"] = [{**{k: v for k, v in dataclasses.asdict(s).items() if k != "parameters"},
                     **dict(s.parameters)} for s in scene.soils]
     if scene.bedrock:
-        out["bedrock"] = [dataclasses.asdict(b) for b in scene.bedrock]
+        out["bedrock"] = [{k: v for k, v in dataclasses.asdict(b).items()    # rough: as before
+                           if not (k == "interface" and v == "rough")} for b in scene.bedrock]
     if scene.prescribed:
         out["prescribed"] = [dataclasses.asdict(b) for b in scene.prescribed]
     if scene.random_field is not None:

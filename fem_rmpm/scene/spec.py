@@ -147,9 +147,19 @@ _SOIL_FIELDS = ("polygon", "unit_weight", "youngs_modulus", "poisson_ratio", "na
 
 @dataclass(frozen=True)
 class BedrockSpec:
-    """A rigid region: every grid node inside or on the polygon is fixed (no particles)."""
+    """A rigid region (no particles).  ``interface = "rough"`` (default): every grid node
+    inside or on the polygon is fixed (the soil sticks to it).  ``"frictional"``: those
+    nodes are contact nodes of a rigid surface with the normal of the polygon's nearest
+    edge: no penetration, separation allowed, Coulomb friction ``friction`` plus
+    ``adhesion`` along it (explicit scheme; :mod:`fem_rmpm.discretise.contact`)."""
     polygon: tuple[tuple[float, float], ...] = scene_key(
         doc="corners [[x, y], ...] of the rigid region", unit="m")
+    interface: str = scene_key("rough", "soil-rock interface: rough (nodes fixed, no slip) or "
+                               "frictional (Coulomb sliding, separation allowed)")
+    friction: float | None = scene_key(None, "Coulomb friction coefficient of a frictional "
+                                       "interface (tan of the interface friction angle)", "-")
+    adhesion: float | None = scene_key(None, "adhesion of a frictional interface (shear "
+                                       "strength at zero normal stress)", "kPa")
 
 
 @dataclass(frozen=True)

@@ -57,6 +57,8 @@ _RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "solver.max_displacement_fraction": (0, 1, False, True),
     "solver.hht_alpha": (0, 1 / 3, True, True),
     "solver.min_mass_fraction": (0, 1, True, False),
+    "bedrock.friction": (0, 10, True, True),
+    "bedrock.adhesion": (0, 1e6, True, True),
     "montecarlo.realizations": (1, 1e9, True, True),
     "montecarlo.seed": (0, 2**63 - 1, True, True),
     "montecarlo.failure_displacement": (0, math.inf, False, False),
@@ -78,6 +80,7 @@ _CHOICES: dict[str, tuple[str, ...]] = {
     "solver.kernel": ("numba", "numpy"),
     "solver.locking_constraint": ("volume", "pressure"),
     "prescribed.components": ("xy", "x", "y"),
+    "bedrock.interface": ("rough", "frictional"),
 }
 
 #: float keys whose value may be infinite (no strength, damping for ever)

@@ -33,6 +33,7 @@ class RunRecord:
     dt_min: float = math.inf
     dt_max: float = 0.0
     energy: list = field(default_factory=list)       # [(t, kinetic energy kJ/m)]
+    friction: list = field(default_factory=list)     # [(t, frictional dissipation so far kJ/m)]
     frozen_points: list = field(default_factory=list)  # indices of points frozen at the edge
     error: str | None = None
     solver: dict = field(default_factory=dict)

@@ -35,6 +35,7 @@ from fem_rmpm.schemes.explicit.step import (
     KERNELS,
     advance,
     explicit_step,
+    record_friction,
     run_control,
 )
 from fem_rmpm.schemes.explicit.threads import first_step_done, run_threads
@@ -170,10 +171,12 @@ def _python_step(grid: Grid, pts: Particles, sv, kernel: str, work: Workspace | 
     dt = min(cfl_dt, sv.t_end - t)
     ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
     damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
+    record_friction(grid, rec, step, None)      # (from zero at the first step)
     stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape,
                           geostatic, kernel, work, bool(sv.fbar), threads)
     average_softening(grid, pts)     # non-local softening (no-op for local soils)
     rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
+    record_friction(grid, rec, -1, t + dt)
     return stats, dt, t + dt, step + 1, ke_peak
 
 

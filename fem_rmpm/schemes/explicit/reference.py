@@ -44,6 +44,7 @@ from fem_rmpm.discretise.basis import shape_at_points
 from fem_rmpm.discretise.grid import Grid
 from fem_rmpm.discretise.points import Particles
 from fem_rmpm.materials import hughes_winget_increment, small_strain_update, stress_update
+from fem_rmpm.schemes.contact import contact_velocities
 from fem_rmpm.schemes.explicit.kernels.common import half_split
 from fem_rmpm.schemes.locking import bbar_gradient, fbar_increment, host_cells
 
@@ -145,13 +146,17 @@ def point_velocities(N, nodes, v, v_new, a, dt, flip):
     return v_pic, flip * (v + dt * np.einsum("pa,pak->pk", N, a[nodes])) + (1.0 - flip) * v_pic
 
 
-def velocity_gradient(nodes, N, dN, mass, v, m, fixed, n_nodes, second=None):
+def velocity_gradient(nodes, N, dN, mass, v, m, fixed, n_nodes, second=None, correct=None):
     """Stage 3, MUSL re-map: the velocity gradient L (n, 2, 2) 1/s of each point from the
     nodal velocities of the *updated* point momenta ``mass v`` (fixed components at rest),
-    divided by the nodal mass ``m`` of stage 1 (arguments as :func:`map_to_nodes`)."""
+    divided by the nodal mass ``m`` of stage 1 (arguments as :func:`map_to_nodes`);
+    ``correct``: None, or a function of the nodal velocities (nn, 2) giving them corrected
+    (the contact with frictional bedrock, :mod:`fem_rmpm.schemes.contact`)."""
     p = np.stack([_scatter(nodes, N * (mass * v[:, k])[:, None], n_nodes, second)
                   for k in range(2)], axis=1)
     v_nodes = np.where(fixed, 0.0, p / np.where(m > MASS_TOL, m, 1.0)[:, None])
+    if correct is not None:
+        v_nodes = correct(v_nodes)
     return np.einsum("pak,pal->pkl", v_nodes[nodes], dN)
 
 
@@ -189,13 +194,25 @@ def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarr
     m, p, f = map_to_nodes(nodes, N, dN, mass, v, pts.stress[act], vol, gravity, nn, second)
     # 2. solve momentum balance on the mesh
     v_old, v_new, a = solve_on_mesh(m, p, f, grid.fixed, dt, damping)
+    contact, correct = grid.contact, None
+    if contact is not None:          # frictional bedrock: the nodal contact rule
+        v_c, dissipated = contact_velocities(contact, m, v_new, dt, v_old)
+        a, v_new = a + (v_c - v_new) / dt, v_c
+        contact.work[0] += dissipated
+        contact.work[2] = dt
+
+        def correct(v_nodes):        # (a node that stuck in the solve stays at rest)
+            out = contact_velocities(contact, m, v_nodes, dt)[0]
+            k = contact.node
+            out[k[(m[k] > MASS_TOL) & (v_new[k] == 0.0).all(axis=1)]] = 0.0
+            return out
     # 3. map back and move the points, then (MUSL) re-map momentum and update stress
     v_pic, v = point_velocities(N, nodes, v, v_new, a, dt, flip)
     if geostatic:
         pts.u_geostatic[act] += dt * v_pic
     else:
         x = x + dt * v_pic
-    L = velocity_gradient(nodes, N, dN, mass, v, m, grid.fixed, nn, second)
+    L = velocity_gradient(nodes, N, dN, mass, v, m, grid.fixed, nn, second, correct)
     cells = (vol, host_cells(grid, pts.x[act]), grid.n_cells) if fbar else None  # before the move
     state = (pts.log_strain[act], pts.state[act], pts.soil.take(act))
     log_strain, mstate, tau, J = update_stress(L, dt, state, geostatic, cells)

@@ -27,7 +27,8 @@ from fem_rmpm.schemes.explicit.kernels.advance import (
 )
 from fem_rmpm.schemes.explicit.reference import StepStats, cfl_speeds, explicit_step_numpy
 
-__all__ = ["KERNELS", "DEFAULT_KERNEL", "explicit_step", "run_control", "advance"]
+__all__ = ["KERNELS", "DEFAULT_KERNEL", "explicit_step", "run_control", "advance",
+           "record_friction"]
 
 KERNELS = ("numba", "numpy")
 DEFAULT_KERNEL = "numba"
@@ -78,6 +79,19 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     return StepStats(ke, vmax, float(out[0]), float(out[1]), int(out[2]), int(out[3]))
 
 
+def record_friction(grid: Grid, rec: RunRecord, step: int, t: float | None) -> None:
+    """Frictional bedrock (:mod:`fem_rmpm.discretise.contact`): its dissipation set to zero
+    before ``step`` 0, and recorded as (``t``, kJ/m so far) in ``rec.friction`` when ``t``
+    is given (after every step from Python, at every return of the step driver)."""
+    contact = grid.contact
+    if contact is None:
+        return
+    if step == 0:
+        contact.work[:] = 0.0
+    if t is not None:
+        rec.friction.append((t, float(contact.work[0] + contact.work[1])))
+
+
 def run_control(sv, h_min: float, g_full: np.ndarray, next_output: float,
                 sort_step: float, n_points: int) -> RunControl:
     """The :class:`~.kernels.advance.RunControl` of ``[solver]`` ``sv`` for ``n_points``
@@ -103,6 +117,7 @@ def advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, th
     needs no other compiled kernel.)"""
     (P, M), N, S, call = (work.bind(grid, pts, sv.shape == "gimp"), work.nodes, work.scratch,
                           work.call)
+    record_friction(grid, rec, clock0[1], None)          # (from zero at the first step)
     if stats is None or stats.wave_speed is None:
         S.out[:2] = cfl_speeds(pts)
     clock, count = work.clock, work.count
@@ -125,6 +140,7 @@ def advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, th
     out = S.out
     rec.energy.extend(map(tuple, work.energy[:count[2]].tolist()))   # the steps run inside
     rec.dt_min, rec.dt_max = float(clock[2]), float(clock[3])
+    record_friction(grid, rec, -1, float(clock[0]))
     stats = StepStats(float(clock[4]), float(clock[5]), float(out[0]), float(out[1]),
                       int(out[2]), int(out[3]))
     return stats, float(clock[6]), float(clock[0]), int(count[0]), float(clock[1])

@@ -72,6 +72,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fem_rmpm.discretise.contact import refuse_frictional
 from fem_rmpm.discretise.grid import Grid
 from fem_rmpm.discretise.points import Particles
 from fem_rmpm.io.output import to_true_frame, write_json, write_particles
@@ -414,6 +415,7 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
     each static solve.  Raises :class:`SceneError` when no soil has a strength and
     :class:`NonPhysicalFailure` when Newton fails for a reason other than collapse.
     """
+    refuse_frictional(scene, "strength reduction")   # no contact in the implicit scheme
     o = options or FSOptions()
     wall0 = time.perf_counter()
     srm, grid, pts = _prepared(scene, seed, o, grid, pts)

@@ -14,7 +14,8 @@ nodal arrays (:mod:`.transfer`). The three stages of the method:
    later nodal loop visits those *active* nodes only, and the next step clears only
    them (no work on the empty part of the grid).
 2. **solve on the mesh** — in :func:`solve_and_move`: per active node, lumped-mass
-   momentum balance, local (Cundall) damping, fixed components, grid kinetic energy.
+   momentum balance, local (Cundall) damping, fixed components, the contact with
+   frictional bedrock (:mod:`.contact`), grid kinetic energy.
 3. **update the points** — :func:`solve_and_move`: FLIP/PIC velocity, position (or the
    geostatic displacement) and the MUSL re-map of the new point momenta; then
    :func:`update_stress`: the nodal velocities from them and one pass over the points in

@@ -31,10 +31,17 @@ CHUNKS = 64          # the most chunks (threads) of the stress pass
 __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Workspace",
            "mesh_of", "point_arrays", "scratch_for", "node_arrays", "top_of"]
 
-Mesh = namedtuple("Mesh", "o0 o1 h0 h1 ih0 ih1 nx ny lo hi fixed")
+Mesh = namedtuple("Mesh", "o0 o1 h0 h1 ih0 ih1 nx ny lo hi fixed has_contact contact_on "
+                         "contact_n contact_mu contact_c contact_work",
+                 defaults=(False, np.zeros(0, np.uint8), np.zeros(0), np.zeros(0), np.zeros(0),
+                           np.zeros(3)))
 Mesh.__doc__ = """Structured grid: origin (m), cell size h and 1/h, cells nx x ny, the grid
 rectangle ``lo``, ``hi`` (2,) (m) and the fixed node components ``fixed`` (2 nn,) bool,
-interleaved as the nodal vectors of :class:`NodeArrays`."""
+interleaved as the nodal vectors of :class:`NodeArrays`; frictional bedrock
+(:mod:`fem_rmpm.discretise.contact`, :mod:`.contact`): ``has_contact``, and per node the
+contact flag (nn,) uint8, outward normal (2 nn,), friction and adhesion force (nn,) (kN/m),
+``contact_work`` (3,) the frictional dissipation of each half of the points (kJ/m) and
+the step's dt (s) (empty arrays without frictional bedrock)."""
 
 PointArrays = namedtuple("PointArrays", "x v mass vol vol0 stress active half_width "
                                         "log_strain state u_geo model params")
@@ -116,9 +123,11 @@ def top_of(N: NodeArrays) -> NodeArrays:
 def mesh_of(grid) -> Mesh:
     """The :class:`Mesh` of a :class:`fem_rmpm.discretise.grid.Grid`."""
     (o0, o1), (h0, h1), (nx, ny) = grid.origin, grid.cell, grid.shape
+    cn = getattr(grid, "contact", None)
+    contact = (True, *cn.dense(grid.n_nodes), cn.work) if cn is not None else ()
     return Mesh(float(o0), float(o1), float(h0), float(h1), 1.0 / h0, 1.0 / h1, int(nx),
                 int(ny), np.asarray(grid.origin, float), np.asarray(grid.upper, float),
-                np.ascontiguousarray(grid.fixed).reshape(-1))
+                np.ascontiguousarray(grid.fixed).reshape(-1), *contact)
 
 
 def point_arrays(pts, fallback_half_width: np.ndarray) -> PointArrays:

@@ -43,6 +43,7 @@ from fem_rmpm.runtime.compiled import inline, kernel, kernel_parallel
 from fem_rmpm.schemes.explicit.kernels.arrays import NodeArrays
 from fem_rmpm.schemes.explicit.kernels.basis import gimp_kept, gimp_store, q4_at, q4_cell
 from fem_rmpm.schemes.explicit.kernels.common import MASS_TOL, fixed_columns, half_range, xy
+from fem_rmpm.schemes.explicit.kernels.contact import contact_velocity
 from fem_rmpm.schemes.explicit.kernels.pairs import fma2, fma2_to, load2, mul2, sub2_from
 
 __all__ = ["map_to_nodes", "map_to_nodes_parallel", "solve_and_move", "solve_and_move_parallel",
@@ -198,9 +199,29 @@ def _solve_nodes(M, T, H, o, c):
             ac = fc * inv_m
             acc[ad] = ac
             v_new[ad] = vo + ac * dt
+        if M.has_contact and has and M.contact_on[a]:        # frictional bedrock
+            w = _contact_solve(M, a, m, v_new, acc, ax, ay, dt, p0 * inv_m, p1 * inv_m)
+            if c == 0 or not shared:
+                M.contact_work[c] += w
         if c == 0 or not shared:
             ke += m * (v_new[ax] * v_new[ax] + v_new[ay] * v_new[ay])
     return ke
+
+
+@inline
+def _contact_solve(M, a, m, v_new, acc, ax, ay, dt, vo0, vo1):
+    """Contact node ``a`` (velocity ``vo0``, ``vo1`` at the start of the step): its new
+    velocity corrected (:func:`.contact.contact_velocity`), the acceleration with it (the
+    points' FLIP update sees the contact force); returns the work the friction took
+    (kJ/m)."""
+    M.contact_work[2] = dt
+    u0, u1 = v_new[ax], v_new[ay]
+    w0, w1, w = contact_velocity(M, a, m, u0, u1, dt, vo0, vo1)
+    acc[ax] += (w0 - u0) / dt
+    acc[ay] += (w1 - u1) / dt
+    v_new[ax] = w0
+    v_new[ay] = w1
+    return w
 
 
 # --------------------------------------------------------------------- 3. update the points
@@ -368,6 +389,13 @@ def nodal_velocity(M, T, H, c):
         ma = m if m > MASS_TOL else 1.0
         out[ax] = 0.0 if fixed[ax] else q0 / ma
         out[ay] = 0.0 if fixed[ay] else q1 / ma
+        if M.has_contact and m > MASS_TOL and M.contact_on[a]:   # frictional bedrock
+            if A.v_new[ax] == 0.0 and A.v_new[ay] == 0.0:          # stuck in the solve
+                out[ax] = 0.0
+                out[ay] = 0.0
+            else:
+                out[ax], out[ay], _ = contact_velocity(M, a, m, out[ax], out[ay],
+                                                       M.contact_work[2], 0.0, 0.0)
 
 
 @kernel
