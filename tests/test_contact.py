@@ -195,3 +195,18 @@ def test_strength_reduction_refuses_frictional_bedrock():
     scene = api.load_scene(str(MESHES / "sliding_block.toml"))
     with pytest.raises(SceneError, match="strength reduction"):
         api.factor_of_safety(scene)
+
+
+def test_frictional_bedrock_in_a_3d_scene_exits_2(capsys, tmp_path):
+    """The 3-D scheme fixes its bedrock nodes (rough): a frictional interface there is
+    refused, not ignored."""
+    from fem_rmpm.cli import main
+    text = (Path(__file__).parents[1] / "meshes" / "slope_extruded_3d.toml").read_text()
+    assert "[[bedrock]]" in text
+    text = text.replace("[[bedrock]]", '[[bedrock]]\ninterface = "frictional"\nfriction = 0.4', 1)
+    (tmp_path / "s.toml").write_text(text)
+    out = tmp_path / "out"
+    code = main(["run", str(tmp_path / "s.toml"), "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert "bedrock[0].interface" in err and not out.exists()
