@@ -2,6 +2,7 @@
 meshes/ with a small [montecarlo], and its dry run writes nothing."""
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from fem_rmpm.campaign.main_job import FULL_STUDY, main_scene_path
@@ -30,3 +31,25 @@ def test_main_job_dry_run_writes_nothing(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "xi = 12: 16 to run" in text and "seed_slope" in text and "homogeneous" in text
     assert not out.exists()
+
+
+def test_report_shows_what_n_buys_and_linked_campaigns(tmp_path, dask_scheduler):
+    """A campaign with another campaign in a subdirectory (as the main job's seed slope):
+    the report gives the Wilson half-width now and the N for +-0.05 (1.96^2 p (1 - p) /
+    0.05^2, rounded up), and the linked campaign's table and figures."""
+    import json
+
+    from fem_rmpm.campaign.report import write_report
+    tiny = str(ROOT / "tests" / "data" / "mc_tiny.toml")
+    out = tmp_path / "mc"
+    assert main(["mc", tiny, "-n", "4", "--out", str(out), "--scheduler", dask_scheduler,
+                 "--quiet"]) == 0
+    assert main(["mc", tiny, "-n", "2", "--out", str(out / "seed_slope"), "--scheduler",
+                 dask_scheduler, "--quiet"]) == 0
+    page = write_report(out).read_text()
+    assert "What N buys" in page and "Linked campaigns" in page
+    assert 'href="seed_slope/report.html"' in page
+    c = json.loads((out / "summary.json").read_text())["cases"][0]
+    q = min(max(c["p_failure"], 1 / 5), 4 / 5)
+    need = math.ceil(1.959963984540054 ** 2 * q * (1 - q) / 0.05 ** 2)
+    assert f"<td>{need}</td>" in page

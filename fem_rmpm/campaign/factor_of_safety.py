@@ -119,6 +119,14 @@ def fs_text(s: dict | None) -> str:
            f"reliability index {'n/a' if beta is None else f'{beta:.2f}'}")
     if s["censored"]:
         txt += f", {s['censored']} censored (FS > 10 or < 0.1)"
+    f = s.get("fragility")
+    if f and f["split"]["failures"]:
+        sp, fit = f["split"], f.get("probit")
+        txt += (f"; of the {sp['failures']} failures {sp['progressive']} progressive (FS >= 1) "
+                f"and {sp['strength_limited']} strength-limited (FS < 1)")
+        if fit:
+            lo, hi = (("-" if v is None else f"{v:.3f}") for v in fit["fs50_interval95"])
+            txt += f"; fragility: P(failure) = 0.5 at FS {fit['fs50']:.3f} [{lo}, {hi}]"
     a = s.get("agreement")
     if a:
         txt += (f"; 'FS < 1' and MPM 'failed' agree in {a['agree']} of {a['n']} "
