@@ -136,6 +136,8 @@ def _cmd_mc(a) -> int:
                                    interface=a.interface,
                                    job_directives=tuple(a.job_directive or ()),
                                    adapt=campaign.parse_adapt(a.adapt))
+    if a.no_softening:
+        scene = campaign.perfectly_plastic(scene)
     if campaign.METHODS[a.method].response:
         if a.fs or a.fs_only:
             raise InputError("--fs / --fs-only: only for crude campaigns (--method crude); "
@@ -146,8 +148,6 @@ def _cmd_mc(a) -> int:
         return _cmd_main_job(a, cluster)
     if a.fs:
         scene = with_value(scene, "montecarlo.factor_of_safety", True)
-    if a.no_softening:
-        scene = campaign.perfectly_plastic(scene)
     given = [o for o, v in (("--response", a.response), ("--threshold", a.threshold),
                             ("--p0", a.p0)) if v is not None]
     if given:
