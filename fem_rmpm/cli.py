@@ -1,4 +1,4 @@
-"""Command line: ``fem-rmpm run | fem | mc | fs | field | report``.
+"""Command line: ``fem-rmpm run | fem | mc | converge | fs | field | report``.
 
 It parses the arguments, calls :mod:`fem_rmpm.api`, :mod:`fem_rmpm.campaign` or
 :mod:`fem_rmpm.io.field_output`, and prints their results.  Exit codes: 0 success, 2 bad
@@ -136,11 +136,16 @@ def _cmd_mc(a) -> int:
                                    interface=a.interface,
                                    job_directives=tuple(a.job_directive or ()),
                                    adapt=campaign.parse_adapt(a.adapt))
+    if a.no_softening:
+        scene = campaign.perfectly_plastic(scene)
     if campaign.METHODS[a.method].response:
         if a.fs or a.fs_only:
             raise InputError("--fs / --fs-only: only for crude campaigns (--method crude); "
                              "use --response factor_of_safety for subset simulation")
         return _cmd_mc_response(a, scene, cluster)
+    if (getattr(a, "default_scene", False) and not (a.case or a.set or a.fs_only or a.fs
+                                                    or a.no_softening)):
+        return _cmd_main_job(a, cluster)
     if a.fs:
         scene = with_value(scene, "montecarlo.factor_of_safety", True)
     given = [o for o, v in (("--response", a.response), ("--threshold", a.threshold),
@@ -161,6 +166,58 @@ def _cmd_mc(a) -> int:
                                 fs_only=a.fs_only, method=a.method)
     print(summary_text(res))
     return 3 if res.lost else 0
+
+
+def _cmd_converge(a) -> int:
+    """``fem-rmpm converge SCENE --cells 0.5,0.25,0.125 -n N --out DIR``: one campaign per
+    cell size (``DIR/cell_<h>``), then the paired comparison; 3 if realizations were lost."""
+    # lazy: the campaign runner (dask) loads only for this command
+    from fem_rmpm.campaign.convergence import mesh_directory, mesh_scene, parse_cells
+    from fem_rmpm.campaign.convergence_report import convergence_text  # lazy: as above
+    scene = scene_from_args(a)
+    cells = parse_cells(a.cells)
+    if a.no_softening:
+        scene = campaign.perfectly_plastic(scene)
+    cases = list(a.case) if a.case else campaign_cases(scene, a.scene)
+    if a.dry_run:
+        for h in cells:
+            est = campaign.estimate_campaign(mesh_scene(scene, h), mesh_directory(a.out, h),
+                                             realizations=a.realizations, cases=cases,
+                                             workers=a.workers, scheduler=a.scheduler,
+                                             force=a.force, keep_vtk=a.keep_vtk)
+            print(f"cell {h:g} m: " + campaign.estimate_text(est))
+        return 0
+    res = campaign.run_convergence(scene, a.out, cells, a.realizations, cases,
+                                   workers=a.workers, scheduler=a.scheduler, force=a.force,
+                                   keep_vtk=a.keep_vtk, progress=not a.quiet)
+    print(convergence_text(res.statistics))
+    print(f"Mesh convergence: {res.files[-1]} (table and figure), {res.files[0]}")
+    return 3 if any(r.lost for r in res.campaigns) else 0
+
+
+def _cmd_main_job(a, cluster: campaign.ClusterSpec) -> int:
+    """``fem-rmpm mc`` without SCENE, --case, --set: the main job
+    (:mod:`fem_rmpm.campaign.main_job`): the risk slope with its factor of safety in
+    ``--out``, the seed slope's four cases in ``--out/seed_slope``."""
+    from fem_rmpm.campaign import main_job   # lazy: the campaign runner (dask) loads here
+    risk = load_scene(main_job.main_scene_path())
+    opts = dict(workers=a.workers, scheduler=a.scheduler, force=a.force, cluster=cluster)
+    if a.dry_run:
+        seed = load_scene(default_scene_path())
+        for sc, out, n, cases, keep in (
+                (risk, a.out, a.realizations, list(risk.montecarlo.cases), a.keep_vtk),
+                (seed, os.path.join(a.out, main_job.SEED_DIRECTORY), 1,
+                 list(campaign.LITERATURE_CASES), 1)):
+            print(campaign.estimate_text(campaign.estimate_campaign(
+                sc, out, realizations=n, cases=cases, keep_vtk=keep, **opts)))
+        return 0
+    main, side = main_job.run_main_job(a.out, a.realizations, scene=risk, keep_vtk=a.keep_vtk,
+                                       progress=not a.quiet, **opts)
+    print(summary_text(main))
+    print(summary_text(side))
+    print(f"Main job: {os.path.join(a.out, 'report.html')} (the risk slope, its fragility "
+          f"and the seed slope's four cases); the full study: {main_job.FULL_STUDY}")
+    return 3 if main.lost or side.lost else 0
 
 
 # --------------------------------------------------------------------------- field
@@ -274,10 +331,13 @@ def _add_fem(sub) -> None:
 
 
 def _add_mc(sub) -> None:
-    m = _subcommand(sub, "mc", "Monte Carlo campaign on Dask (default: the four literature "
-                    "cases of the reference slope)",
+    m = _subcommand(sub, "mc", "Monte Carlo campaign on Dask (default: the main job)",
                     "Run realizations 0..N-1 of one or more cases of a scene on Dask; "
-                    "resumable (re-run the same command to finish or extend it).")
+                    "resumable (re-run the same command to finish or extend it).  Without "
+                    "SCENE, --case, --set and --fs: the main job, the risk slope (case xi = "
+                    "12, N = 16, each with its factor of safety, runs stopped once decided) "
+                    "in --out and the reference slope's four literature cases (one "
+                    "realization each) in --out/seed_slope, in one report.")
     _scene_arg(m, optional=True)
     m.add_argument("-n", "--realizations", type=int, default=None,
                    help="realizations per random case (default: the scene's [montecarlo] "
@@ -309,6 +369,10 @@ def _add_mc(sub) -> None:
                    "factor_of_safety = true)")
     m.add_argument("--fs-only", action="store_true", help="the factor of safety of every "
                    "realization instead of its MPM run")
+    m.add_argument("--no-softening", action="store_true", help="switch softening off: every "
+                   "residual strength a soil's model declares set to its peak (perfectly "
+                   "plastic at peak, as the strength reduction assumes); with --fs the report "
+                   "gives the agreement of stand/fail with FS < 1 (use its own --out)")
     m.add_argument("--method", choices=tuple(campaign.METHODS), default="crude",
                    help="; ".join(f"{k}: {e.help}" for k, e in campaign.METHODS.items())
                    + " (default crude; for subset -n is the samples per level, default 1000)")
@@ -320,6 +384,34 @@ def _add_mc(sub) -> None:
     m.add_argument("--p0", type=float, default=None,
                    help="subset: level probability in (0, 0.5] (default 0.1)")
     m.set_defaults(func=_cmd_mc)
+
+
+def _add_converge(sub) -> None:
+    cv = _subcommand(sub, "converge", "mesh convergence: the same realizations on two or "
+                     "three cell sizes",
+                     "Run the same cases and realizations (the same random fields when "
+                     "[random_field] box is set) on two or three cell sizes, one campaign "
+                     "per mesh in DIR/cell_<h> (resumable), and compare them: P(failure) "
+                     "per mesh, discordant pairs with an exact McNemar test, given-failure "
+                     "means; DIR/convergence.html, .png, .json.")
+    _scene_arg(cv, optional=True)
+    cv.add_argument("--cells", required=True, help="cell sizes in m, coarse to fine, e.g. "
+                    "0.5,0.25,0.125 (two or three)")
+    cv.add_argument("-n", "--realizations", type=int, default=None,
+                    help="realizations per random case and mesh (default: the scene's)")
+    cv.add_argument("--out", required=True, help="study directory (one campaign per mesh)")
+    cv.add_argument("--case", action="append", metavar="SPEC", help="a case (repeatable), "
+                    "as for mc (default: the scene's [montecarlo] cases)")
+    cv.add_argument("--set", action="append", metavar="KEY=VALUE", help=_SET_HELP)
+    cv.add_argument("--workers", type=int, default=None, help="local worker processes")
+    cv.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")
+    cv.add_argument("--keep-vtk", default=None, help="as for mc")
+    cv.add_argument("--no-softening", action="store_true", help="as for mc")
+    cv.add_argument("--force", action="store_true", help="recompute finished realizations")
+    cv.add_argument("--quiet", action="store_true", help="no progress bar")
+    cv.add_argument("--dry-run", action="store_true", help="print each mesh's campaign "
+                    "size and cost and exit (nothing written)")
+    cv.set_defaults(func=_cmd_converge)
 
 
 def _add_fs(sub) -> None:
@@ -381,7 +473,8 @@ def build_parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = p.add_subparsers(dest="command", required=True, title="commands")
-    for add in (_add_run, _add_fem, _add_mc, _add_fs, _add_field, _add_report):
+    for add in (_add_run, _add_fem, _add_mc, _add_converge, _add_fs, _add_field,
+                _add_report):
         add(sub)
     return p
 
@@ -406,7 +499,7 @@ def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
     if getattr(a, "scene", "x") is None:
-        a.scene = str(default_scene_path())
+        a.scene, a.default_scene = str(default_scene_path()), True
     try:
         _check_paths(a)
         code = int(a.func(a) or 0)

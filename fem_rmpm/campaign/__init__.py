@@ -8,7 +8,11 @@ realizations run); :mod:`.methods` (the campaign-method protocol and its table
 :mod:`.runner` (the one campaign runner: any method, records, lock, Dask);
 :mod:`.case_campaign` (campaigns of cases, :func:`run_campaign`), :mod:`.subset_runner`
 (response campaigns of a scene, ``fem-rmpm mc --method subset``), :mod:`.subset_plots`
-and :mod:`.summary_text` (the paragraphs ``fem-rmpm mc`` prints).
+and :mod:`.summary_text` (the paragraphs ``fem-rmpm mc`` prints); :mod:`.factor_of_safety`
+and :mod:`.fragility` (the FS of every realization, why each failed: progressive or
+strength-limited, the fragility curve, softening switched off), :mod:`.convergence` and
+:mod:`.convergence_report` (``fem-rmpm converge``: the same realizations on two or three
+meshes), :mod:`.main_job` (``fem-rmpm mc`` without a scene).
 
 ``fem-rmpm mc SCENE -n N --out DIR [--workers K | --scheduler ADDRESS]`` (or
 :func:`run_campaign` from Python) runs realizations ``0 .. N-1`` of one or more
@@ -171,7 +175,9 @@ _LAZY = {"start_local_cluster": ".cluster", "worker_environment": ".cluster",
          "ClusterSpec": ".backends", "parse_adapt": ".backends",
          "estimate_campaign": ".estimate", "estimate_text": ".estimate",
          "fs_text": ".factor_of_safety", "subset_summary_text": ".summary_text",
-         "summary_text": ".summary_text"}
+         "summary_text": ".summary_text", "perfectly_plastic": ".fragility",
+         "fragility_statistics": ".fragility", "run_convergence": ".convergence",
+         "convergence_statistics": ".convergence"}
 
 
 def __getattr__(name: str):
@@ -189,4 +195,5 @@ __all__ = ["CampaignError", "Case", "LITERATURE_CASES", "parse_case", "literatur
            "write_results", "result_columns", "parse_keep_vtk", "worker_environment",
            "start_local_cluster", "RECORD_COLUMNS", "CampaignMethod", "CrudeMonteCarlo", "METHODS",
            "SubsetSimulation", "subset_simulation", "run_subset_campaign", "summary_text",
-           "subset_summary_text"]
+           "subset_summary_text", "perfectly_plastic", "fragility_statistics",
+           "run_convergence", "convergence_statistics"]

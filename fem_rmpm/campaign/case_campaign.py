@@ -16,7 +16,13 @@ import numpy as np
 from fem_rmpm.campaign.backends import ClusterSpec, campaign_backend
 from fem_rmpm.campaign.cases import CampaignError, Case, parse_case
 from fem_rmpm.campaign.decide import decision_check, in_measure_sample, is_decided
-from fem_rmpm.campaign.factor_of_safety import fs_statistics, plot_factor_of_safety
+from fem_rmpm.campaign.factor_of_safety import (
+    fs_statistics,
+    plot_factor_of_safety,
+    plot_fragility,
+    plot_fs_scatter,
+)
+from fem_rmpm.campaign.fragility import has_softening
 from fem_rmpm.campaign.keep_vtk import kept, parse_keep_vtk
 from fem_rmpm.campaign.methods import METHODS, MethodOptions, PerCase, Sample
 from fem_rmpm.campaign.plots import campaign_figures
@@ -311,7 +317,7 @@ def _finish(out: Path, scene: Scene, plan: CasePlan, done: RunTally, t_start: fl
         "failure_displacement": scene.montecarlo.failure_displacement,
         "cases": [{"name": c.name, "spec": c.spec, "label": c.label,
                    "deterministic": c.deterministic, "realizations": counts[c.name],
-                   **stats[c.name]} for c in cases],
+                   "softening": has_softening(c.scene), **stats[c.name]} for c in cases],
         "this_run": {"computed": computed, "skipped_finished": skipped, "lost": lost,
                      "workers": desc, "compute_wall_time": compute_time,
                      "wall_time": res.wall_time,
@@ -335,5 +341,9 @@ def _finish(out: Path, scene: Scene, plan: CasePlan, done: RunTally, t_start: fl
         if any("fs" in stats[c.name] for c in cases):
             res.figures.append(plot_factor_of_safety(out / "factor_of_safety.png", cases,
                                                      stats, records))
+            for fig in (plot_fragility(out / "fragility.png", cases, stats),
+                        plot_fs_scatter(out / "fs_scatter.png", cases, mpm)):
+                if fig is not None:
+                    res.figures.append(fig)
         res.figures.append(write_report(out))
     return res

@@ -10,7 +10,8 @@ censored, "FS > 10" -> 10), ``fs_bound`` (-1: below ``f_min``, 0: found, 1: abov
 is the same on any number of workers).  Per case (:func:`fs_statistics`):
 P(FS < 1) with its binomial standard error and Wilson interval, the reliability index and
 the agreement between "FS < 1" and the MPM's ``failed``, with the realizations where they
-disagree listed with both values.
+disagree listed with both values, and with MPM runs the failure split and fragility curve
+of :mod:`fem_rmpm.campaign.fragility` (``fragility``).
 """
 from __future__ import annotations
 
@@ -22,12 +23,15 @@ from typing import Sequence
 import numpy as np
 
 from fem_rmpm import api
+from fem_rmpm.campaign.fragility import agreement_outside, fragility_statistics, probit_curve
 from fem_rmpm.campaign.statistics import wilson_interval
 from fem_rmpm.io.plots import _plt
+from fem_rmpm.measures import table
 from fem_rmpm.scene import Scene
 from fem_rmpm.schemes.implicit.strength_reduction import NonPhysicalFailure, factor_of_safety
 
-__all__ = ["MODES", "fs_measures", "fs_statistics", "fs_text", "plot_factor_of_safety"]
+__all__ = ["MODES", "fs_measures", "fs_statistics", "fs_text", "plot_factor_of_safety",
+           "plot_fragility", "plot_fs_scatter"]
 
 #: "off": no FS; "before": FS, then the MPM run; "only": FS instead of the MPM run.
 MODES = ("off", "before", "only")
@@ -96,6 +100,11 @@ def fs_statistics(rows: Sequence[dict]) -> dict | None:
                           "factor_of_safety": float(_get(r, "factor_of_safety")),
                           "failed": bool(_get(r, "failed")),
                           "max_displacement": _get(r, "max_displacement")} for r in differ]}
+        fs_b = [float(_get(r, "factor_of_safety")) for r in both]
+        below_b = [bool(_get(r, "fs_below_1")) for r in both]
+        failed_b = [bool(_get(r, "failed")) for r in both]
+        out["agreement"]["outside_margin"] = agreement_outside(fs_b, below_b, failed_b)
+        out["fragility"] = fragility_statistics(fs_b, below_b, failed_b)
     return out
 
 
@@ -110,6 +119,14 @@ def fs_text(s: dict | None) -> str:
            f"reliability index {'n/a' if beta is None else f'{beta:.2f}'}")
     if s["censored"]:
         txt += f", {s['censored']} censored (FS > 10 or < 0.1)"
+    f = s.get("fragility")
+    if f and f["split"]["failures"]:
+        sp, fit = f["split"], f.get("probit")
+        txt += (f"; of the {sp['failures']} failures {sp['progressive']} progressive (FS >= 1) "
+                f"and {sp['strength_limited']} strength-limited (FS < 1)")
+        if fit:
+            lo, hi = (("-" if v is None else f"{v:.3f}") for v in fit["fs50_interval95"])
+            txt += f"; fragility: P(failure) = 0.5 at FS {fit['fs50']:.3f} [{lo}, {hi}]"
     a = s.get("agreement")
     if a:
         txt += (f"; 'FS < 1' and MPM 'failed' agree in {a['agree']} of {a['n']} "
@@ -163,6 +180,85 @@ def plot_factor_of_safety(path: Path, cases, stats: dict, records: Sequence[dict
         ax.set_ylabel("MPM max displacement (m)")
         ax.legend(fontsize=8)
     fig.suptitle("Factor of safety per realization", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_fragility(path: Path, cases, stats: dict) -> Path | None:
+    """Fragility curve P(failure | FS) per case: the binned fractions with their Wilson
+    95 % intervals (points at the bin's mean FS, horizontal bar its FS range), the fitted
+    probit curve, FS50 with its profile-likelihood interval (shaded); FS = 1 dashed.
+    None when no case has an FS and an MPM run."""
+    frag = [(k, c, (stats.get(c.name) or {}).get("fs", {}).get("fragility"))
+            for k, c in enumerate(cases)]
+    frag = [(k, c, f) for k, c, f in frag if f and f["n"]]
+    if not frag:
+        return None
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(8, 4.6))
+    lo_all = min(b["fs_min"] for _, _, f in frag for b in f["binned"])
+    hi_all = max(b["fs_max"] for _, _, f in frag for b in f["binned"])
+    x = np.linspace(lo_all - 0.05, hi_all + 0.05, 300)
+    for k, c, f in frag:
+        col = f"C{k}"
+        b = f["binned"]
+        xm = np.array([v["fs_mean"] for v in b])
+        p = np.array([v["p"] for v in b])
+        lo = np.array([v["wilson95"][0] for v in b])
+        hi = np.array([v["wilson95"][1] for v in b])
+        xerr = np.array([[v["fs_mean"] - v["fs_min"] for v in b],
+                         [v["fs_max"] - v["fs_mean"] for v in b]])
+        fit = f.get("probit")
+        lab = f"{c.label} (N = {f['n']})"
+        if fit:
+            a, z = fit["fs50_interval95"]
+            lab += (f": FS50 = {fit['fs50']:.3f} [{'-' if a is None else f'{a:.3f}'}, "
+                    f"{'-' if z is None else f'{z:.3f}'}]")
+            ax.plot(x, probit_curve(fit, x), color=col, lw=1.5)
+            ax.axvspan(x[0] if a is None else a, x[-1] if z is None else z, color=col,
+                       alpha=0.12)
+        ax.errorbar(xm, p, yerr=[p - lo, hi - p], xerr=xerr, fmt="o", ms=5, color=col,
+                    capsize=3, lw=1, label=lab)
+    ax.axvline(1.0, color="k", ls="--", lw=1)
+    ax.set_xlabel("factor of safety (strength reduction at peak strength)")
+    ax.set_ylabel("P(failure | FS) (MPM)")
+    ax.set_ylim(-0.03, 1.03)
+    ax.legend(fontsize=8, title="binned (Wilson 95 %), probit fit; FS50 [profile 95 %]",
+              title_fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_fs_scatter(path: Path, cases, records: Sequence[dict]) -> Path | None:
+    """FS against sliding area and against run-out per realization run to rest (marker per
+    case; failed filled, stood hollow); FS = 1 dashed.  None without such realizations."""
+    keys = ("sliding_area", "runout_distance")
+    rows = [r for r in records if r["status"] == "ok" and _get(r, "factor_of_safety") is not None
+            and all(_get(r, k) is not None for k in keys)]
+    if not rows:
+        return None
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    for ax, key in zip(axes, keys):
+        for k, c in enumerate(cases):
+            for failed in (True, False):
+                pts = np.array([(float(_get(r, "factor_of_safety")), float(_get(r, key)))
+                                for r in rows if r["case"] == c.name
+                                and bool(_get(r, "failed")) == failed]).reshape(-1, 2)
+                if len(pts):
+                    ax.plot(pts[:, 0], pts[:, 1], "o", ms=5, color=f"C{k}",
+                            mfc=f"C{k}" if failed else "none",
+                            label=f"{c.label}: {'failed' if failed else 'stood'}")
+        ax.axvline(1.0, color="k", ls="--", lw=1)
+        ax.set_xlabel("factor of safety")
+        ax.set_ylabel(table.axis_label(key))
+        ax.legend(fontsize=7)
+    fig.suptitle("Factor of safety against the MPM's sliding area and run-out "
+                 "(realizations run to rest)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -52,6 +52,13 @@ FIGURES = (
     ("risk_exceedance.png", "Risk study: exceedance curves of sliding area, run-out and "
                             "retrogression, over all realizations (top) and given failure "
                             "(bottom)."),
+    ("fragility.png", "Fragility: P(failure | FS) of the MPM per case, binned (Wilson 95 %) "
+                      "with the probit curve fitted by maximum likelihood and FS50 with its "
+                      "profile-likelihood 95 % interval (shaded)."),
+    ("fs_scatter.png", "Factor of safety against sliding area and run-out (filled: failed, "
+                       "hollow: stood), realizations run to rest."),
+    ("factor_of_safety.png", "Factor of safety per realization: histogram per case, and "
+                             "against the MPM's largest displacement."),
     ("risk_modes.png", "Risk study: failure modes per case (rule in the section above) and "
                        "the failure surface's height above the base, given failure."),
 )
@@ -226,9 +233,127 @@ def _results(summary: dict) -> str:
             "which a point moved more than the failure displacement; SE = sqrt(p (1 - p) / N); "
             "Wilson 95 % score interval." + _esc(decided) + "</p>" + _table(head, rows, "cases")
             + _decision_check(summary)
-            + "<p>Measures: mean ± standard error of the mean, [5 %, 50 %, 95 %] "
+            + (_table_of_measures(cases, mrows) if any(
+                c.get("measure_runs", c.get("ok")) for c in cases) else
+               "<p>No realization ran to rest (every run stopped once its failure was "
+               "decided): no measures of the deposit.</p>"))
+
+
+def _table_of_measures(cases: list[dict], mrows: list) -> str:
+    return ("<p>Measures: mean ± standard error of the mean, [5 %, 50 %, 95 %] "
             "quantiles, over the realizations of each case run to rest.</p>"
             + _table(["measure"] + [_label(c) for c in cases], mrows, "measures"))
+
+
+def _ci(w: Any) -> str:
+    return "–" if not w else f"[{_num(w[0])}, {_num(w[1])}]"
+
+
+def _why_failed(summary: dict) -> str:
+    """Per case with FS and MPM runs: P(failure) beside P(FS < 1), the split of the
+    failures (progressive / strength-limited), FS50 of the fragility fit, and the
+    agreement of stand/fail with FS < 1 (all realizations; outside |FS - 1| <= margin)."""
+    rows, differ, soft = [], [], set()
+    for c in summary.get("cases", []):
+        fs = c.get("fs") or {}
+        f = fs.get("fragility")
+        if not f:
+            continue
+        soft.add(bool(c.get("softening", True)))
+        sp, fit, a = f["split"], f.get("probit"), fs.get("agreement") or {}
+        out = a.get("outside_margin") or {}
+        fit_txt = "no fit (all failed or none)" if not fit else (
+            f"{_num(fit['fs50'])} {_ci(fit['fs50_interval95'])}<br><small>s = "
+            f"{_num(fit['s'])}{', separated' if fit['separated'] else ''}</small>")
+        rows.append([_label(c), _num(f["n"]),
+                     f"{_num(f['p_failure'])} {_ci(f['p_failure_wilson95'])}",
+                     f"{_num(f['p_fs_below_1'])} {_ci(f['p_fs_below_1_wilson95'])}",
+                     f"{_num(sp['progressive'])} of {_num(sp['failures'])}: "
+                     f"{_num(sp['progressive_fraction'])} {_ci(sp['progressive_wilson95'])}",
+                     f"{_num(sp['strength_limited'])}: {_num(sp['strength_limited_fraction'])}"
+                     f" {_ci(sp['strength_limited_wilson95'])}", fit_txt,
+                     f"{_num(a.get('agree'))} of {_num(a.get('n'))}; outside ±"
+                     f"{_num(out.get('margin'))}: {_num(out.get('agree'))} of "
+                     f"{_num(out.get('n'))}"])
+        differ += [[_label(c), _num(d["index"]), _num(d["seed"]), _num(d["factor_of_safety"]),
+                    _num(d["failed"]), _num(d.get("max_displacement"))]
+                   for d in a.get("disagree") or []]
+    if not rows:
+        return ""
+    mode = ("Softening was switched off in this campaign (every residual strength set to its "
+            "peak: perfectly plastic, as in the strength reduction), so stand/fail should agree "
+            "with FS < 1 except near FS = 1: this is the consistency check of the MPM against "
+            "strength reduction. " if soft == {False} else
+            "A failure with FS ≥ 1 is progressive: the slope stands at peak strength and the "
+            "softening after first yield brings it down; one with FS < 1 is strength-limited. "
+            "A strength-reduction analysis at peak strength (RFEM) counts only the second kind. ")
+    head = [_esc(h) for h in (
+        "case", "N (FS and MPM)", "P(failure) [Wilson 95 %]", "P(FS < 1) [Wilson 95 %]",
+        "progressive failures (FS ≥ 1)", "strength-limited (FS < 1)",
+        "FS50 (P = 0.5) [profile 95 %]", "stand/fail agrees with FS < 1")]
+    listing = ("" if not differ else "<p>Realizations where stand/fail and FS &lt; 1 differ:</p>"
+               + _table(("case", "index", "seed", "FS", "MPM failed", "max displacement (m)"),
+                        differ))
+    return ("<h2>Why the realizations failed</h2><p>" + _esc(mode) + "FS: strength reduction "
+            "at peak strength of the same random field (perfectly plastic). Fragility: probit "
+            "P(failure | FS) = Φ((FS50 − FS)/s) fitted by maximum likelihood; the interval of "
+            "FS50 is the profile-likelihood 95 % interval (figure fragility.png).</p>"
+            + _table(head, rows, "fragility") + listing)
+
+
+def _what_n_buys(summary: dict, campaign: Path) -> str:
+    """The Wilson 95 % half-width of P(failure) per random case now, the N that would give
+    a half-width of 0.05 at the observed P (normal approximation 1.96^2 p (1 - p) / 0.05^2),
+    and the command that extends the campaign (``main_job.json`` may name the full study)."""
+    rows = []
+    for c in summary.get("cases", []):
+        n, p, w = c.get("mpm_runs") or c.get("ok"), c.get("p_failure"), c.get("wilson95")
+        if c.get("deterministic") or not n or p is None or not w:
+            continue
+        q = min(max(p, 1.0 / (n + 1)), 1 - 1.0 / (n + 1))   # 0 or 1: one count's worth
+        need = math.ceil(1.959963984540054 ** 2 * q * (1 - q) / 0.05 ** 2)
+        rows.append([_label(c), _num(n), _num(p), f"± {_num((w[1] - w[0]) / 2)}",
+                     f"{_num(0.98 / math.sqrt(n))}", _num(need)])
+    if not rows:
+        return ""
+    try:
+        job = _read_json(campaign / "main_job.json")
+    except (FileNotFoundError, ValueError):
+        job = {}
+    extend = (job.get("full_study") if isinstance(job, dict) else None) or (
+        "re-run the same command with a larger -n: the finished realizations are reused")
+    return ("<h2>What N buys</h2><p>The Wilson 95 % interval of P(failure) narrows as "
+            "1/√N: its half-width is at most about 0.98/√N (at P = 0.5). For the full study: "
+            f"<code>{_esc(extend)}</code>.</p>"
+            + _table(("case", "N", "P(failure)", "Wilson 95 % half-width now",
+                      "worst case 0.98/√N", "N for ± 0.05 at this P"), rows))
+
+
+def _linked(campaign: Path) -> str:
+    """Campaigns in subdirectories of this one (e.g. the main job's seed slope): their
+    P(failure) per case and their figures of one realization per case."""
+    parts = []
+    for sub in sorted(p for p in campaign.iterdir() if p.is_dir()):
+        try:
+            s = _read_json(sub / "summary.json")
+        except (FileNotFoundError, ValueError, OSError):
+            continue
+        if not isinstance(s, dict) or "cases" not in s:
+            continue
+        rows = [[_label(c), _num(c.get("ok")), _num(c.get("slope_failures")),
+                 f"{_num(c.get('p_failure'))} {_ci(c.get('wilson95'))}",
+                 _num((c.get("runout_distance") or {}).get("mean")),
+                 _num((c.get("sliding_area") or {}).get("mean"))] for c in s["cases"]]
+        figs = "".join(_figure(sub / name, f"{s.get('scene', sub.name)}: {cap}", name)
+                       for name, cap in (("cases_mechanism.png", "one realization per case at "
+                                          "the mechanism time"),
+                                         ("cases.png", "one realization per case at rest"))
+                       if (sub / name).is_file())
+        parts.append(f"<h3>{_esc(s.get('scene', sub.name))} "
+                     f'(<a href="{_esc(sub.name)}/report.html">{_esc(sub.name)}/</a>)</h3>'
+                     + _table(("case", "N", "failures", "P(failure) [Wilson 95 %]",
+                               "run-out mean (m)", "sliding area mean (m2/m)"), rows) + figs)
+    return "" if not parts else "<h2>Linked campaigns</h2>" + "".join(parts)
 
 
 def _decision_check(summary: dict) -> str:
@@ -473,8 +598,9 @@ def report_html(campaign_dir: str | Path) -> str:
         'Files: <a href="results.csv">results.csv</a> · <a href="summary.json">summary.json</a>'
         ' · <a href="records/">records/</a></small></p>',
         _provenance(summary, identity, records), _subset(summary), _results(summary),
+        _why_failed(summary), _what_n_buys(summary, campaign),
         _risk_study(campaign), _failures(records),
-        _figures(campaign), _representatives(campaign, records)))
+        _figures(campaign), _linked(campaign), _representatives(campaign, records)))
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
             f"<title>{_esc(title)}</title><style>{_CSS}</style><script>{_SCRIPT}</script>"
             f"</head><body>{body}</body></html>\n")
