@@ -55,6 +55,7 @@ from fem_rmpm.schemes.explicit.loop import run_explicit
 from fem_rmpm.schemes.explicit.threads import auto_threads, threads_from_auto
 from fem_rmpm.schemes.fem import FemResult, solve_static
 from fem_rmpm.schemes.implicit import run_implicit, strength_reduction
+from fem_rmpm.schemes.pore_pressure import saturate_points
 
 __all__ = ["load_scene", "with_value", "prepare", "run", "fem", "factor_of_safety", "RunResult",
            "noise_shape", "field_noise", "with_run_threads", "SceneError", "SimulationError",
@@ -81,6 +82,7 @@ def prepare(scene: Scene, seed: int | None = None, noise=None) -> tuple[Grid, Pa
     check_budget(scene)                        # refuse before allocating (BudgetError)
     grid = make_grid(scene)
     pts = seed_particles(scene, grid)
+    saturate_points(scene, pts)                # [water]: saturated mass below the surface
     if scene.random_field is not None:
         seed = scene.montecarlo.seed if seed is None else seed
         values = sample_point_properties(scene, grid, pts, seed, noise=noise)
