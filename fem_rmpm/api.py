@@ -55,7 +55,7 @@ from fem_rmpm.schemes.explicit.loop import run_explicit
 from fem_rmpm.schemes.explicit.threads import auto_threads, threads_from_auto
 from fem_rmpm.schemes.fem import FemResult, solve_static
 from fem_rmpm.schemes.implicit import run_implicit, strength_reduction
-from fem_rmpm.schemes.pore_pressure import saturate_points
+from fem_rmpm.schemes.pore_pressure import saturate_points, vtk_fields
 
 __all__ = ["load_scene", "with_value", "prepare", "run", "fem", "factor_of_safety", "RunResult",
            "noise_shape", "field_noise", "with_run_threads", "SceneError", "SimulationError",
@@ -149,7 +149,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
     grid, pts = prepare(scene, seed, noise)
     vtk = scene.output.vtk if vtk is None else vtk
     figures = scene.output.png if figures is None else figures
-    series = PvdSeries(out) if (out is not None and vtk) else None
+    series = PvdSeries(out, extra=vtk_fields(scene)) if (out is not None and vtk) else None
     snapshots: list = []
 
     def on_output(t, p):

@@ -3,7 +3,8 @@
 :func:`with_value` / :func:`with_values` return a validated, modified copy of a scene
 (for driver scripts, ``--set`` and campaign cases).  The spec dataclasses live in
 :mod:`fem_rmpm.scene.spec`, reading and validating TOML in :mod:`fem_rmpm.scene.schema`
-(typed values :mod:`fem_rmpm.scene.values`, the random field :mod:`fem_rmpm.scene.fields`);
+(typed values :mod:`fem_rmpm.scene.values`, the random field :mod:`fem_rmpm.scene.fields`,
+the pore water :mod:`fem_rmpm.scene.water`);
 every public name of both is re-exported here, so ``from fem_rmpm.scene import
 load_scene, Scene, SceneError`` keeps working.
 """

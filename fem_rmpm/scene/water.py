@@ -32,7 +32,7 @@ __all__ = ["build_water", "check_water", "water_to_dict", "drainage_of", "true_p
 #: effective-stress (drained, c', phi') model; von Mises a total-stress (undrained, s_u)
 #: one, pressure-independent, so its stored stress is read as sigma + u I; linear elastic
 #: is either.
-MODEL_DRAINAGE = {"mohr_coulomb": ("drained",), "von_mises": ("undrained",),
+MODEL_DRAINAGE = {"mohr_coulomb_softening": ("drained",), "von_mises_softening": ("undrained",),
                   "linear_elastic": ("drained", "undrained")}
 
 

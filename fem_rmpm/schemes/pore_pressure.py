@@ -37,13 +37,11 @@ from fem_rmpm.scene import Scene
 from fem_rmpm.scene.water import true_polyline
 
 __all__ = ["WaterTable", "water_table", "pore_pressure", "water_force", "water_forces",
-           "water_ramp", "nodal_water_force", "saturate_points", "total_stress", "NO_WATER", "NO_FRAME", "scaled_water"]
+           "water_ramp", "nodal_water_force", "saturate_points", "total_stress", "vtk_fields",
+           "scaled_water"]
 
 #: Columns of a segment row of :attr:`WaterTable.segments`.
 X0, Y0, SLOPE, COEF, G0, G1 = range(6)
-#: The empty table of a scene without water (the compiled step skips the water force).
-NO_WATER = np.zeros((0, 6))
-NO_FRAME = np.zeros(4)
 
 
 @dataclass(frozen=True)
@@ -166,6 +164,21 @@ def total_stress(scene: Scene, pts) -> tuple[np.ndarray, np.ndarray] | None:
     sig = pts.stress.copy()
     sig[:, :3] -= u[:, None]
     return u, sig
+
+
+def vtk_fields(scene: Scene):
+    """None without ``[water]``; else pts -> {"pore_pressure": u (n,) kPa, "total_stress":
+    (n, 6) kPa (xx yy zz xy, yz = xz = 0)}: the points' extra VTK fields
+    (:class:`fem_rmpm.io.output.PvdSeries`).  The stored ``stress`` is then sigma'."""
+    if scene.water is None:
+        return None
+
+    def fields(pts) -> dict:
+        u, sig = total_stress(scene, pts)
+        six = np.zeros((len(u), 6))
+        six[:, :4] = sig
+        return {"pore_pressure": u, "total_stress": six}
+    return fields
 
 
 def scaled_water(scene: Scene, factor: float) -> Scene:

@@ -83,14 +83,11 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     order whenever ``on_output``, a guard or the caller sees them; the ordinary steps between
     two steps the loop must see run in one compiled call (:func:`.step.advance`, bitwise the
     same).  ``threads``: :func:`.threads.run_threads`.  ``pts.F``: NaN (not tracked)."""
-    sv = scene.solver
+    sv, water = scene.solver, water_table(scene)      # water: the pore water (None: dry)
     kernel = kernel or getattr(sv, "kernel", None) or DEFAULT_KERNEL
     if kernel not in KERNELS:
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
-    work = Workspace.for_grid(grid, pts.n) if kernel == "numba" else None
-    water = water_table(scene)       # pore water (None: dry)
-    if work is not None:
-        work.water = water
+    work = Workspace.for_grid(grid, pts.n, water) if kernel == "numba" else None
     threads = run_threads(int(getattr(sv, "threads", 0)), kernel)
     pts.F[...] = np.nan              # the step needs det(dF) only (volume), not the total F
     h_min, g_full = float(np.min(grid.cell)), np.array(scene.gravity_vector)

@@ -58,10 +58,7 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                                    fbar, water)
     if kernel != "numba":
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
-    if work is None:
-        work = Workspace.for_grid(grid, pts.n)
-        work.water = water
-    w = work
+    w = work if work is not None else Workspace.for_grid(grid, pts.n, water)
     (P, M), N, S, call = w.bind(grid, pts, shape == "gimp"), w.nodes, w.scratch, w.call
     o = K.StepOptions(float(dt), float(gravity[0]), float(gravity[1]), float(damping),
                       float(flip), bool(geostatic), shape == "gimp", bool(fbar), int(threads),

@@ -206,10 +206,12 @@ class Workspace:
         return result
 
     @classmethod
-    def for_grid(cls, grid, n_points: int) -> "Workspace":
+    def for_grid(cls, grid, n_points: int, water=None) -> "Workspace":
+        """The workspace of ``n_points`` points on ``grid``; ``water``: the pore water's
+        :class:`fem_rmpm.schemes.pore_pressure.WaterTable` (None: dry)."""
         nn, n = grid.n_nodes, n_points
         nodes = node_arrays(nn, node_arrays(nn))
-        return cls(nodes, scratch_for(n, grid.n_cells))
+        return cls(nodes, scratch_for(n, grid.n_cells), water=water)
 
 
 def node_arrays(nn: int, half: NodeArrays | None = None) -> NodeArrays:
