@@ -64,6 +64,7 @@ from fem_rmpm.schemes.explicit3d import run_explicit_3d
 from fem_rmpm.schemes.fem import FemResult, solve_static
 from fem_rmpm.schemes.fem3d import Fem3DResult, solve_static_3d
 from fem_rmpm.schemes.implicit import run_implicit, strength_reduction
+from fem_rmpm.schemes.pore_pressure import saturate_points, vtk_fields
 
 __all__ = ["load_scene", "with_value", "prepare", "run", "fem", "factor_of_safety", "RunResult",
            "noise_shape", "field_noise", "with_run_threads", "SceneError", "SimulationError",
@@ -93,6 +94,7 @@ def prepare(scene: Scene, seed: int | None = None, noise=None) -> tuple[Grid, Pa
         return grid3, seed_particles_3d(scene, grid3)
     grid = make_grid(scene)
     pts = seed_particles(scene, grid)
+    saturate_points(scene, pts)                # [water]: saturated mass below the surface
     if scene.random_field is not None:
         seed = scene.montecarlo.seed if seed is None else seed
         values = sample_point_properties(scene, grid, pts, seed, noise=noise)
@@ -200,7 +202,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
     grid, pts = prepare(scene, seed, noise)
     vtk = scene.output.vtk if vtk is None else vtk
     figures = scene.output.png if figures is None else figures
-    series = PvdSeries(out) if (out is not None and vtk) else None
+    series = PvdSeries(out, extra=vtk_fields(scene)) if (out is not None and vtk) else None
     snapshots = SnapshotStore()
 
     def on_output(t, p):

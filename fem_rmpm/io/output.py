@@ -240,11 +240,13 @@ def _particle_blocks(pts: Particles) -> dict[str, _Blocks]:
     }
 
 
-def write_particles(path: str | Path, pts: Particles) -> None:
+def write_particles(path: str | Path, pts: Particles, extra=None) -> None:
     """One ``.vtu`` of the material points (vertex cells) with the fields above, raw
     binary appended data (:func:`write_points_vtu`), uncompressed, computed and written a
     block of points at a time; a non-finite value in any field (checked in the order
-    above, the positions last) stops the write and leaves no file."""
+    above, the positions last) stops the write and leaves no file.  ``extra``: more
+    fields {name: (n,) or (n, k) float array}, after these (e.g. the pore water's
+    ``pore_pressure`` and ``total_stress``)."""
     path = Path(path)
     where = str(path)
 
@@ -254,7 +256,17 @@ def write_particles(path: str | Path, pts: Particles) -> None:
 
     write_points_vtu(path, _Blocks(np.dtype(np.float64), 3,
                                    lambda lo, hi: _padded(pts.x[lo:hi], 3)),
-                     _particle_blocks(pts), check, n=pts.n)
+                     {**_particle_blocks(pts), **_extra_blocks(extra)}, check, n=pts.n)
+
+
+def _extra_blocks(extra) -> dict[str, _Blocks]:
+    """The :class:`_Blocks` of :func:`write_particles`' ``extra`` fields."""
+    out = {}
+    for name, a in (extra or {}).items():
+        a = np.asarray(a, dtype=np.float64)
+        out[name] = _Blocks(np.dtype(np.float64), 1 if a.ndim == 1 else a.shape[1],
+                            lambda lo, hi, a=a: a[lo:hi])
+    return out
 
 
 def write_grid(path: str | Path, grid, active_cells: np.ndarray | None = None) -> None:
@@ -313,14 +325,15 @@ class PvdSeries:
     renamed into place; not flushed to disk, ``fsync``, as its frames are not either: ~1 ms
     a frame, 1 % of a two-thread run of the reference slope, measured)."""
 
-    def __init__(self, directory: str | Path, stem: str = "particles"):
+    def __init__(self, directory: str | Path, stem: str = "particles", extra=None):
         self.dir = Path(directory)
         self.stem = stem
         self.entries: list[tuple[float, str]] = []
+        self.extra = extra           # pts -> {name: array} of more point fields, or None
 
     def add(self, t: float, pts: Particles) -> Path:
         name = f"{self.stem}_{len(self.entries):04d}.vtu"
-        write_particles(self.dir / name, pts)
+        write_particles(self.dir / name, pts, self.extra(pts) if self.extra else None)
         self.entries.append((t, name))
         rows = "\n".join(f'    <DataSet timestep="{tt:.9g}" group="" part="0" file="{f}"/>'
                          for tt, f in self.entries)

@@ -8,7 +8,7 @@ import numpy as np
 from fem_rmpm.io.output import to_true_frame
 
 __all__ = ["plot_snapshots", "plot_profile", "plot_energy", "plot_field", "draw_ground",
-           "strain_norm", "strain_panel", "STRAIN_FLOOR"]
+           "draw_water", "strain_norm", "strain_panel", "STRAIN_FLOOR"]
 
 #: Lower end of the logarithmic plastic-strain colour scale: points below it (elastic or
 #: barely yielded) take the lowest colour.
@@ -34,6 +34,28 @@ def draw_ground(ax, scene) -> None:
         P = to_true_frame(np.vstack([soil.polygon, soil.polygon[:1]]), a)
         ax.plot(P[:, 0], P[:, 1], "k--", lw=0.7, zorder=3,
                 label="initial soil" if k == 0 else None)
+    draw_water(ax, scene)
+
+
+def draw_water(ax, scene) -> None:
+    """The phreatic surface (blue, true frame) over the soils' horizontal extent; no-op
+    without ``[water]``."""
+    w = getattr(scene, "water", None)
+    if w is None:
+        return
+    a = scene.scene.frame_angle_deg
+    soil = to_true_frame(np.vstack([so.polygon for so in scene.soils]).astype(float), a)
+    line = to_true_frame(np.asarray(w.phreatic_surface, float), a)
+    X = np.linspace(soil[:, 0].min(), soil[:, 0].max(), 400)
+    X = np.union1d(X, line[(line[:, 0] > X[0]) & (line[:, 0] < X[-1]), 0])
+    Y = np.interp(X, line[:, 0], line[:, 1])
+    ends = (X < line[0, 0]) | (X > line[-1, 0])       # the end segments continued
+    if ends.any():
+        k = np.clip(np.searchsorted(line[:, 0], X, side="right") - 1, 0, len(line) - 2)
+        slope = (line[k + 1, 1] - line[k, 1]) / (line[k + 1, 0] - line[k, 0])
+        Y = np.where(ends, line[k, 1] + slope * (X - line[k, 0]), Y)
+    ax.plot(X, Y, color="tab:blue", lw=1.2, zorder=4,
+            label=f"phreatic surface ({w.pore_pressure})")
 
 
 def strain_panel(ax, X: np.ndarray, strain: np.ndarray, spacing: float, norm,
@@ -113,6 +135,7 @@ def plot_profile(path: str | Path, initial: list, final: list, title: str = "",
             P = to_true_frame(np.asarray(rock.polygon, float), a)
             ax.fill(P[:, 0], P[:, 1], facecolor="0.85", edgecolor="0.4", hatch="//", lw=0.8,
                     zorder=0, label="bedrock" if k == 0 else None)
+        draw_water(ax, scene)
     for prof, lab, st in ((initial, "initial surface", "k--"), (final, "final surface", "r-")):
         if prof:
             a = np.array(prof)

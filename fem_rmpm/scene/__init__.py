@@ -4,7 +4,8 @@
 (for driver scripts, ``--set`` and campaign cases).  The spec dataclasses live in
 :mod:`fem_rmpm.scene.spec`, reading and validating TOML in :mod:`fem_rmpm.scene.schema`
 (typed values :mod:`fem_rmpm.scene.values`, the random field :mod:`fem_rmpm.scene.fields`,
-the dimension of a scene :mod:`fem_rmpm.scene.dimension`);
+the dimension of a scene :mod:`fem_rmpm.scene.dimension`, the pore water
+:mod:`fem_rmpm.scene.water`);
 every public name of both is re-exported here, so ``from fem_rmpm.scene import
 load_scene, Scene, SceneError`` keeps working.
 """

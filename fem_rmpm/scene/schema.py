@@ -38,8 +38,10 @@ from fem_rmpm.scene.spec import (
     SceneInfo,
     SoilSpec,
     SolverSpec,
+    WaterSpec,
 )
 from fem_rmpm.scene.values import _build, _fail, _infinity
+from fem_rmpm.scene.water import build_water, check_water, water_to_dict
 
 __all__ = ["load_scene", "scene_from_dict", "scene_to_dict", "check_seed", "polygon_problem"]
 
@@ -48,7 +50,7 @@ __all__ = ["load_scene", "scene_from_dict", "scene_to_dict", "check_seed", "poly
 _SECTIONS = {"scene": SceneInfo, "grid": GridSpec, "boundary": BoundarySpec, "soil": SoilSpec,
              "bedrock": BedrockSpec, "prescribed": PrescribedSpec,
              "random_field": RandomFieldSpec, "solver": SolverSpec,
-             "montecarlo": MonteCarloSpec, "output": OutputSpec}
+             "montecarlo": MonteCarloSpec, "output": OutputSpec, "water": WaterSpec}
 
 _LISTS = ("soil", "bedrock", "prescribed")     # sections that are arrays of tables
 _SOIL_DEFAULT = {f.name: f.default for f in dataclasses.fields(SoilSpec)}
@@ -300,6 +302,7 @@ def _check_scene(s: Scene) -> None:
                         "allowed: [solver] scheme = \"implicit\" with dynamic = false")
     if s.random_field is not None:
         check_random_field(s)
+    check_water(s)                   # [water] and the soils' drainage (scene.water)
 
 
 def scene_from_dict(data: dict, source: str = "<dict>") -> Scene:
@@ -333,6 +336,7 @@ def scene_from_dict(data: dict, source: str = "<dict>") -> Scene:
         montecarlo=_build(source, "montecarlo", MonteCarloSpec, data.get("montecarlo", {})),
         output=_build(source, "output", OutputSpec, data.get("output", {})),
         source=source,
+        water=build_water(source, data["water"]) if "water" in data else None,
     )
     if scene.grid.file is not None and source not in ("<dict>",):
         p = Path(scene.grid.file)
@@ -389,6 +393,8 @@ def scene_to_dict(scene: Scene) -> dict:
         out["prescribed"] = [dataclasses.asdict(b) for b in scene.prescribed]
     if scene.random_field is not None:
         out["random_field"] = random_field_to_dict(scene.random_field)
+    if scene.water is not None:
+        out["water"] = water_to_dict(scene.water)
 
     def clean(v: Any) -> Any:
         if isinstance(v, dict):

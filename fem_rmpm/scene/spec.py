@@ -20,7 +20,7 @@ __all__ = [
     "scene_key",
     "SceneError", "Scene", "SceneInfo", "GridSpec", "BoundarySpec", "SoilSpec",
     "BedrockSpec", "PrescribedSpec", "RandomFieldSpec", "PropertyFieldSpec", "SolverSpec",
-    "MonteCarloSpec", "OutputSpec",
+    "MonteCarloSpec", "OutputSpec", "WaterSpec",
     "BOUNDARY_KINDS", "SCHEMES", "SHAPES", "EDGE_POLICIES", "DISTRIBUTIONS", "CORRELATIONS",
 ]
 
@@ -38,6 +38,8 @@ SHAPES = ("standard", "gimp")
 EDGE_POLICIES = ("freeze", "stop")
 DISTRIBUTIONS = ("normal", "lognormal", "beta")
 CORRELATIONS = ("markov_elliptic", "markov_separable")
+PORE_PRESSURES = ("hydrostatic", "parallel_seepage")
+DRAINAGE = ("drained", "undrained")
 
 
 def scene_key(default: Any = dataclasses.MISSING, doc: str = "", unit: str = "") -> Any:
@@ -118,6 +120,9 @@ class SoilSpec:
     plan: tuple[tuple[float, float], ...] | None = scene_key(
         None, "3-D only: plan shape [[x, z], ...]; a cell is soil when its centre is in the "
         "section, the strike range and this polygon", "m")
+    unit_weight_saturated: float | None = None  # kN/m3 below the phreatic surface ([water])
+    drainage: str | None = None         # "drained" (effective stress) | "undrained" (total);
+    #                                     None: the model's (fem_rmpm.scene.water.drainage_of)
 
     def value(self, name: str, default: Any = None) -> Any:
         """The value of parameter ``name`` of this soil's model (or ``default``)."""
@@ -142,7 +147,8 @@ class SoilSpec:
 
 _SOIL_FIELDS = ("polygon", "unit_weight", "youngs_modulus", "poisson_ratio", "name",
                 "points_per_cell_dir", "model", "cohesion_peak", "cohesion_residual", "softening",
-                "softening_strain", "strike", "plan")
+                "softening_strain", "strike", "plan", "unit_weight_saturated",
+                "drainage")
 
 
 @dataclass(frozen=True)
@@ -316,6 +322,20 @@ class OutputSpec:
 
 
 @dataclass(frozen=True)
+class WaterSpec:
+    """``[water]``: a steady phreatic surface and the pore pressure below it (effective
+    stress; :mod:`fem_rmpm.scene.water`, :mod:`fem_rmpm.schemes.pore_pressure`).  Where the
+    surface lies above the ground it is a free water level loading the soil surface."""
+    phreatic_surface: tuple[tuple[float, float], ...] = scene_key(
+        doc="polyline [[x, y], ...] in the grid frame, x increasing, spanning the grid's "
+        "width (above the ground: a free water level)", unit="m")
+    unit_weight: float = scene_key(9.81, "unit weight of the pore water", "kN/m3")
+    pore_pressure: str = scene_key(
+        "hydrostatic", "hydrostatic (gamma_w x true-vertical depth below the surface) or "
+        "parallel_seepage (that times cos^2 of the surface's local true inclination)")
+
+
+@dataclass(frozen=True)
 class Scene:
     scene: SceneInfo
     grid: GridSpec
@@ -328,6 +348,7 @@ class Scene:
     montecarlo: MonteCarloSpec = field(default_factory=MonteCarloSpec)
     output: OutputSpec = field(default_factory=OutputSpec)
     source: str = "<dict>"
+    water: WaterSpec | None = None
 
     @property
     def gravity_vector(self) -> tuple[float, float]:

@@ -39,6 +39,7 @@ from fem_rmpm.schemes.explicit.step import (
     run_control,
 )
 from fem_rmpm.schemes.explicit.threads import first_step_done, run_threads
+from fem_rmpm.schemes.pore_pressure import water_table
 from fem_rmpm.schemes.regularisation import average_softening, has_nonlocal
 
 __all__ = ["run_explicit", "explicit_step", "stable_time_step", "Workspace", "StepStats",
@@ -83,11 +84,11 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     order whenever ``on_output``, a guard or the caller sees them; the ordinary steps between
     two steps the loop must see run in one compiled call (:func:`.step.advance`, bitwise the
     same).  ``threads``: :func:`.threads.run_threads`.  ``pts.F``: NaN (not tracked)."""
-    sv = scene.solver
+    sv, water = scene.solver, water_table(scene)      # water: the pore water (None: dry)
     kernel = kernel or getattr(sv, "kernel", None) or DEFAULT_KERNEL
     if kernel not in KERNELS:
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
-    work = Workspace.for_grid(grid, pts.n) if kernel == "numba" else None
+    work = Workspace.for_grid(grid, pts.n, water) if kernel == "numba" else None
     threads = run_threads(int(getattr(sv, "threads", 0)), kernel)
     pts.F[...] = np.nan              # the step needs det(dF) only (volume), not the total F
     h_min, g_full = float(np.min(grid.cell)), np.array(scene.gravity_vector)
@@ -109,7 +110,7 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
             else:
                 stats, dt, t, step, ke_peak = _python_step(
                     grid, pts, sv, kernel, work, threads, geostatic, g_full,
-                    _cfl_step(stats, pts, grid, sv.cfl, h_min), (t, step, ke_peak), rec)
+                    _cfl_step(stats, pts, grid, sv.cfl, h_min), (t, step, ke_peak), rec, water)
             if step == 1:                    # the t = 0 output and the kernels' first calls
                 first_step_done(rec, time.perf_counter() - wall0, threads)
             if (stats.wave_speed is None or stats.n_bad or stats.n_outside) and \
@@ -162,7 +163,8 @@ def _guards(grid: Grid, pts: Particles, stats: StepStats, order: PointOrder, ste
 
 def _python_step(grid: Grid, pts: Particles, sv, kernel: str, work: Workspace | None,
                  threads: int, geostatic: bool, g_full: np.ndarray, cfl_dt: float,
-                 clock0: tuple, rec: RunRecord) -> tuple[StepStats, float, float, int, float]:
+                 clock0: tuple, rec: RunRecord,
+                 water=None) -> tuple[StepStats, float, float, int, float]:
     """One step of the time loop from Python, from ``clock0`` = (t, step, peak kinetic
     energy): the CFL step ``cfl_dt`` (s) cut at ``t_end``, the gravity ramp and the damping
     of ``[solver]`` ``sv``, then the non-local averaging; ``rec.dt_min`` / ``dt_max``
@@ -173,7 +175,7 @@ def _python_step(grid: Grid, pts: Particles, sv, kernel: str, work: Workspace | 
     damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
     record_friction(grid, rec, step, None)      # (from zero at the first step)
     stats = explicit_step(grid, pts, dt, ramp * g_full, damping, sv.flip, sv.shape,
-                          geostatic, kernel, work, bool(sv.fbar), threads)
+                          geostatic, kernel, work, bool(sv.fbar), threads, water)
     average_softening(grid, pts)     # non-local softening (no-op for local soils)
     rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
     record_friction(grid, rec, -1, t + dt)

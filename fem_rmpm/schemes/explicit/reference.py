@@ -47,6 +47,7 @@ from fem_rmpm.materials import hughes_winget_increment, small_strain_update, str
 from fem_rmpm.schemes.contact import contact_velocities
 from fem_rmpm.schemes.explicit.kernels.common import half_split
 from fem_rmpm.schemes.locking import bbar_gradient, fbar_increment, host_cells
+from fem_rmpm.schemes.pore_pressure import water_forces
 
 __all__ = ["MASS_TOL", "StepStats", "cfl_speeds", "stable_time_step", "map_to_nodes",
            "solve_on_mesh", "point_velocities", "velocity_gradient", "update_stress",
@@ -119,6 +120,17 @@ def map_to_nodes(nodes, N, dN, mass, velocity, stress, volume, gravity, n_nodes,
     return m, p, f + m[:, None] * np.asarray(gravity, float)
 
 
+def water_nodal_force(water, gravity, nodes, N, x, volume, n_nodes, second=None):
+    """The nodal force (nn, 2) kN per m of the pore water's point forces -V_p grad u(x_p)
+    (:mod:`fem_rmpm.schemes.pore_pressure`) at the points ``x`` (n, 2) of ``volume`` (n,),
+    times the gravity ramp (``gravity`` over full gravity)."""
+    full = water.frame[2:]
+    ramp = float(np.dot(gravity, full) / np.dot(full, full)) if np.dot(full, full) else 1.0
+    fw = ramp * water_forces(water, x, volume)
+    return np.stack([_scatter(nodes, N * fw[:, k:k + 1], n_nodes, second) for k in range(2)],
+                    axis=1)
+
+
 def solve_on_mesh(m, p, f, fixed, dt, damping):
     """Stage 2: lumped-mass momentum balance on the nodes: from mass ``m`` (nn,), momentum
     ``p`` and force ``f`` (nn, 2), the fixed components ``fixed`` (nn, 2) bool, the step
@@ -180,11 +192,14 @@ def update_stress(L, dt, state, geostatic, fbar_cells=None):
 
 def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                         damping: float, flip: float = 1.0, shape: str = "standard",
-                        geostatic: bool = False, fbar: bool = False) -> StepStats:
+                        geostatic: bool = False, fbar: bool = False,
+                        water=None) -> StepStats:
     """Advance the active points of ``pts`` by one explicit MUSL step of ``dt`` seconds (in
     place) under ``gravity`` (2,) m/s2, with local ``damping`` (-), FLIP fraction ``flip``
     (-), basis ``shape`` (``"standard"`` Q4 or ``"gimp"``), in the geostatic phase or not,
-    with F-bar or not.  ``pts.F`` is not updated (the step needs det(dF) only)."""
+    with F-bar or not; ``water``: the pore water's
+    :class:`fem_rmpm.schemes.pore_pressure.WaterTable` (None: dry).  ``pts.F`` is not
+    updated (the step needs det(dF) only)."""
     act = np.nonzero(pts.active)[0] if not pts.active.all() else slice(None)
     x, v, mass, vol = pts.x[act], pts.velocity[act], pts.mass[act], pts.volume[act]
     nn = grid.n_nodes
@@ -192,6 +207,8 @@ def explicit_step_numpy(grid: Grid, pts: Particles, dt: float, gravity: np.ndarr
     _, nodes, N, dN, _ = shape_at_points(grid, x, shape, pts.half_width[act])
     # 1. map point state to the nodes
     m, p, f = map_to_nodes(nodes, N, dN, mass, v, pts.stress[act], vol, gravity, nn, second)
+    if water is not None:            # the pore water's force -V grad u, ramped with gravity
+        f += water_nodal_force(water, gravity, nodes, N, x, vol, nn, second)
     # 2. solve momentum balance on the mesh
     v_old, v_new, a = solve_on_mesh(m, p, f, grid.fixed, dt, damping)
     contact, correct = grid.contact, None

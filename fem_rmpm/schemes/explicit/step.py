@@ -38,7 +38,7 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
                   damping: float, flip: float = 1.0, shape: str = "standard",
                   geostatic: bool = False, kernel: str | None = None,
                   work: Workspace | None = None, fbar: bool = False,
-                  threads: int = 1) -> StepStats:
+                  threads: int = 1, water=None) -> StepStats:
     """Advance the active points by one explicit MUSL step of ``dt`` seconds (in place).
 
     ``gravity`` (2,) m/s2; ``damping``: local damping ratio (-); ``flip``: FLIP fraction
@@ -49,15 +49,17 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     if not given).  ``fbar``: the F-bar locking remedy (:mod:`fem_rmpm.schemes.locking`).
     ``threads`` (numba): 2 or more runs the two halves of the points on two threads (the
     stress update on up to ``threads``); the result is bitwise the single-thread one.
+    ``water``: the pore water (:class:`fem_rmpm.schemes.pore_pressure.WaterTable`; numba:
+    that of ``work`` when given).
     ``pts.F`` is not updated (the step needs det(dF) only; the time loop sets it NaN).
     """
     kernel = kernel or DEFAULT_KERNEL
     if kernel == "numpy":
         return explicit_step_numpy(grid, pts, dt, gravity, damping, flip, shape, geostatic,
-                                   fbar)
+                                   fbar, water)
     if kernel != "numba":
         raise ValueError(f"kernel {kernel!r} not allowed; allowed: {' | '.join(KERNELS)}")
-    w = work if work is not None else Workspace.for_grid(grid, pts.n)
+    w = work if work is not None else Workspace.for_grid(grid, pts.n, water)
     (P, M), N, S, call = w.bind(grid, pts, shape == "gimp"), w.nodes, w.scratch, w.call
     o = K.StepOptions(float(dt), float(gravity[0]), float(gravity[1]), float(damping),
                       float(flip), bool(geostatic), shape == "gimp", bool(fbar), int(threads),

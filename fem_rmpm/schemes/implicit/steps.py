@@ -31,6 +31,7 @@ from fem_rmpm.schemes.explicit import kernels
 from fem_rmpm.schemes.implicit.assembly import StepSystem
 from fem_rmpm.schemes.implicit.linear import LinearSolver
 from fem_rmpm.schemes.implicit.newton import NewtonFailure, NewtonResult, newton
+from fem_rmpm.schemes.pore_pressure import nodal_water_force, water_table
 from fem_rmpm.schemes.implicit.tangent import (
     elastic_left_cauchy_green,
     finite_strain_tangent,
@@ -97,6 +98,7 @@ class ImplicitSystem:
         self.cell_pressure = self.fbar and getattr(self.sv, "locking_constraint",
                                                    "volume") == "pressure"
         self.g_full = np.array(scene.gravity_vector, dtype=float)
+        self.water = water_table(scene)          # pore water (None: dry)
         self.acc = np.zeros((pts.n, 2))          # point accelerations (dynamic)
         self.regions = prescribed_nodes(scene, grid)
         mask = np.zeros((grid.n_nodes, 2), dtype=bool)
@@ -130,9 +132,11 @@ class ImplicitSystem:
             if dynamic:
                 raise SimulationError("prescribed displacements need quasi-static load steps")
             presc = np.where(self.presc_mask, (lf_new - lf_old) * self.presc_target, 0.0)
+        f_ext = S.body_force(mass, lf_new * self.g_full)
+        if self.water is not None:   # pore water: -V grad u at the step's start positions
+            f_ext = f_ext + nodal_water_force(self.water, S, pts.x[act], pts.volume[act], lf_new)
         return StepData(S, act, pts.volume0[act], pts.volume[act], mass, pts.log_strain[act],
-                        pts.state[act], pts.soil.take(act),
-                        S.body_force(mass, lf_new * self.g_full), lf_new, lf_old, presc, dt)
+                        pts.state[act], pts.soil.take(act), f_ext, lf_new, lf_old, presc, dt)
 
     def _step_system(self, act: np.ndarray) -> StepSystem:
         """The StepSystem at the active points' positions: the cached one if the same
@@ -472,6 +476,8 @@ class NewmarkDynamic(QuasiStatic):
                 tau_n = fbar_work_stress(tau_n, st.V0, st.Vn, np.ones(len(act)), S.cell,
                                          S.n_host)
             st.cache["f_n"] = (S.body_force(mass, st.lf_old * self.sys.g_full)
+                               + nodal_water_force(self.sys.water, S, pts.x[act], st.Vn,
+                                                   st.lf_old)    # pore water (0 if dry)
                                - S.internal_force(st.V0, tau_n, S.dN))
         return dt * v_n + 0.5 * dt * dt * a_n
 

@@ -82,6 +82,7 @@ from fem_rmpm.materials import MaterialPoints, strength
 from fem_rmpm.runtime.errors import InputError
 from fem_rmpm.scene import Scene, SceneError, with_values
 from fem_rmpm.schemes.common import SimulationError
+from fem_rmpm.schemes.pore_pressure import scaled_water
 from fem_rmpm.schemes.implicit import (
     Geostatic,
     ImplicitSystem,
@@ -251,6 +252,7 @@ def _solve(scene: Scene, grid: Grid, base: Particles, F: float, o: FSOptions,
     reduce_strength(pts, scene, F, o.softening)
     if load != 1.0:
         pts.mass = pts.mass * load
+        scene = scaled_water(scene, load)        # pore water: its force follows the load
     t0 = time.perf_counter()
     reason, lf = "", 1.0
     try:

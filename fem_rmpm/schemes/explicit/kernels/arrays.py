@@ -31,17 +31,23 @@ CHUNKS = 64          # the most chunks (threads) of the stress pass
 __all__ = ["Mesh", "PointArrays", "NodeArrays", "Scratch", "StepOptions", "Workspace",
            "mesh_of", "point_arrays", "scratch_for", "node_arrays", "top_of"]
 
+#: No pore water: the empty segment table and frame of :class:`Mesh` (water: the
+#: :class:`fem_rmpm.schemes.pore_pressure.WaterTable`'s arrays).
+DRY = (np.zeros((0, 6)), np.zeros(4))
+#: No frictional bedrock: the contact fields of :class:`Mesh`.
+NO_CONTACT = (False, np.zeros(0, np.uint8), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(3))
+
 Mesh = namedtuple("Mesh", "o0 o1 h0 h1 ih0 ih1 nx ny lo hi fixed has_contact contact_on "
-                         "contact_n contact_mu contact_c contact_work",
-                 defaults=(False, np.zeros(0, np.uint8), np.zeros(0), np.zeros(0), np.zeros(0),
-                           np.zeros(3)))
+                         "contact_n contact_mu contact_c contact_work water frame",
+                 defaults=NO_CONTACT + DRY)
 Mesh.__doc__ = """Structured grid: origin (m), cell size h and 1/h, cells nx x ny, the grid
 rectangle ``lo``, ``hi`` (2,) (m) and the fixed node components ``fixed`` (2 nn,) bool,
 interleaved as the nodal vectors of :class:`NodeArrays`; frictional bedrock
 (:mod:`fem_rmpm.discretise.contact`, :mod:`.contact`): ``has_contact``, and per node the
 contact flag (nn,) uint8, outward normal (2 nn,), friction and adhesion force (nn,) (kN/m),
 ``contact_work`` (3,) the frictional dissipation of each half of the points (kJ/m) and
-the step's dt (s) (empty arrays without frictional bedrock)."""
+the step's dt (s) (empty arrays without frictional bedrock); the pore water's ``water``
+segments (k, 6) and ``frame`` (4,) (:mod:`fem_rmpm.schemes.pore_pressure`; no rows: dry)."""
 
 PointArrays = namedtuple("PointArrays", "x v mass vol vol0 stress active half_width "
                                         "log_strain state u_geo model params")
@@ -120,14 +126,16 @@ def top_of(N: NodeArrays) -> NodeArrays:
     return top
 
 
-def mesh_of(grid) -> Mesh:
-    """The :class:`Mesh` of a :class:`fem_rmpm.discretise.grid.Grid`."""
+def mesh_of(grid, water=None) -> Mesh:
+    """The :class:`Mesh` of a :class:`fem_rmpm.discretise.grid.Grid`; ``water``: a
+    :class:`fem_rmpm.schemes.pore_pressure.WaterTable` (None: dry)."""
     (o0, o1), (h0, h1), (nx, ny) = grid.origin, grid.cell, grid.shape
     cn = getattr(grid, "contact", None)
-    contact = (True, *cn.dense(grid.n_nodes), cn.work) if cn is not None else ()
+    contact = (True, *cn.dense(grid.n_nodes), cn.work) if cn is not None else NO_CONTACT
+    wet = DRY if water is None else (water.segments, water.frame)
     return Mesh(float(o0), float(o1), float(h0), float(h1), 1.0 / h0, 1.0 / h1, int(nx),
                 int(ny), np.asarray(grid.origin, float), np.asarray(grid.upper, float),
-                np.ascontiguousarray(grid.fixed).reshape(-1), *contact)
+                np.ascontiguousarray(grid.fixed).reshape(-1), *contact, *wet)
 
 
 def point_arrays(pts, fallback_half_width: np.ndarray) -> PointArrays:
@@ -165,7 +173,7 @@ class Workspace:
     model is set when the points are made and never changes during a run), and
     ``block``: whether its ``block_update`` takes them (:func:`.takes_blocks`, once).  ``clock``,
     ``count``, ``energy``: the step driver's time, step and energy record buffers
-    (:mod:`.advance`)."""
+    (:mod:`.advance`); ``water``: the pore water (set before the first :meth:`bind`)."""
     nodes: NodeArrays
     scratch: Scratch
     mesh: Mesh | None = None
@@ -176,6 +184,7 @@ class Workspace:
     clock: np.ndarray = field(default_factory=lambda: np.zeros(7))
     count: np.ndarray = field(default_factory=lambda: np.zeros(3, np.int64))
     energy: np.ndarray = field(default_factory=lambda: np.zeros((RECORD_BUFFER, 2)))
+    water: object = None             # the pore water's WaterTable (None: dry), in the mesh
 
     def bind(self, grid, pts, gimp: bool = True) -> tuple[PointArrays, Mesh]:
         """The point and mesh groups of ``pts`` and ``grid`` (kept while the arrays are).
@@ -187,7 +196,7 @@ class Workspace:
                                                  gimp_w=np.zeros((pts.n, 12)))
         P = point_arrays(pts, self.scratch.x_old)
         if self.points is None or any(a is not b for a, b in zip(P, self.points)):
-            self.points, self.mesh = P, mesh_of(grid)
+            self.points, self.mesh = P, mesh_of(grid, self.water)
             self.calls.clear()
             m = P.model
             self.model = int(m[0]) if len(m) and bool((m == m[0]).all()) else -1
@@ -207,10 +216,12 @@ class Workspace:
         return result
 
     @classmethod
-    def for_grid(cls, grid, n_points: int) -> "Workspace":
+    def for_grid(cls, grid, n_points: int, water=None) -> "Workspace":
+        """The workspace of ``n_points`` points on ``grid``; ``water``: the pore water's
+        :class:`fem_rmpm.schemes.pore_pressure.WaterTable` (None: dry)."""
         nn, n = grid.n_nodes, n_points
         nodes = node_arrays(nn, node_arrays(nn))
-        return cls(nodes, scratch_for(n, grid.n_cells))
+        return cls(nodes, scratch_for(n, grid.n_cells), water=water)
 
 
 def node_arrays(nn: int, half: NodeArrays | None = None) -> NodeArrays:

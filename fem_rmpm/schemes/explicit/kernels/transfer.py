@@ -45,6 +45,7 @@ from fem_rmpm.schemes.explicit.kernels.basis import gimp_kept, gimp_store, q4_at
 from fem_rmpm.schemes.explicit.kernels.common import MASS_TOL, fixed_columns, half_range, xy
 from fem_rmpm.schemes.explicit.kernels.contact import contact_velocity
 from fem_rmpm.schemes.explicit.kernels.pairs import fma2, fma2_to, load2, mul2, sub2_from
+from fem_rmpm.schemes.pore_pressure import water_force, water_ramp
 
 __all__ = ["map_to_nodes", "map_to_nodes_parallel", "solve_and_move", "solve_and_move_parallel",
            "nodal_velocity", "nodal_velocities", "nodal_velocities_parallel"]
@@ -104,24 +105,41 @@ def _scatter(sh, i, P, N, nt):
 
 
 @inline
+def _scatter_force(sh, f, fp):
+    """A point force ``fp`` (kN per m) to the nodal forces ``f`` of its basis ``sh``."""
+    nodes, w, _, _ = sh
+    for k in range(len(nodes)):
+        ax, _ = xy(nodes[k])
+        fma2_to(f, ax, w[k], fp)
+
+
+@inline
 def _scatter_points(P, M, N, S, o, start, stop):
     """Points ``start:stop`` (active ones) into the arrays of ``N``, from cleared ones;
     Q4: each point's cell and local coordinates into ``S.q4_ll``, ``S.q4_st``; uGIMP: its
     basis factors into ``S.gimp_ij``, ``S.gimp_w`` (:func:`.basis.gimp_store`)."""
     nt = 0
     x, lp, cell, st = P.x, P.half_width, S.q4_ll, S.q4_st
+    wet, ramp = water_ramp(M, o)     # pore water (fem_rmpm.schemes.pore_pressure)
     for i in range(np.uint64(start), np.uint64(stop)):
         if not P.active[i]:
             continue
         if o.gimp:
             sg = gimp_store(i, x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M, S.gimp_ij, S.gimp_w)
             nt = _scatter(sg, i, P, N, nt)
+            if wet:                  # the water's force -V grad u at the point (ramped)
+                _scatter_force(sg, N.f, water_force(x[i, 0], x[i, 1], P.vol[i], M.water,
+                                                    M.frame, ramp))
         else:
             ll, s, t = q4_cell(x[i, 0], x[i, 1], M)
             cell[i] = ll
             st[i, 0] = s
             st[i, 1] = t
-            nt = _scatter(q4_at(ll, s, t, M), i, P, N, nt)
+            sq = q4_at(ll, s, t, M)
+            nt = _scatter(sq, i, P, N, nt)
+            if wet:
+                _scatter_force(sq, N.f, water_force(x[i, 0], x[i, 1], P.vol[i], M.water,
+                                                    M.frame, ramp))
     N.n_touched[0] = nt
 
 
