@@ -58,10 +58,14 @@ TASKS = [{"scene": "first", "seed": 1}, {"scene": "second", "seed": 2}]
 def test_kernels_are_compiled_once_on_one_worker_before_the_others_start():
     """Two workers: the first task's kernels compiled by one submitted call, awaited, and
     a line saying so (its seconds as measured)."""
-    client = _Client(2)
-    line = warm_workers(client, TASKS, run=_compiled)
+    client, said = _Client(2), []
+    line = warm_workers(client, TASKS, run=_compiled, say=said.append, cold=lambda t: True)
     assert client.submitted == [(TASKS[0],)], "exactly one warm-up task, the first one"
     assert "once for all workers" in line and "21.5 s" in line and "20.2 s CPU" in line
+    assert len(said) == 1 and "compiling the kernels once" in said[0], said
+    said.clear()
+    warm_workers(_Client(2), TASKS, run=_compiled, say=said.append, cold=lambda t: False)
+    assert said == [], "nothing announced when this process sees the kernels cached"
 
 
 def test_no_warm_up_where_it_cannot_save_a_compile():
@@ -158,3 +162,15 @@ def test_an_implicit_edit_keeps_the_explicit_stamp_and_a_material_edit_changes_i
     model.write_text(model.read_text() + "\n# edited\n")
     e2, a2 = stamps()
     assert e2 != e1 and a2 != a1
+
+
+def test_the_cold_check_reads_the_cache_of_explicit_realizations_only():
+    """An implicit realization never warms the workers (its kernels are not the explicit
+    ones); an explicit one gets a yes or no from numba's cache index (no compile)."""
+    from fem_rmpm.campaign.cluster import kernels_cold_here
+    from fem_rmpm.scene import load_scene, with_values
+
+    scene = load_scene(PACKAGE.parent / "meshes" / "slope_reference.toml")
+    assert isinstance(kernels_cold_here({"scene": scene}), bool)
+    implicit = with_values(scene, {"solver.scheme": "implicit"})
+    assert kernels_cold_here({"scene": implicit}) is False

@@ -17,7 +17,8 @@ from fem_rmpm.runtime.machine import usable_cores as _usable_cpus
 from fem_rmpm.runtime.signals import sigint_ignored_by_children
 
 __all__ = ["worker_environment", "local_worker_count", "local_workers_text",
-           "start_local_cluster", "start_client", "warm_kernels", "warm_workers"]
+           "start_local_cluster", "start_client", "warm_kernels", "warm_workers",
+           "kernels_cold_here"]
 
 _THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 
@@ -122,19 +123,36 @@ def warm_kernels(task: dict) -> dict:
             "cpu_seconds": time.process_time() - c0}
 
 
-def warm_workers(client, tasks: list[dict], run=warm_kernels) -> str | None:
+def kernels_cold_here(task: dict) -> bool:
+    """Whether this process sees the kernels of ``task``'s explicit realization uncompiled
+    in numba's cache (the cache local workers share; False if not explicit numba)."""
+    from fem_rmpm import api
+    from fem_rmpm.campaign.task import campaign_threads
+
+    sv = task["scene"].solver
+    return bool(api.explicit_numba(sv) and api.kernels_cold(
+        campaign_threads(task["scene"]), bool(getattr(sv, "fbar", False))))
+
+
+def warm_workers(client, tasks: list[dict], run=warm_kernels, say=None,
+                 cold=kernels_cold_here) -> str | None:
     """Compile the kernels of ``tasks`` once, on one worker, before the others start: the
     workers of a machine share numba's on-disk cache, so they then load the kernels
     instead of each compiling them (20-30 s of CPU each on a fresh install).  Runs
     ``run(tasks[0])`` (:func:`warm_kernels`) on one worker and waits for it; returns the
     line to print (None: one worker, no explicit realization, or the kernels were
-    cached).  A warm-up that fails is left to the realizations to report (None)."""
+    cached).  ``say(line)`` is told before the wait when ``cold(task)`` (this process's
+    view of the cache) finds the kernels uncompiled.  A warm-up that fails is left to the
+    realizations to report (None)."""
     task = tasks[0] if tasks else None
     if task is None or "scene" not in task or task.get("fs") == "only":
         return None
     try:
         if len(client.nthreads()) < 2:
             return None
+        if say is not None and cold(task):
+            say("compiling the kernels once, on one worker, for all workers (first "
+                "campaign after an install or an upgrade) ...")
         res = client.submit(run, task, pure=False, key=f"rmpm-warm-up-{os.getpid()}",
                             retries=0).result()
     except Exception:  # noqa: BLE001 - the realizations report their own errors

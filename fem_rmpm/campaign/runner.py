@@ -137,8 +137,9 @@ def _evaluate(method: CampaignMethod, kind: Evaluation, out: Path, run: Executio
                     if (line := run.notice(len(tasks), tally.workers)) is not None:
                         print(line, file=sys.stderr)
                     run.backend.check_directory(client, out)   # the workers share it
-                    if run.warm_up is not None and (line := run.warm_up(client, tasks)):
-                        print(f"fem-rmpm mc: {line}", file=sys.stderr)
+                    if run.warm_up is not None and (line := run.warm_up(client, tasks,
+                                                                        say=_say)):
+                        _say(line)
                 t0 = time.perf_counter()
                 lost = _submit(client, kind, tasks, bar)
                 tally.compute_time += time.perf_counter() - t0
@@ -150,6 +151,10 @@ def _evaluate(method: CampaignMethod, kind: Evaluation, out: Path, run: Executio
         tally.finished = True
     finally:
         bar.close()
+
+
+def _say(line: str) -> None:
+    print(f"fem-rmpm mc: {line}", file=sys.stderr, flush=True)
 
 
 def _submit(client, kind: Evaluation, tasks: list[dict], bar: "_Progress") -> list[str]:
