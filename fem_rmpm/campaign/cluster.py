@@ -9,12 +9,15 @@ import os
 import time
 
 import dask
+import numba
 from distributed import Client, LocalCluster
 
+from fem_rmpm import api
 from fem_rmpm.campaign.cases import CampaignError
-from fem_rmpm.campaign.task import MALLOC_THRESHOLDS
+from fem_rmpm.campaign.task import MALLOC_THRESHOLDS, campaign_threads
 from fem_rmpm.runtime.machine import usable_cores as _usable_cpus
 from fem_rmpm.runtime.signals import sigint_ignored_by_children
+from fem_rmpm.scene import with_values
 
 __all__ = ["worker_environment", "local_worker_count", "local_workers_text",
            "start_local_cluster", "start_client", "warm_kernels", "warm_workers",
@@ -104,12 +107,6 @@ def warm_kernels(task: dict) -> dict:
     Returns ``{"compiled": whether the kernels were cold, "seconds": wall time (s),
     "cpu_seconds": this process's CPU time (s)}``; ``compiled`` False (nothing run) when
     they were cached or the scene is not an explicit numba run."""
-    import numba
-
-    from fem_rmpm import api
-    from fem_rmpm.campaign.task import campaign_threads
-    from fem_rmpm.scene import with_values
-
     t0, c0 = time.perf_counter(), time.process_time()
     scene = task["scene"]
     threads = campaign_threads(scene)
@@ -126,9 +123,6 @@ def warm_kernels(task: dict) -> dict:
 def kernels_cold_here(task: dict) -> bool:
     """Whether this process sees the kernels of ``task``'s explicit realization uncompiled
     in numba's cache (the cache local workers share; False if not explicit numba)."""
-    from fem_rmpm import api
-    from fem_rmpm.campaign.task import campaign_threads
-
     sv = task["scene"].solver
     return bool(api.explicit_numba(sv) and api.kernels_cold(
         campaign_threads(task["scene"]), bool(getattr(sv, "fbar", False))))
