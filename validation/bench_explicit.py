@@ -29,6 +29,13 @@ Compile cost: a fresh process with an empty ``NUMBA_CACHE_DIR`` (cold compile) a
 a second one with that cache filled (cache load): the time to the end of the first
 step.
 
+Cold and warm start of the command itself: ``fem-rmpm run meshes/slope_reference.toml``
+(a short ``t_end``) in a fresh process with an empty ``NUMBA_CACHE_DIR`` (it compiles
+the kernels its thread count needs), then again with that cache filled: the run's own
+``first_step_time`` (``summary.json``: set-up, compile or cache load and the first
+step) and the process's CPU time, on one and on two threads
+(``--first-step-only``: this alone, ~1-2 CPU-min).
+
 Whole runs (the headline, what users get): ``fem-rmpm run meshes/slope_reference.toml``
 (case (i): von Mises softening, to rest) in a fresh process, after a short run that
 fills numba's cache; ns per point-step and MPUPS from the run's own ``summary.json``
@@ -402,6 +409,43 @@ def child_process(cache_dir):
             "imports_and_setup_s": t_setup, "first_step_s": t_first}
 
 
+def cli_first_step(cache_dir: str, threads: int) -> dict:
+    """A fresh ``fem-rmpm run`` of the reference slope (t_end 0.05 s) with numba's cache in
+    ``cache_dir``: ``first_step_s`` (its summary.json's ``first_step_time``: imports
+    excluded, set-up + compile or load + first step, wall), the process's ``wall_s`` and
+    ``cpu_s`` (user + system, all threads)."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache_dir)
+    with tempfile.TemporaryDirectory() as out:
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "fem_rmpm.cli", "run", str(CASE_I), "--set",
+                        f"solver.threads={threads}", "--set", "solver.t_end=0.05",
+                        "--out", out], env=env, capture_output=True, text=True, check=True)
+        wall = time.perf_counter() - t0
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        summary = json.loads((Path(out) / "summary.json").read_text())
+    return {"threads": threads, "first_step_s": summary["solver"]["first_step_time"],
+            "wall_s": wall, "cpu_s": (after.ru_utime - before.ru_utime)
+            + (after.ru_stime - before.ru_stime)}
+
+
+def cli_start_times() -> dict:
+    """Cold and warm :func:`cli_first_step` on one and two threads (a fresh cache each)."""
+    res = {}
+    for threads in (1, 2):
+        with tempfile.TemporaryDirectory() as cache:
+            res[f"{threads}_thread"] = {"cold": cli_first_step(cache, threads),
+                                        "warm": cli_first_step(cache, threads)}
+        r = res[f"{threads}_thread"]
+        print(f"fem-rmpm run (reference slope, {threads} thread{'s' * (threads > 1)}): first "
+              f"step {r['cold']['first_step_s']:.1f} s cold (process CPU "
+              f"{r['cold']['cpu_s']:.1f} s, wall {r['cold']['wall_s']:.1f} s), "
+              f"{r['warm']['first_step_s']:.2f} s warm (process CPU {r['warm']['cpu_s']:.1f} s, "
+              f"wall {r['warm']['wall_s']:.1f} s); load average {os.getloadavg()[0]:.2f}",
+              flush=True)
+    return res
+
+
 #: The explicit scheme's performance targets: case (i) on one thread (ns per point-step),
 #: two threads against one (case (i) and ~1e6 points), the spread of the cost per
 #: point-step over 1e4 / 1e5 / 1e6 points, and a fresh process's imports, setup and first
@@ -449,7 +493,16 @@ def main(argv=None):
     ap.add_argument("--out", default=str(OUT / "bench_explicit.json"))
     ap.add_argument("--scaling-only", action="store_true",
                     help="only the 1e4 / 1e5 / 1e6 whole-run scaling, one thread (~3 CPU-min)")
+    ap.add_argument("--first-step-only", action="store_true",
+                    help="only the cold and warm first step of fem-rmpm run (1 and 2 threads)")
     args = ap.parse_args(argv)
+    if args.first_step_only:
+        res = {"machine": machine(), "cli_start": cli_start_times()}
+        res["machine"]["load_avg_end"] = os.getloadavg()
+        out = Path(args.out).with_name("bench_explicit_first_step.json")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(res, indent=1))
+        return res
     if args.scaling_only:
         fill_cache((1,))
         res = {"machine": machine(), **scaling_runs(two_threads=False)}
@@ -467,6 +520,7 @@ def main(argv=None):
 
     with tempfile.TemporaryDirectory() as cache:
         res["compile"] = {"cold_cache": child_process(cache), "warm_cache": child_process(cache)}
+    res["cli_start"] = cli_start_times()
     c = res["compile"]
     print(f"numba first step: cold compile {c['cold_cache']['first_step_s']:.1f} s, "
           f"from cache {c['warm_cache']['first_step_s']:.2f} s (kept out of the MPUPS)")

@@ -1,21 +1,27 @@
 """The Dask client of a campaign: a local cluster of worker processes (one Dask thread
 each, numba threads as the scene asks) with the worker environment set before they
-start, or a connection to a running scheduler."""
+start, or a connection to a running scheduler; and the one compile of the kernels for
+all workers (:func:`warm_workers`)."""
 from __future__ import annotations
 
 import logging
 import os
+import time
 
 import dask
+import numba
 from distributed import Client, LocalCluster
 
+from fem_rmpm import api
 from fem_rmpm.campaign.cases import CampaignError
-from fem_rmpm.campaign.task import MALLOC_THRESHOLDS
+from fem_rmpm.campaign.task import MALLOC_THRESHOLDS, campaign_threads
 from fem_rmpm.runtime.machine import usable_cores as _usable_cpus
 from fem_rmpm.runtime.signals import sigint_ignored_by_children
+from fem_rmpm.scene import with_values
 
 __all__ = ["worker_environment", "local_worker_count", "local_workers_text",
-           "start_local_cluster", "start_client"]
+           "start_local_cluster", "start_client", "warm_kernels", "warm_workers",
+           "kernels_cold_here"]
 
 _THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 
@@ -87,3 +93,66 @@ def start_local_cluster(workers: int, threads: int = 1):
             os.environ[key] = val
     return Client(cluster, set_as_default=False), cluster
 
+
+
+#: Simulated time (s) of the warm-up run: shorter than any stable step, so the run is one
+#: step (every kernel of an ordinary step compiled, nothing written).
+WARM_UP_TIME = 1e-9
+
+
+def warm_kernels(task: dict) -> dict:
+    """Dask task: fill numba's on-disk cache with the explicit kernels realization ``task``
+    (a :func:`fem_rmpm.campaign.task.run_realization` task) runs, by running its scene
+    for one step (:data:`WARM_UP_TIME`, no output), on the threads the campaign gives it.
+    Returns ``{"compiled": whether the kernels were cold, "seconds": wall time (s),
+    "cpu_seconds": this process's CPU time (s)}``; ``compiled`` False (nothing run) when
+    they were cached or the scene is not an explicit numba run."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    scene = task["scene"]
+    threads = campaign_threads(scene)
+    if not (api.explicit_numba(scene.solver)
+            and api.kernels_cold(threads, bool(getattr(scene.solver, "fbar", False)))):
+        return {"compiled": False, "seconds": 0.0, "cpu_seconds": 0.0}
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    short = with_values(scene, {"solver.threads": threads, "solver.t_end": WARM_UP_TIME})
+    api.run(short, out=None, seed=task.get("seed"), noise=task.get("noise"), progress=False)
+    return {"compiled": True, "seconds": time.perf_counter() - t0,
+            "cpu_seconds": time.process_time() - c0}
+
+
+def kernels_cold_here(task: dict) -> bool:
+    """Whether this process sees the kernels of ``task``'s explicit realization uncompiled
+    in numba's cache (the cache local workers share; False if not explicit numba)."""
+    sv = task["scene"].solver
+    return bool(api.explicit_numba(sv) and api.kernels_cold(
+        campaign_threads(task["scene"]), bool(getattr(sv, "fbar", False))))
+
+
+def warm_workers(client, tasks: list[dict], run=warm_kernels, say=None,
+                 cold=kernels_cold_here) -> str | None:
+    """Compile the kernels of ``tasks`` once, on one worker, before the others start: the
+    workers of a machine share numba's on-disk cache, so they then load the kernels
+    instead of each compiling them (20-30 s of CPU each on a fresh install).  Runs
+    ``run(tasks[0])`` (:func:`warm_kernels`) on one worker and waits for it; returns the
+    line to print (None: one worker, no explicit realization, or the kernels were
+    cached).  ``say(line)`` is told before the wait when ``cold(task)`` (this process's
+    view of the cache) finds the kernels uncompiled.  A warm-up that fails is left to the
+    realizations to report (None)."""
+    task = tasks[0] if tasks else None
+    if task is None or "scene" not in task or task.get("fs") == "only":
+        return None
+    try:
+        if len(client.nthreads()) < 2:
+            return None
+        if say is not None and cold(task):
+            say("compiling the kernels once, on one worker, for all workers (first "
+                "campaign after an install or an upgrade) ...")
+        res = client.submit(run, task, pure=False, key=f"rmpm-warm-up-{os.getpid()}",
+                            retries=0).result()
+    except Exception:  # noqa: BLE001 - the realizations report their own errors
+        return None
+    if not res.get("compiled"):
+        return None
+    return (f"compiled the kernels once for all workers: {res['seconds']:.1f} s "
+            f"({res['cpu_seconds']:.1f} s CPU) on one worker; the others load them from "
+            "numba's on-disk cache")

@@ -26,6 +26,7 @@ from typing import Callable, Protocol, TypeVar
 from distributed import as_completed
 from tqdm import tqdm
 
+from fem_rmpm.campaign.cluster import warm_workers
 from fem_rmpm.campaign.methods import CampaignMethod, Sample
 from fem_rmpm.campaign.store import Lock
 from fem_rmpm.io.output import write_json
@@ -75,6 +76,7 @@ class Execution:
     notice: Callable[[int, str], str | None] = lambda n, desc: None
     progress: str | None = None
     description: str = "no workers needed"
+    warm_up: Callable | None = warm_workers
 
     def __post_init__(self):
         if self.client is not None:
@@ -135,6 +137,9 @@ def _evaluate(method: CampaignMethod, kind: Evaluation, out: Path, run: Executio
                     if (line := run.notice(len(tasks), tally.workers)) is not None:
                         print(line, file=sys.stderr)
                     run.backend.check_directory(client, out)   # the workers share it
+                    if run.warm_up is not None and (line := run.warm_up(client, tasks,
+                                                                        say=_say)):
+                        _say(line)
                 t0 = time.perf_counter()
                 lost = _submit(client, kind, tasks, bar)
                 tally.compute_time += time.perf_counter() - t0
@@ -146,6 +151,10 @@ def _evaluate(method: CampaignMethod, kind: Evaluation, out: Path, run: Executio
         tally.finished = True
     finally:
         bar.close()
+
+
+def _say(line: str) -> None:
+    print(f"fem-rmpm mc: {line}", file=sys.stderr, flush=True)
 
 
 def _submit(client, kind: Evaluation, tasks: list[dict], bar: "_Progress") -> list[str]:

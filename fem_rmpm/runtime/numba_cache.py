@@ -10,10 +10,18 @@ or an in-place upgrade leaves the kernels of the unchanged files running the old
 model file that gains a state column then gives NaN) until ``*.nbi`` / ``*.nbc`` are
 deleted.
 
-:func:`install` puts, in front of numba's cache locators, a copy of each that adds the
-hash of *every* source file of the package's compiled code (:data:`COMPILED_SOURCES`)
-to the stamp of functions defined in this package: any edit of any of them makes every
-kernel's cache index stale, so the kernels compile once more (and are cached again).
+:func:`install` puts, in front of numba's cache locators, a copy of each that adds a
+hash of source files to the stamp of functions defined in this package, so that an edit
+of any file a kernel may inline makes that kernel's cache index stale (it compiles once
+more and is cached again).  Which files: the explicit scheme's kernels and the material
+models (:data:`EXPLICIT_SOURCES`) import nothing compiled from outside that group
+(``tests/test_numba_cache.py`` checks it on their import statements), so a function
+defined there is keyed on the hash of that group alone; every other compiled function
+(the implicit scheme, the regularisation, the 3-D quadrature: they import from all over
+the package) is keyed on the hash of *every* compiled source
+(:data:`COMPILED_SOURCES`).  An edit of the implicit scheme therefore no longer makes
+the explicit kernels compile again, while an edit of a material model or of a kernel
+helper still recompiles every kernel that may inline it.
 Functions of other packages keep numba's own rule.  It runs when :mod:`fem_rmpm` is
 imported, before any kernel is decorated.  If numba's locator interface changes, the
 package falls back to numba's rule (no error).
@@ -29,7 +37,7 @@ try:
 except ImportError:          # numba's internals moved: numba's own rule applies (install)
     CacheImpl = None
 
-__all__ = ["COMPILED_SOURCES", "sources_hash", "install"]
+__all__ = ["COMPILED_SOURCES", "EXPLICIT_SOURCES", "sources_hash", "stamp_group", "install"]
 
 PACKAGE = Path(__file__).resolve().parents[1]
 #: The package's compiled (numba) code, relative to the package directory: folders
@@ -40,14 +48,35 @@ COMPILED_SOURCES = ("runtime/compiled.py", "schemes/explicit/kernels", "material
                     "random_field/quadrature3d.py")
 
 
+#: The explicit kernels' dependency group (relative to the package directory, a subset of
+#: :data:`COMPILED_SOURCES`): its files import compiled code from this group only, so a
+#: kernel defined here can inline nothing else of the package.
+EXPLICIT_SOURCES = ("runtime/compiled.py", "schemes/explicit/kernels", "materials")
+
+
+def _files(rel: str) -> list[Path]:
+    p = PACKAGE / rel
+    return sorted(p.glob("*.py")) if p.is_dir() else [p]
+
+
+def stamp_group(py_file) -> tuple[str, ...]:
+    """The sources whose hash keys the cache of a function defined in ``py_file`` (a
+    file of this package): :data:`EXPLICIT_SOURCES` for a file of that group, else
+    :data:`COMPILED_SOURCES` (module docstring)."""
+    f = Path(py_file).resolve()
+    if any(f == g for rel in EXPLICIT_SOURCES for g in _files(rel)):
+        return EXPLICIT_SOURCES
+    return COMPILED_SOURCES
+
+
 @functools.lru_cache(maxsize=None)
-def sources_hash() -> str:
-    """sha256 over the names and contents of the :data:`COMPILED_SOURCES` files (once per
-    process: numba, too, reads a source stamp once, when a function is decorated)."""
+def sources_hash(group: tuple[str, ...] = COMPILED_SOURCES) -> str:
+    """sha256 over the names and contents of the files of ``group`` (folders or files
+    relative to the package; once per process and group: numba, too, reads a source
+    stamp once, when a function is decorated)."""
     h = hashlib.sha256()
-    for rel in COMPILED_SOURCES:
-        p = PACKAGE / rel
-        for f in sorted(p.glob("*.py")) if p.is_dir() else [p]:
+    for rel in group:
+        for f in _files(rel):
             h.update(f.relative_to(PACKAGE).as_posix().encode() + b"\0")
             h.update(f.read_bytes() + b"\0")
     return h.hexdigest()
@@ -62,14 +91,20 @@ def _ours(py_file) -> bool:
 
 def _package_locator(base):
     """A subclass of numba locator ``base`` for this package's functions: same cache
-    place, stamp = (numba's stamp, :func:`sources_hash`)."""
+    place, stamp = (numba's stamp, :func:`sources_hash` of the file's :func:`stamp_group`)."""
     class Locator(base):
         @classmethod
         def from_function(cls, py_func, py_file):
-            return super().from_function(py_func, py_file) if _ours(py_file) else None
+            if not _ours(py_file):
+                return None
+            loc = super().from_function(py_func, py_file)
+            if loc is not None:
+                loc._fem_rmpm_group = stamp_group(py_file)
+            return loc
 
         def get_source_stamp(self):
-            return (super().get_source_stamp(), sources_hash())
+            group = getattr(self, "_fem_rmpm_group", COMPILED_SOURCES)
+            return (super().get_source_stamp(), sources_hash(group))
 
     Locator.__name__ = Locator.__qualname__ = f"FemRmpm{base.__name__}"
     return Locator

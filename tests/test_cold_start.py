@@ -1,0 +1,176 @@
+"""The cold start: a campaign's workers share the kernels one of them compiles
+(:func:`fem_rmpm.campaign.cluster.warm_workers`), and numba's cache of the explicit
+kernels is keyed on the sources they can inline only
+(:mod:`fem_rmpm.runtime.numba_cache`).  No real cold compile here (tens of seconds):
+``validation/bench_explicit.py`` measures it."""
+from __future__ import annotations
+
+import ast
+import shutil
+from pathlib import Path
+
+from fem_rmpm.campaign.cluster import warm_workers
+from fem_rmpm.runtime import numba_cache
+from fem_rmpm.runtime.numba_cache import (
+    COMPILED_SOURCES,
+    EXPLICIT_SOURCES,
+    PACKAGE,
+    sources_hash,
+    stamp_group,
+)
+
+
+class _Future:
+    def __init__(self, value):
+        self.value = value
+
+    def result(self):
+        if isinstance(self.value, Exception):
+            raise self.value
+        return self.value
+
+
+class _Client:
+    """A Dask client stub: ``workers`` workers; ``submit`` runs the function here."""
+
+    def __init__(self, workers: int):
+        self.workers = workers
+        self.submitted = []
+
+    def nthreads(self):
+        return {f"tcp://w{k}": 1 for k in range(self.workers)}
+
+    def submit(self, fn, *args, **kw):
+        self.submitted.append(args)
+        try:
+            return _Future(fn(*args))
+        except Exception as exc:  # noqa: BLE001 - as a Dask future holds it
+            return _Future(exc)
+
+
+def _compiled(task):
+    return {"compiled": True, "seconds": 21.5, "cpu_seconds": 20.25}
+
+
+TASKS = [{"scene": "first", "seed": 1}, {"scene": "second", "seed": 2}]
+
+
+def test_kernels_are_compiled_once_on_one_worker_before_the_others_start():
+    """Two workers: the first task's kernels compiled by one submitted call, awaited, and
+    a line saying so (its seconds as measured)."""
+    client, said = _Client(2), []
+    line = warm_workers(client, TASKS, run=_compiled, say=said.append, cold=lambda t: True)
+    assert client.submitted == [(TASKS[0],)], "exactly one warm-up task, the first one"
+    assert "once for all workers" in line and "21.5 s" in line and "20.2 s CPU" in line
+    assert len(said) == 1 and "compiling the kernels once" in said[0], said
+    said.clear()
+    warm_workers(_Client(2), TASKS, run=_compiled, say=said.append, cold=lambda t: False)
+    assert said == [], "nothing announced when this process sees the kernels cached"
+
+
+def test_no_warm_up_where_it_cannot_save_a_compile():
+    """One worker, cached kernels, no scene in the task, a factor-of-safety-only task, a
+    warm-up that raises: nothing printed (the realizations report their own errors)."""
+    assert warm_workers(_Client(1), TASKS, run=_compiled) is None
+    assert warm_workers(_Client(2), TASKS, run=lambda t: {"compiled": False}) is None
+    assert warm_workers(_Client(2), [{"index": 0}], run=_compiled) is None
+    assert warm_workers(_Client(2), [{"scene": "s", "fs": "only"}], run=_compiled) is None
+    assert warm_workers(_Client(2), [], run=_compiled) is None
+
+    def broken(task):
+        raise RuntimeError("worker died")
+    assert warm_workers(_Client(2), TASKS, run=broken) is None
+
+
+def _group_files(group) -> set[Path]:
+    out = set()
+    for rel in group:
+        p = PACKAGE / rel
+        out |= set(p.glob("*.py")) if p.is_dir() else {p}
+    return {f.resolve() for f in out}
+
+
+def _module_file(name: str) -> set[Path]:
+    parts = name.split(".")[1:]
+    base = PACKAGE.joinpath(*parts)
+    return {f.resolve() for f in (base.with_suffix(".py"), base / "__init__.py") if f.exists()}
+
+
+def _outside(tree: ast.AST, group: set[Path]) -> list[str]:
+    """The ``fem_rmpm`` names imported in ``tree`` (also inside functions) that come from
+    no file of ``group``: a module imported, or a name taken from a module."""
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            pairs = [(a.name, None) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            pairs = [(node.module, a.name) for a in node.names]
+        else:
+            continue
+        for mod, name in pairs:
+            if mod.split(".")[0] != "fem_rmpm":
+                continue
+            sub = _module_file(f"{mod}.{name}") if name else set()
+            source = sub or _module_file(mod)          # a submodule, else the module's name
+            if not source & group:
+                out.append(f"{mod}{'.' + name if name else ''}")
+    return out
+
+
+def test_explicit_kernels_import_compiled_code_from_their_own_group_only():
+    """The explicit group's stamp is safe only if its files can inline nothing outside it:
+    every ``fem_rmpm`` import in them (also inside functions) comes from a file of the
+    group.  A failure names the file and the import: add that module's file to
+    ``EXPLICIT_SOURCES`` or drop the import.  (The check itself flags an import of the
+    implicit scheme.)"""
+    group = _group_files(EXPLICIT_SOURCES)
+    assert _outside(ast.parse("from fem_rmpm.schemes.implicit import tangent\n"
+                              "from fem_rmpm.materials import registry"), group) == [
+        "fem_rmpm.schemes.implicit.tangent"]
+    bad = [f"{f.relative_to(PACKAGE)}: {name}" for f in sorted(group)
+           for name in _outside(ast.parse(f.read_text()), group)]
+    assert not bad, "explicit kernels import compiled code outside their group: " + "; ".join(bad)
+
+
+def test_stamp_groups():
+    """A kernel file and a material model keyed on the explicit group, the implicit scheme
+    on every compiled source; the explicit group is part of the whole."""
+    assert stamp_group(PACKAGE / "schemes/explicit/kernels/advance.py") == EXPLICIT_SOURCES
+    assert stamp_group(PACKAGE / "materials/von_mises.py") == EXPLICIT_SOURCES
+    assert stamp_group(PACKAGE / "runtime/compiled.py") == EXPLICIT_SOURCES
+    assert stamp_group(PACKAGE / "schemes/regularisation.py") == COMPILED_SOURCES
+    assert set(EXPLICIT_SOURCES) <= set(COMPILED_SOURCES)
+
+
+def test_an_implicit_edit_keeps_the_explicit_stamp_and_a_material_edit_changes_it(
+        tmp_path, monkeypatch):
+    """In a copy of the package: an edit of the implicit scheme changes the whole stamp
+    only; an edit of a material model changes both."""
+    copy = tmp_path / "fem_rmpm"
+    shutil.copytree(PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__", "*.nb?"))
+    monkeypatch.setattr(numba_cache, "PACKAGE", copy)
+    h = sources_hash.__wrapped__
+
+    def stamps():
+        return h(EXPLICIT_SOURCES), h(COMPILED_SOURCES)
+    e0, a0 = stamps()
+    implicit = sorted((copy / "schemes/implicit").glob("*.py"))[0]
+    implicit.write_text(implicit.read_text() + "\n# edited\n")
+    e1, a1 = stamps()
+    assert e1 == e0 and a1 != a0
+    model = copy / "materials/von_mises.py"
+    model.write_text(model.read_text() + "\n# edited\n")
+    e2, a2 = stamps()
+    assert e2 != e1 and a2 != a1
+
+
+def test_the_cold_check_reads_the_cache_of_explicit_realizations_only():
+    """An implicit realization never warms the workers (its kernels are not the explicit
+    ones); an explicit one gets a yes or no from numba's cache index (no compile)."""
+    from fem_rmpm.campaign.cluster import kernels_cold_here
+    from fem_rmpm.scene import load_scene, with_values
+
+    scene = load_scene(PACKAGE.parent / "meshes" / "slope_reference.toml")
+    assert isinstance(kernels_cold_here({"scene": scene}), bool)
+    implicit = with_values(scene, {"solver.scheme": "implicit"})
+    assert kernels_cold_here({"scene": implicit}) is False
