@@ -8,10 +8,19 @@ points, touching (no common area) or shifted 1 cm into each other (a strip of ar
 """
 from __future__ import annotations
 
+import os
+import signal
+import time
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from fem_rmpm.cli import main
+from fem_rmpm.io import field_output
 from fem_rmpm.scene.overlap import overlap_point
+
+TINY = Path(__file__).resolve().parent / "data" / "mc_tiny.toml"
 
 SQUARE = [[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]]
 
@@ -119,3 +128,51 @@ def test_random_polygons_agree_with_a_sampled_area():
             both = samples[_inside_many(p, samples) & _inside_many(q, samples)]
             assert not len(both), (p.tolist(), q.tolist(), both[:3])
     assert checked > 150
+
+
+# ------------------------------------------------------------------ an interrupted field
+@pytest.fixture
+def handlers_restored():
+    """The test process's SIGINT / SIGTERM handlers as before (an interrupt leaves both
+    ignored, as the command's clean-up needs)."""
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for s, handler in saved.items():
+        signal.signal(s, handler)
+
+
+def _field_files(out):
+    return sorted(p.name for p in out.iterdir()) if out.exists() else []
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_field_stopped_after_its_vtu_leaves_no_partial_set(tmp_path, capsys, monkeypatch,
+                                                           handlers_restored, signum, code):
+    """A real SIGTERM / SIGINT while the picture is drawn (``field.vtu`` already written):
+    exit 143 / 130 with one line, and no ``field.vtu`` or ``field.png`` without
+    ``field.json`` (they used to stay behind without it); no staging directory left."""
+    def stopped(*args, **kwargs):
+        os.kill(os.getpid(), signum)
+        time.sleep(5)                               # the handler raises before this ends
+    monkeypatch.setattr(field_output, "plot_realization", stopped)
+    out = tmp_path / "field"
+    assert main(["field", str(TINY), "--seed", "1", "--out", str(out)]) == code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "interrupted" in err[0], err
+    assert _field_files(out) == []
+
+
+def test_an_error_mid_field_keeps_the_previous_set(tmp_path, capsys, monkeypatch):
+    """``--force`` over a finished field: an error part-way (after the new ``field.vtu``)
+    leaves the previous three files exactly as they were."""
+    out = tmp_path / "field"
+    assert main(["field", str(TINY), "--seed", "1", "--out", str(out)]) == 0
+    before = {n: (out / n).read_bytes() for n in _field_files(out)}
+    assert sorted(before) == ["field.json", "field.png", "field.vtu"]
+
+    def broken(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(field_output, "plot_realization", broken)
+    with pytest.raises(OSError):
+        main(["field", str(TINY), "--seed", "2", "--out", str(out), "--force"])
+    assert {n: (out / n).read_bytes() for n in _field_files(out)} == before
