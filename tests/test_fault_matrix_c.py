@@ -8,8 +8,11 @@ points, touching (no common area) or shifted 1 cm into each other (a strip of ar
 """
 from __future__ import annotations
 
+import json
 import os
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -176,3 +179,63 @@ def test_an_error_mid_field_keeps_the_previous_set(tmp_path, capsys, monkeypatch
     with pytest.raises(OSError):
         main(["field", str(TINY), "--seed", "2", "--out", str(out), "--force"])
     assert {n: (out / n).read_bytes() for n in _field_files(out)} == before
+
+
+# ------------------------------------------------------------------ a worker killed mid-campaign
+_WORKER_SCRIPT = """
+import os, sys, time, dask
+from pathlib import Path
+if __name__ == "__main__":
+    dask.config.set({"distributed.scheduler.allowed-failures": 0})   # no second try
+    from fem_rmpm.campaign import start_local_cluster
+    from fem_rmpm.campaign.task import run_realization
+    from fem_rmpm.scene import load_scene, with_values
+    scene = with_values(load_scene(sys.argv[1]), {"solver.t_end": 60.0, "solver.threads": 1})
+    client, cluster = start_local_cluster(1)
+    future = client.submit(run_realization, {"case": "scene", "index": 0, "seed": 3,
+                           "scene": scene, "vtk_dir": sys.argv[2], "vtk_rel": "vtk"})
+    print(*client.run(os.getpid).values(), flush=True)
+    try:
+        future.result(timeout=120)
+    except Exception as exc:
+        print(type(exc).__name__, flush=True)
+    client.close()
+    cluster.close()
+"""
+
+
+def _status(path):
+    try:
+        return json.loads(path.read_text())["status"]
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def test_a_worker_terminated_mid_realization_marks_its_kept_run_interrupted(tmp_path):
+    """SIGTERM to the Dask worker process running a realization that keeps its VTK (a
+    batch system's time limit, ``kill``): its ``summary.json`` says ``"interrupted"``, not
+    ``"running"`` (the worker still ends by SIGTERM, and the task is lost, as before), and
+    the death is one warning line on stderr (it was silenced with Dask's logs)."""
+    vtk = tmp_path / "vtk"
+    proc = subprocess.Popen([sys.executable, "-c", _WORKER_SCRIPT, str(TINY), str(vtk)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        pid = int(proc.stdout.readline())
+        deadline = time.monotonic() + 120
+        while _status(vtk / "summary.json") != "running" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert _status(vtk / "summary.json") == "running"
+        os.kill(pid, signal.SIGTERM)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    summary = json.loads((vtk / "summary.json").read_text())
+    assert summary["status"] == "interrupted", (summary, err[-2000:])
+    assert "SIGTERM" in summary["stop_reason"]
+    assert "KilledWorker" in out, (out, err[-2000:])
+    # the death is told in one line (Dask's own logs stay silenced), without a traceback
+    deaths = [line for line in err.splitlines() if "worker process died" in line]
+    assert len(deaths) == 1 and "killed by signal 15" in deaths[0], err[-2000:]
+    assert "Traceback" not in err, err[-2000:]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 
 import dask
 from distributed import Client, LocalCluster
@@ -15,7 +16,7 @@ from fem_rmpm.runtime.machine import usable_cores as _usable_cpus
 from fem_rmpm.runtime.signals import sigint_ignored_by_children
 
 __all__ = ["worker_environment", "local_worker_count", "local_workers_text",
-           "start_local_cluster", "start_client"]
+           "start_local_cluster", "start_client", "WorkerDeathNotice"]
 
 _THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 
@@ -62,6 +63,34 @@ def local_workers_text(workers: int, threads: int) -> str:
     return f"{workers} local worker process{'es' if workers > 1 else ''}{each}"
 
 
+class WorkerDeathNotice(logging.Handler):
+    """One line on stderr when a local worker process dies (out of memory, killed): the
+    nanny's own log of it (``"Worker process 123 was killed by signal 9"``) is silenced
+    with the rest of Dask's logs, but a user must see it.  After Ctrl-C or SIGTERM the
+    ``distributed`` loggers are raised above CRITICAL (:mod:`fem_rmpm.runtime.signals`),
+    so the workers closed by the command's own clean-up are not reported."""
+
+    def __init__(self):
+        super().__init__(level=logging.INFO)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            msg = record.getMessage()
+        except (TypeError, ValueError):
+            return
+        if msg.startswith("Worker process ") and " exited with status 0" not in msg:
+            print(f"fem-rmpm: warning: a Dask worker process died ({msg}; out of memory is "
+                  "the usual cause): its realization runs again on a worker, and is lost "
+                  "if the worker dies again and again", file=sys.stderr, flush=True)
+
+
+def _notice_worker_deaths() -> None:
+    """Attach :class:`WorkerDeathNotice` to the nanny's logger (once per process)."""
+    logger = logging.getLogger("distributed.nanny")
+    if not any(isinstance(h, WorkerDeathNotice) for h in logger.handlers):
+        logger.addHandler(WorkerDeathNotice())
+
+
 def start_local_cluster(workers: int, threads: int = 1):
     """``(client, cluster)``: a LocalCluster of ``workers`` processes (one Dask thread each,
     ``threads`` numba threads) with :func:`worker_environment` set before they start
@@ -75,8 +104,11 @@ def start_local_cluster(workers: int, threads: int = 1):
     with dask.config.set(env):
         # ":0": the scheduler's HTTP server (and the dashboard, if bokeh is installed) on a
         # free port; None would still bind 8787 and warn when another cluster holds it
-        # silence_logs: a lost realization is the campaign's own news (its record, "lost");
-        # Dask's logs of a cluster closed under busy workers (Ctrl-C) are not the user's
+        # silence_logs: a lost realization is the campaign's own news (its line, "lost"),
+        # a worker's death is one warning line (WorkerDeathNotice); Dask's other logs
+        # (event-loop and GC timings under load, a cluster closed under busy workers on
+        # Ctrl-C) are not the user's
+        _notice_worker_deaths()
         with sigint_ignored_by_children():      # Ctrl-C stops the command, not its workers
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                    dashboard_address=":0", silence_logs=logging.CRITICAL)
