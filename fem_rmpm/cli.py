@@ -376,9 +376,18 @@ def _add_report(sub) -> None:
     rp.set_defaults(func=_cmd_report)
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (exit 2), like every other bad input:
+    the usage it would print first is ``--help``'s."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} "
+                     "--help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``fem-rmpm`` argument parser (one sub-parser per command)."""
-    p = argparse.ArgumentParser(prog="fem-rmpm", description="Random Material Point Method "
+    p = _OneLineParser(prog="fem-rmpm", description="Random Material Point Method "
                                 "for slope run-out risk (MPM on scikit-fem).",
                                 epilog=EXIT_CODES,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)

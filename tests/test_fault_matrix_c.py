@@ -239,3 +239,16 @@ def test_a_worker_terminated_mid_realization_marks_its_kept_run_interrupted(tmp_
     deaths = [line for line in err.splitlines() if "worker process died" in line]
     assert len(deaths) == 1 and "killed by signal 15" in deaths[0], err[-2000:]
     assert "Traceback" not in err, err[-2000:]
+
+
+# ------------------------------------------------------------------ argument errors
+@pytest.mark.parametrize("argv", [["fs", str(TINY)], ["fem", str(TINY), "--out", "o", "--bogus"],
+                                  ["runn"], []])
+def test_an_argument_error_is_one_line(capsys, argv):
+    """A missing or unknown option or command: exit 2 and one line naming it and
+    ``--help`` (argparse printed its usage first: several lines)."""
+    with pytest.raises(SystemExit) as ei:
+        main(argv)
+    assert ei.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "error:" in err[0] and "--help" in err[0], err
