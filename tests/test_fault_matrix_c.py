@@ -21,6 +21,7 @@ import pytest
 
 from fem_rmpm.cli import main
 from fem_rmpm.io import field_output
+from fem_rmpm.scene import overlap
 from fem_rmpm.scene.overlap import overlap_point
 
 TINY = Path(__file__).resolve().parent / "data" / "mc_tiny.toml"
@@ -104,10 +105,13 @@ def test_large_touching_soils_are_decided_without_quadratic_work():
     assert at is not None and _inside(lower, at) and _inside(upper, at), at
 
 
-def test_random_polygons_agree_with_a_sampled_area():
+@pytest.mark.parametrize("all_pairs", [4096, 0], ids=["every-pair", "bucketed"])
+def test_random_polygons_agree_with_a_sampled_area(monkeypatch, all_pairs):
     """Random star-shaped polygons (some snapped to a 0.5 m lattice, so they share points
     and edges): where the check says "overlap", its point is inside both; where it says
-    "none", none of 4 000 sample points lies strictly inside both (N = 300 pairs)."""
+    "none", none of 4 000 sample points lies strictly inside both (N = 300 pairs); with
+    every pair of edges compared and with the edges bucketed (as for large polygons)."""
+    monkeypatch.setattr(overlap, "ALL_PAIRS", all_pairs)
     rng = np.random.default_rng(7)
     samples = rng.uniform(-2.5, 6.5, size=(4000, 2))
 

@@ -375,9 +375,10 @@ def _tree(d: Path) -> set[str]:
     return {str(p.relative_to(d)) for p in d.rglob("*")} if d.exists() else set()
 
 
-def _run(case: Case, numba_cache: Path) -> Row:
+def _run(case: Case, home: Path) -> Row:
     d = Path(tempfile.mkdtemp(prefix="fault_matrix_"))
     d.chmod(0o777)
+    cleanup = [d]
     try:
         if case.setup:
             case.setup(d)
@@ -385,7 +386,13 @@ def _run(case: Case, numba_cache: Path) -> Row:
         if watch:
             _BEFORE[str(d / watch)] = _digest(d / watch)
         before = _tree(d)
-        env = {**os.environ, "HOME": str(d), "NUMBA_CACHE_DIR": str(numba_cache),
+        # a new user's home of their own (caches of matplotlib, numba), not the case folder;
+        # a fresh one for ``nobody`` (who cannot write into root's caches)
+        if case.user:
+            home = Path(tempfile.mkdtemp(prefix="fault_matrix_home_", dir=d.parent))
+            home.chmod(0o777)
+            cleanup.append(home)
+        env = {**os.environ, "HOME": str(home), "NUMBA_CACHE_DIR": str(home / "numba"),
                "PYTHONWARNINGS": "default"}
         argv = ["fem-rmpm", *case.args]
         if case.user and os.geteuid() == 0:
@@ -428,10 +435,11 @@ def _run(case: Case, numba_cache: Path) -> Row:
         row.verdict = "ok" if not problems else "DEFECT: " + "; ".join(problems)
         return row
     finally:
-        for p in d.rglob("*"):
-            if p.is_dir() and not p.is_symlink():
-                p.chmod(0o777)
-        shutil.rmtree(d, ignore_errors=True)
+        for top in cleanup:
+            for p in top.rglob("*"):
+                if p.is_dir() and not p.is_symlink():
+                    p.chmod(0o777)
+            shutil.rmtree(top, ignore_errors=True)
 
 
 def main() -> int:
@@ -442,18 +450,18 @@ def main() -> int:
         raise SystemExit("fem-rmpm is not on PATH (install the package)")
     if os.geteuid() == 0 and shutil.which("setpriv") is None:
         print("note: root without setpriv: the permission cases run as root (no meaning)")
-    numba_cache = Path(tempfile.mkdtemp(prefix="fault_matrix_numba_"))
-    numba_cache.chmod(0o777)
+    home = Path(tempfile.mkdtemp(prefix="fault_matrix_home_"))
+    home.chmod(0o777)
     chosen = [c for c in cases() if not a.only or any(w in c.name for w in a.only)]
     rows = []
     print(f"{'case':58s} {'exit':>4s} {'err':>3s} {'tb':>3s} {'left':>4s} {'s':>6s}  verdict")
     for c in chosen:
-        row = _run(c, numba_cache)
+        row = _run(c, home)
         rows.append(row)
         print(f"{c.name[:58]:58s} {str(row.code):>4s} {row.lines:3d} "
               f"{'yes' if row.traceback else 'no':>3s} {len(row.left):4d} {row.seconds:6.1f}  "
               f"{row.verdict}", flush=True)
-    shutil.rmtree(numba_cache, ignore_errors=True)
+    shutil.rmtree(home, ignore_errors=True)
     for base in _CAMPAIGN.values():
         shutil.rmtree(base.parent, ignore_errors=True)
     bad = [r for r in rows if r.verdict != "ok"]

@@ -100,7 +100,7 @@ def _watch_sigterm(wait: float = 2.0) -> None:
     if _WATCHING.is_set():
         return
     try:
-        from distributed import get_worker
+        from distributed import get_worker  # lazy: distributed loads on first use (campaign)
         loop = get_worker().loop
     except (ImportError, ValueError, AttributeError):
         return

@@ -28,6 +28,8 @@ import numpy as np
 __all__ = ["overlap_point"]
 
 _REL_TOL = 1e-9
+#: Up to this many pairs of edges, every pair is compared (cheaper than bucketing them).
+ALL_PAIRS = 4096
 
 
 def _ring(poly) -> np.ndarray:
@@ -81,6 +83,8 @@ def _edge_pairs(p: np.ndarray, q: np.ndarray, tol: float) -> tuple[np.ndarray, n
     ip, jq = np.flatnonzero(near(pa, pb)), np.flatnonzero(near(qa, qb))
     if not len(ip) or not len(jq):
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    if len(ip) * len(jq) <= ALL_PAIRS:            # few edges: every pair, no buckets
+        return np.repeat(ip, len(jq)), np.tile(jq, len(ip))
     ext = np.concatenate([np.abs(pb[ip] - pa[ip]).max(axis=1),
                           np.abs(qb[jq] - qa[jq]).max(axis=1)])
     side = max(float(np.median(ext)), 4 * tol, 1e-300)
