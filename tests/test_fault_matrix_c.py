@@ -256,3 +256,13 @@ def test_an_argument_error_is_one_line(capsys, argv):
     assert ei.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "error:" in err[0] and "--help" in err[0], err
+
+
+# ------------------------------------------------------------------ new parents of --out
+def test_bad_data_under_new_parents_leaves_none_of_them(tmp_path, capsys, monkeypatch):
+    """``field --data nope.csv --out a/b/c`` in an empty folder: exit 2, one line, and
+    no ``a/`` or ``a/b/`` left (only ``a/b/c`` was removed)."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["field", str(TINY), "--data", "nope.csv", "--out", "a/b/c"]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
