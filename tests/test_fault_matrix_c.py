@@ -187,18 +187,25 @@ def test_an_error_mid_field_keeps_the_previous_set(tmp_path, capsys, monkeypatch
 
 # ------------------------------------------------------------------ a worker killed mid-campaign
 _WORKER_SCRIPT = """
-import os, sys, time, dask
+import json, os, sys, time, dask
 from pathlib import Path
 if __name__ == "__main__":
     dask.config.set({"distributed.scheduler.allowed-failures": 0})   # no second try
     from fem_rmpm.campaign import start_local_cluster
     from fem_rmpm.campaign.task import run_realization
     from fem_rmpm.scene import load_scene, with_values
-    scene = with_values(load_scene(sys.argv[1]), {"solver.t_end": 60.0, "solver.threads": 1})
+    scene = with_values(load_scene(sys.argv[1]), {"solver.t_end": float(sys.argv[4]), "solver.threads": 1})
+    summary = Path(sys.argv[2]) / "summary.json"
     client, cluster = start_local_cluster(1)
     future = client.submit(run_realization, {"case": "scene", "index": 0, "seed": 3,
                            "scene": scene, "vtk_dir": sys.argv[2], "vtk_rel": "vtk"})
     print(*client.run(os.getpid).values(), flush=True)
+    if sys.argv[3] == "close":             # as a campaign stopped by Ctrl-C closes its cluster
+        while not (summary.exists() and '"running"' in summary.read_text()):
+            time.sleep(0.05)
+        client.close()
+        cluster.close(timeout=10)
+        sys.exit(0)
     try:
         future.result(timeout=120)
     except Exception as exc:
@@ -221,7 +228,7 @@ def test_a_worker_terminated_mid_realization_marks_its_kept_run_interrupted(tmp_
     ``"running"`` (the worker still ends by SIGTERM, and the task is lost, as before), and
     the death is one warning line on stderr (it was silenced with Dask's logs)."""
     vtk = tmp_path / "vtk"
-    proc = subprocess.Popen([sys.executable, "-c", _WORKER_SCRIPT, str(TINY), str(vtk)],
+    proc = subprocess.Popen([sys.executable, "-c", _WORKER_SCRIPT, str(TINY), str(vtk), "kill", "60"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         pid = int(proc.stdout.readline())
@@ -266,3 +273,16 @@ def test_bad_data_under_new_parents_leaves_none_of_them(tmp_path, capsys, monkey
     assert main(["field", str(TINY), "--data", "nope.csv", "--out", "a/b/c"]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_cluster_closed_mid_realization_marks_its_kept_run_interrupted(tmp_path):
+    """A campaign stopped by Ctrl-C closes its local cluster with a realization still
+    running: the nanny kills the busy worker (SIGKILL after its stop timeout, which no
+    handler sees), and the worker's closing has marked the kept run ``"interrupted"``."""
+    vtk = tmp_path / "vtk"
+    r = subprocess.run([sys.executable, "-c", _WORKER_SCRIPT, str(TINY), str(vtk), "close", "600"],
+                       capture_output=True, text=True, timeout=300)
+    summary = json.loads((vtk / "summary.json").read_text())
+    assert summary["status"] == "interrupted", (summary["status"], r.stderr[-2000:])
+    assert "closed" in summary["stop_reason"]
+    assert "Traceback" not in r.stderr and "died" not in r.stderr, r.stderr[-2000:]

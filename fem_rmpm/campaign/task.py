@@ -68,43 +68,58 @@ def _scalar_measures(m: dict) -> dict:
 
 #: The kept-VTK run directories of the realizations running in this worker process.
 _RUNNING_DIRS: set[str] = set()
-#: Set once this worker process marks those directories on SIGTERM (:func:`_watch_sigterm`).
+#: Set once this worker process marks those directories on SIGTERM or its closing
+#: (:func:`_watch_sigterm`).
 _WATCHING = threading.Event()
 
 
-def _on_worker_sigterm() -> None:
-    """SIGTERM to a worker process (a batch system's wall-time limit, ``kill``, a nanny
-    closing a busy worker): the runs it keeps VTK of say ``"interrupted"`` in their
-    ``summary.json`` (not ``"running"``), then the process ends by SIGTERM as before."""
+def _mark_running(reason: str) -> None:
+    """The kept-VTK runs this worker process is computing say ``"interrupted"``."""
     for path in list(_RUNNING_DIRS):
-        mark_interrupted(path, "interrupted (SIGTERM to the Dask worker process)")
+        mark_interrupted(path, reason)
+
+
+def _on_worker_sigterm() -> None:
+    """SIGTERM to a worker process (a batch system's wall-time limit, ``kill``): the runs
+    it keeps VTK of say ``"interrupted"`` in their ``summary.json`` (not ``"running"``),
+    then the process ends by SIGTERM as before."""
+    _mark_running("interrupted (SIGTERM to the Dask worker process)")
     asyncio.get_running_loop().remove_signal_handler(signal.SIGTERM)   # back to the default
     os.kill(os.getpid(), signal.SIGTERM)
 
 
-def _install_sigterm_handler() -> None:
-    """In the worker's event loop (the main thread): handle SIGTERM there once."""
+def _install_handlers(worker) -> None:
+    """In the worker's event loop (the main thread): mark the running kept-VTK runs
+    interrupted on SIGTERM, and when the worker closes with a run still going (a
+    campaign stopped by Ctrl-C: the nanny kills a busy worker with SIGKILL, which no
+    handler sees; a run that still finishes rewrites its summary as usual)."""
     try:
         if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:   # nobody else handles it
             asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, _on_worker_sigterm)
-    except (RuntimeError, ValueError, NotImplementedError):      # no loop, not the main thread
+        from distributed.diagnostics.plugin import WorkerPlugin  # lazy: in a worker only
+
+        class MarkOnClose(WorkerPlugin):
+            def teardown(self, worker) -> None:
+                _mark_running("interrupted (the Dask worker closed)")
+        asyncio.ensure_future(worker.plugin_add(MarkOnClose(), name="fem-rmpm-interrupted"))
+    except (RuntimeError, ValueError, NotImplementedError, ImportError):   # no loop, ...
         pass
     finally:
         _WATCHING.set()
 
 
 def _watch_sigterm(wait: float = 2.0) -> None:
-    """In a Dask worker process, have SIGTERM mark the running kept-VTK runs interrupted
-    (:func:`_on_worker_sigterm`); waits up to ``wait`` s for the handler to be in place.
-    Nothing outside a worker (a realization run in the calling process)."""
+    """In a Dask worker process, have SIGTERM or the worker's closing mark the running
+    kept-VTK runs interrupted (:func:`_install_handlers`); waits up to ``wait`` s for the
+    handlers to be in place.  Nothing outside a worker (a realization run here)."""
     if _WATCHING.is_set():
         return
     try:
         from distributed import get_worker  # lazy: distributed loads on first use (campaign)
-        loop = get_worker().loop
+        worker = get_worker()
     except (ImportError, ValueError, AttributeError):
         return
-    loop.add_callback(_install_sigterm_handler)
+    worker.loop.add_callback(_install_handlers, worker)
     _WATCHING.wait(wait)
 
 
