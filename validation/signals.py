@@ -78,7 +78,7 @@ def _status(out: Path) -> str:
 def _kept_vtk(out: Path) -> str:
     """The statuses of a campaign's kept-VTK runs, e.g. ``ok 3, interrupted 2``."""
     found: dict[str, int] = {}
-    for path in sorted(out.glob("vtk/*/realization_*/summary.json")):
+    for path in sorted(out.glob("vtk/**/realization_*/summary.json")):
         try:
             status = json.loads(path.read_text()).get("status", "?")
         except (OSError, ValueError):
