@@ -235,11 +235,14 @@ def _cmd_field(a) -> int:
     k, rf = field_output.field_property(scene, getattr(a, "property", None))
     seed = scene.montecarlo.seed if getattr(a, "seed", None) is None else check_seed(a.seed)
     with output_dir_for(a.out, force=a.force) as out:   # bad input leaves no directory behind
-        fit_text = ""
-        if getattr(a, "fit", None):
-            line, fit_text = field_output.fit_measurements(a.fit, rf, out)
-            print(line)
-        text = field_output.write_field(scene, out, seed, k, rf, getattr(a, "data", None), t0)
+        fit_line, fit_text = "", ""
+        with field_output.staged_outputs(out) as stage:   # all files or none
+            if getattr(a, "fit", None):
+                fit_line, fit_text = field_output.fit_measurements(a.fit, rf, stage, out)
+            text = field_output.write_field(scene, stage, seed, k, rf, getattr(a, "data", None),
+                                            t0)
+        if fit_line:
+            print(fit_line)
         print(text + f"{note}{fit_text} Output: "
               f"{out / 'field.vtu'}, {out / 'field.png'}, {out / 'field.json'} "
               f"({time.perf_counter() - t0:.2f} s).")
@@ -465,9 +468,18 @@ def _add_report(sub) -> None:
     rp.set_defaults(func=_cmd_report)
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (exit 2), like every other bad input:
+    the usage it would print first is ``--help``'s."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} "
+                     "--help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``fem-rmpm`` argument parser (one sub-parser per command)."""
-    p = argparse.ArgumentParser(prog="fem-rmpm", description="Random Material Point Method "
+    p = _OneLineParser(prog="fem-rmpm", description="Random Material Point Method "
                                 "for slope run-out risk (MPM on scikit-fem).",
                                 epilog=EXIT_CODES,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -6,11 +6,14 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 import time
+import weakref
 
 import dask
 import numba
 from distributed import Client, LocalCluster
+from distributed.core import Status
 
 from fem_rmpm import api
 from fem_rmpm.campaign.cases import CampaignError
@@ -21,7 +24,7 @@ from fem_rmpm.scene import with_values
 
 __all__ = ["worker_environment", "local_worker_count", "local_workers_text",
            "start_local_cluster", "start_client", "warm_kernels", "warm_workers",
-           "kernels_cold_here"]
+           "kernels_cold_here", "WorkerDeathNotice"]
 
 _THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 
@@ -68,6 +71,43 @@ def local_workers_text(workers: int, threads: int) -> str:
     return f"{workers} local worker process{'es' if workers > 1 else ''}{each}"
 
 
+class WorkerDeathNotice(logging.Handler):
+    """One line on stderr when a local worker process dies (out of memory, killed): the
+    nanny's own log of it (``"Worker process 123 was killed by signal 9"``) is silenced
+    with the rest of Dask's logs, but a user must see it.  Not while the cluster closes
+    (it kills a busy worker itself).  After Ctrl-C or SIGTERM the
+    ``distributed`` loggers are raised above CRITICAL (:mod:`fem_rmpm.runtime.signals`),
+    so the workers closed by the command's own clean-up are not reported."""
+
+    def __init__(self):
+        super().__init__(level=logging.INFO)
+        self.clusters: weakref.WeakSet = weakref.WeakSet()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            msg = record.getMessage()
+        except (TypeError, ValueError):
+            return
+        if any(c.status in (Status.closing, Status.closed) for c in list(self.clusters)):
+            return                  # a worker killed by the cluster's own closing
+        died = (" was killed by " in msg or " exited with status " in msg)
+        if msg.startswith("Worker process ") and died and not msg.endswith(" status 0"):
+            print(f"fem-rmpm: warning: a Dask worker process died ({msg}; out of memory is "
+                  "the usual cause): its realization runs again on a worker, and is lost "
+                  "if the worker dies again and again", file=sys.stderr, flush=True)
+
+
+def _notice_worker_deaths(cluster) -> None:
+    """Attach :class:`WorkerDeathNotice` to the nanny's logger (once per process), for
+    the workers of ``cluster``."""
+    logger = logging.getLogger("distributed.nanny")
+    notice = next((h for h in logger.handlers if isinstance(h, WorkerDeathNotice)), None)
+    if notice is None:
+        notice = WorkerDeathNotice()
+        logger.addHandler(notice)
+    notice.clusters.add(cluster)
+
+
 def start_local_cluster(workers: int, threads: int = 1):
     """``(client, cluster)``: a LocalCluster of ``workers`` processes (one Dask thread each,
     ``threads`` numba threads) with :func:`worker_environment` set before they start
@@ -81,11 +121,14 @@ def start_local_cluster(workers: int, threads: int = 1):
     with dask.config.set(env):
         # ":0": the scheduler's HTTP server (and the dashboard, if bokeh is installed) on a
         # free port; None would still bind 8787 and warn when another cluster holds it
-        # silence_logs: a lost realization is the campaign's own news (its record, "lost");
-        # Dask's logs of a cluster closed under busy workers (Ctrl-C) are not the user's
+        # silence_logs: a lost realization is the campaign's own news (its line, "lost"),
+        # a worker's death is one warning line (WorkerDeathNotice); Dask's other logs
+        # (event-loop and GC timings under load, a cluster closed under busy workers on
+        # Ctrl-C) are not the user's
         with sigint_ignored_by_children():      # Ctrl-C stops the command, not its workers
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                    dashboard_address=":0", silence_logs=logging.CRITICAL)
+        _notice_worker_deaths(cluster)
     for key, val in saved.items():
         if val is None:
             os.environ.pop(key, None)

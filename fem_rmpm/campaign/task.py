@@ -1,10 +1,13 @@
 """The Dask task of a campaign: one realization of one case, returned as a JSON-ready record."""
 from __future__ import annotations
 
+import asyncio
 import ctypes
 import os
+import signal
 import socket
 import sys
+import threading
 import time
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
@@ -16,6 +19,7 @@ from fem_rmpm import api
 from fem_rmpm.campaign.decide import DECIDED, FailureWatch
 from fem_rmpm.campaign.factor_of_safety import fs_measures
 from fem_rmpm.campaign.store import FORMAT
+from fem_rmpm.io.rundir import mark_interrupted
 from fem_rmpm.runtime.machine import cpu_model
 from fem_rmpm.schemes.common import SimulationError
 
@@ -60,6 +64,63 @@ def _scalar_measures(m: dict) -> dict:
     """The scalar measures (numbers, booleans, None) of a realization, Python types."""
     return {k: _plain(v) for k, v in m.items()
             if v is None or isinstance(v, (bool, int, float, np.bool_, np.integer, np.floating))}
+
+
+#: The kept-VTK run directories of the realizations running in this worker process.
+_RUNNING_DIRS: set[str] = set()
+#: Set once this worker process marks those directories on SIGTERM or its closing
+#: (:func:`_watch_sigterm`).
+_WATCHING = threading.Event()
+
+
+def _mark_running(reason: str) -> None:
+    """The kept-VTK runs this worker process is computing say ``"interrupted"``."""
+    for path in list(_RUNNING_DIRS):
+        mark_interrupted(path, reason)
+
+
+def _on_worker_sigterm() -> None:
+    """SIGTERM to a worker process (a batch system's wall-time limit, ``kill``): the runs
+    it keeps VTK of say ``"interrupted"`` in their ``summary.json`` (not ``"running"``),
+    then the process ends by SIGTERM as before."""
+    _mark_running("interrupted (SIGTERM to the Dask worker process)")
+    asyncio.get_running_loop().remove_signal_handler(signal.SIGTERM)   # back to the default
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _install_handlers(worker) -> None:
+    """In the worker's event loop (the main thread): mark the running kept-VTK runs
+    interrupted on SIGTERM, and when the worker closes with a run still going (a
+    campaign stopped by Ctrl-C: the nanny kills a busy worker with SIGKILL, which no
+    handler sees; a run that still finishes rewrites its summary as usual)."""
+    try:
+        if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:   # nobody else handles it
+            asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, _on_worker_sigterm)
+        from distributed.diagnostics.plugin import WorkerPlugin  # lazy: in a worker only
+
+        class MarkOnClose(WorkerPlugin):
+            def teardown(self, worker) -> None:
+                _mark_running("interrupted (the Dask worker closed)")
+        asyncio.ensure_future(worker.plugin_add(MarkOnClose(), name="fem-rmpm-interrupted"))
+    except (RuntimeError, ValueError, NotImplementedError, ImportError):   # no loop, ...
+        pass
+    finally:
+        _WATCHING.set()
+
+
+def _watch_sigterm(wait: float = 2.0) -> None:
+    """In a Dask worker process, have SIGTERM or the worker's closing mark the running
+    kept-VTK runs interrupted (:func:`_install_handlers`); waits up to ``wait`` s for the
+    handlers to be in place.  Nothing outside a worker (a realization run here)."""
+    if _WATCHING.is_set():
+        return
+    try:
+        from distributed import get_worker  # lazy: distributed loads on first use (campaign)
+        worker = get_worker()
+    except (ImportError, ValueError, AttributeError):
+        return
+    worker.loop.add_callback(_install_handlers, worker)
+    _WATCHING.wait(wait)
 
 
 def campaign_threads(scene) -> int:
@@ -107,8 +168,11 @@ def run_realization(task: dict) -> dict:
         return rec
     watch = FailureWatch(task["scene"].montecarlo.failure_displacement,
                          stop=bool(task.get("decide")))
+    vtk_dir = task.get("vtk_dir")
+    if vtk_dir is not None:
+        _watch_sigterm()
+        _RUNNING_DIRS.add(vtk_dir)
     try:
-        vtk_dir = task.get("vtk_dir")
         res = api.run(task["scene"], out=vtk_dir, seed=rec["seed"], progress=False,
                       vtk=vtk_dir is not None, figures=vtk_dir is not None, force=True,
                       noise=task.get("noise"), stop_when=watch,
@@ -129,6 +193,8 @@ def run_realization(task: dict) -> dict:
             rec.update(steps=None, final_profile=None, measures={
                 "failed": True, "decided_time": watch.time, "decided_area": watch.moved_area,
                 "failure_displacement": m["failure_displacement"], **fs_m})
+    finally:
+        _RUNNING_DIRS.discard(vtk_dir)
     rec["wall_time"] = time.perf_counter() - t0
     rec["cpu_time"] = time.process_time() - c0     # of the worker process (s)
     return rec

@@ -4,6 +4,10 @@ on measurements, the variogram fit of measurements (``fit.json``, ``variogram.pn
 the paragraph that describes them."""
 from __future__ import annotations
 
+import contextlib
+import shutil
+import signal
+import tempfile
 import time
 from pathlib import Path
 
@@ -33,7 +37,7 @@ from fem_rmpm.runtime.errors import InputError
 from fem_rmpm.scene import RandomFieldSpec, Scene, load_scene, scene_to_dict, with_value
 
 __all__ = ["plot_realization", "plot_variogram", "write_field_vtu", "field_scene",
-           "field_property", "fit_measurements", "write_field"]
+           "field_property", "fit_measurements", "write_field", "staged_outputs"]
 
 
 def plot_realization(path, scene, pts, values, mask, title, label="peak cohesion (kPa)"):
@@ -84,6 +88,34 @@ def write_field_vtu(path: Path, pts, shown: np.ndarray) -> None:
 
 # --------------------------------------------------------------------------- the command
 
+@contextlib.contextmanager
+def staged_outputs(out: Path):
+    """A hidden staging directory inside ``out`` for the files of one ``field`` command;
+    on a normal exit from the block they are moved into ``out`` as one set (the renames
+    run with SIGINT and SIGTERM held back, so a signal lands before or after the whole
+    set, never between two files), and the staging directory is removed in every case:
+    an error or an interrupt part-way leaves ``out`` as it was (no ``field.vtu`` or
+    ``field.png`` without its ``field.json``)."""
+    stage = Path(tempfile.mkdtemp(prefix=".field-partial-", dir=out))
+    try:
+        yield stage
+        names = sorted(p.name for p in stage.iterdir())
+        held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+        moved: list[Path] = []
+        try:
+            for name in names:
+                (stage / name).replace(out / name)
+                moved.append(out / name)
+        except BaseException:
+            for path in moved:                  # all or nothing (the old set is gone)
+                path.unlink(missing_ok=True)
+            raise
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
 def field_scene(path: str | Path) -> tuple[Scene, str]:
     """The scene of ``fem-rmpm field``; without a ``[random_field]``, the literature's
     default field (and a note saying so)."""
@@ -95,9 +127,11 @@ def field_scene(path: str | Path) -> tuple[Scene, str]:
                    "(add [random_field] to use a field in runs).")
 
 
-def fit_measurements(path: str, rf: RandomFieldSpec, out: Path) -> tuple[str, str]:
-    """``--fit CSV``: fit the scales, write ``fit.json`` and ``variogram.png``; returns the
-    line that tells the result and the sentence for the final summary."""
+def fit_measurements(path: str, rf: RandomFieldSpec, out: Path,
+                     shown: Path | None = None) -> tuple[str, str]:
+    """``--fit CSV``: fit the scales, write ``fit.json`` and ``variogram.png`` in ``out``;
+    returns the line that tells the result (naming the files in ``shown``, default
+    ``out``: where they end up) and the sentence for the final summary."""
     meas = read_measurements(path, key="fit")
     fit = fit_scales(meas.x, meas.y, meas.value, log=rf.distribution == "lognormal",
                      source=meas.source, group=meas.group)
@@ -105,7 +139,7 @@ def fit_measurements(path: str, rf: RandomFieldSpec, out: Path) -> tuple[str, st
     plot_variogram(out / "variogram.png", fit, f"{Path(meas.source).name}: Markov fit")
     line = (f"fit of {meas.source}: theta_v = {fit.theta_v:.4g} m, theta_h = "
             f"{fit.theta_h:.4g} m (xi = {fit.anisotropy:.3g}), sill {fit.sill:.3g}"
-            f"{' of ln(value)' if fit.log else ''}; written {out / 'fit.json'}")
+            f"{' of ln(value)' if fit.log else ''}; written {(shown or out) / 'fit.json'}")
     return line, (f" The variogram fit of {Path(meas.source).name} gives theta_v = "
             f"{fit.theta_v:.3g} m and theta_h = {fit.theta_h:.3g} m (set them with "
             "random_field.theta_v / anisotropy to use them).")

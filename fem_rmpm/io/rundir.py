@@ -134,13 +134,14 @@ def output_dir_for(out: str | Path, option: str = "--out", force: bool = False):
     """Create ``out`` for a command that writes into it: a new or empty directory, or
     with ``force`` any directory (:func:`check_run_dir`); if bad input
     (:class:`InputError`, :class:`SceneError`) stops the command, a directory this
-    created is removed again, so bad input leaves nothing behind."""
+    created is removed again (with the new parents it made), so bad input leaves nothing
+    behind."""
     out = check_run_dir(out, force=force, option=option)
-    created = not out.exists()
+    top = next((p for p in reversed([out, *out.parents]) if not p.exists()), None)
     make_dir(out, option)
     try:
         yield out
     except (InputError, SceneError):
-        if created:
-            shutil.rmtree(out, ignore_errors=True)
+        if top is not None:             # the highest directory this created
+            shutil.rmtree(top, ignore_errors=True)
         raise
