@@ -157,3 +157,14 @@ def test_plane_strain_only_commands_refuse_a_3d_scene(capsys, tmp_path, command)
     assert len(err.splitlines()) == 1 and "Traceback" not in err, err
     assert f"'fem-rmpm {command[0]}' does not support 3-D scenes yet" in err, err
     assert "[grid.size]" in err and not out.exists()
+
+
+def test_3d_estimate_prices_an_elastic_scene_by_the_elastic_step():
+    """The elastic column is priced (and labelled) by the linear elastic step's cost per
+    point-step, the extruded von Mises slab by the von Mises step's."""
+    from fem_rmpm.runtime.budget3d import NS_PER_POINT_STEP_3D, NS_PER_POINT_STEP_3D_ELASTIC
+    elastic = estimate_run(load_scene(MESHES / "column_3d.toml"))
+    plastic = estimate_run(load_scene(MESHES / "slope_extruded_3d.toml"))
+    assert elastic.ns_per_point_step == NS_PER_POINT_STEP_3D_ELASTIC
+    assert "linear elastic" in elastic.machine
+    assert plastic.ns_per_point_step == NS_PER_POINT_STEP_3D and "von Mises" in plastic.machine
