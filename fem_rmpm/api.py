@@ -304,8 +304,9 @@ def _run_3d(scene: Scene, out, seed, *, progress: bool, vtk: bool | None,
                                    rec.time if rec.stop_reason == "at rest" else None,
                                    scene.montecarlo.intact_block_area)
     summary = _summary(scene, seed, pts, rec, measures, machine, estimate)
-    summary["excluded_points"] = {"frozen": {"points": measures["excluded_frozen_points"],
-                                             "volume": measures["excluded_frozen_volume"]}}
+    summary["excluded_points"] = {why: {k: measures[f"excluded_{why}_{k}"]
+                                        for k in ("points", "volume")}
+                                  for why in ("frozen", "stray")}
     summary["dimension"] = 3
     if out is not None:
         write_json(out / "summary.json", {**summary, "files": run_files(out)})   # last

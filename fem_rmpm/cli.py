@@ -39,6 +39,7 @@ from fem_rmpm.scene import (
     with_value,
     with_values,
 )
+from fem_rmpm.scene.dimension import refuse_three_d
 from fem_rmpm.schemes.common import SimulationError
 from fem_rmpm.schemes.implicit.strength_reduction import fs_cli
 
@@ -128,6 +129,7 @@ def _cmd_mc_response(a, scene: Scene, cluster: campaign.ClusterSpec) -> int:
 def _cmd_mc(a) -> int:
     """``fem-rmpm mc``: returns 0, or 3 if realizations were lost (re-run to finish)."""
     scene = scene_from_args(a)
+    refuse_three_d(scene, "mc")
     if a.fs and a.fs_only:
         raise InputError("--fs and --fs-only: give one (--fs: FS before each MPM run; "
                          "--fs-only: FS instead of it)")
@@ -224,6 +226,7 @@ def _cmd_main_job(a, cluster: campaign.ClusterSpec) -> int:
 
 def _cmd_fs(a) -> int:
     scene = scene_from_args(a)
+    refuse_three_d(scene, "fs")
     grid, pts = api.prepare(scene, a.seed)
     return fs_cli(a, scene, grid, pts)
 
@@ -231,6 +234,7 @@ def _cmd_fs(a) -> int:
 def _cmd_field(a) -> int:
     """``fem-rmpm field [SCENE] --seed S --out DIR [--data CSV] [--fit CSV]``."""
     t0 = time.perf_counter()
+    refuse_three_d(load_scene(a.scene), "field")
     scene, note = field_output.field_scene(a.scene)
     k, rf = field_output.field_property(scene, getattr(a, "property", None))
     seed = scene.montecarlo.seed if getattr(a, "seed", None) is None else check_seed(a.seed)

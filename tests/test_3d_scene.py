@@ -143,3 +143,28 @@ def test_fem_command_solves_a_3d_scene_and_fs_refuses_it(tmp_path, capsys):
     assert (out / "fem.vtu").exists()
     with pytest.raises(SceneError, match="plane strain only"):
         api.factor_of_safety(load_scene(MESHES / "column_3d.toml"))
+
+
+@pytest.mark.parametrize("command", [["fs"], ["mc", "--realizations", "2"], ["field"]])
+def test_plane_strain_only_commands_refuse_a_3d_scene(capsys, tmp_path, command):
+    """``fs``, ``mc`` and ``field`` work on plane-strain scenes only: a 3-D scene exits 2
+    with one line naming the command, nothing written."""
+    out = tmp_path / "out"
+    code = main([command[0], str(MESHES / "slope_extruded_3d.toml"), "--out", str(out),
+                 *command[1:]])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert f"'fem-rmpm {command[0]}' does not support 3-D scenes yet" in err, err
+    assert "[grid.size]" in err and not out.exists()
+
+
+def test_3d_estimate_prices_an_elastic_scene_by_the_elastic_step():
+    """The elastic column is priced (and labelled) by the linear elastic step's cost per
+    point-step, the extruded von Mises slab by the von Mises step's."""
+    from fem_rmpm.runtime.budget3d import NS_PER_POINT_STEP_3D, NS_PER_POINT_STEP_3D_ELASTIC
+    elastic = estimate_run(load_scene(MESHES / "column_3d.toml"))
+    plastic = estimate_run(load_scene(MESHES / "slope_extruded_3d.toml"))
+    assert elastic.ns_per_point_step == NS_PER_POINT_STEP_3D_ELASTIC
+    assert "linear elastic" in elastic.machine
+    assert plastic.ns_per_point_step == NS_PER_POINT_STEP_3D and "von Mises" in plastic.machine

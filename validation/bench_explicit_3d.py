@@ -6,7 +6,7 @@ Plain script:
     python validation/bench_explicit_3d.py --t-end 1.0     # a shorter run
 
 Case: ``meshes/slope_extruded_3d.toml`` (the reference slope's section extruded 2 m,
-0.5 m hexahedra, 36 480 points, linear elastic), run with ``fem-rmpm run`` in a fresh
+0.5 m hexahedra, 36 448 points, von Mises softening), run with ``fem-rmpm run`` in a fresh
 process after a short run that fills numba's cache.  MPUPS = points x steps / the time
 loop's wall (and CPU) time from ``summary.json`` (imports, set-up and output after the
 loop not included).  Memory per point: the peak resident set of the run's process minus

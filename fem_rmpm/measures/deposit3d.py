@@ -1,8 +1,17 @@
 """Measures of a three-dimensional realization: the plane-strain measures taken slice by
 slice along the strike, and their maxima and means.
 
-The points counted are the active ones (frozen points excluded; the plane-strain scheme's
-stray-point rule, by connected bodies, is not applied in 3-D).  A point slides when its
+**Which points count** is the plane-strain rule of :mod:`fem_rmpm.measures.deposit` in
+three dimensions, on the whole deposit (:func:`deposit_points_3d`): frozen points never
+count; the active points are binned by their current position into the grid's cells; the
+occupied cells that touch (26-neighbour: faces, edges or corners) form connected bodies; a
+body holds at least ``MIN_BODY_FRACTION`` (1 %) of the active points' current volume (the
+largest always counts); a point counts when its cell belongs to a body, and is ``stray``
+otherwise.  The rule is applied to the whole deposit, not slice by slice, because a point
+belongs to the deposit by touching it in any direction: material that moved across a slice
+boundary, or a film one cell thick along the strike, stays connected to its body, and a
+point thrown off the deposit is an empty cell away from it in 3-D as in its slice.  On a
+plane-strain slab (every slice alike) the two agree.  A point slides when its
 displacement |u| exceeds the failure displacement.  ``X`` is the true horizontal
 coordinate in the x-y plane (the grid frame turned by ``frame_angle_deg``).  The strike
 is cut into slices one grid cell long (by each point's initial z); in each slice:
@@ -17,7 +26,8 @@ is cut into slices one grid cell long (by each point's initial z); in each slice
 initial volume of the sliding points and ``sliding_area`` (m2/m) that volume per metre of
 the strike length of the soil (its slices), the plane-strain figure of an extruded slope;
 ``intact_blocks`` counts the 3-D connected components of the cells of sliding intact
-points (:func:`intact_blocks_3d`).
+points (:func:`intact_blocks_3d`).  ``excluded_frozen_*`` and ``excluded_stray_*`` give the
+excluded points per reason (count and initial volume, m3).
 """
 from __future__ import annotations
 
@@ -26,10 +36,41 @@ import math
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["compute_measures_3d", "intact_blocks_3d", "INTACT_STRAIN"]
+from fem_rmpm.measures.deposit import MIN_BODY_FRACTION
+
+__all__ = ["compute_measures_3d", "deposit_points_3d", "intact_blocks_3d", "INTACT_STRAIN"]
 
 #: A point is intact below this plastic shear strain (-), as in plane strain.
 INTACT_STRAIN = 0.1
+
+
+def deposit_points_3d(x: np.ndarray, volume: np.ndarray, active: np.ndarray, origin,
+                      cell, min_body_fraction: float = MIN_BODY_FRACTION
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Which points count (module docstring): ``(counted, stray)``, two (n,) bool masks;
+    frozen points (``~active``) are in neither.  ``x`` (n, 3) current grid-frame positions
+    (m), ``volume`` (n,) current volumes (m3), ``origin`` and ``cell`` (3,) the grid's
+    corner and cell size (m)."""
+    n = len(x)
+    counted, stray = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    act = np.nonzero(active)[0]
+    if len(act) == 0:
+        return counted, stray
+    ijk = np.floor((x[act] - np.asarray(origin, float)) / np.asarray(cell, float)
+                   ).astype(np.int64)
+    ijk -= ijk.min(axis=0)
+    idx = (ijk[:, 0], ijk[:, 1], ijk[:, 2])
+    vol = np.zeros(tuple(ijk.max(axis=0) + 1))
+    np.add.at(vol, idx, volume[act])
+    labels, nlab = ndimage.label(vol > 0, structure=np.ones((3, 3, 3), dtype=bool))
+    body_vol = np.bincount(labels.ravel(), vol.ravel(), minlength=nlab + 1)
+    is_body = body_vol >= min_body_fraction * volume[act].sum()
+    is_body[1 + int(np.argmax(body_vol[1:]))] = True          # the largest always counts
+    is_body[0] = False
+    inside = is_body[labels[idx]]
+    counted[act[inside]] = True
+    stray[act[~inside]] = True
+    return counted, stray
 
 
 def intact_blocks_3d(pts, grid, threshold: float, least_area: float) -> int:
@@ -63,14 +104,14 @@ def _slices(pts, grid) -> tuple[np.ndarray, np.ndarray]:
     return k, grid.origin[2] + (np.arange(grid.shape[2]) + 0.5) * grid.cell[2]
 
 
-def _profiles(pts, grid, frame_angle_deg: float, sliding: np.ndarray):
+def _profiles(pts, grid, frame_angle_deg: float, counted: np.ndarray, sliding: np.ndarray):
     X, X0 = _true_horizontal(pts.x, frame_angle_deg), _true_horizontal(pts.x0, frame_angle_deg)
     k, zs = _slices(pts, grid)
     runout, retro = [], []
     for s in np.unique(k):
         here = k == s
-        counted = here & pts.active
-        r = max(float(X[counted].max() - X0[here].max()), 0.0) if counted.any() else 0.0
+        now = here & counted
+        r = max(float(X[now].max() - X0[here].max()), 0.0) if now.any() else 0.0
         top = here & (pts.x0[:, 1] > pts.x0[here, 1].max() - grid.cell[1])
         crest = float(X0[top][np.argmax(pts.x0[top, 0])])
         slid = here & sliding
@@ -86,9 +127,9 @@ def compute_measures_3d(pts, grid, frame_angle_deg: float, threshold: float,
     failure displacement (m), ``time_to_rest`` (s or None), ``least_block_area`` (m2) of
     :func:`intact_blocks_3d`."""
     d = np.linalg.norm(pts.displacement, axis=1)
-    counted = pts.active
+    counted, stray = deposit_points_3d(pts.x, pts.volume, pts.active, grid.origin, grid.cell)
     sliding = counted & (d > threshold)
-    runout, retro = _profiles(pts, grid, frame_angle_deg, sliding)
+    runout, retro = _profiles(pts, grid, frame_angle_deg, counted, sliding)
     k, _ = _slices(pts, grid)
     length = float(len(np.unique(k)) * grid.cell[2])       # strike length of the soil, m
     volume = float(pts.volume0[sliding].sum())
@@ -109,4 +150,6 @@ def compute_measures_3d(pts, grid, frame_angle_deg: float, threshold: float,
         "strike_length": length,
         "excluded_frozen_points": int(frozen.sum()),
         "excluded_frozen_volume": float(pts.volume0[frozen].sum()),
+        "excluded_stray_points": int(stray.sum()),
+        "excluded_stray_volume": float(pts.volume0[stray].sum()),
     }

@@ -20,7 +20,8 @@ import dataclasses
 from fem_rmpm.scene.spec import GridSpec, Scene
 from fem_rmpm.scene.values import _fail
 
-__all__ = ["with_grid_dimension", "check_dimension", "strike_range", "MODELS_3D"]
+__all__ = ["with_grid_dimension", "check_dimension", "strike_range", "refuse_three_d",
+           "MODELS_3D"]
 
 #: Material models the three-dimensional explicit scheme updates.
 MODELS_3D = ("linear_elastic", "von_mises_softening")
@@ -123,6 +124,16 @@ def _inside(src: str, key: str, poly, axes: tuple[int, int], lo, hi, tol: float)
             raise _fail(src, key, f"point ({p[0]:g}, {p[1]:g}) m lies outside the grid "
                         f"[{lo[a]:g}, {hi[a]:g}] x [{lo[b]:g}, {hi[b]:g}] m ({names[a]}, "
                         f"{names[b]})")
+
+
+def refuse_three_d(s: Scene, command: str) -> None:
+    """Raise a one-line :class:`SceneError` when ``s`` is three-dimensional and
+    ``fem-rmpm COMMAND`` works on plane-strain scenes only (``fs``, ``mc``, ``field``)."""
+    if s.grid.dimension == 3:
+        raise _fail(s.source, "grid.size", f"a three-dimensional scene: 'fem-rmpm {command}' "
+                    "does not support 3-D scenes yet; allowed: a plane-strain grid "
+                    "([grid] size = [Lx, Ly]); 3-D scenes run with 'fem-rmpm run' and "
+                    "'fem-rmpm fem'")
 
 
 def strike_range(s: Scene, soil) -> tuple[float, float]:
