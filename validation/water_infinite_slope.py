@@ -2,8 +2,9 @@
 
 Cases on ``meshes/infinite_slope_water.toml`` (b = 30 deg, H = 5 m, c' = 8 kPa,
 phi' = 26 deg, gamma = 18, gamma_sat = 20, gamma_w = 9.81 kN/m3): a water table parallel
-to the slope at m = 0.5 and 1 with ``"hydrostatic"`` and ``"parallel_seepage"`` pore
-pressure, dry (m = 0), and the slope fully submerged below a horizontal free water level;
+to the slope at m = 0.5 and 1 (and 0.25 hydrostatic) with ``"hydrostatic"`` and
+``"parallel_seepage"`` pore pressure, dry (m = 0), and the slope fully submerged below a
+horizontal free water level;
 ``h1-strong``: m = 1 hydrostatic with c' = 30 kPa, phi' = psi = 35 deg (FS > 1).
 Closed forms: the scene's header (limit equilibrium on the slope-parallel plane; the
 collapse load of an associated-flow layer).  A trial F < 1 raises c and phi but keeps
@@ -66,10 +67,11 @@ def davis_fs(m: float | None, mode: str, c: float = C, phi: float = PHI,
              psi: float = PHI) -> float:
     """FS with the trial soil's non-associated flow accounted for by Davis's reduced
     strengths (Davis 1968, "Theories of plasticity and the failure of soil masses", in
-    Lee (ed.) Soil Mechanics: Selected Topics; as used by Griffiths & Lane 1999 and
-    Drescher & Detournay 1993): at a trial F, c_F = c / F, tan phi_F = tan phi / F,
-    psi_F = min(psi, phi_F), k = cos psi_F / (1 - sin psi_F sin phi_F), c* = k c_F
-    cos phi_F, tan phi* = k sin phi_F; FS solves tau = c* + sigma'_n tan phi*.  Equals
+    Lee (ed.) Soil Mechanics: Selected Topics; Drescher & Detournay 1993, Geotechnique
+    43(3), for translational mechanisms of non-associative materials): at a trial F,
+    c_F = c / F, tan phi_F = tan phi / F, psi_F = min(psi, phi_F),
+    k = cos psi_F / (1 - sin psi_F sin phi_F), c* = k c_F cos phi_F,
+    tan phi* = k sin phi_F; FS solves tau = c* + sigma'_n tan phi*.  Equals
     :func:`closed_form` when psi_F = phi_F (every F >= 1 with psi = phi)."""
     sig, tau = slip_plane_stresses(m, mode)
 
@@ -114,7 +116,8 @@ def band_depth(scene) -> float:
 
 
 #: name: (m, pore pressure, c' kPa, phi' = psi deg)
-CASES = {"dry": (0.0, "hydrostatic", C, PHI), "h0.5": (0.5, "hydrostatic", C, PHI),
+CASES = {"dry": (0.0, "hydrostatic", C, PHI), "h0.25": (0.25, "hydrostatic", C, PHI),
+         "h0.5": (0.5, "hydrostatic", C, PHI),
          "h1": (1.0, "hydrostatic", C, PHI), "p0.5": (0.5, "parallel_seepage", C, PHI),
          "p1": (1.0, "parallel_seepage", C, PHI), "submerged": (None, "hydrostatic", C, PHI),
          "h1-strong": (1.0, "hydrostatic", 30.0, 35.0)}
