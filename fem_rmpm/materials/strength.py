@@ -11,7 +11,11 @@ reduction of a model's rows, in order:
 2. without softening, a residual value (a row with ``peak``) takes the reduced peak value:
    the soil is perfectly plastic at its reduced peak strength (RFEM practice);
 3. a parameter with the rule ``"at most"`` is capped at the reduced value of its ``bound``
-   (a dilation angle may not exceed the reduced friction angle).
+   (a dilation angle may not exceed the reduced friction angle); where it equals its
+   bound before the reduction (associated flow, psi = phi), it takes the bound's reduced
+   value at every trial, so that a soil declared associated stays associated also at
+   trials F < 1, where phi grows (a capped psi would make it non-associated there, and a
+   non-associated soil collapses at a lower load: Davis 1968).
 """
 from __future__ import annotations
 
@@ -49,6 +53,7 @@ def reduce_strength(key: int | str, params: np.ndarray, F: float,
     p = np.array(params, dtype=float, copy=True)
     table = strengths(key)
     col = {s.name: registry.column(key, s.name) for s in table}
+    associated = _associated(key, p, table, col, softening)
     for s in table:
         if s.rule == "c/F":
             p[:, col[s.name]] = p[:, col[s.name]] / F
@@ -60,9 +65,21 @@ def reduce_strength(key: int | str, params: np.ndarray, F: float,
                 p[:, col[s.name]] = p[:, registry.column(key, s.peak)]
     for s in table:
         if s.rule == "at most":
-            c = col[s.name]
-            p[:, c] = np.minimum(p[:, c], p[:, registry.column(key, s.bound)])
+            c, b = col[s.name], registry.column(key, s.bound)
+            p[:, c] = np.where(associated[s.name], p[:, b], np.minimum(p[:, c], p[:, b]))
     return p
+
+
+def _associated(key, p: np.ndarray, table: tuple, col: dict, softening: bool) -> dict:
+    """Per "at most" row of ``table``: which points (bool (n,)) have the parameter equal to
+    its bound in the unreduced rows ``p`` (after step 2 of the module docstring)."""
+    q = p.copy()
+    if not softening:
+        for s in table:
+            if s.peak is not None:
+                q[:, col[s.name]] = q[:, registry.column(key, s.peak)]
+    return {s.name: q[:, col[s.name]] == q[:, registry.column(key, s.bound)]
+            for s in table if s.rule == "at most"}
 
 
 def has_strength(spec) -> bool:
