@@ -44,8 +44,9 @@ PACKAGE = Path(__file__).resolve().parents[1]
 #: (every ``.py`` in them) or files.  ``tests/test_numba_cache.py`` checks that every
 #: module using numba is listed here.
 COMPILED_SOURCES = ("runtime/compiled.py", "schemes/explicit/kernels", "materials",
-                    "schemes/implicit", "schemes/regularisation.py",
-                    "random_field/quadrature3d.py")
+                    "schemes/implicit",
+                    "schemes/regularisation.py", "random_field/quadrature3d.py",
+                    "schemes/explicit3d", "discretise/basis3d.py")
 
 
 #: The explicit kernels' dependency group (relative to the package directory, a subset of

@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fem_rmpm.runtime.compiled import inline
 from fem_rmpm.scene import Scene
 from fem_rmpm.scene.water import true_polyline
+from fem_rmpm.schemes.explicit.kernels.water import water_force, water_ramp  # noqa: F401
 
 __all__ = ["WaterTable", "water_table", "pore_pressure", "water_force", "water_forces",
            "water_ramp", "nodal_water_force", "saturate_points", "total_stress", "vtk_fields",
@@ -90,38 +90,6 @@ def pore_pressure(wt: WaterTable, x: np.ndarray) -> tuple[np.ndarray, np.ndarray
 def water_forces(wt: WaterTable, x: np.ndarray, volume: np.ndarray) -> np.ndarray:
     """The per-point water force -V_p grad u(x_p) (n, 2), kN per m, at full gravity."""
     return -volume[:, None] * pore_pressure(wt, x)[1]
-
-
-@inline
-def water_force(x0, x1, vol, seg, frame, ramp):
-    """Compiled :func:`water_forces` of one point at (x0, x1) of volume ``vol``, times
-    ``ramp``: (fx, fy) kN per m (zero above the surface)."""
-    c = frame[0]
-    s = frame[1]
-    X = x0 * c + x1 * s
-    Y = -x0 * s + x1 * c
-    lo, hi = 0, seg.shape[0] - 1          # the last segment start <= X (else the first)
-    while lo < hi:
-        mid = (lo + hi + 1) // 2
-        if seg[mid, 0] <= X:
-            lo = mid
-        else:
-            hi = mid - 1
-    if seg[lo, 1] + seg[lo, 2] * (X - seg[lo, 0]) - Y <= 0.0:
-        return 0.0, 0.0
-    f = -ramp * vol
-    return f * seg[lo, 4], f * seg[lo, 5]
-
-
-@inline
-def water_ramp(M, o):
-    """(whether the mesh ``M`` carries pore water, the gravity ramp of step ``o``): the
-    water force grows with gravity (ramped gravity over full gravity)."""
-    fr = M.frame
-    if M.water.shape[0] == 0:
-        return False, 0.0
-    g2 = fr[2] * fr[2] + fr[3] * fr[3]
-    return True, ((o.gx * fr[2] + o.gy * fr[3]) / g2 if g2 > 0.0 else 1.0)
 
 
 def nodal_water_force(wt: WaterTable | None, S, x: np.ndarray, volume: np.ndarray,

@@ -10,7 +10,8 @@ nodal arrays (:mod:`.transfer`). The three stages of the method:
 
 1. **map to nodes** — :func:`map_to_nodes`: per point, the host cell (arithmetic on the
    structured grid), Q4 or uGIMP shape values and gradients (:mod:`.basis`), mass,
-   momentum and force scattered to the nodes.  The nodes it touches are listed: every
+   momentum and force (with the pore water's force on the point, :mod:`.water`)
+   scattered to the nodes.  The nodes it touches are listed: every
    later nodal loop visits those *active* nodes only, and the next step clears only
    them (no work on the empty part of the grid).
 2. **solve on the mesh** — in :func:`solve_and_move`: per active node, lumped-mass

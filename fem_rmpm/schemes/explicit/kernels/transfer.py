@@ -45,7 +45,7 @@ from fem_rmpm.schemes.explicit.kernels.basis import gimp_kept, gimp_store, q4_at
 from fem_rmpm.schemes.explicit.kernels.common import MASS_TOL, fixed_columns, half_range, xy
 from fem_rmpm.schemes.explicit.kernels.contact import contact_velocity
 from fem_rmpm.schemes.explicit.kernels.pairs import fma2, fma2_to, load2, mul2, sub2_from
-from fem_rmpm.schemes.pore_pressure import water_force, water_ramp
+from fem_rmpm.schemes.explicit.kernels.water import water_force, water_ramp
 
 __all__ = ["map_to_nodes", "map_to_nodes_parallel", "solve_and_move", "solve_and_move_parallel",
            "nodal_velocity", "nodal_velocities", "nodal_velocities_parallel"]
