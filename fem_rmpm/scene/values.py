@@ -176,8 +176,8 @@ def _grid_numbers(source: str, lookup: str, key: str, value: Any) -> tuple[float
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                        and math.isfinite(v) for v in value)
             or (len(value) == 1 and lookup != "grid.cell")):
-        raise _fail(source, key, f"expected two numbers [x, y] or three [x, y, z] (m), "
-                    f"got {value!r}")
+        raise _fail(source, key, f"expected two finite numbers [x, y] or three [x, y, z] "
+                    f"(m), got {value!r}")
     return tuple(float(v) for v in value)
 
 
