@@ -332,10 +332,8 @@ def test_infinite_slope_water_table_at_surface_fs_strong_soil():
     above 1, so that every trial is associated flow (the closed form's limit load).
     Reference: (c' + (W cos^2 b - gamma_w H_s) tan phi') / (W sin b cos b), W = gamma_sat
     H_s, on the plane where the mesh puts the shear band, half a cell row above the
-    bedrock (H_s = H - (h / 2) / cos b: 1.1489; on the bedrock 1.1124).  Achieved 1.1494
-    (+0.05 %; +3.3 % against the bedrock plane); asserts 1 %.  (With c' = 8 kPa,
-    phi' = 26 deg the FS is 0.477 and its trials keep psi = 26 deg under phi_F = 45.6 deg:
-    non-associated, FS 9.6 % low; docs/validation/pore_water.md.)"""
+    bedrock (H_s = H - (h / 2) / cos b: 1.1302 with 20 rows; on the bedrock 1.1124).
+    Achieved 1.1295 (-0.06 %; +1.5 % against the bedrock plane); asserts 1 %."""
     w = _validation_module()
     r = w.run_case("h1-strong")
     assert abs(r["band_error"]) < 0.01, r
