@@ -7,21 +7,15 @@ to the slope at m = 0.5 and 1 (and 0.25 hydrostatic) with ``"hydrostatic"`` and
 horizontal free water level;
 ``h1-strong``: m = 1 hydrostatic with c' = 30 kPa, phi' = psi = 35 deg (FS > 1).
 Closed forms: the scene's header (limit equilibrium on the slope-parallel plane; the
-collapse load of an associated-flow layer).  A trial F < 1 raises c and phi but keeps
-psi (the dilation angle is capped at the reduced friction angle, never raised), so below
-F = 1 the trial soil is non-associated; the table gives phi_F at the closed form's FS and
-the Davis (1968) estimate of the non-associated collapse (c*, phi* of
-:func:`davis_fs`), between which and the closed form the FE FS is expected.  "band h/2
+collapse load of an associated-flow layer).  A trial F < 1 raises c and phi; the soil,
+declared with psi = phi, stays associated at every trial (the strength reduction's
+rule).  The table gives phi_F at the closed form's FS and the Davis (1968) estimate of
+the collapse had psi stayed at its declared value (c*, phi* of :func:`davis_fs`).  "band h/2
 up": the closed form on the plane half a cell row above the bedrock, where a
 displacement-based mesh puts the shear band (:func:`band_depth`).  Prints a markdown table
 (FS bracketed to 0.5 %) and writes it as JSON to ``--out``.
 
     python validation/water_infinite_slope.py [--cases a,b] [--out water_fs.json]
-    python validation/water_infinite_slope.py --associated-trials   # a diagnostic
-
-``--associated-trials`` (a diagnostic, not the product's rule): every trial's dilation
-angle is its reduced friction angle, also for F < 1, so that each trial is the
-associated soil the closed form assumes.
 """
 from __future__ import annotations
 
@@ -32,7 +26,6 @@ import time
 from pathlib import Path
 
 from fem_rmpm import api
-from fem_rmpm.materials import registry, strength
 from fem_rmpm.scene import load_scene, with_values
 
 SCENE = Path(__file__).parents[1] / "meshes" / "infinite_slope_water.toml"
@@ -137,33 +130,12 @@ def run_case(name: str, tolerance: float = 0.005) -> dict:
             "davis": davis_fs(m, mode, c, phi, phi), "cpu_s": time.process_time() - t0}
 
 
-def associated_trials() -> None:
-    """Make every strength-reduction trial associated in this process (the diagnostic
-    ``--associated-trials``): the dilation angles after
-    :func:`fem_rmpm.materials.strength.reduce_strength` are the reduced friction angles."""
-    capped = strength.reduce_strength
-
-    def reduce(key, params, F, softening):
-        p = capped(key, params, F, softening)
-        names = [q.name for q in registry.model(key).PARAMETERS]
-        for stage in ("peak", "residual"):
-            if f"dilation_angle_{stage}" in names:
-                p[:, registry.column(key, f"dilation_angle_{stage}")] = \
-                    p[:, registry.column(key, f"friction_angle_{stage}")]
-        return p
-    strength.reduce_strength = reduce
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", default=",".join(CASES))
     ap.add_argument("--out", default=None)
     ap.add_argument("--tolerance", type=float, default=0.005, help="FS bracket width")
-    ap.add_argument("--associated-trials", action="store_true",
-                    help="diagnostic: dilation angle = reduced friction angle at every trial")
     args = ap.parse_args()
-    if args.associated_trials:
-        associated_trials()
     rows = []
     print("| case | m | pore pressure | c', phi' = psi | FS | closed form | error | "
           "band h/2 up | error | phi_F at FS | Davis | CPU s |")
