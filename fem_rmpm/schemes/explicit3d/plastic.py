@@ -17,7 +17,8 @@ import numpy as np
 
 from fem_rmpm.runtime.compiled import inline, jit
 
-__all__ = ["von_mises_return_3d", "von_mises_points_3d", "MODEL_ELASTIC", "MODEL_VON_MISES"]
+__all__ = ["von_mises_return_3d", "von_mises_points_3d", "plastic_return_principal_3d",
+           "MODEL_ELASTIC", "MODEL_VON_MISES"]
 
 MODEL_ELASTIC = 0
 MODEL_VON_MISES = 1
@@ -78,3 +79,44 @@ def von_mises_points_3d(eps, G, cp, cr, gs, expo, gamma):
     for i in range(eps.shape[0]):
         out[i] = von_mises_return_3d(eps[i], G, cp, cr, gs, expo, gamma[i])
     return out
+
+
+@inline
+def plastic_return_principal_3d(model, e, lam, mu, prow, srow):
+    """The plastic return of one point on its three principal elastic log strains ``e``
+    (3,), in place and in the order given (an isotropic return keeps the principal
+    directions), for the point's ``model`` (:data:`MODEL_ELASTIC`: nothing;
+    :data:`MODEL_VON_MISES`: :func:`von_mises_return_3d`), Lame ``lam``, ``mu`` (kPa), its
+    parameter row ``prow`` (peak and residual cohesion kPa, softening strain, exponential
+    law) and state row ``srow`` (plastic shear strain, softening variable; updated).
+    Returns the plastic shear strain increment (0 when elastic).  The one entry point of
+    the 3-D step into the materials: a new model is one branch here."""
+    if model != MODEL_VON_MISES:
+        return 0.0
+    mean = (e[0] + e[1] + e[2]) / 3.0
+    d0, d1, d2 = e[0] - mean, e[1] - mean, e[2] - mean
+    q = math.sqrt(2.0) * mu * math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    cp, cr, gs, expo = prow[0], prow[1], prow[2], prow[3] != 0.0
+    gamma = srow[0]
+    c, dc = _cohesion(gamma, cp, cr, gs, expo)
+    if q <= c:
+        return 0.0
+    if not expo:
+        dg = (q - c) / (mu + dc)
+        if gamma < gs < gamma + dg:
+            dg = (q - cr) / mu
+    else:
+        dg = 0.0
+        for _ in range(50):
+            c, dc = _cohesion(gamma + dg, cp, cr, gs, expo)
+            step = (q - mu * dg - c) / (mu + dc)
+            dg += step
+            if abs(step) <= 1e-14 * (1.0 + dg):
+                break
+    scale = (q - mu * dg) / q
+    e[0] = mean + d0 * scale
+    e[1] = mean + d1 * scale
+    e[2] = mean + d2 * scale
+    srow[0] = gamma + dg
+    srow[1] = srow[0]
+    return dg
