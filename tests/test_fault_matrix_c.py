@@ -280,7 +280,9 @@ def test_a_cluster_closed_mid_realization_marks_its_kept_run_interrupted(tmp_pat
     running: the nanny kills the busy worker (SIGKILL after its stop timeout, which no
     handler sees), and the worker's closing has marked the kept run ``"interrupted"``."""
     vtk = tmp_path / "vtk"
-    r = subprocess.run([sys.executable, "-c", _WORKER_SCRIPT, str(TINY), str(vtk), "close", "600"],
+    # 1e5 s of simulated time is about 1e7 steps (minutes with warm kernels): the run
+    # cannot finish by itself within the cluster's 10 s closing timeout (600 s could).
+    r = subprocess.run([sys.executable, "-c", _WORKER_SCRIPT, str(TINY), str(vtk), "close", "100000"],
                        capture_output=True, text=True, timeout=300)
     summary = json.loads((vtk / "summary.json").read_text())
     assert summary["status"] == "interrupted", (summary["status"], r.stderr[-2000:])
