@@ -241,7 +241,8 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
                                 grid.cell, rec.time if rec.stop_reason == "at rest" else None,
                                 snapshots=snapshots, grid=grid,
                                 mechanism_time=MECHANISM_TIME + t0,
-                                intact_block_area=mc.intact_block_area)
+                                intact_block_area=mc.intact_block_area,
+                                failure_area=mc.failure_area)
     summary = _summary(scene, seed, pts, rec, measures, machine, estimate)
     if out is not None:
         if figures and snapshots and error is None:

@@ -408,7 +408,8 @@ def test_summary_json_holds_the_documented_keys(tmp_path):
     time, wall time, particle count, ns per point-step, the measures (the documented ones),
     frozen points, solver statistics, the kinetic-energy history and the machine, each with
     the value of the run."""
-    res = api.run(_falling_block(), out=tmp_path / "o", seed=4)
+    res = api.run(_falling_block(**{"montecarlo.failure_area": 0.1}), out=tmp_path / "o",
+                  seed=4)   # a 1 m2 block, part of it frozen at the edge
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
     rec, p = res.record, res.particles
     assert s["scheme"] == "explicit" and s["status"] == "ok" and s["seed"] == 4

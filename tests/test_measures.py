@@ -57,6 +57,30 @@ def test_no_failure_below_threshold(meshes):
     assert not m["failed"] and m["sliding_area"] == 0.0 and m["retrogression_distance"] == 0.0
 
 
+def test_a_few_points_moved_are_not_a_failure_and_the_failure_area_decides(meshes):
+    """Two points inside the layer moved 0.6 m (more than failure_displacement, 0.5 m;
+    0.03 m2/m on the 0.25 m grid): sliding area 2 x their volume, but not a failure at the
+    default failure area (1 m2/m) -- debris; with ``failure_area = 0`` any sliding point
+    fails.  A block of 1.5 m2/m fails at 1 m2/m and not at 2 m2/m (the rule is
+    ``sliding_area >= failure_area``, exact areas summed by hand here)."""
+    scene, grid, pts = _slope(meshes)
+    near = np.argsort(np.hypot(pts.x0[:, 0] - 30.0, pts.x0[:, 1] - 2.5), kind="stable")
+    debris = near[:2]                       # inside the layer: they stay in the deposit
+    pts.x[debris, 0] += 0.6
+    area = float(pts.volume0[debris].sum())
+    kw = dict(frame_angle_deg=20.0, threshold=0.5, cell=grid.cell, time_to_rest=None)
+    m = compute_measures(pts, **kw, failure_area=1.0)
+    assert m["sliding_area"] == pytest.approx(area, rel=1e-12) and 0 < area < 0.1
+    assert not m["failed"]
+    assert compute_measures(pts, **kw, failure_area=0.0)["failed"]
+    block = near[:int(round(1.5 / pts.volume0[0]))]
+    pts.x[block, 0] += 0.6
+    area = float(pts.volume0[block].sum())
+    assert 1.0 <= area < 2.0
+    assert compute_measures(pts, **kw, failure_area=1.0)["failed"]
+    assert not compute_measures(pts, **kw, failure_area=2.0)["failed"]
+
+
 def test_surface_profile_is_top_of_each_bin():
     """Profile = max y per x bin."""
     X = np.array([[0.1, 1.0], [0.2, 3.0], [0.6, 2.0], [1.4, 0.5]])

@@ -67,7 +67,8 @@ What a campaign is
   by Dask on another worker (up to ``distributed.scheduler.allowed-failures``
   times); if it is still lost, it has no record and the next run computes it.
 * **Runs stopped once decided** (:mod:`.decide`): with ``[montecarlo] runs_to_rest = K``
-  realization ``i >= K`` stops at the first output at which 1 m2 of points has moved more
+  realization ``i >= K`` stops at the first output at which ``failure_area`` (1 m2/m) of
+  points has moved more
   than ``failure_displacement`` (its record: ``stop_reason = "failure decided"``, only
   ``failed``, ``decided_time``, ``decided_area``); a run never decided so runs to rest.
   P(failure) is over all realizations, the measures over the runs to rest with ``i < K``
@@ -81,8 +82,8 @@ What a campaign is
   workers share (as usual on HPC clusters).
 
 Statistics (``summary.json`` and the printed summary), per case over the ``ok``
-realizations: P(failure) = fraction with ``failed`` (a point moved more than
-``[montecarlo] failure_displacement``), its standard error ``sqrt(p (1 - p) / N)``
+realizations: P(failure) = fraction with ``failed`` (at least ``[montecarlo]
+failure_area`` of points moved more than ``failure_displacement``), its standard error ``sqrt(p (1 - p) / N)``
 (binomial; e.g. Fenton & Griffiths 2008, Risk Assessment in Geotechnical
 Engineering, sec. 6.2) and the Wilson 95 % score interval (Wilson 1927; Brown, Cai &
 DasGupta 2001), which stays meaningful at p = 0 or 1; mean, standard deviation,

@@ -315,6 +315,7 @@ def _finish(out: Path, scene: Scene, plan: CasePlan, done: RunTally, t_start: fl
         "scene": scene.scene.name, "scene_file": scene.source,
         "campaign_seed": scene.montecarlo.seed,
         "failure_displacement": scene.montecarlo.failure_displacement,
+        "failure_area": scene.montecarlo.failure_area,
         "cases": [{"name": c.name, "spec": c.spec, "label": c.label,
                    "deterministic": c.deterministic, "realizations": counts[c.name],
                    "softening": has_softening(c.scene), **stats[c.name]} for c in cases],

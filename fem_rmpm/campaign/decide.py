@@ -2,9 +2,9 @@
 
 Realization ``i`` of a campaign runs to rest when ``i < K`` and otherwise stops as soon as
 its outcome is decided.  The outcome of a run is decided as *failed* at the first output
-(every ``[solver] output_interval`` s) at which at least :data:`DECIDED_FAILURE_AREA` (1 m2
-per m, initial volume) of active points have moved more than ``[montecarlo]
-failure_displacement`` since the start of the large-deformation phase (``x - x0``: the
+(every ``[solver] output_interval`` s) at which at least ``[montecarlo] failure_area``
+(default 1 m2 per m, initial volume; any moved point when 0) of active points have moved
+more than ``[montecarlo] failure_displacement`` since the start of the large-deformation phase (``x - x0``: the
 geostatic phase moves no point); such a run stops there, its record has ``stop_reason =``
 :data:`DECIDED` and carries only ``failed = true``, the decision time ``decided_time`` (s)
 and the area moved then ``decided_area`` (m2/m).  A run never decided so runs on to
@@ -12,9 +12,10 @@ rest (or ``t_end``) and is in every way a run to rest: same measures, same recor
 
 Why it is exact for P(failure), and how it is checked: a realization is a pure function of
 scene and seed, so the stopped run is the run to rest up to the decision time.  The rule
-agrees with the measure ``failed`` of the run to rest (a counted point moved more than
-``failure_displacement`` at the end) when every run to rest that fails crosses 1 m2 at some
-output and no run that stands ever does.  Every run to rest records ``decided_time`` (the
+agrees with the measure ``failed`` of the run to rest (at the end, at least
+``failure_area`` of counted points moved more than ``failure_displacement``: the same
+threshold, so a few points of debris neither stop a run nor fail it) when every run to
+rest that fails crosses it at some output and no run that stands ever does.  Every run to rest records ``decided_time`` (the
 first output at which the rule would have stopped it, ``None`` if never), so each campaign
 checks it on its own runs to rest (:func:`decision_check`).
 
@@ -30,24 +31,21 @@ from typing import Iterable
 
 from fem_rmpm.measures.deposit import moved_area
 
-__all__ = ["DECIDED", "DECIDED_FAILURE_AREA", "FailureWatch", "in_measure_sample",
+__all__ = ["DECIDED", "FailureWatch", "in_measure_sample",
            "is_decided", "decision_check"]
 
 #: ``stop_reason`` of a run stopped once decided (failed).
 DECIDED = "failure decided"
-#: m2/m (initial volume) of points moved more than failure_displacement that decides
-#: a failure: 4 points of a 0.5 m mesh, 16 of a 0.25 m one.
-DECIDED_FAILURE_AREA = 1.0
 
 
 class FailureWatch:
     """Output callback of a realization (``api.run(stop_when=...)``): notes the first output
-    time ``time`` (s) at which at least ``area`` m2/m of active points have moved more
-    than ``threshold`` m (``x - x0``), and the area then, ``moved_area``; with ``stop`` it
-    then returns :data:`DECIDED` (stop the run), else None (the run goes on)."""
+    time ``time`` (s) at which at least ``area`` m2/m (``[montecarlo] failure_area``; 0:
+    any) of active points have moved more than ``threshold`` m (``x - x0``), and the area
+    then, ``moved_area``; with ``stop`` it then returns :data:`DECIDED` (stop the run),
+    else None (the run goes on)."""
 
-    def __init__(self, threshold: float, area: float = DECIDED_FAILURE_AREA,
-                 stop: bool = False):
+    def __init__(self, threshold: float, area: float = 1.0, stop: bool = False):
         self.threshold, self.area, self.stop = float(threshold), float(area), bool(stop)
         self.time: float | None = None
         self.moved_area: float | None = None
@@ -55,7 +53,7 @@ class FailureWatch:
     def __call__(self, t: float, pts) -> str | None:
         if self.time is None:
             area = moved_area(pts.x, pts.x0, pts.volume0, pts.active, self.threshold)
-            if area >= self.area:
+            if area > 0.0 and area >= self.area:
                 self.time, self.moved_area = float(t), area
         return DECIDED if (self.stop and self.time is not None) else None
 

@@ -148,8 +148,7 @@ def _provenance(summary: dict, campaign: dict, records: list[dict]) -> str:
         ("realizations", _esc(", ".join(f"{c.get('label', c.get('name'))}: {c.get('ok', 0)} ok"
                                          f" of {c.get('requested', c.get('realizations', '?'))}"
                                          for c in summary.get("cases", [])))),
-        ("failure criterion", "a point moved more than "
-                              f"{_num(summary.get('failure_displacement'))} m"),
+        ("failure criterion", _failure_criterion(summary)),
         ("cost (all records)", f"{_num(cpu)} s CPU = {_num((cpu or 0) / 3600, 3)} core-hours; "
                                f"{_num(wall)} s wall summed over realizations"),
         ("last command", f"computed {_esc(this_run.get('computed', '?'))} realization(s) on "
@@ -188,6 +187,15 @@ def _workers_text(machines: list[dict], shown: int = 6) -> str:
     return _esc("; ".join(parts) + " realization(s)")
 
 
+def _failure_criterion(summary: dict) -> str:
+    """The failure criterion in words (a campaign from before ``failure_area``: any point)."""
+    moved = f"moved more than {_num(summary.get('failure_displacement'))} m"
+    area = summary.get("failure_area")
+    if not area:
+        return f"a point {moved}"
+    return f"at least {_num(area)} m2/m of points {moved}"
+
+
 def _measure_keys(cases: list[dict]) -> list[str]:
     """The headline measures of the table first, then the others in the summary's order."""
     keys = table.headline()
@@ -216,7 +224,8 @@ def _results(summary: dict) -> str:
     k_rest = summary.get("runs_to_rest")
     decided = ("" if k_rest is None else
                f" Realizations with index ≥ {_num(k_rest)} stopped once their failure was "
-               "decided (1 m2/m of points moved more than the failure displacement); they count "
+               "decided (the failure area of points moved more than the failure displacement); "
+               "they count "
                "in P(failure) only.")
     mrows = []
     for key in _measure_keys(cases):

@@ -166,8 +166,8 @@ def run_realization(task: dict) -> dict:
         rec["wall_time"] = time.perf_counter() - t0
         rec["cpu_time"] = time.process_time() - c0
         return rec
-    watch = FailureWatch(task["scene"].montecarlo.failure_displacement,
-                         stop=bool(task.get("decide")))
+    mc = task["scene"].montecarlo
+    watch = FailureWatch(mc.failure_displacement, mc.failure_area, stop=bool(task.get("decide")))
     vtk_dir = task.get("vtk_dir")
     if vtk_dir is not None:
         _watch_sigterm()

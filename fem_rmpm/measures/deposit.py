@@ -119,6 +119,7 @@ class Deposit:
     grid: Any = None
     mechanism_time: float = 3.0
     intact_block_area: float = INTACT_BLOCK_AREA
+    failure_area: float = 0.0
 
     @cached_property
     def _deposit(self) -> tuple[np.ndarray, np.ndarray]:
@@ -174,15 +175,17 @@ class Deposit:
 def compute_measures(pts: Particles, frame_angle_deg: float, threshold: float,
                      cell: np.ndarray, time_to_rest: float | None, snapshots=None,
                      grid=None, mechanism_time: float = 3.0,
-                     intact_block_area: float = INTACT_BLOCK_AREA) -> dict:
+                     intact_block_area: float = INTACT_BLOCK_AREA,
+                     failure_area: float = 0.0) -> dict:
     """Every measure of :data:`~fem_rmpm.measures.table.MEASURES` that has a ``compute``
     function, in table order, as a plain dict (arguments: the fields of :class:`Deposit`).
 
     ``snapshots`` [(t, x, gamma_p)] and ``grid`` give the mechanism measures at
     ``mechanism_time`` (s; the snapshot nearest to it); without them they are None.
-    ``intact_block_area`` (m2): the least intact block.
+    ``intact_block_area`` (m2): the least intact block; ``failure_area`` (m2/m): the least
+    sliding area that is a failure (0: any sliding point).
     The deposit is binned on ``grid`` (or on cells of size ``cell`` from the origin).
     """
     deposit = Deposit(pts, frame_angle_deg, threshold, cell, time_to_rest, snapshots, grid,
-                      mechanism_time, intact_block_area)
+                      mechanism_time, intact_block_area, failure_area)
     return {m.name: m.compute(deposit) for m in MEASURES.values() if m.compute is not None}

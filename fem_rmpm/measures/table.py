@@ -98,7 +98,7 @@ class Measure:
 # Python value (float, int, bool, None, or a list for a profile).
 
 def _failed(d) -> bool:
-    return bool(d.sliding.any())
+    return bool(d.sliding.any()) and _sliding_area(d) >= d.failure_area
 
 
 def _sliding_area(d) -> float:
@@ -160,8 +160,9 @@ _DECIDE = "the stopping rule (fem_rmpm.campaign.decide)"
 #: The measures, in the order every output lists them.
 MEASURES: dict[str, Measure] = {m.name: m for m in (
     Measure("failed", "0/1", "failed",
-            "At least one counted point moved more than the failure displacement "
-            "(sliding area > 0).", _failed, kind="flag", core=True, statistic=False),
+            "The sliding area is at least the failure area ([montecarlo] failure_area, "
+            "default 1 m2/m) and not zero: a few points moved far are debris, not a "
+            "failure.", _failed, kind="flag", core=True, statistic=False),
     Measure("runout_distance", "m", "run-out",
             "max X of the counted points now minus max X of all points at the start: how "
             "far the deposit's front travelled beyond the original toe, >= 0.",
@@ -235,8 +236,8 @@ MEASURES: dict[str, Measure] = {m.name: m for m in (
     Measure("fs_static_solves", "count", "static solves of the factor of safety",
             "Static solves the strength-reduction search took.", kind="count", source=_FS),
     Measure("decided_time", "s", "decision time",
-            "First output at which 1 m2 of active points had moved more than the failure "
-            "displacement (None if never).", statistic=False, source=_DECIDE),
+            "First output at which the failure area of active points had moved more than the "
+            "failure displacement (None if never).", statistic=False, source=_DECIDE),
     Measure("decided_area", "m2/m", "area moved at the decision",
             "Initial volume of the active points moved more than the failure displacement "
             "at the decision time.", statistic=False, source=_DECIDE),

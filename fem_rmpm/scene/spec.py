@@ -303,6 +303,9 @@ class MonteCarloSpec:
     seed: int = scene_key(2017, "campaign seed (each realization's seed derives from it)")
     failure_displacement: float = scene_key(
         0.5, "a point displaced more than this counts as sliding", "m")
+    failure_area: float = scene_key(
+        1.0, "least sliding area that is a failure (a run stopped once decided stops at it; "
+        "0: any sliding point)", "m2/m")
     intact_block_area: float = scene_key(1.0, "least area of an intact block (measures)", "m2")
     keep_vtk: int = scene_key(2, "keep the VTK output of the first k realizations")
     factor_of_safety: bool = scene_key(False, "the strength-reduction factor of safety of "

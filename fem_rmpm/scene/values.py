@@ -63,6 +63,7 @@ _RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "montecarlo.seed": (0, 2**63 - 1, True, True),
     "montecarlo.failure_displacement": (0, math.inf, False, False),
     "montecarlo.intact_block_area": (0, math.inf, False, False),
+    "montecarlo.failure_area": (0, math.inf, True, False),
     "montecarlo.keep_vtk": (0, 1e9, True, True),
     "montecarlo.runs_to_rest": (0, 1e9, True, True),
 }
