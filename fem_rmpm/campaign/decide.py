@@ -4,20 +4,22 @@ Realization ``i`` of a campaign runs to rest when ``i < K`` and otherwise stops 
 its outcome is decided.  The outcome of a run is decided as *failed* at the first output
 (every ``[solver] output_interval`` s) at which at least ``[montecarlo] failure_area``
 (default 1 m2 per m, initial volume; any moved point when 0) of active points have moved
-more than ``[montecarlo] failure_displacement`` since the start of the large-deformation phase (``x - x0``: the
-geostatic phase moves no point); such a run stops there, its record has ``stop_reason =``
-:data:`DECIDED` and carries only ``failed = true``, the decision time ``decided_time`` (s)
-and the area moved then ``decided_area`` (m2/m).  A run never decided so runs on to
-rest (or ``t_end``) and is in every way a run to rest: same measures, same record.
+more than ``[montecarlo] failure_displacement`` since the start of the large-deformation
+phase (``x - x0``: the geostatic phase moves no point); such a run stops there, its record
+has ``stop_reason =`` :data:`DECIDED` and carries only ``failed = true``, the decision
+time ``decided_time`` (s) and the area moved then ``decided_area`` (m2/m).  A run never
+decided so runs on to rest (or ``t_end``) and is in every way a run to rest: same
+measures, same record.
 
 Why it is exact for P(failure), and how it is checked: a realization is a pure function of
 scene and seed, so the stopped run is the run to rest up to the decision time.  The rule
 agrees with the measure ``failed`` of the run to rest (at the end, at least
 ``failure_area`` of counted points moved more than ``failure_displacement``: the same
 threshold, so a few points of debris neither stop a run nor fail it) when every run to
-rest that fails crosses it at some output and no run that stands ever does.  Every run to rest records ``decided_time`` (the
-first output at which the rule would have stopped it, ``None`` if never), so each campaign
-checks it on its own runs to rest (:func:`decision_check`).
+rest that fails crosses it at some output and no run that stands ever does.  Every run to
+rest records ``decided_time`` (the first output at which the rule would have stopped it,
+``None`` if never), so each campaign checks it on its own runs to rest
+(:func:`decision_check`).
 
 Why the runs to rest are ``i < K``: the realizations are iid, so the failures among the
 first K are a random subsample of all failures.  P(failure) comes from every realization;
