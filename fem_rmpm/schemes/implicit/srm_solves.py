@@ -42,7 +42,7 @@ __all__ = ["FSOptions", "Trial", "KnownFailures", "reduce_strength", "gravity_so
 @dataclass(frozen=True)
 class FSOptions:
     """Settings of the strength reduction (not of the scene's MPM run)."""
-    tolerance: float = 0.01       # relative bracket width F_hi / F_lo - 1 at which to stop
+    tolerance: float = 0.005      # relative bracket width F_hi / F_lo - 1 at which to stop
     f_min: float = 0.1            # below: "FS < f_min"
     f_max: float = 10.0           # above: "FS > f_max"
     softening: bool = False       # False: peak strength, perfectly plastic (RFEM practice)
@@ -268,3 +268,10 @@ class KnownFailures:
     def add(self, state_id: int, target: float, reason: str) -> str:
         self._failed[self._key(state_id, target)] = reason
         return reason
+
+    def lowest_failed_above(self, F: float) -> float:
+        """The smallest target F of a failed solve above ``F`` (from any start state;
+        ``inf`` if none): where the search looks next, not a bound of FS (a solve over a
+        large change can fail below FS)."""
+        above = [t for _, t in self._failed if t > math.log(F) + 1e-12]
+        return math.exp(min(above)) if above else math.inf

@@ -17,33 +17,41 @@ Newton does not converge within ``max_iterations`` iterations in some load step 
 ``max_cuts`` halvings of that step, i.e. before full gravity is reached.  Every later
 trial (``continuation = True``, the default) starts from the converged state of the
 largest converged ``F`` at full gravity and reduces the strengths further to the trial
-``F`` in Newton solves (:func:`~fem_rmpm.schemes.implicit.srm_solves.continue_strength`); it fails when a solve does not converge
-within ``max_iterations`` even after ``continuation_cuts`` (2) halvings of the change.
-Either failure is accompanied by the jump of the maximum point displacement, which grows
-without bound as ``F`` approaches ``FS`` from below (the plot ``fs_displacement.png``
-shows it, the ratio of the last converged maximum displacement to that of the smallest
-trial ``F`` is ``displacement_jump`` in ``fs.json``).  ``FS`` lies in the bracket
-``[F_lo, F_hi]`` of the largest converged and the smallest failed trial.
+``F`` in Newton solves (:func:`~fem_rmpm.schemes.implicit.srm_solves.continue_strength`).
+A solve fails when it does not converge within ``max_iterations``, or earlier, once the
+residual of an accepted iterate exceeds ``growth_rejection`` (1.5) times the smallest
+residual before it (a converging Newton iteration lowers it at every iteration).  A solve
+failing over a change of ``F`` of at most ``decisive_change`` (1.5 %) fails the trial at
+its own target; one failing over a larger change is halved, at most
+``continuation_cuts`` (2) times, before the trial fails at ``F``.  Either failure is
+accompanied by the jump of the maximum point displacement, which grows without bound as
+``F`` approaches ``FS`` from below (the plot ``fs_displacement.png`` shows it, the ratio
+of the last converged maximum displacement to that of the smallest trial ``F`` is
+``displacement_jump`` in ``fs.json``).  ``FS`` lies in the bracket ``[F_lo, F_hi]`` of
+the largest converged and the smallest failed trial (or decisive solve).
 
 **Search.**  From ``F = 1`` upwards ``F`` grows by ``march`` (1.25), the step in ``ln F``
 doubling after each converged trial, until a trial fails or ``f_max`` (10) converges
 ("FS > 10"); when ``F = 1`` fails, gravity is applied anew at the gravity fraction ``F = 1``
 reached (a lower bound of FS: at ``F = lambda`` every strength is at least that of the
 state that stood at ``lambda`` x gravity), or at ``f_min`` (0.1; failing there: "FS <
-0.1").  Then bisection in ``ln F`` until ``F_hi / F_lo - 1 <= tolerance`` (default 0.01);
-the reported FS is the geometric midpoint, so the search error is below ``tolerance / 2``.
-With ``continuation = False`` gravity is applied anew at every trial (``F = 1``,
-``f_max`` or ``f_min``, then bisection): the same FS within the bracket, at more cost (a
-failed continued trial costs up to three solves, its halvings, but every converged one
-only a few Newton iterations).
+0.1").  Then bisection in ``ln F`` towards the lowest ``F`` any solve failed at above
+``F_lo`` (a solve over a large change fails a little below FS at times, so that ``F`` is
+where to look, not a bound; once within ``decisive_change`` of ``F_lo`` it is tried
+itself), until ``F_hi / F_lo - 1 <= tolerance`` (default 0.005); the reported FS is the
+geometric midpoint, so the search error is below ``tolerance / 2`` (0.25 %).  With
+``continuation = False`` gravity is applied anew at every trial (``F = 1``, ``f_max`` or
+``f_min``, then bisection): the same FS within the bracket, at more cost.
 
 **Cost.**  The solves of one search share what the fixed geometry fixes (the
 :class:`~fem_rmpm.schemes.implicit.assembly.StepSystem`: basis, DOF numbering, sparsity
 pattern; and the linear solver with its symbolic factorization, :class:`KnownFailures`);
 the tangent is factorized by CHOLMOD (``linear_solver = "cholmod"``, the implicit
 scheme's policy: SuperLU for a tangent that is not symmetric positive definite); a
-continuation solve known to fail (same start state, same target) is not run again.
-None of these changes a decision of the search.
+continuation solve known to fail (same start state, same target) is not run again.  The
+failing solves near FS dominate a search (each up to ``max_iterations`` iterations with a
+full line search): the decisive small change, the rejection of a growing residual and
+the bisection towards the lowest failure are what keep their number and length down.
 
 **Non-physical Newton failures** are told apart and raised as :class:`NonPhysicalFailure`
 (never taken as an FS): before the search a *probe* applies ``probe_load`` (1e-3) x gravity
@@ -149,7 +157,9 @@ class FSResult:
                 "strength": "softening" if o.softening else "peak",
                 "criterion": CRITERION.format(
                     it=o.max_iterations, cuts=o.max_cuts, steps=o.load_steps,
-                    cont=CONTINUED.format(it=o.max_iterations, cuts=o.continuation_cuts)
+                    cont=CONTINUED.format(it=o.max_iterations, cuts=o.continuation_cuts,
+                                          growth=o.growth_rejection,
+                                          decisive=100 * o.decisive_change)
                     if o.continuation else ""),
                 "options": dataclasses.asdict(o),
                 "trials": [dataclasses.asdict(t) for t in self.trials]}
@@ -161,7 +171,9 @@ CRITERION = ("a trial F fails when Newton does not converge within {it} iteratio
              "geometric midpoint of the largest converged and the smallest failed F")
 CONTINUED = (", or, for a trial continued from the converged state of a smaller F at full "
              "gravity, when the Newton solve reducing the strengths towards F does not "
-             "converge within {it} iterations after {cuts} halvings of the change")
+             "converge within {it} iterations (rejected earlier once its residual grows to "
+             "{growth:g} times its smallest) after {cuts} halvings of the change; a solve "
+             "failing over a change of F of at most {decisive:g} % fails at its own target")
 
 
 # ----------------------------------------------------------------------------- strengths
@@ -287,7 +299,7 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
         lo = best["F"]
     step = math.log(o.march)
     while math.isinf(hi) or hi / lo - 1.0 > o.tolerance:
-        F = min(lo * math.exp(step), o.f_max) if math.isinf(hi) else math.sqrt(lo * hi)
+        F = _next_trial(lo, hi, known.lowest_failed_above(lo), step, o)
         if run(F, continue_from=lo):
             lo, step = F, 2 * step
             if F >= o.f_max:
@@ -295,6 +307,21 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
         else:                    # a decisive cut's target, below F, bounds FS too
             lo, hi = best["F"], min(F, trials[-1].failed_at)
     return _result(trials, "=", (lo, hi), o, wall0, seed, best, grid)
+
+
+def _next_trial(lo: float, hi: float, failed_above: float, step: float,
+                o: FSOptions) -> float:
+    """The next trial F of the continued search from the bracket ``[lo, hi]``: upwards by
+    ``exp(step)`` while nothing above ``lo`` failed, else the geometric midpoint of ``lo``
+    and the lowest failure above it (``failed_above``, any failed solve, or ``hi``), or
+    a failed solve below ``hi`` itself once within ``decisive_change`` of ``lo`` (its
+    solve from ``lo`` then decides it)."""
+    up = min(hi, failed_above)
+    if math.isinf(up):
+        return min(lo * math.exp(step), o.f_max)
+    if up < hi and up / lo - 1.0 <= o.decisive_change * (1 + 1e-9):
+        return up
+    return math.sqrt(lo * up)
 
 
 def _bisect_anew(run, o: FSOptions, result) -> FSResult:
