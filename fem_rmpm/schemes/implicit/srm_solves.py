@@ -5,8 +5,8 @@ Two kinds, both small-strain geostatic Newton solves on the fixed in-situ geomet
 * :func:`gravity_solve`: gravity applied from zero at a trial factor ``F`` in
   ``load_steps`` load steps (the implicit scheme's static run);
 * :func:`continue_strength`: from the converged state of a smaller ``F0`` at full gravity,
-  the strengths reduced further to ``F`` (strength continuation), with halvings of the
-  change for a solve that fails over a large change.
+  the strengths reduced further to ``F`` in one Newton solve (strength continuation),
+  which decides the trial when it fails over a small change of ``F``.
 
 A continuation solve is rejected as soon as its residual grows to ``growth_rejection``
 (1.5) times the smallest residual of its earlier iterations (:func:`_newton_rejecting`): a
@@ -55,9 +55,8 @@ class FSOptions:
     linear_solver: str = "cholmod"  # the implicit scheme's policy (SuperLU where not SPD)
     continuation: bool = True     # a trial starts from the largest converged F's state
     march: float = 1.25           # first upward ratio of F from a converged state (doubles in ln F)
-    continuation_cuts: int = 2    # halvings of a continuation solve before the trial fails
     decisive_change: float = 0.015  # a continuation solve failing over a change of F of at
-    #                               most this (relative) fails the trial at its target, uncut
+    #                                 most this (relative) fails the trial; over more: not
     growth_rejection: float = 1.5   # reject a continuation solve whose residual grows to
     #                                 this times its smallest earlier one (0: never)
 
@@ -76,8 +75,8 @@ class Trial:
     start: float = 0.0            # F of the converged state it continued from (0: gravity
     #                               from zero)
     reached: float = 0.0          # continuation: F of its last converged solve (= F if converged)
-    failed_at: float = math.inf   # the smallest F shown to fail (F, or a decisive cut's
-    #                               target); inf when converged
+    failed_at: float = math.inf   # F when the trial failed decisively (an upper bound of
+    #                               FS), else inf
 
 
 def reduce_strength(pts: Particles, scene: Scene, F: float, softening: bool = False) -> None:
@@ -179,61 +178,47 @@ def continue_strength(scene: Scene, grid: Grid, base: Particles, start: Particle
                       start_id: int = 0) -> tuple[Trial, Particles, int]:
     """Strength continuation: from ``start``, the converged state at full gravity and
     trial factor ``F0``, the strengths of ``base`` are reduced to ``F`` at full gravity in
-    small-strain geostatic Newton solves (one solve for the whole change).  A solve that
-    fails over a change larger than ``decisive_change`` (1.5 %) is halved in ``ln F`` at
-    most ``continuation_cuts`` times (default 2; the trial then fails at ``F``); a solve
-    that fails over a smaller change fails the trial there, its target being
-    ``Trial.failed_at``.  A failed trial keeps the state of its last converged solve,
-    ``Trial.reached``, which becomes the bracket's lower end.
+    one small-strain geostatic Newton solve.
 
-    Without cuts a thin layer near collapse fails falsely: the undrained infinite slope
-    z = 2.5 m, beta = 20 deg gave FS -5.3 % (no cut), -1.3 % (2 cuts), -1.1 % (4 cuts);
-    gravity anew at every trial -2.5 %.  The collapse factor of a perfectly plastic soil
-    does not depend on the path (associated flow: the limit theorems), so this finds the
-    same FS as applying gravity anew at every trial, at a fraction of the cost.
+    A solve that fails over a change of at most ``decisive_change`` (1.5 %) fails the
+    trial at ``F`` (``Trial.failed_at = F``); one that fails over a larger change does not
+    decide it (``failed_at = inf``): over a large change Newton fails below FS at times
+    (the undrained infinite slope z = 2.5 m, beta = 20 deg: FS -5.3 % when any failed
+    solve bounded FS), and the search then moves closer
+    (:func:`~fem_rmpm.schemes.implicit.strength_reduction.factor_of_safety`).  The
+    collapse factor of a perfectly plastic soil does not depend on the path (associated
+    flow: the limit theorems), so this finds the same FS as applying gravity anew at
+    every trial, at a fraction of the cost.
 
-    ``known`` (:class:`KnownFailures`): the solves that failed in earlier trials, by the
-    identity of their start state (``start_id`` for ``start``) and their target; such a
-    solve is not repeated.  Returns the trial, its last converged state and that state's
+    ``known`` (:class:`KnownFailures`): the solves that failed, by the identity of their
+    start state (``start_id`` for ``start``) and their target; such a solve is not run
+    again.  Returns the trial, its state (``start``'s when it failed) and that state's
     identity."""
-    pts = start.copy()
     known = KnownFailures() if known is None else known
-    state_id = start_id
-    system = ImplicitSystem(scene, grid, pts, known.solver(o.linear_solver),
-                            pattern_cache=known.patterns)
-    kind = Geostatic(system)
     t0 = time.perf_counter()
-    at, h, cuts, its, reason = math.log(F0), math.log(F / F0), 0, 0, ""
-    end, failed_at = math.log(F), math.inf
-    decisive = math.log1p(o.decisive_change) * (1 + 1e-9)
-    while abs(end - at) > 1e-12 and not reason:
-        h = end - at if abs(end - at) < 1.05 * abs(h) else h
-        failed = known.get(state_id, at + h)
-        if failed is None:
-            pts.soil = base.soil
-            reduce_strength(pts, scene, math.exp(at + h), o.softening)
-            try:
-                out = _newton_rejecting(kind, o.growth_rejection)
-            except NewtonFailure as exc:
-                its += max(len(exc.residuals) - 1, 0)
-                failed = known.add(state_id, at + h, exc.reason)
-            else:
-                out.commit()
-                its += out.result.iterations
-                at += h
-                state_id = known.new_state()
-                continue
-        if abs(h) <= decisive:
-            reason, failed_at = failed, math.exp(at + h)
-        elif cuts >= o.continuation_cuts:
-            reason, failed_at = failed, F
+    its, target = 0, math.log(F)
+    reason = known.get(start_id, target)
+    pts, state_id = start, start_id
+    if reason is None:
+        pts = start.copy()
+        system = ImplicitSystem(scene, grid, pts, known.solver(o.linear_solver),
+                                pattern_cache=known.patterns)
+        pts.soil = base.soil
+        reduce_strength(pts, scene, F, o.softening)
+        try:
+            out = _newton_rejecting(Geostatic(system), o.growth_rejection)
+        except NewtonFailure as exc:
+            its, reason = max(len(exc.residuals) - 1, 0), known.add(start_id, target,
+                                                                   exc.reason)
+            pts = start
         else:
-            cuts, h = cuts + 1, 0.5 * h
-    reached = F if not reason else math.exp(at)
-    pts.soil = base.soil
-    reduce_strength(pts, scene, reached, o.softening)
-    return Trial(F, not reason, _max_displacement(pts), 1.0, its, cuts,
-                 time.perf_counter() - t0, reason, F0, reached, failed_at), pts, state_id
+            out.commit()
+            its, reason, state_id = out.result.iterations, "", known.new_state()
+    decisive = F / F0 - 1.0 <= o.decisive_change * (1 + 1e-9)
+    failed_at = math.inf if not reason or not decisive else F
+    return Trial(F, not reason, _max_displacement(pts), 1.0, its, 0,
+                 time.perf_counter() - t0, reason, F0, F if not reason else F0,
+                 failed_at), pts, state_id
 
 
 class KnownFailures:

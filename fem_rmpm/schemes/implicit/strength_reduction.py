@@ -17,28 +17,28 @@ Newton does not converge within ``max_iterations`` iterations in some load step 
 ``max_cuts`` halvings of that step, i.e. before full gravity is reached.  Every later
 trial (``continuation = True``, the default) starts from the converged state of the
 largest converged ``F`` at full gravity and reduces the strengths further to the trial
-``F`` in Newton solves (:func:`~fem_rmpm.schemes.implicit.srm_solves.continue_strength`).
+``F`` in Newton solves (:func:`.srm_solves.continue_strength`).
 A solve fails when it does not converge within ``max_iterations``, or earlier, once the
 residual of an accepted iterate exceeds ``growth_rejection`` (1.5) times the smallest
 residual before it (a converging Newton iteration lowers it at every iteration).  A solve
-failing over a change of ``F`` of at most ``decisive_change`` (1.5 %) fails the trial at
-its own target; one failing over a larger change is halved, at most
-``continuation_cuts`` (2) times, before the trial fails at ``F``.  Either failure is
-accompanied by the jump of the maximum point displacement, which grows without bound as
-``F`` approaches ``FS`` from below (the plot ``fs_displacement.png`` shows it, the ratio
-of the last converged maximum displacement to that of the smallest trial ``F`` is
-``displacement_jump`` in ``fs.json``).  ``FS`` lies in the bracket ``[F_lo, F_hi]`` of
-the largest converged and the smallest failed trial (or decisive solve).
+failing over a change of ``F`` of at most ``decisive_change`` (1.5 %) fails the trial;
+one failing over a larger change does not decide it (Newton can fail over a large change
+below FS), the search tries a closer ``F`` instead.  A failure is accompanied by the jump
+of the maximum point displacement, which grows without bound as ``F`` approaches ``FS``
+from below (the plot ``fs_displacement.png`` shows it, the ratio of the last converged
+maximum displacement to that of the smallest trial ``F`` is ``displacement_jump`` in
+``fs.json``).  ``FS`` lies in the bracket ``[F_lo, F_hi]`` of the largest converged and
+the smallest decisively failed trial.
 
 **Search.**  From ``F = 1`` upwards ``F`` grows by ``march`` (1.25), the step in ``ln F``
-doubling after each converged trial, until a trial fails or ``f_max`` (10) converges
+doubling after each converged trial, until a solve fails or ``f_max`` (10) converges
 ("FS > 10"); when ``F = 1`` fails, gravity is applied anew at the gravity fraction ``F = 1``
 reached (a lower bound of FS: at ``F = lambda`` every strength is at least that of the
 state that stood at ``lambda`` x gravity), or at ``f_min`` (0.1; failing there: "FS <
 0.1").  Then bisection in ``ln F`` towards the lowest ``F`` any solve failed at above
-``F_lo`` (a solve over a large change fails a little below FS at times, so that ``F`` is
-where to look, not a bound; once within ``decisive_change`` of ``F_lo`` it is tried
-itself), until ``F_hi / F_lo - 1 <= tolerance`` (default 0.005); the reported FS is the
+``F_lo`` (not a bound of FS unless that failure was decisive, but where to look; once
+within ``decisive_change`` of ``F_lo`` it is tried again from there, which decides it),
+until ``F_hi / F_lo - 1 <= tolerance`` (default 0.005); the reported FS is the
 geometric midpoint, so the search error is below ``tolerance / 2`` (0.25 %).  With
 ``continuation = False`` gravity is applied anew at every trial (``F = 1``, ``f_max`` or
 ``f_min``, then bisection): the same FS within the bracket, at more cost.
@@ -157,8 +157,7 @@ class FSResult:
                 "strength": "softening" if o.softening else "peak",
                 "criterion": CRITERION.format(
                     it=o.max_iterations, cuts=o.max_cuts, steps=o.load_steps,
-                    cont=CONTINUED.format(it=o.max_iterations, cuts=o.continuation_cuts,
-                                          growth=o.growth_rejection,
+                    cont=CONTINUED.format(it=o.max_iterations, growth=o.growth_rejection,
                                           decisive=100 * o.decisive_change)
                     if o.continuation else ""),
                 "options": dataclasses.asdict(o),
@@ -169,11 +168,10 @@ CRITERION = ("a trial F fails when Newton does not converge within {it} iteratio
              "load step after {cuts} halvings of it, before full gravity is reached "
              "({steps} small-strain load steps on the in-situ geometry){cont}; FS is the "
              "geometric midpoint of the largest converged and the smallest failed F")
-CONTINUED = (", or, for a trial continued from the converged state of a smaller F at full "
-             "gravity, when the Newton solve reducing the strengths towards F does not "
-             "converge within {it} iterations (rejected earlier once its residual grows to "
-             "{growth:g} times its smallest) after {cuts} halvings of the change; a solve "
-             "failing over a change of F of at most {decisive:g} % fails at its own target")
+CONTINUED = (", or, for a trial continued from the converged state of a smaller F at most "
+             "{decisive:g} % below it at full gravity, when the Newton solve reducing the "
+             "strengths to F does not converge within {it} iterations (rejected earlier once "
+             "its residual grows to {growth:g} times its smallest)")
 
 
 # ----------------------------------------------------------------------------- strengths
@@ -299,13 +297,16 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
         lo = best["F"]
     step = math.log(o.march)
     while math.isinf(hi) or hi / lo - 1.0 > o.tolerance:
-        F = _next_trial(lo, hi, known.lowest_failed_above(lo), step, o)
+        above = known.lowest_failed_above(lo)
+        F = _next_trial(lo, hi, above, step, o)
         if run(F, continue_from=lo):
-            lo, step = F, 2 * step
+            if math.isinf(min(hi, above)):      # marching upwards: the step doubles
+                step *= 2
+            lo = F
             if F >= o.f_max:
                 return _result(trials, ">", (o.f_max, math.inf), o, wall0, seed, best, grid)
-        else:                    # a decisive cut's target, below F, bounds FS too
-            lo, hi = best["F"], min(F, trials[-1].failed_at)
+        else:                    # decisive (F) or not (inf: the next trial moves closer)
+            hi = min(hi, trials[-1].failed_at)
     return _result(trials, "=", (lo, hi), o, wall0, seed, best, grid)
 
 
@@ -316,10 +317,11 @@ def _next_trial(lo: float, hi: float, failed_above: float, step: float,
     and the lowest failure above it (``failed_above``, any failed solve, or ``hi``), or
     a failed solve below ``hi`` itself once within ``decisive_change`` of ``lo`` (its
     solve from ``lo`` then decides it)."""
-    up = min(hi, failed_above)
+    soft = failed_above < hi * (1 - 1e-9)       # a failed solve that did not decide
+    up = failed_above if soft else hi
     if math.isinf(up):
         return min(lo * math.exp(step), o.f_max)
-    if up < hi and up / lo - 1.0 <= o.decisive_change * (1 + 1e-9):
+    if soft and up / lo - 1.0 <= o.decisive_change * (1 + 1e-9):
         return up
     return math.sqrt(lo * up)
 
