@@ -178,7 +178,8 @@ def print_table(rows: list[dict]) -> None:
     ratios = sorted(r["cpu_fs"] / r["cpu_mpm_decided"] for r in rows)
     met = sum(x <= 1.0 for x in ratios)
     loads = [r["load"] for r in rows]
-    print(f"largest |FS difference| {100 * worst:.2f} %; FS CPU {sum(r['cpu_fs'] for r in rows):.1f}"
+    cpu = sum(r["cpu_fs"] for r in rows)
+    print(f"largest |FS difference| {100 * worst:.2f} %; FS CPU {cpu:.1f}"
           f" s (other {sum(r['cpu_fs_other'] for r in rows):.1f} s), decided MPM runs "
           f"{sum(r['cpu_mpm_decided'] for r in rows):.1f} s; FS / MPM median "
           f"{ratios[len(ratios) // 2]:.2f} (range {ratios[0]:.2f}-{ratios[-1]:.2f}), at most 1 "
