@@ -31,7 +31,9 @@ interleaved with ``--label this``.
 
 ``--fs N``: the factor of safety of realizations 0..N-1 of the risk slope (xi = 12)
 against the MPM run of the same realization stopped once decided, both in CPU seconds on
-one numba thread (:mod:`fs_cost`, ``--risk``), and the median ratio.
+one numba thread (:mod:`fs_cost`, ``--risk``), and the median ratio; with ``--other
+PATH`` interleaved with another checkout's FS, printed as a table (``fs_cost.py --risk N
+--other PATH``).
 """
 from __future__ import annotations
 
@@ -147,14 +149,19 @@ def case_i(t_end: float, label: str, linear_solver: str | None) -> dict:
             "load_average": os.getloadavg()}
 
 
-def fs_against_mpm(n: int, label: str) -> None:
+def fs_against_mpm(n: int, label: str, other=None) -> None:
     """One line per realization and the summary: CPU of the FS over CPU of the decided
-    MPM run (one numba thread, as a campaign worker)."""
+    MPM run (one numba thread, as a campaign worker); ``other``: a checkout whose FS is
+    interleaved with this one's (the table of :func:`fs_cost.print_table`)."""
     import sys
+    from pathlib import Path
     import numba
     sys.path.insert(0, str(HERE))
-    from fs_cost import risk_rows
+    from fs_cost import interleaved_rows, print_table, risk_rows
     numba.set_num_threads(1)
+    if other:
+        print_table(interleaved_rows("xi=12", n, label, Path(other).resolve()))
+        return
     rows = risk_rows("xi=12", n, label)
     ratios = sorted(r["cpu_fs"] / r["cpu_mpm_decided"] for r in rows)
     print(f"FS against the decided MPM run, {n} realizations of xi = 12: CPU ratio median "
@@ -175,10 +182,12 @@ def main():
     ap.add_argument("--fs", type=int, default=0, metavar="N",
                     help="the FS of realizations 0..N-1 of the risk slope (xi = 12) against "
                          "their MPM runs stopped once decided, CPU (validation/fs_cost.py)")
+    ap.add_argument("--other", default=None, metavar="PATH",
+                    help="--fs: interleave with the FS of the checkout at PATH")
     a = ap.parse_args()
     OUT.mkdir(exist_ok=True)
     if a.fs:
-        fs_against_mpm(a.fs, a.label or "this")
+        fs_against_mpm(a.fs, a.label or "this", a.other)
         return
     if a.case_i:
         for _ in range(a.repeat):

@@ -1,0 +1,128 @@
+"""The search of the strength reduction (fem_rmpm.schemes.implicit.strength_reduction) and
+its continuation solves (fem_rmpm.schemes.implicit.srm_solves): the rejection of a
+Newton solve whose residual grows, the decisive small change, the next trial F.
+
+Reference: the undrained infinite slope FS = c / (gamma z sin(beta) cos(beta)) (limit
+equilibrium of a slice; Duncan & Wright 2005, ch. 6); on a mesh of n rows across the
+layer the shear band sits half a row above the bedrock, FS_h / FS = n / (n - 1/2).
+"""
+import dataclasses
+import math
+
+import pytest
+
+from fem_rmpm import api
+from fem_rmpm.scene import with_values
+from fem_rmpm.schemes.implicit.srm_solves import (
+    FSOptions,
+    continue_strength,
+    gravity_solve,
+    srm_scene,
+)
+from fem_rmpm.schemes.implicit.strength_reduction import _next_trial, factor_of_safety
+
+GAMMA = 20.0
+
+
+def infinite_slope(meshes, c, z=5.0, beta=30.0, rows=20, hx=0.5, length=12.0):
+    """meshes/infinite_slope.toml: vertical depth z (m), angle beta (deg), ``rows`` cells
+    across the normal thickness t, cells ``hx`` t long, a layer ``length`` t long."""
+    sc = api.load_scene(meshes / "infinite_slope.toml")
+    t = z * math.cos(math.radians(beta))
+    L = length * t
+    return with_values(sc, {"scene.frame_angle_deg": beta, "grid.size": [L, t],
+                            "grid.cell": [hx * t, t / rows],
+                            "soil.polygon": [[0, 0], [L, 0], [L, t], [0, t]],
+                            "soil.cohesion_peak": c, "soil.cohesion_residual": c})
+
+
+def closed_form(c, z=5.0, beta=30.0):
+    b = math.radians(beta)
+    return c / (GAMMA * z * math.sin(b) * math.cos(b))
+
+
+def test_next_trial_marches_bisects_and_never_repeats_the_bracket_end():
+    o = FSOptions()
+    step = math.log(o.march)
+    # nothing failed: upwards by the march, capped at f_max
+    assert _next_trial(1.0, math.inf, math.inf, step, o) == pytest.approx(1.25)
+    assert _next_trial(9.0, math.inf, math.inf, 2 * step, o) == o.f_max
+    # a failed solve below hi guides the bisection ...
+    assert _next_trial(1.0, 1.25, 1.10, step, o) == pytest.approx(math.sqrt(1.10))
+    # ... and is itself the next trial once within decisive_change of lo
+    assert _next_trial(1.0, 1.25, 1.01, step, o) == pytest.approx(1.01)
+    # hi is never tried again (its failure is known): the midpoint, however close
+    assert _next_trial(1.0, 1.01, math.inf, step, o) == pytest.approx(math.sqrt(1.01))
+    assert _next_trial(1.0, 1.01, 1.01, step, o) == pytest.approx(math.sqrt(1.01))
+
+
+def test_rejection_keeps_converging_solves_and_shortens_failing_ones(meshes):
+    """Infinite slope, 8 rows, c = 60 kPa (closed form 1.386; this mesh: FS 1.475).  From
+    the converged state at F = 1, continuations to 1.3-1.45 (up to 2 % below collapse)
+    converge alike with and without the rejection of a growing residual (same
+    iterations, same maximum displacement); past collapse (1.7) both fail, the rejecting
+    solve in fewer iterations (seen: 8 against 12)."""
+    sc = infinite_slope(meshes, 60.0, rows=8, hx=1.0)
+    grid, pts = api.prepare(sc)
+    never = FSOptions(growth_rejection=0.0)
+    rejecting = dataclasses.replace(never, growth_rejection=1.5)
+    srm = srm_scene(sc, never)
+    t1, start = gravity_solve(srm, grid, pts, 1.0, never)
+    assert t1.converged
+    for F in (1.3, 1.45, 1.7):
+        a, _, _ = continue_strength(srm, grid, pts, start, 1.0, F, never)
+        b, _, _ = continue_strength(srm, grid, pts, start, 1.0, F, rejecting)
+        assert a.converged == b.converged == (F < 1.475)
+        if a.converged:
+            assert a.iterations == b.iterations
+            assert b.max_displacement == pytest.approx(a.max_displacement, rel=1e-12)
+        else:
+            assert b.iterations < a.iterations
+            assert "above its smallest" in b.reason and "smallest" not in a.reason
+
+
+def test_failure_over_a_small_change_is_decisive_a_large_one_is_not(meshes):
+    """Same slope (FS 1.475), from the converged state at F = 1.46: a solve to 1.6 (9.6 %,
+    above decisive_change 1.5 %) fails without deciding the trial (no upper bound of FS);
+    a solve to 1.48 (1.4 %) that fails fails the trial there; a converged solve below
+    FS (1.47) moves the state on.  Then the search: no decisive failure lies below its
+    bracket's lower end."""
+    sc = infinite_slope(meshes, 60.0, rows=8, hx=1.0)
+    grid, pts = api.prepare(sc)
+    o = FSOptions()
+    srm = srm_scene(sc, o)
+    t0, start = gravity_solve(srm, grid, pts, 1.0, o)
+    t1, state, _ = continue_strength(srm, grid, pts, start, 1.0, 1.46, o)
+    assert t0.converged and t1.converged
+    big, _, _ = continue_strength(srm, grid, pts, state, 1.46, 1.6, o)
+    assert not big.converged and math.isinf(big.failed_at) and big.reached == 1.46
+    small, _, _ = continue_strength(srm, grid, pts, state, 1.46, 1.48, o)
+    assert not small.converged and (small.failed_at, small.reached) == (1.48, 1.46)
+    near, _, _ = continue_strength(srm, grid, pts, state, 1.46, 1.47, o)
+    assert near.converged and near.reached == 1.47 and math.isinf(near.failed_at)
+    res = factor_of_safety(sc, options=o, grid=grid, pts=pts)
+    assert res.bound == "=" and 1.46 < res.fs < 1.49
+    lo, hi = res.bracket
+    assert hi == min(t.failed_at for t in res.trials)
+    assert lo == max(t.F for t in res.trials if t.converged)
+
+
+def test_search_matches_closed_form_and_the_gravity_anew_search(meshes):
+    """Infinite slope z = 5 m, beta = 30 deg, c = 60 kPa, 20 rows (closed form 1.386,
+    with the half-row shear band 1.421): the continued search (decisive small changes,
+    rejected growing residuals, bisection towards the lowest failure) and the plain
+    search (gravity applied anew at every trial, no continuation) bracket FS within their
+    tolerance (0.5 %).  Achieves 1.4147 (10 static solves, 115 Newton iterations) and
+    1.4170 (11 solves, 263 iterations): 0.16 % apart
+    (asserts 0.6 %), -0.46 % from the half-row closed form (asserts 1.5 %)."""
+    sc = infinite_slope(meshes, 60.0)
+    exact = closed_form(60.0) * 20 / 19.5
+    grid, pts = api.prepare(sc)
+    fast = factor_of_safety(sc, options=FSOptions(), grid=grid, pts=pts)
+    grid, pts = api.prepare(sc)
+    plain = factor_of_safety(sc, options=FSOptions(continuation=False), grid=grid, pts=pts)
+    for res in (fast, plain):
+        assert res.bound == "="
+        assert res.bracket[1] / res.bracket[0] - 1 <= 0.005 + 1e-12
+    assert abs(fast.fs / plain.fs - 1) < 0.006, (fast.fs, plain.fs)
+    assert abs(fast.fs / exact - 1) < 0.015, (fast.fs, exact)
