@@ -513,7 +513,7 @@ def factor_of_safety(scene: Scene, seed: int | None = None, out: str | Path | No
                      **options):
     """Factor of safety by strength reduction (:mod:`fem_rmpm.schemes.implicit.strength_reduction`)
     of the realization ``seed``; ``options`` are
-    :class:`~fem_rmpm.schemes.implicit.strength_reduction.FSOptions` fields (``tolerance=0.01``,
+    :class:`~fem_rmpm.schemes.implicit.strength_reduction.FSOptions` fields (``tolerance=0.005``,
     ``softening=False``, ...).  Writes ``fs.json``,
     ``fs_displacement.png`` and the mechanism (``mechanism.vtu``/``.png``) to ``out`` if
     given.  Returns an :class:`~fem_rmpm.schemes.implicit.strength_reduction.FSResult` (``.fs``,

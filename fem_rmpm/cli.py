@@ -434,8 +434,8 @@ def _add_fs(sub) -> None:
     fs.add_argument("--out", required=True, help="output directory: new or empty (created), "
                     "or one holding a result with --force")
     fs.add_argument("--force", action="store_true", help=_FORCE_HELP)
-    fs.add_argument("--tolerance", type=float, default=0.01,
-                    help="stop when the bracket F_hi / F_lo - 1 is below this (default 0.01)")
+    fs.add_argument("--tolerance", type=float, default=0.005,
+                    help="stop when the bracket F_hi / F_lo - 1 is below this (default 0.005)")
     fs.add_argument("--softening", action="store_true",
                     help="keep the softening law (default: peak strength, perfectly plastic)")
     fs.add_argument("--set", action="append", metavar="KEY=VALUE", help=_SET_HELP)

@@ -3,7 +3,7 @@ against the trial factor and the mechanism (points at the bracket's lower end)."
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
@@ -11,8 +11,9 @@ from fem_rmpm.io.output import to_true_frame, write_json, write_particles
 from fem_rmpm.io.plots import _plt, plot_field
 from fem_rmpm.scene import Scene
 
-if TYPE_CHECKING:
-    from fem_rmpm.schemes.implicit.strength_reduction import FSResult
+#: The result of a search (:class:`fem_rmpm.schemes.implicit.strength_reduction.FSResult`;
+#: not imported: that module imports this one).
+FSResult = Any
 
 __all__ = ["write_outputs", "plot_displacement", "plot_mechanism"]
 
