@@ -16,11 +16,13 @@ step is elastic) and the Kirchhoff stress ``tau = lam tr(eps) I + 2 mu eps`` (kP
 **Eigen-decomposition** (:func:`sym_eig3`).  With ``q = tr(A) / 3`` and
 ``p = sqrt(|A - q I|^2 / 6)``, ``C = (A - q I) / p`` has eigenvalues
 ``beta = 2 cos(phi + 2 pi k / 3)``, ``cos(3 phi) = det(C) / 2`` (the trigonometric solution
-of the characteristic cubic, Smith 1961, Commun. ACM 4(4) 168).  Near a repeated
-eigenvalue that cubic fixes the two close roots only to the square root of the round-off,
-so only the root farthest from the other two is taken from it (the largest when
-``det(C) >= 0``, else the smallest: at least sqrt(3) from the others); its eigenvector
-is the largest cross product of two rows of ``C - beta I``.  The other two eigenpairs
+of the characteristic cubic ``beta^3 - 3 beta = det(C)``, Smith 1961, Commun. ACM 4(4)
+168).  Near a repeated eigenvalue that cubic fixes the two close roots only to the square
+root of the round-off, so only the root farthest from the other two is taken from it
+(the largest when ``det(C) >= 0``, else the smallest: at least sqrt(3) from the others,
+a simple root), evaluated without acos / cos: a degree-5 polynomial fit of
+``2 cos(acos(h) / 3)`` on ``h = |det(C)| / 2`` in [0, 1], then one Halley step on the
+cubic, to round-off; its eigenvector is the largest cross product of two rows of ``C - beta I``.  The other two eigenpairs
 are those of the 2x2 matrix of ``C`` on an orthonormal basis ``U, V`` of the plane
 normal to it, in closed form (exact for 2x2, no cancellation): the split of
 the eigenvector computation of Eberly (2014, "A robust eigensolver for 3x3 symmetric
@@ -41,7 +43,12 @@ from fem_rmpm.runtime.compiled import inline, jit
 __all__ = ["sym_eig3", "compose_sym3", "small_strain_elastic_3d", "elastic_tau_3d",
            "spectral_3d", "stretch_from_log_strain"]
 
-_TWO_PI_3 = 2.0 * math.pi / 3.0
+#: 2 cos(acos(h) / 3), the largest root of beta^3 - 3 beta = 2 h, for h in [0, 1]: the
+#: degree-5 Chebyshev fit as a polynomial in 2 h - 1 (error < 2.6e-6, then one Halley
+#: step: < 3e-16).
+_R0, _R1, _R2 = 1.8793845685812673, 0.13164429558895394, -0.012848881368903284
+_R3, _R4, _R5 = 0.002207275400202328, -0.0005080406809108717, 0.00012269865821269124
+_THIRD, _SIXTH = 1.0 / 3.0, 1.0 / 6.0       # (multiplications: a division is ~13 cycles)
 
 
 @inline
@@ -69,10 +76,10 @@ def sym_eig3(a00, a11, a22, a01, a12, a02):
     """Eigenvalues ``l0, l1, l2`` and unit eigenvectors ``(x0, y0, z0)``, ``(x1, ...)``,
     ``(x2, ...)`` of the symmetric 3x3 with entries ``a..`` (module docstring), as a tuple
     of 12 floats ``(l0, l1, l2, x0, y0, z0, x1, y1, z1, x2, y2, z2)``; unordered."""
-    q = (a00 + a11 + a22) / 3.0
+    q = (a00 + a11 + a22) * _THIRD
     b00, b11, b22 = a00 - q, a11 - q, a22 - q
     p2 = (b00 * b00 + b11 * b11 + b22 * b22
-          + 2.0 * (a01 * a01 + a12 * a12 + a02 * a02)) / 6.0
+          + 2.0 * (a01 * a01 + a12 * a12 + a02 * a02)) * _SIXTH
     if not p2 > 1e-300:                      # a multiple of the identity (or NaN)
         return q, q, q, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
     p = math.sqrt(p2)
@@ -81,9 +88,14 @@ def sym_eig3(a00, a11, a22, a01, a12, a02):
     c01, c12, c02 = a01 * inv, a12 * inv, a02 * inv
     half_det = 0.5 * (c00 * (c11 * c22 - c12 * c12) - c01 * (c01 * c22 - c12 * c02)
                       + c02 * (c01 * c12 - c11 * c02))
-    h = min(max(half_det, -1.0), 1.0)
-    phi = math.acos(h) / 3.0
-    beta = 2.0 * math.cos(phi) if h >= 0.0 else 2.0 * math.cos(phi + _TWO_PI_3)
+    h = min(abs(half_det), 1.0)
+    x = 2.0 * h - 1.0
+    beta = _R0 + x * (_R1 + x * (_R2 + x * (_R3 + x * (_R4 + x * _R5))))
+    f = beta * beta * beta - 3.0 * beta - 2.0 * h           # one Halley step
+    fp = 3.0 * beta * beta - 3.0
+    beta -= 2.0 * f * fp / (2.0 * fp * fp - 6.0 * f * beta)
+    if half_det < 0.0:
+        beta = -beta
     # the isolated root's eigenvector n: the largest cross product of rows of C - beta I
     r00, r11, r22 = c00 - beta, c11 - beta, c22 - beta
     ux, uy, uz = c01 * c12 - c02 * r11, c02 * c01 - r00 * c12, r00 * r11 - c01 * c01

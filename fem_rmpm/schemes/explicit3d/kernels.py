@@ -63,11 +63,12 @@ def _corner(q, a, b, c, ihx, ihy, ihz):
 # long function: the per-point scatter written out on scalars
 @kernel
 def map_to_nodes_3d(x, v, mass, vol, stress, active, origin, h, shape, cellbase, cellxi,
-                    m, p, f, touched, nodes, nact):
-    """Stage 1 (module docstring): clears the nodes listed last step, then scatters mass
-    ``m`` (t), momentum ``p`` (t m/s) and internal force ``f`` (kN) of the active points,
-    listing the touched nodes in ``nodes[:nact[0]]``; keeps each point's cell's first
-    node in ``cellbase`` and its local coordinates in ``cellxi`` (n, 3)."""
+                    m, p, f, touched, nodes, cell_touched, cells, nact):
+    """Stage 1 (module docstring): clears the nodes and cells listed last step, then
+    scatters mass ``m`` (t), momentum ``p`` (t m/s) and internal force ``f`` (kN) of the
+    active points, listing their cells in ``cells[:nact[1]]`` and those cells' nodes in
+    ``nodes[:nact[0]]``; keeps each point's cell's first node in ``cellbase`` and its
+    local coordinates in ``cellxi`` (n, 3)."""
     for t in range(nact[0]):
         a = nodes[t]
         m[a] = 0.0
@@ -75,20 +76,27 @@ def map_to_nodes_3d(x, v, mass, vol, stress, active, origin, h, shape, cellbase,
         for k in range(3):
             p[a, k] = 0.0
             f[a, k] = 0.0
-    count = 0
+    for t in range(nact[1]):
+        cell_touched[cells[t]] = False
+    ncell = 0
     nx, ny, nz = shape[0], shape[1], shape[2]
     sy, sz = nx + 1, (nx + 1) * (ny + 1)
     ihx, ihy, ihz = 1.0 / h[0], 1.0 / h[1], 1.0 / h[2]
     for i in range(x.shape[0]):
         if not active[i]:
             continue
-        s0 = (x[i, 0] - origin[0]) / h[0]
-        s1 = (x[i, 1] - origin[1]) / h[1]
-        s2 = (x[i, 2] - origin[2]) / h[2]
+        s0 = (x[i, 0] - origin[0]) * ihx
+        s1 = (x[i, 1] - origin[1]) * ihy
+        s2 = (x[i, 2] - origin[2]) * ihz
         ic = min(max(int(math.floor(s0)), 0), nx - 1)
         jc = min(max(int(math.floor(s1)), 0), ny - 1)
         kc = min(max(int(math.floor(s2)), 0), nz - 1)
         a, b, c = s0 - ic, s1 - jc, s2 - kc
+        cell = ic + nx * (jc + ny * kc)
+        if not cell_touched[cell]:
+            cell_touched[cell] = True
+            cells[ncell] = cell
+            ncell += 1
         base = ic + sy * jc + sz * kc
         cellbase[i] = base
         cellxi[i, 0], cellxi[i, 1], cellxi[i, 2] = a, b, c
@@ -99,10 +107,6 @@ def map_to_nodes_3d(x, v, mass, vol, stress, active, origin, h, shape, cellbase,
         for q in range(8):
             di, dj, dk, N, gx, gy, gz = _corner(q, a, b, c, ihx, ihy, ihz)
             node = base + di + sy * dj + sz * dk
-            if not touched[node]:
-                touched[node] = True
-                nodes[count] = node
-                count += 1
             wm = N * mi
             m[node] += wm
             p[node, 0] += wm * v0
@@ -111,7 +115,17 @@ def map_to_nodes_3d(x, v, mass, vol, stress, active, origin, h, shape, cellbase,
             f[node, 0] -= Vi * (sxx * gx + sxy * gy + sxz * gz)
             f[node, 1] -= Vi * (sxy * gx + syy * gy + syz * gz)
             f[node, 2] -= Vi * (sxz * gx + syz * gy + szz * gz)
-    nact[0] = count
+    count = 0
+    for t in range(ncell):
+        cell = cells[t]
+        base = cell % nx + sy * ((cell // nx) % ny) + sz * (cell // (nx * ny))
+        for q in range(8):
+            node = base + (q & 1) + sy * ((q >> 1) & 1) + sz * (q >> 2)
+            if not touched[node]:
+                touched[node] = True
+                nodes[count] = node
+                count += 1
+    nact[0], nact[1] = count, ncell
 
 
 @kernel
@@ -295,9 +309,12 @@ def _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3):
 def stress_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase, cellxi,
               origin, h, shape, v2, dt, geostatic, model, plastic, state, e3, out):
     """Stage 4 (module docstring) on every active point; fills ``out[2:]`` with the
-    largest P-wave speed, largest point speed (m/s), non-finite and outside points."""
+    largest P-wave speed, largest point speed (m/s), non-finite points and points outside
+    the grid box (``origin`` to ``origin + h shape``)."""
     sy, sz = shape[0] + 1, (shape[0] + 1) * (shape[1] + 1)
     ihx, ihy, ihz = 1.0 / h[0], 1.0 / h[1], 1.0 / h[2]
+    upper = (origin[0] + h[0] * shape[0], origin[1] + h[1] * shape[1],
+             origin[2] + h[2] * shape[2])
     nbad, nout, c2max, pmax2 = 0, 0, 0.0, 0.0
     for i in range(x.shape[0]):
         if not active[i]:
@@ -335,8 +352,7 @@ def stress_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase,
             ok &= math.isfinite(stress[i, k])
         for k in range(3):
             ok &= math.isfinite(x[i, k]) and math.isfinite(v[i, k])
-            s = (x[i, k] - origin[k]) / h[k]
-            if s < 0.0 or s > shape[k]:
+            if x[i, k] < origin[k] or x[i, k] > upper[k]:
                 nout += 1
                 break
         if not ok:
@@ -348,8 +364,8 @@ def stress_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase,
 
 @kernel
 def step_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, u_geo, cellbase,
-            cellxi, origin, h, shape, fixed, m, p, f, v2, touched, nodes, nact, dt, g,
-            damping, flip, geostatic, model, plastic, state, e3, out):
+            cellxi, origin, h, shape, fixed, m, p, f, v2, touched, nodes, cell_touched, cells,
+            nact, dt, g, damping, flip, geostatic, model, plastic, state, e3, out):
     """One explicit step of ``dt`` s in place on the points (``x``, ``v`` (n, 3) m, m/s;
     ``mass`` t; ``vol``, ``vol0`` m3; ``stress`` Cauchy (n, 6) kPa; ``eps`` elastic log
     strain (n, 6); ``be`` its ``exp(2 eps)`` (n, 6); Lame ``lam``, ``mu`` (n,) kPa;
@@ -357,11 +373,12 @@ def step_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, u_geo, cell
     ``plastic`` (n, 4) and state rows ``state`` (n, >= 2), see
     :func:`.plastic.plastic_return_principal_3d`) on the grid (``origin``, ``h`` (3,) m,
     ``shape`` (3,) cells, ``fixed`` (nn, 3)) with the workspace's scratch (``cellbase``,
-    ``cellxi``; nodal ``m``, ``p``, ``f``, ``v2``, ``touched``, the listed ``nodes`` and
-    their count ``nact``; ``e3`` (3,)), gravity ``g`` (3,) m/s2, damping ratio, FLIP
+    ``cellxi``; nodal ``m``, ``p``, ``f``, ``v2``, ``touched``, the listed ``nodes``, the
+    cells' ``cell_touched`` and listed ``cells``, their counts ``nact`` (2,); ``e3``
+    (3,)), gravity ``g`` (3,) m/s2, damping ratio, FLIP
     fraction; fills ``out`` (:data:`N_STATS`)."""
     map_to_nodes_3d(x, v, mass, vol, stress, active, origin, h, shape, cellbase, cellxi,
-                    m, p, f, touched, nodes, nact)
+                    m, p, f, touched, nodes, cell_touched, cells, nact)
     out[0] = solve_nodes_3d(m, p, f, v2, fixed, g, dt, damping, nodes, nact)
     out[1] = math.sqrt(map_back_3d(x, v, mass, active, u_geo, cellbase, cellxi, h, shape,
                                    p, f, v2, dt, flip, geostatic))

@@ -38,7 +38,7 @@ class Workspace3D:
     """What the step keeps besides the points, made once per run: the elastic left
     Cauchy-Green tensor of each point (``b = exp(2 eps)``, (n, 6), :mod:`.elastic`), the
     Lame constants as contiguous columns, the points' cells and local coordinates, the
-    nodal arrays with the list of touched nodes, and the stats of the last step."""
+    nodal arrays with the lists of touched nodes and cells, and the stats of the last step."""
 
     def __init__(self, grid: Grid3D, pts: Particles3D):
         nn, n = grid.n_nodes, pts.n
@@ -46,7 +46,9 @@ class Workspace3D:
                                            np.zeros((nn, 3)))
         self.touched = np.zeros(nn, dtype=np.bool_)
         self.nodes = np.zeros(nn, dtype=np.int64)
-        self.nact = np.zeros(1, dtype=np.int64)
+        self.cell_touched = np.zeros(grid.n_cells, dtype=np.bool_)
+        self.cells = np.zeros(grid.n_cells, dtype=np.int64)
+        self.nact = np.zeros(2, dtype=np.int64)
         self.cellbase = np.zeros(n, dtype=np.int64)
         self.cellxi = np.zeros((n, 3))
         self.shape = np.array(grid.shape, dtype=np.int64)
@@ -67,8 +69,8 @@ def _step(grid, pts, work, dt, g, damping, flip, geostatic) -> np.ndarray:
     step_3d(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.stress,
             pts.log_strain, work.be, work.lam, work.mu, pts.active, pts.u_geostatic,
             work.cellbase, work.cellxi, grid.origin, grid.cell, work.shape, grid.fixed,
-            work.m, work.p, work.f, work.v2, work.touched, work.nodes, work.nact, dt, g,
-            damping, flip, geostatic, pts.model, pts.plastic, pts.state, work.e3, work.out)
+            work.m, work.p, work.f, work.v2, work.touched, work.nodes, work.cell_touched,
+            work.cells, work.nact, dt, g, damping, flip, geostatic, pts.model, pts.plastic, pts.state, work.e3, work.out)
     return work.out.copy()
 
 
