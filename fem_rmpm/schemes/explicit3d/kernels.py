@@ -101,20 +101,19 @@ def map_to_nodes_3d(x, v, mass, vol, stress, active, origin, h, shape, cellbase,
         cellbase[i] = base
         cellxi[i, 0], cellxi[i, 1], cellxi[i, 2] = a, b, c
         mi, Vi = mass[i], vol[i]
-        sxx, syy, szz = stress[i, 0], stress[i, 1], stress[i, 2]
-        sxy, syz, sxz = stress[i, 3], stress[i, 4], stress[i, 5]
-        v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
+        sxx, syy, szz = Vi * stress[i, 0], Vi * stress[i, 1], Vi * stress[i, 2]
+        sxy, syz, sxz = Vi * stress[i, 3], Vi * stress[i, 4], Vi * stress[i, 5]
+        w0, w1, w2 = mi * v[i, 0], mi * v[i, 1], mi * v[i, 2]
         for q in range(8):
             di, dj, dk, N, gx, gy, gz = _corner(q, a, b, c, ihx, ihy, ihz)
             node = base + di + sy * dj + sz * dk
-            wm = N * mi
-            m[node] += wm
-            p[node, 0] += wm * v0
-            p[node, 1] += wm * v1
-            p[node, 2] += wm * v2
-            f[node, 0] -= Vi * (sxx * gx + sxy * gy + sxz * gz)
-            f[node, 1] -= Vi * (sxy * gx + syy * gy + syz * gz)
-            f[node, 2] -= Vi * (sxz * gx + syz * gy + szz * gz)
+            m[node] += N * mi
+            p[node, 0] += N * w0
+            p[node, 1] += N * w1
+            p[node, 2] += N * w2
+            f[node, 0] -= sxx * gx + sxy * gy + sxz * gz
+            f[node, 1] -= sxy * gx + syy * gy + syz * gz
+            f[node, 2] -= sxz * gx + syz * gy + szz * gz
     count = 0
     for t in range(ncell):
         cell = cells[t]
@@ -211,6 +210,25 @@ def nodal_velocity_3d(m, v2, fixed, nodes, nact):
         inv = 1.0 / m[a] if m[a] > MASS_TOL else 0.0
         for k in range(3):
             v2[a, k] = 0.0 if fixed[a, k] else v2[a, k] * inv
+
+
+@inline
+def _gradient_row(v2, k, base, sy, sz, a, b, c, ihx, ihy, ihz):
+    """Row ``k`` of the velocity gradient, ``sum_I v2[I, k] grad N_I`` (1/s), in the
+    factored form of the trilinear gradient: along x the differences of the cell's four
+    x-edges weighted by the bilinear (y, z) values, and likewise along y and z."""
+    u000, u100 = v2[base, k], v2[base + 1, k]
+    u010, u110 = v2[base + sy, k], v2[base + sy + 1, k]
+    u001, u101 = v2[base + sz, k], v2[base + sz + 1, k]
+    u011, u111 = v2[base + sz + sy, k], v2[base + sz + sy + 1, k]
+    a0, b0, c0 = 1.0 - a, 1.0 - b, 1.0 - c
+    gx = (b0 * c0 * (u100 - u000) + b * c0 * (u110 - u010) + b0 * c * (u101 - u001)
+          + b * c * (u111 - u011))
+    gy = (a0 * c0 * (u010 - u000) + a * c0 * (u110 - u100) + a0 * c * (u011 - u001)
+          + a * c * (u111 - u101))
+    gz = (a0 * b0 * (u001 - u000) + a * b0 * (u101 - u100) + a0 * b * (u011 - u010)
+          + a * b * (u111 - u110))
+    return gx * ihx, gy * ihy, gz * ihz
 
 
 @inline
@@ -320,21 +338,9 @@ def stress_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase,
         if not active[i]:
             continue
         base, a, b, c = cellbase[i], cellxi[i, 0], cellxi[i, 1], cellxi[i, 2]
-        l00, l01, l02, l10, l11, l12, l20, l21, l22 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                                                       0.0, 0.0)
-        for q in range(8):
-            di, dj, dk, _, gx, gy, gz = _corner(q, a, b, c, ihx, ihy, ihz)
-            node = base + di + sy * dj + sz * dk
-            u0, u1, u2 = v2[node, 0], v2[node, 1], v2[node, 2]
-            l00 += u0 * gx
-            l01 += u0 * gy
-            l02 += u0 * gz
-            l10 += u1 * gx
-            l11 += u1 * gy
-            l12 += u1 * gz
-            l20 += u2 * gx
-            l21 += u2 * gy
-            l22 += u2 * gz
+        l00, l01, l02 = _gradient_row(v2, 0, base, sy, sz, a, b, c, ihx, ihy, ihz)
+        l10, l11, l12 = _gradient_row(v2, 1, base, sy, sz, a, b, c, ihx, ihy, ihz)
+        l20, l21, l22 = _gradient_row(v2, 2, base, sy, sz, a, b, c, ihx, ihy, ihz)
         L = (l00, l01, l02, l10, l11, l12, l20, l21, l22)
         if geostatic:
             _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3)
