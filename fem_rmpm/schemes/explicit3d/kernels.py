@@ -47,17 +47,16 @@ N_STATS = 6
 
 
 @inline
-def _corner(q, a, b, c, ihx, ihy, ihz):
-    """Corner ``q`` (0..7, x fastest) of a cell: its offsets (0 or 1) along x, y, z, the
-    trilinear value N and gradient (1/m) at local coordinates ``a, b, c`` in [0, 1]."""
-    di, dj, dk = q & 1, (q >> 1) & 1, q >> 2
-    fx = a if di else 1.0 - a
-    fy = b if dj else 1.0 - b
-    fz = c if dk else 1.0 - c
-    gx = ihx if di else -ihx
-    gy = ihy if dj else -ihy
-    gz = ihz if dk else -ihz
-    return di, dj, dk, fx * fy * fz, gx * fy * fz, fx * gy * fz, fx * fy * gz
+def _scatter(m, p, f, node, N, gx, gy, gz, mi, w0, w1, w2, sxx, syy, szz, sxy, syz, sxz):
+    """One corner's share of a point: mass ``N mi``, momentum ``N mi v`` (``w``) and
+    force ``-V sigma grad N`` (the stress premultiplied by the volume)."""
+    m[node] += N * mi
+    p[node, 0] += N * w0
+    p[node, 1] += N * w1
+    p[node, 2] += N * w2
+    f[node, 0] -= sxx * gx + sxy * gy + sxz * gz
+    f[node, 1] -= sxy * gx + syy * gy + syz * gz
+    f[node, 2] -= sxz * gx + syz * gy + szz * gz
 
 
 # long function: the per-point scatter written out on scalars
@@ -104,16 +103,27 @@ def map_to_nodes_3d(x, v, mass, vol, stress, active, origin, h, shape, cellbase,
         sxx, syy, szz = Vi * stress[i, 0], Vi * stress[i, 1], Vi * stress[i, 2]
         sxy, syz, sxz = Vi * stress[i, 3], Vi * stress[i, 4], Vi * stress[i, 5]
         w0, w1, w2 = mi * v[i, 0], mi * v[i, 1], mi * v[i, 2]
-        for q in range(8):
-            di, dj, dk, N, gx, gy, gz = _corner(q, a, b, c, ihx, ihy, ihz)
-            node = base + di + sy * dj + sz * dk
-            m[node] += N * mi
-            p[node, 0] += N * w0
-            p[node, 1] += N * w1
-            p[node, 2] += N * w2
-            f[node, 0] -= sxx * gx + sxy * gy + sxz * gz
-            f[node, 1] -= sxy * gx + syy * gy + syz * gz
-            f[node, 2] -= sxz * gx + syz * gy + szz * gz
+        # the eight corners written out (x fastest): values and gradients in factored form
+        a0, b0, c0 = 1.0 - a, 1.0 - b, 1.0 - c
+        bc00, bc10, bc01, bc11 = b0 * c0, b * c0, b0 * c, b * c
+        ac00, ac10, ac01, ac11 = a0 * c0, a * c0, a0 * c, a * c
+        ab00, ab10, ab01, ab11 = a0 * b0, a * b0, a0 * b, a * b
+        _scatter(m, p, f, base, a0 * bc00, -ihx * bc00, -ihy * ac00, -ihz * ab00,
+                 mi, w0, w1, w2, sxx, syy, szz, sxy, syz, sxz)
+        _scatter(m, p, f, base + 1, a * bc00, ihx * bc00, -ihy * ac10, -ihz * ab10,
+                 mi, w0, w1, w2, sxx, syy, szz, sxy, syz, sxz)
+        _scatter(m, p, f, base + sy, a0 * bc10, -ihx * bc10, ihy * ac00, -ihz * ab01,
+                 mi, w0, w1, w2, sxx, syy, szz, sxy, syz, sxz)
+        _scatter(m, p, f, base + sy + 1, a * bc10, ihx * bc10, ihy * ac10, -ihz * ab11,
+                 mi, w0, w1, w2, sxx, syy, szz, sxy, syz, sxz)
+        _scatter(m, p, f, base + sz, a0 * bc01, -ihx * bc01, -ihy * ac01, ihz * ab00,
+                 mi, w0, w1, w2, sxx, syy, szz, sxy, syz, sxz)
+        _scatter(m, p, f, base + sz + 1, a * bc01, ihx * bc01, -ihy * ac11, ihz * ab10,
+                 mi, w0, w1, w2, sxx, syy, szz, sxy, syz, sxz)
+        _scatter(m, p, f, base + sz + sy, a0 * bc11, -ihx * bc11, ihy * ac01, ihz * ab01,
+                 mi, w0, w1, w2, sxx, syy, szz, sxy, syz, sxz)
+        _scatter(m, p, f, base + sz + sy + 1, a * bc11, ihx * bc11, ihy * ac11, ihz * ab11,
+                 mi, w0, w1, w2, sxx, syy, szz, sxy, syz, sxz)
     count = 0
     for t in range(ncell):
         cell = cells[t]
@@ -156,6 +166,21 @@ def solve_nodes_3d(m, p, f, v2, fixed, g, dt, damping, nodes, nact):
     return ke
 
 
+@inline
+def _interpolate(g, k, n0, n1, n2, n3, n4, n5, n6, n7, N0, N1, N2, N3, N4, N5, N6, N7):
+    """Component ``k`` of the nodal field ``g`` at a point: ``sum_I N_I g[I, k]``."""
+    return (N0 * g[n0, k] + N1 * g[n1, k] + N2 * g[n2, k] + N3 * g[n3, k]
+            + N4 * g[n4, k] + N5 * g[n5, k] + N6 * g[n6, k] + N7 * g[n7, k])
+
+
+@inline
+def _add_momentum(v2, node, N, w0, w1, w2):
+    v2[node, 0] += N * w0
+    v2[node, 1] += N * w1
+    v2[node, 2] += N * w2
+
+
+# long function: the gather, move and re-map of a point written out on scalars
 @kernel
 def map_back_3d(x, v, mass, active, u_geo, cellbase, cellxi, h, shape, p, f, v2, dt, flip,
                 geostatic):
@@ -168,16 +193,18 @@ def map_back_3d(x, v, mass, active, u_geo, cellbase, cellxi, h, shape, p, f, v2,
         if not active[i]:
             continue
         base, a, b, c = cellbase[i], cellxi[i, 0], cellxi[i, 1], cellxi[i, 2]
-        vp0, vp1, vp2, ap0, ap1, ap2 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-        for q in range(8):
-            di, dj, dk, N, _, _, _ = _corner(q, a, b, c, 0.0, 0.0, 0.0)
-            node = base + di + sy * dj + sz * dk
-            vp0 += N * p[node, 0]
-            vp1 += N * p[node, 1]
-            vp2 += N * p[node, 2]
-            ap0 += N * f[node, 0]
-            ap1 += N * f[node, 1]
-            ap2 += N * f[node, 2]
+        a0, b0, c0 = 1.0 - a, 1.0 - b, 1.0 - c
+        bc00, bc10, bc01, bc11 = b0 * c0, b * c0, b0 * c, b * c
+        n0, n1, n2, n3 = base, base + 1, base + sy, base + sy + 1
+        n4, n5, n6, n7 = base + sz, base + sz + 1, base + sz + sy, base + sz + sy + 1
+        N0, N1, N2, N3 = a0 * bc00, a * bc00, a0 * bc10, a * bc10
+        N4, N5, N6, N7 = a0 * bc01, a * bc01, a0 * bc11, a * bc11
+        vp0 = _interpolate(p, 0, n0, n1, n2, n3, n4, n5, n6, n7, N0, N1, N2, N3, N4, N5, N6, N7)
+        vp1 = _interpolate(p, 1, n0, n1, n2, n3, n4, n5, n6, n7, N0, N1, N2, N3, N4, N5, N6, N7)
+        vp2 = _interpolate(p, 2, n0, n1, n2, n3, n4, n5, n6, n7, N0, N1, N2, N3, N4, N5, N6, N7)
+        ap0 = _interpolate(f, 0, n0, n1, n2, n3, n4, n5, n6, n7, N0, N1, N2, N3, N4, N5, N6, N7)
+        ap1 = _interpolate(f, 1, n0, n1, n2, n3, n4, n5, n6, n7, N0, N1, N2, N3, N4, N5, N6, N7)
+        ap2 = _interpolate(f, 2, n0, n1, n2, n3, n4, n5, n6, n7, N0, N1, N2, N3, N4, N5, N6, N7)
         v[i, 0] = flip * (v[i, 0] + dt * ap0) + (1.0 - flip) * vp0
         v[i, 1] = flip * (v[i, 1] + dt * ap1) + (1.0 - flip) * vp1
         v[i, 2] = flip * (v[i, 2] + dt * ap2) + (1.0 - flip) * vp2
@@ -192,12 +219,14 @@ def map_back_3d(x, v, mass, active, u_geo, cellbase, cellxi, h, shape, p, f, v2,
         vmax2 = max(vmax2, vp0 * vp0 + vp1 * vp1 + vp2 * vp2)
         mi = mass[i]
         w0, w1, w2 = mi * v[i, 0], mi * v[i, 1], mi * v[i, 2]
-        for q in range(8):
-            di, dj, dk, N, _, _, _ = _corner(q, a, b, c, 0.0, 0.0, 0.0)
-            node = base + di + sy * dj + sz * dk
-            v2[node, 0] += N * w0
-            v2[node, 1] += N * w1
-            v2[node, 2] += N * w2
+        _add_momentum(v2, n0, N0, w0, w1, w2)
+        _add_momentum(v2, n1, N1, w0, w1, w2)
+        _add_momentum(v2, n2, N2, w0, w1, w2)
+        _add_momentum(v2, n3, N3, w0, w1, w2)
+        _add_momentum(v2, n4, N4, w0, w1, w2)
+        _add_momentum(v2, n5, N5, w0, w1, w2)
+        _add_momentum(v2, n6, N6, w0, w1, w2)
+        _add_momentum(v2, n7, N7, w0, w1, w2)
     return vmax2
 
 
