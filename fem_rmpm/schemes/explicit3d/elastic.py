@@ -22,15 +22,15 @@ root of the round-off, so only the root farthest from the other two is taken fro
 (the largest when ``det(C) >= 0``, else the smallest: at least sqrt(3) from the others,
 a simple root), evaluated without acos / cos: a degree-5 polynomial fit of
 ``2 cos(acos(h) / 3)`` on ``h = |det(C)| / 2`` in [0, 1], then one Halley step on the
-cubic, to round-off; its eigenvector is the largest cross product of two rows of ``C - beta I``.  The other two eigenpairs
-are those of the 2x2 matrix of ``C`` on an orthonormal basis ``U, V`` of the plane
-normal to it, in closed form (exact for 2x2, no cancellation): the split of
-the eigenvector computation of Eberly (2014, "A robust eigensolver for 3x3 symmetric
-matrices", Geometric Tools), with the pair solved as a 2x2 problem so that equal and
-nearly equal eigenvalues keep full accuracy.  The eigenvectors are orthonormal to
-round-off whatever the multiplicity.  ``tests/test_3d_elastic.py`` checks eigenvalues and
-the reconstructed tensor against ``numpy.linalg.eigh`` on random, near-degenerate and
-exactly degenerate matrices.
+cubic, to round-off; its eigenvector is the largest cross product of two rows of
+``C - beta I``.  The other two eigenpairs are those of the 2x2 matrix of ``C`` on an
+orthonormal basis ``U, V`` of the plane normal to it, in closed form (exact for 2x2, no
+cancellation): the split of the eigenvector computation of Eberly (2014, "A robust
+eigensolver for 3x3 symmetric matrices", Geometric Tools), with the pair solved as a 2x2
+problem so that equal and nearly equal eigenvalues keep full accuracy.  The eigenvectors
+are orthonormal to round-off whatever the multiplicity.  ``tests/test_3d_elastic.py``
+checks eigenvalues and the reconstructed tensor against ``numpy.linalg.eigh`` on random,
+near-degenerate and exactly degenerate matrices.
 """
 from __future__ import annotations
 

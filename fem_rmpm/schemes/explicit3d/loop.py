@@ -70,7 +70,8 @@ def _step(grid, pts, work, dt, g, damping, flip, geostatic) -> np.ndarray:
             pts.log_strain, work.be, work.lam, work.mu, pts.active, pts.u_geostatic,
             work.cellbase, work.cellxi, grid.origin, grid.cell, work.shape, grid.fixed,
             work.m, work.p, work.f, work.v2, work.touched, work.nodes, work.cell_touched,
-            work.cells, work.nact, dt, g, damping, flip, geostatic, pts.model, pts.plastic, pts.state, work.e3, work.out)
+            work.cells, work.nact, dt, g, damping, flip, geostatic, pts.model, pts.plastic,
+            pts.state, work.e3, work.out)
     return work.out.copy()
 
 
