@@ -1,9 +1,10 @@
 """Benchmark of the three-dimensional explicit step: whole-run point-updates per second
-from the run's own ``summary.json`` on one and two threads, and memory per point.
-Plain script:
+from the run's own ``summary.json`` on one and two threads, the cost of each stage of the
+step, and memory per point.  Plain script:
 
     nice python validation/bench_explicit_3d.py            # the extruded slab, 1 and 2 threads
     python validation/bench_explicit_3d.py --t-end 1.0     # a shorter run
+    python validation/bench_explicit_3d.py --stages-only   # the per-stage figures alone
 
 Case: ``meshes/slope_extruded_3d.toml`` (the reference slope's section extruded 2 m,
 0.5 m hexahedra, 36 448 points, von Mises softening), run with ``fem-rmpm run`` in a fresh
@@ -11,6 +12,9 @@ process after a short run that fills numba's cache.  MPUPS = points x steps / th
 loop's wall (and CPU) time from ``summary.json`` (imports, set-up and output after the
 loop not included).  Memory per point: the peak resident set of the run's process minus
 that of a process that imports the package and loads the scene, over the points.
+Per stage: the slab run in this process to ``--stage-time`` (3 s: sliding, softening),
+then ``--stage-steps`` steps with each stage kernel of :mod:`fem_rmpm.schemes.explicit3d.kernels`
+called and timed alone (process CPU time), in ns per point-step; the sum is the step.
 The machine is shared: CPU figures are the less noisy; the load average is printed.
 Writes ``validation/out/bench_explicit_3d.json``.
 """
@@ -23,7 +27,10 @@ import resource
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "meshes" / "slope_extruded_3d.toml"
@@ -44,6 +51,56 @@ def _run(threads: int, t_end: float) -> dict:
     return {"summary": summary, "peak_rss_mib": max(rss, before) / 1024}
 
 
+def stage_profile(stage_time: float, steps: int) -> dict:
+    """ns of CPU per point-step of each stage of the 3-D step (module docstring), on the
+    slab's state at ``stage_time`` s; also the fraction of points that yielded."""
+    from fem_rmpm import api
+    from fem_rmpm.schemes.explicit3d import kernels as K
+    from fem_rmpm.schemes.explicit3d.loop import Workspace3D, run_explicit_3d
+
+    scene = api.with_value(api.load_scene(SCENE), "solver.t_end", stage_time)
+    grid, pts = api.prepare(scene)
+    run_explicit_3d(scene, grid, pts)
+    w = Workspace3D(grid, pts)
+    g = np.array([*scene.gravity_vector, 0.0])
+    dt, flip = 0.25 * float(np.min(grid.cell)) / 40.0, scene.solver.flip
+    gamma0 = pts.state[:, 0].copy()
+    stages = {
+        "map to nodes": lambda: K.map_to_nodes_3d(
+            pts.x, pts.velocity, pts.mass, pts.volume, pts.stress, pts.active, grid.origin,
+            grid.cell, w.shape, w.cellbase, w.cellxi, w.m, w.p, w.f, w.touched, w.nodes,
+            w.cell_touched, w.cells, w.nact),
+        "solve on nodes": lambda: K.solve_nodes_3d(w.m, w.p, w.f, w.v2, grid.fixed, g, dt,
+                                                   0.0, w.nodes, w.nact),
+        "map back": lambda: K.map_back_3d(pts.x, pts.velocity, pts.mass, pts.active,
+                                          pts.u_geostatic, w.cellbase, w.cellxi, grid.cell,
+                                          w.shape, w.p, w.f, w.v2, dt, flip, False),
+        "nodal velocity": lambda: K.nodal_velocity_3d(w.m, w.v2, grid.fixed, w.nodes, w.nact),
+        "stress": lambda: K.stress_3d(
+            pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.stress,
+            pts.log_strain, w.be, w.lam, w.mu, pts.active, w.cellbase, w.cellxi,
+            grid.origin, grid.cell, w.shape, w.v2, dt, False, pts.model, pts.plastic,
+            pts.state, w.e3, w.out),
+    }
+    cpu = dict.fromkeys(stages, 0.0)
+    for k in range(steps + 1):
+        for name, call in stages.items():
+            c0 = time.process_time()
+            call()
+            if k:                                      # the first step compiles
+                cpu[name] += time.process_time() - c0
+    n = int(pts.active.sum())
+    ns = {name: 1e9 * c / (steps * n) for name, c in cpu.items()}
+    ns["step"] = sum(ns.values())
+    yielded = float(np.mean(pts.state[:, 0] > gamma0))
+    for name, v in ns.items():
+        print(f"  {name:15s} {v:7.1f} ns per point-step (CPU)")
+    print(f"  {n} points, {steps} steps from t = {stage_time:g} s, {yielded:.0%} of the "
+          f"points yielded; {1e3 / ns['step']:.2f} MPUPS of CPU")
+    return {"ns_per_point_step_cpu": ns, "points": n, "steps": steps,
+            "stage_time": stage_time, "yielded_fraction": yielded}
+
+
 def _baseline_rss() -> float:
     code = ("from fem_rmpm import api; api.load_scene(%r); import resource; "
             "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)" % str(SCENE))
@@ -55,8 +112,16 @@ def _baseline_rss() -> float:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--t-end", type=float, default=2.0, help="simulated time per run, s")
+    ap.add_argument("--stage-time", type=float, default=3.0,
+                    help="simulated time before the per-stage figures, s")
+    ap.add_argument("--stage-steps", type=int, default=100, help="steps timed per stage")
+    ap.add_argument("--stages-only", action="store_true", help="the per-stage figures alone")
     a = ap.parse_args(argv)
     env_load = os.getloadavg()
+    if a.stages_only:
+        print(f"per stage (load average {env_load[0]:.2f}):")
+        stage_profile(a.stage_time, a.stage_steps)
+        return 0
     _run(1, 0.05)                                   # fills numba's cache
     base = _baseline_rss()
     rows = {}
@@ -78,6 +143,10 @@ def main(argv=None) -> int:
               f"({rows[threads]['mpups_cpu']:.2f} MPUPS); memory "
               f"{rows[threads]['bytes_per_point']:.0f} B per point above the "
               f"{base:.0f} MiB of imports")
+    # after the runs: a child's peak RSS counts its parent's at the fork (Linux keeps the
+    # high-water mark across exec), so this process stays small until they are done
+    print(f"per stage (load average {os.getloadavg()[0]:.2f}):")
+    stages = stage_profile(a.stage_time, a.stage_steps)
     verdict = rows[1]["mpups_cpu"] >= TARGET_MPUPS
     print(f"target >= {TARGET_MPUPS:g} MPUPS on one thread (CPU): "
           f"{'met' if verdict else 'NOT met'} ({rows[1]['mpups_cpu']:.2f}); load average "
@@ -85,7 +154,7 @@ def main(argv=None) -> int:
     out = ROOT / "validation" / "out"
     out.mkdir(exist_ok=True)
     (out / "bench_explicit_3d.json").write_text(json.dumps(
-        {"rows": rows, "baseline_rss_mib": base, "load_start": env_load,
+        {"rows": rows, "stages": stages, "baseline_rss_mib": base, "load_start": env_load,
          "load_end": os.getloadavg(), "target_met": verdict}, indent=1))
     return 0
 

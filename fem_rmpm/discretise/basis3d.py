@@ -1,5 +1,8 @@
-"""Trilinear (``ElementHex1``) basis of the hexahedral grid at material points: the compiled
-per-point values used by the three-dimensional kernels and a vectorised numpy form.
+"""Trilinear (``ElementHex1``) basis of the hexahedral grid at material points: compiled
+per-point values (:func:`hex8_point`) and a vectorised numpy form.  The three-dimensional
+step's kernels write the same basis out in factored form per stage
+(:mod:`fem_rmpm.schemes.explicit3d.kernels`; ``tests/test_3d_kernels.py`` holds their
+nodal sums and velocity gradient equal to those of the numpy form).
 
 A point's local coordinates ``xi = (x - x_cell) / h`` in [0, 1]^3 are its reference
 coordinates on scikit-fem's cube because :attr:`fem_rmpm.discretise.grid3d.Grid3D.cells`

@@ -1,14 +1,36 @@
-"""Compiled three-dimensional linear elastic stress update: small strain (the geostatic
-phase) and the finite-strain Hencky update with a 3x3 spectral log / exp.
+"""Compiled three-dimensional elastic kinematics: a closed-form symmetric 3x3
+eigen-decomposition, the small-strain update (the geostatic phase) and the finite-strain
+Hencky update with one eigen-decomposition per point-step.
 
 Tensors are six components ``[xx, yy, zz, xy, yz, xz]`` (the VTK order of the point
-files); strains hold tensor (not engineering) shear components.  The finite-strain
-update (Simo 1992, the 3-D form of :mod:`fem_rmpm.materials.hencky`): trial elastic left
-Cauchy-Green ``b = dF exp(2 eps) dF^T``, new elastic log strain ``eps = log(b) / 2``,
-Kirchhoff stress ``tau = lam tr(eps) I + 2 mu eps`` (kPa).  The spectral functions use a
-cyclic Jacobi eigen-solver of the symmetric 3x3 matrix (robust for repeated eigenvalues,
-as at rest, where closed forms lose their eigenvectors), to round-off (``tests/test_3d_elastic.py``
-checks it against ``numpy.linalg.eigh`` and the step against a uniaxial closed form).
+files); strains hold tensor (not engineering) shear components.
+
+**Finite strain** (Simo 1992, the 3-D form of :mod:`fem_rmpm.materials.hencky`): the
+point keeps its elastic left Cauchy-Green tensor ``b = exp(2 eps)`` beside the elastic log
+strain ``eps``.  A step takes the trial ``b_tr = dF b dF^T``, its eigen-decomposition
+``b_tr = sum_k lambda_k n_k n_k^T`` and the principal log strains ``e_k = ln(lambda_k) / 2``;
+the plastic return works on ``e`` (an isotropic return keeps the ``n_k``); then
+``eps = sum_k e_k n_k n_k^T``, ``b = sum_k exp(2 e_k) n_k n_k^T`` (``b_tr`` itself when the
+step is elastic) and the Kirchhoff stress ``tau = lam tr(eps) I + 2 mu eps`` (kPa).
+
+**Eigen-decomposition** (:func:`sym_eig3`).  With ``q = tr(A) / 3`` and
+``p = sqrt(|A - q I|^2 / 6)``, ``C = (A - q I) / p`` has eigenvalues
+``beta = 2 cos(phi + 2 pi k / 3)``, ``cos(3 phi) = det(C) / 2`` (the trigonometric solution
+of the characteristic cubic ``beta^3 - 3 beta = det(C)``, Smith 1961, Commun. ACM 4(4)
+168).  Near a repeated eigenvalue that cubic fixes the two close roots only to the square
+root of the round-off, so only the root farthest from the other two is taken from it
+(the largest when ``det(C) >= 0``, else the smallest: at least sqrt(3) from the others,
+a simple root), evaluated without acos / cos: a degree-5 polynomial fit of
+``2 cos(acos(h) / 3)`` on ``h = |det(C)| / 2`` in [0, 1], then one Halley step on the
+cubic, to round-off; its eigenvector is the largest cross product of two rows of
+``C - beta I``.  The other two eigenpairs are those of the 2x2 matrix of ``C`` on an
+orthonormal basis ``U, V`` of the plane normal to it, in closed form (exact for 2x2, no
+cancellation): the split of the eigenvector computation of Eberly (2014, "A robust
+eigensolver for 3x3 symmetric matrices", Geometric Tools), with the pair solved as a 2x2
+problem so that equal and nearly equal eigenvalues keep full accuracy.  The eigenvectors
+are orthonormal to round-off whatever the multiplicity.  ``tests/test_3d_elastic.py``
+checks eigenvalues and the reconstructed tensor against ``numpy.linalg.eigh`` on random,
+near-degenerate and exactly degenerate matrices.
 """
 from __future__ import annotations
 
@@ -18,121 +40,156 @@ import numpy as np
 
 from fem_rmpm.runtime.compiled import inline, jit
 
-__all__ = ["sym_eig3", "hencky_elastic_3d", "small_strain_elastic_3d", "spectral_3d"]
+__all__ = ["sym_eig3", "compose_sym3", "small_strain_elastic_3d", "elastic_tau_3d",
+           "spectral_3d", "stretch_from_log_strain"]
 
-_SWEEPS = 30
-
-
-@inline
-def sym_eig3(A, w, Q):
-    """Eigenvalues ``w`` (3,) and eigenvectors (columns of ``Q`` (3, 3)) of the symmetric
-    ``A`` (3, 3), overwritten (cyclic Jacobi rotations until the off-diagonal part is below
-    1e-15 of the norm)."""
-    for i in range(3):
-        for j in range(3):
-            Q[i, j] = 1.0 if i == j else 0.0
-    norm = 0.0
-    for i in range(3):
-        for j in range(3):
-            norm += A[i, j] * A[i, j]
-    for _ in range(_SWEEPS):
-        off = A[0, 1] * A[0, 1] + A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2]
-        if off <= 1e-30 * norm or off == 0.0:
-            break
-        for p, q in ((0, 1), (0, 2), (1, 2)):
-            if A[p, q] == 0.0:
-                continue
-            theta = (A[q, q] - A[p, p]) / (2.0 * A[p, q])
-            t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
-            c = 1.0 / math.sqrt(t * t + 1.0)
-            s = t * c
-            for k in range(3):              # A <- A J (columns p, q)
-                akp, akq = A[k, p], A[k, q]
-                A[k, p] = c * akp - s * akq
-                A[k, q] = s * akp + c * akq
-            for k in range(3):              # A <- J^T A (rows p, q)
-                apk, aqk = A[p, k], A[q, k]
-                A[p, k] = c * apk - s * aqk
-                A[q, k] = s * apk + c * aqk
-            for k in range(3):              # Q <- Q J
-                qkp, qkq = Q[k, p], Q[k, q]
-                Q[k, p] = c * qkp - s * qkq
-                Q[k, q] = s * qkp + c * qkq
-    for i in range(3):
-        w[i] = A[i, i]
+#: 2 cos(acos(h) / 3), the largest root of beta^3 - 3 beta = 2 h, for h in [0, 1]: the
+#: degree-5 Chebyshev fit as a polynomial in 2 h - 1 (error < 2.6e-6, then one Halley
+#: step: < 3e-16).
+_R0, _R1, _R2 = 1.8793845685812673, 0.13164429558895394, -0.012848881368903284
+_R3, _R4, _R5 = 0.002207275400202328, -0.0005080406809108717, 0.00012269865821269124
+_THIRD, _SIXTH = 1.0 / 3.0, 1.0 / 6.0       # (multiplications: a division is ~13 cycles)
 
 
 @inline
-def _compose(Q, f, out6):
-    """``out6`` = the six components of Q diag(f) Q^T."""
-    for m, (i, j) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (1, 2), (0, 2))):
-        out6[m] = Q[i, 0] * f[0] * Q[j, 0] + Q[i, 1] * f[1] * Q[j, 1] + Q[i, 2] * f[2] * Q[j, 2]
+def _pair(m00, m01, m11):
+    """Eigenvalues ``mu0 >= mu1`` and the unit eigenvector ``(c, s)`` of ``mu0`` of the
+    symmetric 2x2 [[m00, m01], [m01, m11]] (that of ``mu1`` is ``(-s, c)``): with
+    ``d = (m00 - m11) / 2`` and ``r = sqrt(d^2 + m01^2)``, the eigenvector is
+    ``(d + r, m01)`` for ``d >= 0``, else ``(m01, r - d)``, both free of cancellation."""
+    d = 0.5 * (m00 - m11)
+    mean = 0.5 * (m00 + m11)
+    r = math.sqrt(d * d + m01 * m01)
+    if r == 0.0:
+        return mean, mean, 1.0, 0.0
+    if d >= 0.0:
+        x, y = d + r, m01
+    else:
+        x, y = m01, r - d
+    inv = 1.0 / math.sqrt(x * x + y * y)
+    return mean + r, mean - r, x * inv, y * inv
+
+
+# long function: the closed form written out on scalars (no arrays, nothing allocated)
+@inline
+def sym_eig3(a00, a11, a22, a01, a12, a02):
+    """Eigenvalues ``l0, l1, l2`` and unit eigenvectors ``(x0, y0, z0)``, ``(x1, ...)``,
+    ``(x2, ...)`` of the symmetric 3x3 with entries ``a..`` (module docstring), as a tuple
+    of 12 floats ``(l0, l1, l2, x0, y0, z0, x1, y1, z1, x2, y2, z2)``; unordered."""
+    q = (a00 + a11 + a22) * _THIRD
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p2 = (b00 * b00 + b11 * b11 + b22 * b22
+          + 2.0 * (a01 * a01 + a12 * a12 + a02 * a02)) * _SIXTH
+    if not p2 > 1e-300:                      # a multiple of the identity (or NaN)
+        return q, q, q, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+    p = math.sqrt(p2)
+    inv = 1.0 / p
+    c00, c11, c22 = b00 * inv, b11 * inv, b22 * inv
+    c01, c12, c02 = a01 * inv, a12 * inv, a02 * inv
+    half_det = 0.5 * (c00 * (c11 * c22 - c12 * c12) - c01 * (c01 * c22 - c12 * c02)
+                      + c02 * (c01 * c12 - c11 * c02))
+    h = min(abs(half_det), 1.0)
+    x = 2.0 * h - 1.0
+    beta = _R0 + x * (_R1 + x * (_R2 + x * (_R3 + x * (_R4 + x * _R5))))
+    f = beta * beta * beta - 3.0 * beta - 2.0 * h           # one Halley step
+    fp = 3.0 * beta * beta - 3.0
+    beta -= 2.0 * f * fp / (2.0 * fp * fp - 6.0 * f * beta)
+    if half_det < 0.0:
+        beta = -beta
+    # the isolated root's eigenvector n: the largest cross product of rows of C - beta I
+    r00, r11, r22 = c00 - beta, c11 - beta, c22 - beta
+    ux, uy, uz = c01 * c12 - c02 * r11, c02 * c01 - r00 * c12, r00 * r11 - c01 * c01
+    vx, vy, vz = c01 * r22 - c02 * c12, c02 * c02 - r00 * r22, r00 * c12 - c01 * c02
+    wx, wy, wz = r11 * r22 - c12 * c12, c12 * c02 - c01 * r22, c01 * c12 - r11 * c02
+    du = ux * ux + uy * uy + uz * uz
+    dv = vx * vx + vy * vy + vz * vz
+    dw = wx * wx + wy * wy + wz * wz
+    if dv > du and dv >= dw:
+        ux, uy, uz, du = vx, vy, vz, dv
+    elif dw > du:
+        ux, uy, uz, du = wx, wy, wz, dw
+    # a unit U normal to n (from n's unnormalised components), V = n x U
+    if abs(ux) > abs(uy):
+        s = 1.0 / math.sqrt(ux * ux + uz * uz)
+        ex, ey, ez = -uz * s, 0.0, ux * s
+    else:
+        s = 1.0 / math.sqrt(uy * uy + uz * uz)
+        ex, ey, ez = 0.0, uz * s, -uy * s
+    s = 1.0 / math.sqrt(du)
+    nx, ny, nz = ux * s, uy * s, uz * s
+    fx, fy, fz = ny * ez - nz * ey, nz * ex - nx * ez, nx * ey - ny * ex
+    # the 2x2 matrix of C on (U, V) and its eigenpairs
+    cux = c00 * ex + c01 * ey + c02 * ez
+    cuy = c01 * ex + c11 * ey + c12 * ez
+    cuz = c02 * ex + c12 * ey + c22 * ez
+    cvx = c00 * fx + c01 * fy + c02 * fz
+    cvy = c01 * fx + c11 * fy + c12 * fz
+    cvz = c02 * fx + c12 * fy + c22 * fz
+    m00 = ex * cux + ey * cuy + ez * cuz
+    m01 = fx * cux + fy * cuy + fz * cuz
+    m11 = fx * cvx + fy * cvy + fz * cvz
+    mu0, mu1, c, s = _pair(m00, m01, m11)
+    return (q + p * beta, q + p * mu0, q + p * mu1, nx, ny, nz,
+            c * ex + s * fx, c * ey + s * fy, c * ez + s * fz,
+            c * fx - s * ex, c * fy - s * ey, c * fz - s * ez)
 
 
 @inline
-def _full(v6, A):
-    A[0, 0], A[1, 1], A[2, 2] = v6[0], v6[1], v6[2]
-    A[0, 1] = A[1, 0] = v6[3]
-    A[1, 2] = A[2, 1] = v6[4]
-    A[0, 2] = A[2, 0] = v6[5]
+def compose_sym3(f0, f1, f2, x0, y0, z0, x1, y1, z1, x2, y2, z2, out, i):
+    """``out[i]`` (six components) = sum_k f_k n_k n_k^T with ``n_k = (x_k, y_k, z_k)``."""
+    out[i, 0] = f0 * x0 * x0 + f1 * x1 * x1 + f2 * x2 * x2
+    out[i, 1] = f0 * y0 * y0 + f1 * y1 * y1 + f2 * y2 * y2
+    out[i, 2] = f0 * z0 * z0 + f1 * z1 * z1 + f2 * z2 * z2
+    out[i, 3] = f0 * x0 * y0 + f1 * x1 * y1 + f2 * x2 * y2
+    out[i, 4] = f0 * y0 * z0 + f1 * y1 * z1 + f2 * y2 * z2
+    out[i, 5] = f0 * x0 * z0 + f1 * x1 * z1 + f2 * x2 * z2
 
 
 @inline
-def _elastic_tau(eps, lam, mu, tau):
-    tr = eps[0] + eps[1] + eps[2]
+def elastic_tau_3d(eps, i, lam, mu, tau, j):
+    """``tau[j]`` (6,) kPa = lam tr(eps[i]) I + 2 mu eps[i] (Hencky, Kirchhoff)."""
+    tr = eps[i, 0] + eps[i, 1] + eps[i, 2]
     for m in range(6):
-        tau[m] = 2.0 * mu * eps[m] + (lam * tr if m < 3 else 0.0)
+        tau[j, m] = 2.0 * mu * eps[i, m] + (lam * tr if m < 3 else 0.0)
 
 
 @inline
-def small_strain_elastic_3d(L, dt, eps, lam, mu, tau):
-    """Geostatic step: ``eps += sym(L) dt`` (L (3, 3) 1/s), ``tau`` (6,) kPa."""
-    eps[0] += L[0, 0] * dt
-    eps[1] += L[1, 1] * dt
-    eps[2] += L[2, 2] * dt
-    eps[3] += 0.5 * (L[0, 1] + L[1, 0]) * dt
-    eps[4] += 0.5 * (L[1, 2] + L[2, 1]) * dt
-    eps[5] += 0.5 * (L[0, 2] + L[2, 0]) * dt
-    _elastic_tau(eps, lam, mu, tau)
+def small_strain_elastic_3d(l00, l01, l02, l10, l11, l12, l20, l21, l22, dt, eps, i):
+    """Geostatic step: ``eps[i] += sym(L) dt`` (L in 1/s, row-major entries ``l..``)."""
+    eps[i, 0] += l00 * dt
+    eps[i, 1] += l11 * dt
+    eps[i, 2] += l22 * dt
+    eps[i, 3] += 0.5 * (l01 + l10) * dt
+    eps[i, 4] += 0.5 * (l12 + l21) * dt
+    eps[i, 5] += 0.5 * (l02 + l20) * dt
 
 
-@inline
-def hencky_elastic_3d(dF, eps, lam, mu, tau, A, B, Q, w, f):
-    """Finite-strain step from the increment ``dF`` (3, 3): ``eps`` (6,) updated, ``tau``
-    (6,) kPa; ``A``, ``B``, ``Q`` (3, 3), ``w``, ``f`` (3,) scratch."""
-    _full(eps, A)
-    sym_eig3(A, w, Q)
-    for k in range(3):
-        f[k] = math.exp(2.0 * w[k])
-    for i in range(3):                       # A = exp(2 eps) = Q diag(f) Q^T
-        for j in range(3):
-            A[i, j] = Q[i, 0] * f[0] * Q[j, 0] + Q[i, 1] * f[1] * Q[j, 1] \
-                + Q[i, 2] * f[2] * Q[j, 2]
-    for i in range(3):                       # B = dF A
-        for j in range(3):
-            B[i, j] = dF[i, 0] * A[0, j] + dF[i, 1] * A[1, j] + dF[i, 2] * A[2, j]
-    for i in range(3):                       # A = B dF^T (the trial b, symmetric)
-        for j in range(i, 3):
-            A[i, j] = B[i, 0] * dF[j, 0] + B[i, 1] * dF[j, 1] + B[i, 2] * dF[j, 2]
-            A[j, i] = A[i, j]
-    sym_eig3(A, w, Q)
-    for k in range(3):
-        f[k] = 0.5 * math.log(w[k])
-    _compose(Q, f, eps)
-    _elastic_tau(eps, lam, mu, tau)
+@jit
+def stretch_from_log_strain(eps: np.ndarray, b: np.ndarray) -> None:
+    """``b[i] = exp(2 eps[i])`` (six components) for every row of ``eps`` (n, 6): the
+    elastic left Cauchy-Green tensor the finite-strain step keeps, at the start of a run
+    and after the geostatic phase (which updates ``eps`` alone)."""
+    for i in range(eps.shape[0]):
+        r = sym_eig3(eps[i, 0], eps[i, 1], eps[i, 2], eps[i, 3], eps[i, 4], eps[i, 5])
+        compose_sym3(math.exp(2.0 * r[0]), math.exp(2.0 * r[1]), math.exp(2.0 * r[2]),
+                     r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], b, i)
 
 
 @jit
 def spectral_3d(v6: np.ndarray, kind: int) -> np.ndarray:
-    """Test hook: eigenvalues (kind 0), or the six components of exp (1) / log (2) of the
-    symmetric tensor ``v6`` (6,)."""
-    A, Q, w, f = np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty(3)
-    _full(v6, A)
-    sym_eig3(A, w, Q)
+    """Test hook: eigenvalues (kind 0), the six components of exp (1) / log (2) of the
+    symmetric tensor ``v6`` (6,), or (kind 3) the eigenvectors as the rows of a (3, 3)
+    array, flattened."""
+    r = sym_eig3(v6[0], v6[1], v6[2], v6[3], v6[4], v6[5])
     if kind == 0:
-        return w.copy()
-    for k in range(3):
-        f[k] = math.exp(w[k]) if kind == 1 else math.log(w[k])
-    out = np.empty(6)
-    _compose(Q, f, out)
-    return out
+        return np.array([r[0], r[1], r[2]])
+    if kind == 3:
+        return np.array([r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11]])
+    out = np.empty((1, 6))
+    if kind == 1:
+        compose_sym3(math.exp(r[0]), math.exp(r[1]), math.exp(r[2]), r[3], r[4], r[5], r[6],
+                     r[7], r[8], r[9], r[10], r[11], out, 0)
+    else:
+        compose_sym3(math.log(r[0]), math.log(r[1]), math.log(r[2]), r[3], r[4], r[5], r[6],
+                     r[7], r[8], r[9], r[10], r[11], out, 0)
+    return out[0]

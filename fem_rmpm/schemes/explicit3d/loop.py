@@ -18,9 +18,10 @@ from fem_rmpm.discretise.grid3d import Grid3D
 from fem_rmpm.discretise.points3d import Particles3D
 from fem_rmpm.scene import Scene
 from fem_rmpm.schemes.common import RunRecord, SimulationError, at_rest
-from fem_rmpm.schemes.explicit3d.kernels import step_3d
+from fem_rmpm.schemes.explicit3d.elastic import stretch_from_log_strain
+from fem_rmpm.schemes.explicit3d.kernels import N_STATS, step_3d
 
-__all__ = ["run_explicit_3d", "wave_speed_3d", "RECORD_EVERY"]
+__all__ = ["run_explicit_3d", "wave_speed_3d", "Workspace3D", "RECORD_EVERY"]
 
 #: Steps between two kinetic-energy records and progress calls (as in plane strain).
 RECORD_EVERY = 20
@@ -33,23 +34,45 @@ def wave_speed_3d(pts: Particles3D) -> float:
     return float(np.max(np.sqrt((pts.lame[act, 0] + 2 * pts.lame[act, 1]) / rho)))
 
 
-class _Workspace:
-    """The nodal arrays of the step and the points' cell coordinates, made once."""
+class Workspace3D:
+    """What the step keeps besides the points, made once per run: the elastic left
+    Cauchy-Green tensor of each point (``b = exp(2 eps)``, (n, 6), :mod:`.elastic`), the
+    Lame constants as contiguous columns, the points' cells and local coordinates, the
+    nodal arrays with the lists of touched nodes and cells, and the stats of the last step."""
 
-    def __init__(self, grid: Grid3D, n: int):
-        nn = grid.n_nodes
+    def __init__(self, grid: Grid3D, pts: Particles3D):
+        nn, n = grid.n_nodes, pts.n
         self.m, self.p, self.f, self.v2 = (np.zeros(nn), np.zeros((nn, 3)), np.zeros((nn, 3)),
                                            np.zeros((nn, 3)))
+        self.touched = np.zeros(nn, dtype=np.bool_)
+        self.nodes = np.zeros(nn, dtype=np.int64)
+        self.cell_touched = np.zeros(grid.n_cells, dtype=np.bool_)
+        self.cells = np.zeros(grid.n_cells, dtype=np.int64)
+        self.nact = np.zeros(2, dtype=np.int64)
+        self.cellbase = np.zeros(n, dtype=np.int64)
         self.cellxi = np.zeros((n, 3))
         self.shape = np.array(grid.shape, dtype=np.int64)
+        self.lam = np.ascontiguousarray(pts.lame[:, 0])
+        self.mu = np.ascontiguousarray(pts.lame[:, 1])
+        self.be = np.empty((n, 6))
+        self.e3 = np.zeros(3)
+        self.out = np.zeros(N_STATS)
+        self.stretch_from_strain(pts)
+
+    def stretch_from_strain(self, pts: Particles3D) -> None:
+        """``b = exp(2 eps)`` of every point from its log strain (at the start and after
+        the geostatic phase, which updates the log strain alone)."""
+        stretch_from_log_strain(pts.log_strain, self.be)
 
 
 def _step(grid, pts, work, dt, g, damping, flip, geostatic) -> np.ndarray:
-    return step_3d(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.stress,
-                   pts.log_strain, pts.lame[:, 0].copy(), pts.lame[:, 1].copy(), pts.active,
-                   pts.u_geostatic, work.cellxi, grid.origin, grid.cell, work.shape,
-                   grid.fixed, work.m, work.p, work.f, work.v2, dt, g, damping, flip,
-                   geostatic, pts.model, pts.plastic, pts.state)
+    step_3d(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.stress,
+            pts.log_strain, work.be, work.lam, work.mu, pts.active, pts.u_geostatic,
+            work.cellbase, work.cellxi, grid.origin, grid.cell, work.shape, grid.fixed,
+            work.m, work.p, work.f, work.v2, work.touched, work.nodes, work.cell_touched,
+            work.cells, work.nact, dt, g, damping, flip, geostatic, pts.model, pts.plastic,
+            pts.state, work.e3, work.out)
+    return work.out.copy()
 
 
 def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None,
@@ -57,7 +80,7 @@ def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None
     """Advance ``pts`` to rest or ``t_end`` (the module docstring); ``on_output(t, pts)`` at
     t = 0, every ``output_interval`` and the end; ``progress(t, step)`` every 20 steps."""
     sv = scene.solver
-    work = _Workspace(grid, pts.n)
+    work = Workspace3D(grid, pts)
     h_min = float(np.min(grid.cell))
     g_full = np.array([*scene.gravity_vector, 0.0])
     rec = RunRecord(scheme="explicit", solver={"threads": 1, "dimension": 3})
@@ -100,6 +123,7 @@ def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None
             geostatic = False
             rec.solver["geostatic_end_time"] = t
             rec.solver["geostatic_at_rest"] = bool(rest)
+            work.stretch_from_strain(pts)
             continue
         if rest:
             rec.stop_reason = "at rest"
