@@ -23,11 +23,19 @@ import numpy as np
 from fem_rmpm.discretise.basis3d import hex8_point
 from fem_rmpm.runtime.compiled import jit
 from fem_rmpm.schemes.explicit3d.elastic import (
+    _compose,
     _elastic_tau,
+    _full,
     hencky_elastic_3d,
     small_strain_elastic_3d,
+    sym_eig3,
 )
-from fem_rmpm.schemes.explicit3d.plastic import MODEL_VON_MISES, von_mises_return_3d
+from fem_rmpm.schemes.explicit3d.plastic import (
+    MODEL_MOHR_COULOMB,
+    MODEL_VON_MISES,
+    plastic_return_principal_3d,
+    von_mises_return_3d,
+)
 
 __all__ = ["step_3d", "MASS_TOL", "N_STATS"]
 
@@ -46,9 +54,9 @@ def step_3d(x, v, mass, vol, vol0, stress, eps, lam, mu, active, u_geo, cellxi,
     """One explicit step of ``dt`` s in place on the points (``x``, ``v`` (n, 3) m, m/s;
     ``mass`` t; ``vol``, ``vol0`` m3; ``stress`` Cauchy (n, 6) kPa; ``eps`` elastic log
     strain (n, 6); Lame ``lam``, ``mu`` (n,) kPa; ``active`` (n,); ``u_geo`` (n, 3) m;
-    ``cellxi`` (n, 3) scratch; ``model`` (n,) 0 elastic, 1 von Mises with ``plastic``
-    (n, 4) = peak and residual cohesion kPa, softening strain, exponential law, and
-    ``state`` (n, >= 2) plastic shear strain and softening variable) on the grid
+    ``cellxi`` (n, 3) scratch; ``model`` (n,) 0 elastic, 1 von Mises, 2 Mohr-Coulomb,
+    with the parameter rows ``plastic`` (n, >= 4) and ``state`` rows of
+    :mod:`.plastic`) on the grid
     (``origin``, ``h`` (3,) m, ``shape`` (3,) cells, ``fixed`` (nn, 3)) with nodal
     scratch ``m`` (nn,), ``p``, ``f``, ``v2`` (nn, 3), gravity ``g`` (3,) m/s2, damping
     ratio, FLIP fraction; returns :data:`N_STATS` stats."""
@@ -168,6 +176,15 @@ def step_3d(x, v, mass, vol, vol0, stress, eps, lam, mu, active, u_geo, cellxi,
             if dg > 0.0:
                 state[i, 0] += dg
                 state[i, 1] = state[i, 0]
+                _elastic_tau(eps[i], lam[i], mu[i], tau)
+        elif model[i] == MODEL_MOHR_COULOMB:     # on the principal values, co-axial
+            _full(eps[i], A)
+            sym_eig3(A, w, Q)
+            fw[0], fw[1], fw[2] = w[0], w[1], w[2]
+            plastic_return_principal_3d(MODEL_MOHR_COULOMB, w, lam[i], mu[i], plastic[i],
+                                        state[i])
+            if w[0] != fw[0] or w[1] != fw[1] or w[2] != fw[2]:
+                _compose(Q, w, eps[i])
                 _elastic_tau(eps[i], lam[i], mu[i], tau)
         vol[i] *= J
         ratio = vol0[i] / vol[i]
