@@ -48,9 +48,8 @@ def test_three_sizes_make_a_3d_grid_with_default_origin_and_cubic_cells():
     ("origin = [0.0, 0.0, 0.0]  # m", "origin = [0.0, 0.0]", "grid.origin"),
     ("size = [0.25, 5.5, 0.25]", "size = [0.25, 5.5, 0.25, 1.0]", "grid.size"),
     ("size = [0.25, 5.5, 0.25]", "size = [0.25, 5.5, 0.3]", "grid.cell"),
-    ('model = "linear_elastic"', 'model = "mohr_coulomb_softening"\nfriction_angle_peak = 30.0\n'
-     'friction_angle_residual = 30.0\ncohesion_peak = 5.0\ncohesion_residual = 5.0',
-     "soil[0].model"),
+    ('model = "linear_elastic"', 'model = "von_mises_softening"\ncohesion_peak = 20.0\n'
+     'cohesion_residual = 4.0\nregularisation = "nonlocal"', "soil[0].regularisation"),
     ('scheme = "explicit"', 'scheme = "implicit"', "solver.scheme"),
     ("cfl = 0.5", 'cfl = 0.5\nshape = "gimp"', "solver.shape"),
     ("cfl = 0.5", "cfl = 0.5\nfbar = true", "solver.fbar"),

@@ -15,7 +15,13 @@ from fem_rmpm.discretise.points import _gauss_1d, density
 from fem_rmpm.materials import MaterialPoints, cohesion, material_points, new_state
 from fem_rmpm.scene import Scene, SceneError
 
-__all__ = ["Particles3D", "seed_particles_3d"]
+__all__ = ["Particles3D", "seed_particles_3d", "MODEL_NUMBERS_3D"]
+
+#: The 3-D step's number of each material model it updates: the ``MODEL_*`` constants of
+#: :mod:`fem_rmpm.schemes.explicit3d.plastic` (which this layer does not import: the
+#: scheme's package imports the points).
+MODEL_NUMBERS_3D = {"linear_elastic": 0, "von_mises_softening": 1,
+                    "mohr_coulomb_softening": 2}
 
 
 @dataclass
@@ -35,9 +41,13 @@ class Particles3D:
     cell0: np.ndarray                  # (n,) host cell at seeding
     active: np.ndarray                 # (n,) False once frozen at the grid edge
     lame: np.ndarray                   # (n, 2) Lame constants lambda, mu (kPa)
-    model: np.ndarray                  # (n,) 0 linear elastic, 1 von Mises softening
-    plastic: np.ndarray                # (n, 4) peak, residual cohesion (kPa), softening
-    #                                    strain (-), exponential law (1) or linear (0)
+    model: np.ndarray                  # (n,) 0 linear elastic, 1 von Mises softening,
+    #                                    2 Mohr-Coulomb softening (explicit3d.plastic)
+    plastic: np.ndarray                # (n, P - 2) the 2-D parameter row without G and K:
+    #                                    von Mises c_p, c_r (kPa), softening strain,
+    #                                    exponential (1) or linear (0), ...; Mohr-Coulomb
+    #                                    c_p, c_r (kPa), phi_p, phi_r, psi_p, psi_r (deg),
+    #                                    softening strain, law, tension cut-off (kPa)
     u_geostatic: np.ndarray            # (n, 3) displacement of the geostatic phase, m
 
     @property
@@ -87,11 +97,8 @@ def seed_particles_3d(scene: Scene, grid: Grid3D) -> Particles3D:
     nu = np.array([s.poisson_ratio for s in sp])[soil_id]
     lame = np.stack([E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))], axis=1)
     soil = material_points(sp, soil_id)
-    model = np.array([int(s.model == "von_mises_softening") for s in sp])[soil_id]
-    plastic = np.array([[s.value("cohesion_peak"), s.value("cohesion_residual"),
-                         s.value("softening_strain"), float(s.value("softening") ==
-                                                            "exponential")]
-                        for s in sp])[soil_id]
+    model = np.array([MODEL_NUMBERS_3D[s.model] for s in sp])[soil_id]
+    plastic = _plastic_rows(soil)
     n = len(x)
     return Particles3D(x=x.copy(), x0=x.copy(), velocity=np.zeros((n, 3)), mass=rho * volume,
                        volume0=volume.copy(), volume=volume.copy(),
@@ -100,3 +107,14 @@ def seed_particles_3d(scene: Scene, grid: Grid3D) -> Particles3D:
                        cell0=np.concatenate(cells), active=np.ones(n, dtype=bool),
                        lame=lame, model=model.astype(np.int64), plastic=plastic,
                        u_geostatic=np.zeros((n, 3)))
+
+
+def _plastic_rows(soil) -> np.ndarray:
+    """The points' parameter rows for the 3-D returns (:mod:`fem_rmpm.schemes.explicit3d.
+    plastic`): the 2-D rows of :func:`fem_rmpm.materials.material_points` without the
+    moduli G and K (the step carries Lame's constants), row-major, at least four columns
+    (a linear elastic scene's rows are NaN: its points never read them)."""
+    rows = soil.params[:, 2:]
+    if rows.shape[1] < 4:
+        rows = np.hstack([rows, np.full((len(rows), 4 - rows.shape[1]), np.nan)])
+    return np.ascontiguousarray(rows, dtype=float)

@@ -9,8 +9,9 @@ A soil is its ``polygon``, an x-y section, extruded along z over ``strike = [z0,
 ``left``/``right`` (x), ``bottom``/``top`` (y), ``front``/``back`` (z = z0 / z0 + Lz,
 default roller).  What the three-dimensional scheme does not have yet is refused here,
 with the key that asks for it: random fields, prescribed displacements, the implicit
-scheme, uGIMP, F-bar, the numpy kernel, a mesh file, material models other than
-linear elastic and von Mises softening, and regularised softening.
+scheme, uGIMP, F-bar, the numpy kernel, a mesh file, pore water, material models other
+than linear elastic, von Mises softening and Mohr-Coulomb softening, and regularised
+softening.
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ __all__ = ["with_grid_dimension", "check_dimension", "strike_range", "refuse_thr
            "MODELS_3D"]
 
 #: Material models the three-dimensional explicit scheme updates.
-MODELS_3D = ("linear_elastic", "von_mises_softening")
+MODELS_3D = ("linear_elastic", "von_mises_softening", "mohr_coulomb_softening")
 
 
 def with_grid_dimension(source: str, grid: GridSpec, raw: dict) -> GridSpec:
@@ -86,6 +87,9 @@ def _check_3d(s: Scene) -> None:
     for bad, key, what, allowed in unsupported:
         if bad:
             raise _fail(src, key, f"{what} in a three-dimensional scene; allowed: {allowed}")
+    if s.water is not None:
+        raise _fail(src, "water", "pore water in a three-dimensional scene; allowed: a dry 3-D "
+                    "scene (no [water]; the pore pressure is plane strain only)")
     lo, size, cell = g.origin, g.size, g.cell
     for k, axis in enumerate("xyz"):
         if size[k] <= 0:

@@ -321,12 +321,15 @@ def _finite_strain(i, dF, be, eps, lam, mu, model, plastic, state, e3):
     e3[0] = 0.5 * math.log(r[0])
     e3[1] = 0.5 * math.log(r[1])
     e3[2] = 0.5 * math.log(r[2])
-    dg = 0.0
+    dg, returned = 0.0, False
     if model[i] != MODEL_ELASTIC:
+        l0, l1, l2 = e3[0], e3[1], e3[2]
         dg = plastic_return_principal_3d(model[i], e3, lam[i], mu[i], plastic[i], state[i])
+        # a Mohr-Coulomb return to the apex moves e3 with a zero shear increment
+        returned = dg > 0.0 or e3[0] != l0 or e3[1] != l1 or e3[2] != l2
     compose_sym3(e3[0], e3[1], e3[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10],
                  r[11], eps, i)
-    if dg > 0.0:
+    if returned:
         compose_sym3(math.exp(2.0 * e3[0]), math.exp(2.0 * e3[1]), math.exp(2.0 * e3[2]),
                      r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], be, i)
     else:
@@ -345,7 +348,7 @@ def _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3):
     r = sym_eig3(eps[i, 0], eps[i, 1], eps[i, 2], eps[i, 3], eps[i, 4], eps[i, 5])
     e3[0], e3[1], e3[2] = r[0], r[1], r[2]
     dg = plastic_return_principal_3d(model[i], e3, lam[i], mu[i], plastic[i], state[i])
-    if dg > 0.0:
+    if dg > 0.0 or e3[0] != r[0] or e3[1] != r[1] or e3[2] != r[2]:   # apex: dg = 0
         compose_sym3(e3[0], e3[1], e3[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10],
                      r[11], eps, i)
     return dg
