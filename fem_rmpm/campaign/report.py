@@ -239,7 +239,7 @@ def _results(summary: dict) -> str:
                        "</small>")
         mrows.append(row)
     return ("<h2>Results per case</h2><p>P(failure): fraction of finished realizations in "
-            "which a point moved more than the failure displacement; SE = sqrt(p (1 - p) / N); "
+            f"which {_esc(_failure_criterion(summary))}; SE = sqrt(p (1 - p) / N); "
             "Wilson 95 % score interval." + _esc(decided) + "</p>" + _table(head, rows, "cases")
             + _decision_check(summary)
             + (_table_of_measures(cases, mrows) if any(
