@@ -83,8 +83,8 @@ What a campaign is
 
 Statistics (``summary.json`` and the printed summary), per case over the ``ok``
 realizations: P(failure) = fraction with ``failed`` (at least ``[montecarlo]
-failure_area`` of points moved more than ``failure_displacement``), its standard error ``sqrt(p (1 - p) / N)``
-(binomial; e.g. Fenton & Griffiths 2008, Risk Assessment in Geotechnical
+failure_area`` of points moved more than ``failure_displacement``), its standard error
+``sqrt(p (1 - p) / N)`` (binomial; e.g. Fenton & Griffiths 2008, Risk Assessment in Geotechnical
 Engineering, sec. 6.2) and the Wilson 95 % score interval (Wilson 1927; Brown, Cai &
 DasGupta 2001), which stays meaningful at p = 0 or 1; mean, standard deviation,
 standard error of the mean and the 5/50/95 % quantiles of run-out, retrogression

@@ -4,19 +4,26 @@ Realization ``i`` of a campaign runs to rest when ``i < K`` and otherwise stops 
 its outcome is decided.  The outcome of a run is decided as *failed* at the first output
 (every ``[solver] output_interval`` s) at which at least ``[montecarlo] failure_area``
 (default 1 m2 per m, initial volume; any moved point when 0) of active points have moved
-more than ``[montecarlo] failure_displacement`` since the start of the large-deformation phase (``x - x0``: the
-geostatic phase moves no point); such a run stops there, its record has ``stop_reason =``
+more than ``[montecarlo] failure_displacement`` since the start of the large-deformation
+phase (``x - x0``: the geostatic phase moves no point); such a run stops there, its record
+has ``stop_reason =``
 :data:`DECIDED` and carries only ``failed = true``, the decision time ``decided_time`` (s)
 and the area moved then ``decided_area`` (m2/m).  A run never decided so runs on to
 rest (or ``t_end``) and is in every way a run to rest: same measures, same record.
+
+In a 3-D scene the moved *volume* (m3) is compared with ``failure_area`` times one
+slice's strike length (the grid's ``hz``; :func:`failure_threshold`): the same rule as
+the measure ``failed`` of a 3-D run (:mod:`fem_rmpm.measures.deposit3d`), and the record's
+``decided_area`` is that volume (m3).
 
 Why it is exact for P(failure), and how it is checked: a realization is a pure function of
 scene and seed, so the stopped run is the run to rest up to the decision time.  The rule
 agrees with the measure ``failed`` of the run to rest (at the end, at least
 ``failure_area`` of counted points moved more than ``failure_displacement``: the same
 threshold, so a few points of debris neither stop a run nor fail it) when every run to
-rest that fails crosses it at some output and no run that stands ever does.  Every run to rest records ``decided_time`` (the
-first output at which the rule would have stopped it, ``None`` if never), so each campaign
+rest that fails crosses it at some output and no run that stands ever does.  Every run to
+rest records ``decided_time`` (the first output at which the rule would have stopped it,
+``None`` if never), so each campaign
 checks it on its own runs to rest (:func:`decision_check`).
 
 Why the runs to rest are ``i < K``: the realizations are iid, so the failures among the
@@ -31,11 +38,18 @@ from typing import Iterable
 
 from fem_rmpm.measures.deposit import moved_area
 
-__all__ = ["DECIDED", "FailureWatch", "in_measure_sample",
+__all__ = ["DECIDED", "FailureWatch", "failure_threshold", "in_measure_sample",
            "is_decided", "decision_check"]
 
 #: ``stop_reason`` of a run stopped once decided (failed).
 DECIDED = "failure decided"
+
+
+def failure_threshold(scene) -> float:
+    """The moved amount that decides a failure: ``[montecarlo] failure_area`` (m2/m) in
+    plane strain; in 3-D that area times the grid's strike cell ``hz`` (m3)."""
+    area = float(scene.montecarlo.failure_area)
+    return area * float(scene.grid.cell[2]) if scene.grid.dimension == 3 else area
 
 
 class FailureWatch:
