@@ -132,3 +132,12 @@ def test_dry_run_prices_a_3d_campaign(capsys, tmp_path):
     assert f"{points:,} points" in text and "a probe in this process" in text
     assert "realizations to run: 10" in text and "core-hours" in text
     assert not out.exists()
+
+
+def test_the_3d_report_section_is_empty_for_a_plane_strain_campaign(tmp_path):
+    """A plane-strain campaign's report gains nothing (its page is unchanged): no 3-D
+    section and no 3-D figure for records without ``dimension = 3``."""
+    from fem_rmpm.campaign.report3d import figures_3d, report_3d
+    recs = [{"case": "scene", "index": 0, "status": "ok", "measures": {"failed": True}}]
+    assert report_3d(tmp_path, recs, None, None, None) == ""
+    assert figures_3d(tmp_path, recs, 0.5) == [] and not (tmp_path / "views3d").exists()
