@@ -141,3 +141,18 @@ def test_the_3d_report_section_is_empty_for_a_plane_strain_campaign(tmp_path):
     recs = [{"case": "scene", "index": 0, "status": "ok", "measures": {"failed": True}}]
     assert report_3d(tmp_path, recs, None, None, None) == ""
     assert figures_3d(tmp_path, recs, 0.5) == [] and not (tmp_path / "views3d").exists()
+
+
+def test_a_3d_probe_of_elastic_first_steps_is_floored_by_the_whole_run_cost():
+    """The dry run's probe times the first (elastic) steps: in 3-D the cost per
+    point-step is at least the budget's whole-run figure of the 3-D step, and the source
+    says so; a plane-strain calibration is kept as measured."""
+    from fem_rmpm.campaign.estimate import Calibration, _whole_run_floor
+    from fem_rmpm.runtime.budget import estimate_run
+    cal = Calibration(300.0, 0.1, 4.0, 1.3, "a probe")
+    three = api.load_scene(SMALL)
+    floored = _whole_run_floor(cal, estimate_run(three), three)
+    assert floored.ns_per_point_step == estimate_run(three).ns_per_point_step > 300.0
+    assert "whole-run figure" in floored.source and floored.setup_seconds == 0.1
+    two = api.load_scene(MESHES / "slope_risk.toml")
+    assert _whole_run_floor(cal, estimate_run(two), two) is cal
