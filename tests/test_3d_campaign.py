@@ -55,6 +55,10 @@ def test_failure_and_slides_along_the_strike_of_a_deposit_made_by_hand():
     assert m["failed"] and m["slide_count"] == 0 and m["slide_length_max"] == 0.0
     m = compute_measures_3d(pts, grid, 0.0, 0.5, None, failure_area=17.0)
     assert not m["failed"] and m["slide_count"] == 0
+    pts.u_geostatic = np.full((len(pts.x), 3), 2.0)     # in-situ settlement: no sliding
+    pts.displacement = pts.displacement + pts.u_geostatic
+    m = compute_measures_3d(pts, grid, 0.0, 0.5, None, failure_area=8.0)
+    assert m["sliding_volume"] == 16.0 and m["max_displacement"] == 1.0
     pts, grid = _slab([1, 2, 3])           # one slide three slices long
     m = compute_measures_3d(pts, grid, 0.0, 0.5, None, failure_area=1.0)
     assert m["slide_count"] == 1 and m["slide_length_max"] == 3.0

@@ -11,8 +11,10 @@ otherwise.  The rule is applied to the whole deposit, not slice by slice, becaus
 belongs to the deposit by touching it in any direction: material that moved across a slice
 boundary, or a film one cell thick along the strike, stays connected to its body, and a
 point thrown off the deposit is an empty cell away from it in 3-D as in its slice.  On a
-plane-strain slab (every slice alike) the two agree.  A point slides when its
-displacement |u| exceeds the failure displacement.  ``X`` is the true horizontal
+plane-strain slab (every slice alike) the two agree.  A point slides when the distance
+it moved since the end of the geostatic phase, ``|x - x0|``, exceeds the failure
+displacement (the plane-strain ``d_p``: the in-situ settlement of a geostatic phase is
+no sliding; ``max_displacement`` is the largest ``d_p`` of a counted point).  ``X`` is the true horizontal
 coordinate in the x-y plane (the grid frame turned by ``frame_angle_deg``).  The strike
 is cut into slices one grid cell long (by each point's initial z); in each slice:
 
@@ -154,7 +156,7 @@ def compute_measures_3d(pts, grid, frame_angle_deg: float, threshold: float,
     """The measures (module docstring) of points ``pts`` on ``grid``; ``threshold`` the
     failure displacement (m), ``time_to_rest`` (s or None), ``least_block_area`` (m2) of
     :func:`intact_blocks_3d`, ``failure_area`` (m2/m) the failure rule's."""
-    d = np.linalg.norm(pts.displacement, axis=1)
+    d = np.linalg.norm(pts.x - pts.x0, axis=1)     # moved since the geostatic phase
     counted, stray = deposit_points_3d(pts.x, pts.volume, pts.active, grid.origin, grid.cell)
     sliding = counted & (d > threshold)
     runout, retro = _profiles(pts, grid, frame_angle_deg, counted, sliding)
