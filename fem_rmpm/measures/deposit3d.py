@@ -11,12 +11,13 @@ otherwise.  The rule is applied to the whole deposit, not slice by slice, becaus
 belongs to the deposit by touching it in any direction: material that moved across a slice
 boundary, or a film one cell thick along the strike, stays connected to its body, and a
 point thrown off the deposit is an empty cell away from it in 3-D as in its slice.  On a
-plane-strain slab (every slice alike) the two agree.  A point slides when the distance
-it moved since the end of the geostatic phase, ``|x - x0|``, exceeds the failure
-displacement (the plane-strain ``d_p``: the in-situ settlement of a geostatic phase is
-no sliding; ``max_displacement`` is the largest ``d_p`` of a counted point).  ``X`` is the true horizontal
-coordinate in the x-y plane (the grid frame turned by ``frame_angle_deg``).  The strike
-is cut into slices one grid cell long (by each point's initial z); in each slice:
+plane-strain slab (every slice alike) the two agree.  A point slides when the distance it
+moved since the end of the geostatic phase, ``|x - x0|``, exceeds the failure displacement
+(the plane-strain ``d_p``: the in-situ settlement of a geostatic phase is no sliding;
+``max_displacement`` is the largest ``d_p`` of a counted point).  ``X`` is the true
+horizontal coordinate in the x-y plane (the grid frame turned by ``frame_angle_deg``).
+The strike is cut into slices one grid cell long (by each point's initial z); in each
+slice:
 
 * run-out = max X of its counted points now minus max X0 of all its points at the start
   (>= 0), as the plane-strain ``runout_distance``;
