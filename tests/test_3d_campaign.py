@@ -160,3 +160,27 @@ def test_a_3d_probe_of_elastic_first_steps_is_floored_by_the_whole_run_cost():
     assert "whole-run figure" in floored.source and floored.setup_seconds == 0.1
     two = api.load_scene(MESHES / "slope_risk.toml")
     assert _whole_run_floor(cal, estimate_run(two), two) is cal
+
+
+def test_a_3d_run_stopped_once_decided_agrees_with_its_run_to_rest():
+    """Realization 1 of the small slope (campaign seed 5) fails: stopped once decided, its
+    record carries failed, the decision time, the moved volume (m3, at least
+    failure_area x hz) and the failure displacement; run to rest, it fails too and records
+    the same decision time; realization 0 stands and is never decided."""
+    from fem_rmpm.campaign.cases import realization_seed
+    from fem_rmpm.campaign.decide import DECIDED
+    from fem_rmpm.campaign.task import run_realization
+    scene = api.load_scene(SMALL)
+
+    def run(i, decide):
+        return run_realization({"case": "scene", "index": i, "seed": realization_seed(5, i),
+                                "scene": scene, "vtk_dir": None, "decide": decide})
+    stopped, rest = run(1, True), run(1, False)
+    assert stopped["stop_reason"] == DECIDED and stopped["slides"] is None
+    m = stopped["measures"]
+    assert set(m) == {"failed", "decided_time", "decided_area", "failure_displacement"}
+    assert m["failed"] and m["decided_area"] >= failure_threshold(scene)
+    assert rest["measures"]["failed"] and rest["measures"]["decided_time"] == m["decided_time"]
+    assert rest["measures"]["slide_count"] >= 1
+    stands = run(0, True)["measures"]
+    assert not stands["failed"] and stands["decided_time"] is None
