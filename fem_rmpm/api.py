@@ -51,6 +51,11 @@ from fem_rmpm.measures import table as measure_table
 from fem_rmpm.measures.deposit import compute_measures, excluded_summary
 from fem_rmpm.measures.deposit3d import compute_measures_3d
 from fem_rmpm.random_field import apply_to_points, field_noise, noise_shape, sample_point_properties
+from fem_rmpm.random_field.points3d import (
+    apply_to_points_3d,
+    prepare_field_3d,
+    sample_point_properties_3d,
+)
 from fem_rmpm.runtime.budget import check_budget, explicit_numba
 from fem_rmpm.runtime.machine import describe as describe_machine
 from fem_rmpm.runtime.signals import interrupt_name, raise_if_interrupted
@@ -89,9 +94,8 @@ def prepare(scene: Scene, seed: int | None = None, noise=None) -> tuple[Grid, Pa
     field of the standard-normal ``noise`` array (which replaces the seed)."""
     check_seed(seed)
     check_budget(scene)                        # refuse before allocating (BudgetError)
-    if scene.grid.dimension == 3:              # (no random field in 3-D: refused)
-        grid3 = make_grid_3d(scene)
-        return grid3, seed_particles_3d(scene, grid3)
+    if scene.grid.dimension == 3:
+        return _prepare_3d(scene, seed, noise)
     grid = make_grid(scene)
     pts = seed_particles(scene, grid)
     saturate_points(scene, pts)                # [water]: saturated mass below the surface
@@ -100,6 +104,25 @@ def prepare(scene: Scene, seed: int | None = None, noise=None) -> tuple[Grid, Pa
         values = sample_point_properties(scene, grid, pts, seed, noise=noise)
         pts.soil = apply_to_points(pts.soil, values)   # residuals in proportion to peak
         _check_point_strength(scene, pts, seed if noise is None else "(given noise)")
+    return grid, pts
+
+
+def _prepare_3d(scene: Scene, seed: int | None, noise) -> tuple:
+    """:func:`prepare` of a three-dimensional scene: the field's memory is checked (and its
+    embedding set up) before the points are seeded
+    (:mod:`fem_rmpm.random_field.points3d`)."""
+    grid = make_grid_3d(scene)
+    if scene.random_field is None:
+        return grid, seed_particles_3d(scene, grid)
+    if noise is not None:
+        raise SceneError(f"{scene.source}: [random_field] a noise array for a "
+                         "three-dimensional field; allowed: a seed (3-D realizations are "
+                         "drawn from their seed only)")
+    lattice = prepare_field_3d(scene, grid, soil_cells_3d(scene, grid))
+    pts = seed_particles_3d(scene, grid)
+    seed = scene.montecarlo.seed if seed is None else seed
+    apply_to_points_3d(pts, sample_point_properties_3d(scene, pts, seed, lattice))
+    _check_point_strength(scene, pts, seed)
     return grid, pts
 
 
@@ -189,7 +212,8 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
     :class:`SimulationError` when the run cannot go on (after writing what it has to ``out``).
     """
     if scene.grid.dimension == 3:
-        return _run_3d(scene, out, seed, progress=progress, vtk=vtk, force=force)
+        return _run_3d(scene, out, seed, progress=progress, vtk=vtk, force=force,
+                       noise=noise, stop_when=stop_when)
     out = check_run_dir(out, force) if out is not None else None
     check_seed(seed)
     solved = with_run_threads(scene)     # the notice, estimate and run use one thread count
@@ -256,18 +280,18 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
 
 
 def _run_3d(scene: Scene, out, seed, *, progress: bool, vtk: bool | None,
-            force: bool) -> RunResult:
+            force: bool, noise=None, stop_when=None) -> RunResult:
     """:func:`run` of a three-dimensional scene (:mod:`fem_rmpm.schemes.explicit3d`): VTK
     of the points at every output and of the soil cells, ``summary.json`` with the
     strike-wise measures (:mod:`fem_rmpm.measures.deposit3d`).  No snapshot of the
-    positions is kept in memory (``snapshots`` holds the output times only)."""
+    positions is kept in memory (``snapshots`` holds the output times only);
+    ``stop_when`` as in :func:`run`."""
     out = check_run_dir(out, force) if out is not None else None
     check_seed(seed)
     estimate = check_budget(scene)
     if progress:
         print(f"{scene.scene.name}: {estimate.describe()}", file=sys.stderr, flush=True)
-    grid = make_grid_3d(scene)
-    pts = seed_particles_3d(scene, grid)
+    grid, pts = prepare(scene, seed, noise)
     vtk = scene.output.vtk if vtk is None else vtk
     series = PvdSeries(out) if (out is not None and vtk) else None
     times: list = []
@@ -277,6 +301,9 @@ def _run_3d(scene: Scene, out, seed, *, progress: bool, vtk: bool | None,
         times.append((t,))
         if series is not None:
             series.add(t, p)
+        reason = stop_when(t, p) if stop_when is not None else None
+        if reason:
+            raise _Stopped(t, reason)
 
     if out is not None:
         start_run_dir(out, {"scene": scene_to_dict(scene), "scene_file": scene.source,
@@ -289,6 +316,9 @@ def _run_3d(scene: Scene, out, seed, *, progress: bool, vtk: bool | None,
     try:
         rec = run_explicit_3d(scene, grid, pts, on_output=on_output,
                               progress=bar.update_to if bar else None)
+    except _Stopped as stop:
+        rec = RunRecord(scheme="explicit", time=stop.t, stop_reason=stop.reason,
+                        frozen_points=np.nonzero(~pts.active)[0].tolist())
     except SimulationError as exc:
         error = exc
         rec = RunRecord(scheme="explicit", error=str(exc), stop_reason="error")
@@ -303,7 +333,8 @@ def _run_3d(scene: Scene, out, seed, *, progress: bool, vtk: bool | None,
     measures = compute_measures_3d(pts, grid, scene.scene.frame_angle_deg,
                                    scene.montecarlo.failure_displacement,
                                    rec.time if rec.stop_reason == "at rest" else None,
-                                   scene.montecarlo.intact_block_area)
+                                   scene.montecarlo.intact_block_area,
+                                   scene.montecarlo.failure_area)
     summary = _summary(scene, seed, pts, rec, measures, machine, estimate)
     summary["excluded_points"] = {why: {k: measures[f"excluded_{why}_{k}"]
                                         for k in ("points", "volume")}

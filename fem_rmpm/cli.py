@@ -25,6 +25,7 @@ from fem_rmpm import (
 from fem_rmpm.campaign.cases import campaign_cases, default_scene_path
 from fem_rmpm.campaign.report import ReportError, write_report
 from fem_rmpm.campaign.summary_text import subset_summary_text, summary_text
+from fem_rmpm.campaign.three_d import check_campaign_3d
 from fem_rmpm.io import field_output
 from fem_rmpm.io.output import OutputError
 from fem_rmpm.io.rundir import output_dir_for
@@ -129,7 +130,7 @@ def _cmd_mc_response(a, scene: Scene, cluster: campaign.ClusterSpec) -> int:
 def _cmd_mc(a) -> int:
     """``fem-rmpm mc``: returns 0, or 3 if realizations were lost (re-run to finish)."""
     scene = scene_from_args(a)
-    refuse_three_d(scene, "mc")
+    check_campaign_3d(scene, fs=a.fs, fs_only=a.fs_only, method=a.method)
     if a.fs and a.fs_only:
         raise InputError("--fs and --fs-only: give one (--fs: FS before each MPM run; "
                          "--fs-only: FS instead of it)")

@@ -27,6 +27,7 @@ from fem_rmpm.campaign.keep_vtk import kept, parse_keep_vtk
 from fem_rmpm.campaign.methods import METHODS, MethodOptions, PerCase, Sample
 from fem_rmpm.campaign.plots import campaign_figures
 from fem_rmpm.campaign.report import write_report
+from fem_rmpm.campaign.report3d import figures_3d
 from fem_rmpm.campaign.runner import Execution, RunTally, run_method_campaign
 from fem_rmpm.campaign.statistics import case_statistics
 from fem_rmpm.campaign.store import (
@@ -38,6 +39,7 @@ from fem_rmpm.campaign.store import (
     write_results,
 )
 from fem_rmpm.campaign.task import campaign_threads, run_realization
+from fem_rmpm.campaign.three_d import check_campaign_3d
 from fem_rmpm.io.output import write_json
 from fem_rmpm.runtime.machine import describe as describe_machine
 from fem_rmpm.runtime.budget import estimate_run
@@ -121,6 +123,7 @@ def run_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
     out = Path(out)
     n = scene.montecarlo.realizations if realizations is None else realizations
     _check_arguments(n, workers, scheduler, client)
+    check_campaign_3d(scene, fs_only=fs_only, method=method)
     if client is not None and cluster is not None:
         raise CampaignError("give a client or a cluster, not both")
     plan = pending_work(scene, out, n, cases, keep_vtk=keep_vtk, force=force,
@@ -339,6 +342,7 @@ def _finish(out: Path, scene: Scene, plan: CasePlan, done: RunTally, t_start: fl
            and in_measure_sample(r, k_rest)]                           # run to rest
     if figures and records:
         res.figures = campaign_figures(out, cases, stats, mpm, lay, scene) if mpm else []
+        res.figures += figures_3d(out, mpm, scene.montecarlo.failure_displacement)
         if any("fs" in stats[c.name] for c in cases):
             res.figures.append(plot_factor_of_safety(out / "factor_of_safety.png", cases,
                                                      stats, records))

@@ -11,6 +11,11 @@ time ``decided_time`` (s) and the area moved then ``decided_area`` (m2/m).  A ru
 decided so runs on to rest (or ``t_end``) and is in every way a run to rest: same
 measures, same record.
 
+In a 3-D scene the moved *volume* (m3) is compared with ``failure_area`` times one
+slice's strike length (the grid's ``hz``; :func:`failure_threshold`): the same rule as
+the measure ``failed`` of a 3-D run (:mod:`fem_rmpm.measures.deposit3d`), and the record's
+``decided_area`` is that volume (m3).
+
 Why it is exact for P(failure), and how it is checked: a realization is a pure function of
 scene and seed, so the stopped run is the run to rest up to the decision time.  The rule
 agrees with the measure ``failed`` of the run to rest (at the end, at least
@@ -33,11 +38,18 @@ from typing import Iterable
 
 from fem_rmpm.measures.deposit import moved_area
 
-__all__ = ["DECIDED", "FailureWatch", "in_measure_sample",
+__all__ = ["DECIDED", "FailureWatch", "failure_threshold", "in_measure_sample",
            "is_decided", "decision_check"]
 
 #: ``stop_reason`` of a run stopped once decided (failed).
 DECIDED = "failure decided"
+
+
+def failure_threshold(scene) -> float:
+    """The moved amount that decides a failure: ``[montecarlo] failure_area`` (m2/m) in
+    plane strain; in 3-D that area times the grid's strike cell ``hz`` (m3)."""
+    area = float(scene.montecarlo.failure_area)
+    return area * float(scene.grid.cell[2]) if scene.grid.dimension == 3 else area
 
 
 class FailureWatch:

@@ -14,7 +14,9 @@ and the CFL step count of one run from :func:`fem_rmpm.runtime.budget.estimate_r
   machine*: from the records of this campaign (their CPU time over their point-steps)
   or, without records, by a probe in this process: the first realization to run,
   three times with a short ``t_end`` (warm-up, setup only, setup + about 2 s of steps),
-  so the load of the machine at the time of the dry run is in the figure;
+  so the load of the machine at the time of the dry run is in the figure.  In 3-D the
+  probe's first steps are elastic (geostatic phase, gravity ramp): the cost per
+  point-step is at least the 3-D budget's whole-run figure (return mapping included);
 * **core-hours** = the sum over the realizations to run, plus one worker start per
   worker (the CPU this process spent on its imports, plus the probe's warm-up beyond a
   warm run: loading or compiling the numba kernels);
@@ -30,7 +32,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
 
@@ -158,6 +160,19 @@ def probe_calibration(scene: Scene, seed: int) -> Calibration:
                        f"{warm - few:.1f} s per worker")
 
 
+def _whole_run_floor(cal: Calibration, est: RunEstimate, scene: Scene) -> Calibration:
+    """A 3-D probe times the first steps, which are elastic (the geostatic phase or the
+    gravity ramp): its cost per point-step is at least the budget's whole-run figure of
+    the 3-D step (:mod:`fem_rmpm.runtime.budget3d`, the return mapping included), and says
+    which it took.  Plane-strain calibrations are returned unchanged."""
+    if scene.grid.dimension != 3 or cal.ns_per_point_step >= est.ns_per_point_step:
+        return cal
+    return replace(cal, ns_per_point_step=est.ns_per_point_step,
+                   source=f"{cal.source}; the probe's {cal.ns_per_point_step:.0f} ns per "
+                   "point-step are elastic first steps, below the budget's whole-run "
+                   f"figure, which is used ({est.machine})")
+
+
 # --------------------------------------------------------------------------- the estimate
 
 def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = None,
@@ -183,7 +198,8 @@ def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = 
     cal = records_calibration(list(finished.values()), budget)
     if cal is None and tasks and probe:
         first = next(c for c in case_list if c.name == tasks[0]["case"])
-        cal = probe_calibration(first.scene, tasks[0]["seed"])
+        cal = _whole_run_floor(probe_calibration(first.scene, tasks[0]["seed"]),
+                               budget[first.name], first.scene)
     if cal is None:
         e = next(iter(budget.values()))
         cal = Calibration(e.ns_per_point_step, 0.0, 0.0, STEPS_FACTOR,

@@ -34,6 +34,7 @@ import math
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from fem_rmpm.campaign.report3d import report_3d
 from fem_rmpm.io.output import _atomic_write_bytes
 from fem_rmpm.measures import table
 from fem_rmpm.runtime.machine import tally
@@ -609,7 +610,8 @@ def report_html(campaign_dir: str | Path) -> str:
         _provenance(summary, identity, records), _subset(summary), _results(summary),
         _why_failed(summary), _what_n_buys(summary, campaign),
         _risk_study(campaign), _failures(records),
-        _figures(campaign), _linked(campaign), _representatives(campaign, records)))
+        _figures(campaign), report_3d(campaign, records, _figure, _esc, _table),
+        _linked(campaign), _representatives(campaign, records)))
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
             f"<title>{_esc(title)}</title><style>{_CSS}</style><script>{_SCRIPT}</script>"
             f"</head><body>{body}</body></html>\n")

@@ -16,7 +16,7 @@ import numba
 import numpy as np
 
 from fem_rmpm import api
-from fem_rmpm.campaign.decide import DECIDED, FailureWatch
+from fem_rmpm.campaign.decide import DECIDED, FailureWatch, failure_threshold
 from fem_rmpm.campaign.factor_of_safety import fs_measures
 from fem_rmpm.campaign.store import FORMAT
 from fem_rmpm.io.rundir import mark_interrupted
@@ -167,7 +167,8 @@ def run_realization(task: dict) -> dict:
         rec["cpu_time"] = time.process_time() - c0
         return rec
     mc = task["scene"].montecarlo
-    watch = FailureWatch(mc.failure_displacement, mc.failure_area, stop=bool(task.get("decide")))
+    watch = FailureWatch(mc.failure_displacement, failure_threshold(task["scene"]),
+                         stop=bool(task.get("decide")))
     vtk_dir = task.get("vtk_dir")
     if vtk_dir is not None:
         _watch_sigterm()
@@ -189,8 +190,10 @@ def run_realization(task: dict) -> dict:
                    frozen_points=s["frozen_points"]["count"],
                    measures={**_scalar_measures(m), **fs_m, "decided_time": watch.time},
                    final_profile=m.get("final_profile"))
+        if "slides" in m:                  # 3-D: each slide's strike range and volume
+            rec.update(dimension=3, slides=[list(map(float, v)) for v in m["slides"]])
         if s["stop_reason"] == DECIDED:    # stopped once decided: the outcome only
-            rec.update(steps=None, final_profile=None, measures={
+            rec.update(steps=None, final_profile=None, slides=None, measures={
                 "failed": True, "decided_time": watch.time, "decided_area": watch.moved_area,
                 "failure_displacement": m["failure_displacement"], **fs_m})
     finally:

@@ -11,10 +11,13 @@ otherwise.  The rule is applied to the whole deposit, not slice by slice, becaus
 belongs to the deposit by touching it in any direction: material that moved across a slice
 boundary, or a film one cell thick along the strike, stays connected to its body, and a
 point thrown off the deposit is an empty cell away from it in 3-D as in its slice.  On a
-plane-strain slab (every slice alike) the two agree.  A point slides when its
-displacement |u| exceeds the failure displacement.  ``X`` is the true horizontal
-coordinate in the x-y plane (the grid frame turned by ``frame_angle_deg``).  The strike
-is cut into slices one grid cell long (by each point's initial z); in each slice:
+plane-strain slab (every slice alike) the two agree.  A point slides when the distance it
+moved since the end of the geostatic phase, ``|x - x0|``, exceeds the failure displacement
+(the plane-strain ``d_p``: the in-situ settlement of a geostatic phase is no sliding;
+``max_displacement`` is the largest ``d_p`` of a counted point).  ``X`` is the true
+horizontal coordinate in the x-y plane (the grid frame turned by ``frame_angle_deg``).
+The strike is cut into slices one grid cell long (by each point's initial z); in each
+slice:
 
 * run-out = max X of its counted points now minus max X0 of all its points at the start
   (>= 0), as the plane-strain ``runout_distance``;
@@ -24,7 +27,18 @@ is cut into slices one grid cell long (by each point's initial z); in each slice
 ``runout_distance`` and ``retrogression_distance`` are the largest over the slices (with
 ``_mean`` the mean and ``_profile`` the list [(z, value)]); ``sliding_volume`` (m3) is the
 initial volume of the sliding points and ``sliding_area`` (m2/m) that volume per metre of
-the strike length of the soil (its slices), the plane-strain figure of an extruded slope;
+the strike length of the soil (its slices), the plane-strain figure of an extruded slope.
+
+**Failure** follows the plane-strain rule slice by slice: a realization fails when its
+sliding volume is at least ``failure_area`` (m2/m, ``[montecarlo] failure_area``) times
+one slice's strike length ``hz``, i.e. at least one slice's worth of the failure area
+(on a plane-strain slab, where every slice alike, this is the 2-D rule; 0: any sliding
+point).  The **slides** along the strike (:func:`~.slides3d.slides_along_strike`) are the
+runs of consecutive slices each holding at least that volume (``failure_area x hz``) of
+sliding points; an empty slice separates two: ``slide_count``, ``slide_length_max`` (m,
+slices x hz), ``slide_volume_max`` (m3) and ``slides`` [(z0, z1, volume)].  A failed
+realization has at least one slide unless its sliding volume is spread thinner than the
+failure area over every slice.
 ``intact_blocks`` counts the 3-D connected components of the cells of sliding intact
 points (:func:`intact_blocks_3d`).  ``excluded_frozen_*`` and ``excluded_stray_*`` give the
 excluded points per reason (count and initial volume, m3).
@@ -37,8 +51,10 @@ import numpy as np
 from scipy import ndimage
 
 from fem_rmpm.measures.deposit import MIN_BODY_FRACTION
+from fem_rmpm.measures.slides3d import slides_along_strike
 
-__all__ = ["compute_measures_3d", "deposit_points_3d", "intact_blocks_3d", "INTACT_STRAIN"]
+__all__ = ["compute_measures_3d", "deposit_points_3d", "intact_blocks_3d", "INTACT_STRAIN",
+           "failure_volume_3d"]
 
 #: A point is intact below this plastic shear strain (-), as in plane strain.
 INTACT_STRAIN = 0.1
@@ -121,12 +137,27 @@ def _profiles(pts, grid, frame_angle_deg: float, counted: np.ndarray, sliding: n
     return runout, retro
 
 
+def failure_volume_3d(failure_area: float, grid) -> float:
+    """The least sliding volume (m3) of a failed 3-D realization: ``failure_area`` (m2/m)
+    times one slice's strike length (the grid's hz, m)."""
+    return float(failure_area) * float(grid.cell[2])
+
+
+def _slides(pts, grid, sliding: np.ndarray, least: float) -> list:
+    k, _ = _slices(pts, grid)
+    lo = grid.origin[2] + float(k.min()) * grid.cell[2]
+    hi = grid.origin[2] + float(k.max() + 1) * grid.cell[2]
+    return slides_along_strike(pts.x0[:, 2], pts.volume0, sliding, float(grid.cell[2]),
+                               z_range=(lo, hi), min_volume=least)
+
+
 def compute_measures_3d(pts, grid, frame_angle_deg: float, threshold: float,
-                        time_to_rest: float | None, least_block_area: float = 1.0) -> dict:
+                        time_to_rest: float | None, least_block_area: float = 1.0,
+                        failure_area: float = 0.0) -> dict:
     """The measures (module docstring) of points ``pts`` on ``grid``; ``threshold`` the
     failure displacement (m), ``time_to_rest`` (s or None), ``least_block_area`` (m2) of
-    :func:`intact_blocks_3d`."""
-    d = np.linalg.norm(pts.displacement, axis=1)
+    :func:`intact_blocks_3d`, ``failure_area`` (m2/m) the failure rule's."""
+    d = np.linalg.norm(pts.x - pts.x0, axis=1)     # moved since the geostatic phase
     counted, stray = deposit_points_3d(pts.x, pts.volume, pts.active, grid.origin, grid.cell)
     sliding = counted & (d > threshold)
     runout, retro = _profiles(pts, grid, frame_angle_deg, counted, sliding)
@@ -134,20 +165,27 @@ def compute_measures_3d(pts, grid, frame_angle_deg: float, threshold: float,
     length = float(len(np.unique(k)) * grid.cell[2])       # strike length of the soil, m
     volume = float(pts.volume0[sliding].sum())
     frozen = ~pts.active
+    least = failure_volume_3d(failure_area, grid)
+    slides = _slides(pts, grid, sliding, least) if sliding.any() else []
     return {
-        "failed": bool(d[counted].max(initial=0.0) > threshold),
+        "failed": bool(sliding.any()) and volume >= least,
         "runout_distance": max(v for _, v in runout),
         "runout_distance_mean": float(np.mean([v for _, v in runout])),
         "retrogression_distance": max(v for _, v in retro),
         "retrogression_distance_mean": float(np.mean([v for _, v in retro])),
         "sliding_volume": volume,
         "sliding_area": volume / length,
+        "slide_count": len(slides),
+        "slide_length_max": max((s.b1 - s.b0 for s in slides), default=0.0),
+        "slide_volume_max": max((s.volume for s in slides), default=0.0),
+        "slides": [(float(s.b0), float(s.b1), float(s.volume)) for s in slides],
         "max_displacement": float(d[counted].max(initial=0.0)),
         "time_to_rest": time_to_rest,
         "intact_blocks": intact_blocks_3d(pts, grid, threshold, least_block_area),
         "runout_profile": runout,
         "retrogression_profile": retro,
         "strike_length": length,
+        "failure_displacement": float(threshold),
         "excluded_frozen_points": int(frozen.sum()),
         "excluded_frozen_volume": float(pts.volume0[frozen].sum()),
         "excluded_stray_points": int(stray.sum()),

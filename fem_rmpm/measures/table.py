@@ -17,8 +17,16 @@ factor of safety of strength reduction, the stopping rule's decision) has no ``c
 function and names its ``source``.
 
 Units, one spelling each (:data:`UNIT_SPELLINGS`): ``m``, ``m2/m`` (an area of the plane
-section, i.e. a volume per metre of slope), ``m2`` (a true area), ``s``, ``count``, ``0/1``
-(a flag) and ``-`` (dimensionless).  Notation of the definitions: ``d_p`` is the distance
+section, i.e. a volume per metre of slope), ``m2`` (a true area), ``m3`` (a volume of a
+3-D run), ``s``, ``count``, ``0/1`` (a flag) and ``-`` (dimensionless).
+
+A 3-D run (:mod:`fem_rmpm.measures.deposit3d`) records the measures shared with plane
+strain (``failed``, ``runout_distance``, ``retrogression_distance``, ``sliding_area``, ...,
+taken slice by slice along the strike, see there) and the entries whose ``source`` is
+:data:`THREE_D` (the measures along the strike: sliding volume, slides, means and profiles
+over the slices); :func:`strike` lists those a 3-D campaign summarises.
+
+Notation of the definitions: ``d_p`` is the distance
 point p moved since the end of the geostatic phase, ``X`` the true horizontal coordinate
 pointing down-slope, *counted* the points of the deposit
 (:func:`fem_rmpm.measures.deposit.deposit_points`), *sliding* the counted points with
@@ -41,18 +49,22 @@ from fem_rmpm.measures.geometry import (
 )
 
 __all__ = ["Measure", "MEASURES", "UNIT_SPELLINGS", "KINDS", "ROLES", "DIRECTIONS", "unit",
-           "label", "axis_label", "value_text", "core", "headline", "mechanism", "summarised",
+           "label", "axis_label", "value_text", "core", "headline", "mechanism", "strike",
+           "summarised", "THREE_D",
            "responses", "responses_text", "response_aliases", "resolve_response", "markdown"]
 
-UNIT_SPELLINGS = ("m", "m2/m", "m2", "s", "count", "0/1", "-")
+UNIT_SPELLINGS = ("m", "m2/m", "m2", "m3", "s", "count", "0/1", "-")
 #: ``scalar``: a number; ``count``: a whole number; ``flag``: true or false; ``profile``: a
-#: list of (x, y) pairs (written to ``profiles/``, never to ``results.csv``).
-KINDS = ("scalar", "count", "flag", "profile")
+#: list of (x, y) pairs (written to ``profiles/``, never to ``results.csv``); ``list``: a
+#: list of tuples of a run (a 3-D run's slides; in its record, never in ``results.csv``).
+KINDS = ("scalar", "count", "flag", "profile", "list")
 #: Where a measure is shown besides the records, ``results.csv``, the statistics and the
 #: report's table: ``headline`` — exceedance curves, histograms, the report's first rows,
 #: the command line's summary (mean, standard error and quantiles); ``mechanism`` —
-#: histograms and the command line's means when every run recorded it; ``None``: nowhere else.
-ROLES = ("headline", "mechanism", None)
+#: histograms and the command line's means when every run recorded it; ``strike`` — the
+#: measures along the strike of a 3-D run (the 3-D report's distributions,
+#: :mod:`fem_rmpm.campaign.report3d`); ``None``: nowhere else.
+ROLES = ("headline", "mechanism", "strike", None)
 #: Failure direction of a subset-simulation response: the value ``above`` or ``below`` the
 #: threshold (None: not a response).
 DIRECTIONS = ("above", "below", None)
@@ -156,6 +168,8 @@ def _profile(d, X: np.ndarray) -> list[tuple[float, float]]:
 
 _FS = "strength reduction (fem_rmpm.campaign.factor_of_safety)"
 _DECIDE = "the stopping rule (fem_rmpm.campaign.decide)"
+#: The ``source`` of the measures of 3-D runs only.
+THREE_D = "the 3-D deposit (fem_rmpm.measures.deposit3d)"
 
 #: The measures, in the order every output lists them.
 MEASURES: dict[str, Measure] = {m.name: m for m in (
@@ -240,7 +254,40 @@ MEASURES: dict[str, Measure] = {m.name: m for m in (
             "failure displacement (None if never).", statistic=False, source=_DECIDE),
     Measure("decided_area", "m2/m", "area moved at the decision",
             "Initial volume of the active points moved more than the failure displacement "
-            "at the decision time.", statistic=False, source=_DECIDE),
+            "at the decision time (a 3-D run: m3).", statistic=False, source=_DECIDE),
+    # -- three-dimensional runs only (fem_rmpm.measures.deposit3d); slices one cell long
+    Measure("sliding_volume", "m3", "sliding volume",
+            "3-D: total initial volume of the sliding points; failed when at least the "
+            "failure area times one slice's strike length (hz).", source=THREE_D,
+            role="strike"),
+    Measure("slide_count", "count", "slides along the strike",
+            "3-D: the number of separate slides: runs of consecutive slices each holding at "
+            "least the failure area x hz of sliding volume (an empty slice separates two).",
+            kind="count", source=THREE_D, role="strike"),
+    Measure("slide_length_max", "m", "longest slide",
+            "3-D: strike length (slices x hz) of the longest slide (0 without one).",
+            source=THREE_D, role="strike"),
+    Measure("slide_volume_max", "m3", "largest slide volume",
+            "3-D: sliding volume of the largest slide (0 without one).", source=THREE_D,
+            role="strike"),
+    Measure("runout_distance_mean", "m", "mean run-out along the strike",
+            "3-D: the run-out of each slice, averaged over the slices.", source=THREE_D,
+            role="strike"),
+    Measure("retrogression_distance_mean", "m", "mean retrogression along the strike",
+            "3-D: the retrogression of each slice, averaged over the slices.",
+            source=THREE_D, role="strike"),
+    Measure("strike_length", "m", "strike length",
+            "3-D: strike length of the soil (its slices x hz).", source=THREE_D,
+            statistic=False),
+    Measure("runout_profile", "m", "run-out along the strike",
+            "3-D: [(z, run-out)] per slice, z its mid strike coordinate.", kind="profile",
+            statistic=False, source=THREE_D),
+    Measure("retrogression_profile", "m", "retrogression along the strike",
+            "3-D: [(z, retrogression)] per slice.", kind="profile", statistic=False,
+            source=THREE_D),
+    Measure("slides", "m3", "slides",
+            "3-D: [(z0, z1, volume m3)] of each slide, z0 and z1 the strike ends (m) of its "
+            "slices.", kind="list", statistic=False, source=THREE_D),
 )}
 
 
@@ -292,6 +339,11 @@ def summarised(name: str) -> bool:
     when it is a number in every run)."""
     m = MEASURES.get(name)
     return m is None or (m.statistic and m.kind in ("scalar", "count"))
+
+
+def strike() -> list[str]:
+    """The measures along the strike of a 3-D run (its report's distributions)."""
+    return [m.name for m in MEASURES.values() if m.role == "strike"]
 
 
 def responses() -> dict[str, Measure]:

@@ -8,16 +8,21 @@ A soil is its ``polygon``, an x-y section, extruded along z over ``strike = [z0,
 ``[[bedrock]]`` polygon is extruded over the whole grid.  The boundary has six faces:
 ``left``/``right`` (x), ``bottom``/``top`` (y), ``front``/``back`` (z = z0 / z0 + Lz,
 default roller).  What the three-dimensional scheme does not have yet is refused here,
-with the key that asks for it: random fields, prescribed displacements, the implicit
-scheme, uGIMP, F-bar, the numpy kernel, a mesh file, pore water, material models other
-than linear elastic, von Mises softening and Mohr-Coulomb softening, and regularised
-softening.
+with the key that asks for it: prescribed displacements, the implicit scheme, uGIMP,
+F-bar, the numpy kernel, a mesh file, pore water, material models other than linear
+elastic, von Mises softening and Mohr-Coulomb softening, and regularised softening.
+
+A ``[random_field]`` in 3-D (:mod:`fem_rmpm.random_field.points3d`) draws the peak cohesion
+(``property = "cohesion_peak"``) with the strike scale ``theta_strike`` (m) and, for the
+box rule, ``box = [x0, y0, z0, x1, y1, z1]``; conditioning on data (``data``) is
+refused.  In 2-D, ``theta_strike`` and a six-number box are refused.
 """
 from __future__ import annotations
 
 import dataclasses
 
 
+from fem_rmpm.scene.fields import check_random_field
 from fem_rmpm.scene.spec import GridSpec, Scene
 from fem_rmpm.scene.values import _fail
 
@@ -26,6 +31,9 @@ __all__ = ["with_grid_dimension", "check_dimension", "strike_range", "refuse_thr
 
 #: Material models the three-dimensional explicit scheme updates.
 MODELS_3D = ("linear_elastic", "von_mises_softening", "mohr_coulomb_softening")
+#: Properties a 3-D random field draws (:data:`fem_rmpm.random_field.points3d.PROPERTIES_3D`,
+#: repeated here: the scene layer does not import the random-field layer).
+FIELD_PROPERTIES_3D = ("cohesion_peak",)
 
 
 def with_grid_dimension(source: str, grid: GridSpec, raw: dict) -> GridSpec:
@@ -66,6 +74,33 @@ def _refuse_3d_keys(s: Scene) -> None:
         for key in ("strike", "plan"):
             if getattr(so, key) is not None:
                 raise _fail(s.source, f"soil[{i}].{key}", f"set in a 2-D grid; {why}")
+    rf = s.random_field
+    if rf is not None and rf.theta_strike is not None:
+        raise _fail(s.source, "random_field.theta_strike", f"a strike scale of fluctuation "
+                    f"in a 2-D scene; {why}")
+    if rf is not None and rf.box is not None and len(rf.box) != 4:
+        raise _fail(s.source, "random_field.box", f"{len(rf.box)} numbers in a 2-D scene; "
+                    "allowed: four, [x0, y0, x1, y1] (m)")
+
+
+def _check_field_3d(s: Scene) -> None:
+    """The ``[random_field]`` of a 3-D scene: its property, box and data (module
+    docstring), then the checks of every field against the soils."""
+    rf = s.random_field
+    if rf.box is not None and len(rf.box) != 6:
+        raise _fail(s.source, "random_field.box", f"{len(rf.box)} numbers in a "
+                    "three-dimensional scene; allowed: six, [x0, y0, z0, x1, y1, z1] (m)")
+    for k, f in enumerate(rf.fields()):
+        key = f"random_field.properties[{k}]" if rf.properties else "random_field"
+        if f.property not in FIELD_PROPERTIES_3D:
+            raise _fail(s.source, f"{key}.property", f"{f.property!r} in a three-dimensional "
+                        "scene; allowed: " + " | ".join(repr(p) for p in FIELD_PROPERTIES_3D)
+                        + " (the strength of von Mises softening)")
+        if f.data is not None:
+            raise _fail(s.source, f"{key}.data", "conditioning on data in a "
+                        "three-dimensional scene; allowed: no data (3-D conditioning is in "
+                        "the Python API, fem_rmpm.random_field.field3d)")
+    check_random_field(s)
 
 
 def _check_3d(s: Scene) -> None:
@@ -73,8 +108,6 @@ def _check_3d(s: Scene) -> None:
     unsupported = (
         (g.file is not None, "grid.file", "a mesh file", "a structured grid (origin, size, "
          "cell)"),
-        (s.random_field is not None, "random_field", "a random field",
-         "a homogeneous 3-D scene (3-D random fields are not available yet)"),
         (bool(s.prescribed), "prescribed", "prescribed displacements", "none in 3-D"),
         (s.solver.scheme != "explicit", "solver.scheme", f"scheme {s.solver.scheme!r}",
          "'explicit' (the implicit scheme is plane strain only)"),
@@ -118,6 +151,8 @@ def _check_3d(s: Scene) -> None:
                             f"within the grid's [{lo[2]:g}, {hi[2]:g}] m")
         if so.plan is not None:      # (a simple polygon: checked with the sections)
             _inside(src, f"soil[{i}].plan", so.plan, (0, 2), lo, hi, tol)
+    if s.random_field is not None:
+        _check_field_3d(s)
 
 
 def _inside(src: str, key: str, poly, axes: tuple[int, int], lo, hi, tol: float) -> None:

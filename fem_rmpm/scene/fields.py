@@ -101,8 +101,9 @@ def random_field_to_dict(rf: RandomFieldSpec) -> dict:
         del out["properties"]
     if not rf.cross_correlation:
         del out["cross_correlation"]
-    if rf.box is None:       # written only when given, as above
-        del out["box"]
+    for key in ("box", "theta_strike"):      # written only when given, as above
+        if out[key] is None:
+            del out[key]
     return out
 
 
@@ -155,13 +156,15 @@ def check_random_field(s: Scene) -> None:
     rf = s.random_field
     names = [so.name for so in s.soils]
     if rf.box is not None:
-        x0, y0, x1, y1 = rf.box
+        half = len(rf.box) // 2                  # 2 (a rectangle) or 3 (a 3-D box)
+        lo, hi = rf.box[:half], rf.box[half:]
         if rf.cell_size is None:
             raise _fail(s.source, "random_field.box", "needs random_field.cell_size (the "
                         "field's own cells); allowed: give cell_size, or leave box out")
-        if not (x1 > x0 and y1 > y0):
-            raise _fail(s.source, "random_field.box", f"{list(rf.box)}: allowed: [x0, y0, x1, "
-                        "y1] with x1 > x0 and y1 > y0 (m)")
+        if not all(b > a for a, b in zip(lo, hi)):
+            form = ("[x0, y0, x1, y1] with x1 > x0 and y1 > y0" if half == 2 else
+                    "[x0, y0, z0, x1, y1, z1] with x1 > x0, y1 > y0 and z1 > z0")
+            raise _fail(s.source, "random_field.box", f"{list(rf.box)}: allowed: {form} (m)")
     if rf.soil is not None and rf.soil not in names:
         raise _fail(s.source, "random_field.soil", f"{rf.soil!r} is not a soil; allowed: {names}")
     fields = rf.fields()

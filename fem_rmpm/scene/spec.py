@@ -221,9 +221,13 @@ class RandomFieldSpec:
     correlation: str = scene_key("markov_elliptic", "correlation function")
     layering_angle_deg: float = scene_key(0.0, "angle of the layering to the grid x axis", "deg")
     cell_size: float | None = scene_key(None, "field cell size (default: the grid cell)", "m")
-    box: tuple[float, float, float, float] | None = scene_key(
-        None, "the field's fixed rectangle [x0, y0, x1, y1], with cell_size (default: the "
-        "soil cells' bounding box, which moves with the grid cell)", "m")
+    box: tuple[float, ...] | None = scene_key(
+        None, "the field's fixed rectangle [x0, y0, x1, y1] (3-D: box [x0, y0, z0, x1, y1, "
+        "z1]), with cell_size (default: the soil cells' bounding box, which moves with the "
+        "grid cell)", "m")
+    theta_strike: float | None = scene_key(
+        None, "3-D: scale of fluctuation along the strike (z) (default: theta_h = anisotropy "
+        "x theta_v)", "m")
     local_averaging: bool = scene_key(True, "field values are local averages over the "
                                       "field cells")
     soil: str | None = scene_key(None, "name of the soil the field applies to (default: all)")

@@ -31,6 +31,7 @@ _RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "random_field.anisotropy": (0, math.inf, False, False),
     "random_field.layering_angle_deg": (-90, 90, True, True),
     "random_field.cell_size": (0, math.inf, False, False),
+    "random_field.theta_strike": (0, math.inf, False, False),
     "random_field.low": (-math.inf, math.inf, False, False),
     "random_field.high": (-math.inf, math.inf, False, False),
     "random_field.properties.cov": (0, 10, True, True),
@@ -150,13 +151,14 @@ def _coerce(source: str, key: str, value: Any, default: Any, annotation: str,
         return (float(value[0]), float(value[1]))
     if ann in _COERCE_3D:
         return _COERCE_3D[ann](source, lookup, key, value)
-    if ann == "tuple[float,float,float,float]|None":
+    if ann == "tuple[float,...]|None":        # [random_field] box: a rectangle or a box
         if value is None:
             return None
-        if (not isinstance(value, list) or len(value) != 4
+        if (not isinstance(value, list) or len(value) not in (4, 6)
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                            and math.isfinite(v) for v in value)):
-            raise _fail(source, key, f"expected four numbers [x0, y0, x1, y1] in m, got {value!r}")
+            raise _fail(source, key, f"expected four numbers [x0, y0, x1, y1] in m (six, "
+                        f"[x0, y0, z0, x1, y1, z1], in a 3-D scene), got {value!r}")
         return tuple(float(v) for v in value)
     if ann == "tuple[tuple[float,float],...]":
         ok = isinstance(value, list) and len(value) >= 3 and all(
