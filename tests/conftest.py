@@ -1,11 +1,26 @@
 """Shared fixtures: paths to the shipped scenes and a helper to write scene variants."""
 import functools
+import signal
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 MESHES = ROOT / "meshes"
+
+
+@pytest.fixture(autouse=True)
+def _signal_dispositions():
+    """Every test starts with the worker's SIGINT and SIGTERM handlers and no pending
+    interrupt: a test whose command was interrupted in this process leaves both ignored
+    (the command's clean-up state), which must not reach the next test."""
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for sig, handler in before.items():
+        if handler is not None:
+            signal.signal(sig, handler)
+    from fem_rmpm.runtime import signals   # lazy: the package loads with the first test
+    signals._pending.clear()
 
 
 @pytest.fixture

@@ -240,6 +240,7 @@ def test_interrupt_while_the_package_loads_is_quiet(capsys, monkeypatch, sig):
                 time.sleep(1.0)          # the handler runs here
             return None
 
+    signal.signal(signal.SIGINT, signal.default_int_handler)   # a terminal's Ctrl-C
     monkeypatch.delitem(sys.modules, "fem_rmpm.cli")
     monkeypatch.setattr(sys, "meta_path", [Interrupting(), *sys.meta_path])
     before = signal.getsignal(signal.SIGTERM)
