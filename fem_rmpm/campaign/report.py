@@ -245,8 +245,9 @@ def _results(summary: dict) -> str:
             + _decision_check(summary)
             + (_table_of_measures(cases, mrows) if any(
                 c.get("measure_runs", c.get("ok")) for c in cases) else
-               "<p>No realization ran to rest (every run stopped once its failure was "
-               "decided): no measures of the deposit.</p>"))
+               "<p>No measures of the deposit: they come from the runs to rest with an "
+               "index below runs_to_rest, and there are none here (runs that stood went "
+               "on to rest, but count in P(failure) only).</p>"))
 
 
 def _table_of_measures(cases: list[dict], mrows: list) -> str:
