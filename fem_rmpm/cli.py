@@ -178,6 +178,7 @@ def _cmd_converge(a) -> int:
     from fem_rmpm.campaign.convergence import mesh_directory, mesh_scene, parse_cells
     from fem_rmpm.campaign.convergence_report import convergence_text  # lazy: as above
     scene = scene_from_args(a)
+    refuse_three_d(scene, "converge")      # its meshes are square plane-strain cells
     cells = parse_cells(a.cells)
     if a.no_softening:
         scene = campaign.perfectly_plastic(scene)

@@ -146,10 +146,10 @@ def test_fem_command_solves_a_3d_scene_and_fs_refuses_it(tmp_path, capsys):
         api.factor_of_safety(load_scene(MESHES / "column_3d.toml"))
 
 
-@pytest.mark.parametrize("command", [["fs"], ["field"]])
+@pytest.mark.parametrize("command", [["fs"], ["field"], ["converge", "--cells", "1,0.5"]])
 def test_plane_strain_only_commands_refuse_a_3d_scene(capsys, tmp_path, command):
-    """``fs`` and ``field`` work on plane-strain scenes only: a 3-D scene exits 2
-    with one line naming the command, nothing written."""
+    """``fs``, ``field`` and ``converge`` work on plane-strain scenes only: a 3-D scene
+    exits 2 with one line naming the command, nothing written."""
     out = tmp_path / "out"
     code = main([command[0], str(MESHES / "slope_extruded_3d.toml"), "--out", str(out),
                  *command[1:]])

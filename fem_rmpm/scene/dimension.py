@@ -167,7 +167,8 @@ def _inside(src: str, key: str, poly, axes: tuple[int, int], lo, hi, tol: float)
 
 def refuse_three_d(s: Scene, command: str) -> None:
     """Raise a one-line :class:`SceneError` when ``s`` is three-dimensional and
-    ``fem-rmpm COMMAND`` works on plane-strain scenes only (``fs``, ``mc``, ``field``)."""
+    ``fem-rmpm COMMAND`` works on plane-strain scenes only (``fs``, ``field``,
+    ``converge``)."""
     if s.grid.dimension == 3:
         raise _fail(s.source, "grid.size", f"a three-dimensional scene: 'fem-rmpm {command}' "
                     "does not support 3-D scenes yet; allowed: a plane-strain grid "
