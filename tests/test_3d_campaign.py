@@ -143,7 +143,7 @@ def test_the_3d_report_section_is_empty_for_a_plane_strain_campaign(tmp_path):
     section and no 3-D figure for records without ``dimension = 3``."""
     from fem_rmpm.campaign.report3d import figures_3d, report_3d
     recs = [{"case": "scene", "index": 0, "status": "ok", "measures": {"failed": True}}]
-    assert report_3d(tmp_path, recs, None, None, None) == ""
+    assert report_3d(tmp_path, recs) == ""
     assert figures_3d(tmp_path, recs, 0.5) == [] and not (tmp_path / "views3d").exists()
 
 

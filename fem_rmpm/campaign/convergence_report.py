@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fem_rmpm.campaign.report import _esc, _figure, _num, _table
+from fem_rmpm.campaign.html_parts import esc, html_figure, html_table, num
 from fem_rmpm.io.output import _atomic_write_bytes
 from fem_rmpm.io.plots import _plt
 from fem_rmpm.measures import table
@@ -57,7 +57,7 @@ def plot_convergence_mesh(path: Path, st: dict) -> Path:
 
 
 def _ci(w) -> str:
-    return "–" if not w else f"[{_num(w[0])}, {_num(w[1])}]"
+    return "–" if not w else f"[{num(w[0])}, {num(w[1])}]"
 
 
 def _tables(st: dict) -> str:
@@ -66,24 +66,24 @@ def _tables(st: dict) -> str:
     for c in st["cases"]:
         for m in c["meshes"]:
             g = m["given_failure"]
-            rows.append([_esc(c["name"]), _num(m["cell"]), _num(m["n"]), _num(m["failures"]),
-                         f"{_num(m['p_failure'])} ± {_num(m['se'])}", _ci(m["wilson95"])]
-                        + [f"{_num(g[k]['mean'])} ± {_num(g[k]['se'])} <small>(n "
+            rows.append([esc(c["name"]), num(m["cell"]), num(m["n"]), num(m["failures"]),
+                         f"{num(m['p_failure'])} ± {num(m['se'])}", _ci(m["wilson95"])]
+                        + [f"{num(g[k]['mean'])} ± {num(g[k]['se'])} <small>(n "
                            f"{g[k]['n']})</small>" for k in keys])
         for p in c["pairs"]:
-            prow.append([_esc(c["name"]), f"{_num(p['cells'][0])} / {_num(p['cells'][1])}",
-                         _num(p["n_paired"]),
+            prow.append([esc(c["name"]), f"{num(p['cells'][0])} / {num(p['cells'][1])}",
+                         num(p["n_paired"]),
                          f"{p['fail_first_only']} / {p['fail_second_only']}",
-                         _num(p["mcnemar_p"]),
-                         f"{_num(p['paired_difference'])} ± {_num(p['paired_se'])}",
-                         f"{_num(p['p_difference'])} ± {_num(p['unpaired_se'])}",
-                         _num(p["within_2se"])])
+                         num(p["mcnemar_p"]),
+                         f"{num(p['paired_difference'])} ± {num(p['paired_se'])}",
+                         f"{num(p['p_difference'])} ± {num(p['unpaired_se'])}",
+                         num(p["within_2se"])])
     head = (["case", "cell (m)", "N", "failures", "P(failure) ± SE", "Wilson 95 %"]
-            + [f"given failure: {_esc(table.label(k))} ({_esc(table.unit(k))}) mean ± SE"
+            + [f"given failure: {esc(table.label(k))} ({esc(table.unit(k))}) mean ± SE"
                for k in keys])
     phead = ("case", "cells (m)", "paired N", "discordant: fail on coarse only / fine only",
              "exact McNemar p", "paired ΔP ± SE", "ΔP ± unpaired SE", "|ΔP| ≤ 2 SE")
-    return _table(head, rows) + "<h2>Paired discordance</h2>" + _table(phead, prow)
+    return html_table(head, rows) + "<h2>Paired discordance</h2>" + html_table(phead, prow)
 
 
 def convergence_text(st: dict) -> str:
@@ -91,11 +91,11 @@ def convergence_text(st: dict) -> str:
     discordance of each pair of meshes."""
     lines = []
     for c in st["cases"]:
-        ps = ", ".join(f"{m['cell']:g} m: {_num(m['p_failure'])} [{_ci(m['wilson95'])[1:-1]}]"
+        ps = ", ".join(f"{m['cell']:g} m: {num(m['p_failure'])} [{_ci(m['wilson95'])[1:-1]}]"
                        f" (N {m['n']})" for m in c["meshes"])
         pr = "; ".join(f"{p['cells'][0]:g}/{p['cells'][1]:g} m: {p['discordant']} discordant "
                        f"of {p['n_paired']} ({p['fail_first_only']}/{p['fail_second_only']}), "
-                       f"McNemar p {_num(p['mcnemar_p'])}" for p in c["pairs"])
+                       f"McNemar p {num(p['mcnemar_p'])}" for p in c["pairs"])
         lines.append(f"{c['name']}: P(failure) {ps}; {pr}")
     return "\n".join(lines)
 
@@ -107,14 +107,14 @@ def write_html(path: Path, st: dict, figure: Path) -> Path:
             "The scene's random field has no box: the same seed draws unrelated fields on "
             "different meshes, so the pairs are not paired fields; only the unpaired "
             "comparison of P(failure) is meaningful.")
-    dirs = " · ".join(f'<a href="{_esc(m["directory"])}/report.html">{_esc(m["directory"])}</a>'
+    dirs = " · ".join(f'<a href="{esc(m["directory"])}/report.html">{esc(m["directory"])}</a>'
                       for m in st["meshes"])
-    body = ("<h1>Mesh convergence</h1><p>" + _esc(note) + " P(failure): Wilson 95 % "
+    body = ("<h1>Mesh convergence</h1><p>" + esc(note) + " P(failure): Wilson 95 % "
             "interval; given-failure means over the failures run to rest. Discordant pairs: "
             "realizations that fail on one mesh and stand on the other; exact McNemar test "
             "(two-sided binomial, p = 1/2). Campaign of each mesh: " + dirs + "</p>"
             "<h2>P(failure) and given-failure means per mesh</h2>" + _tables(st)
-            + (_figure(figure, "P(failure) and given-failure means against the cell size.",
+            + (html_figure(figure, "P(failure) and given-failure means against the cell size.",
                        figure.name) if figure.is_file() else ""))
     page = (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>Mesh '
             f"convergence</title><style>body{{font-family:sans-serif;max-width:1300px;"

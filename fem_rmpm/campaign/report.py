@@ -26,14 +26,13 @@ with the number of images that decoded, so a headless browser can check the page
 """
 from __future__ import annotations
 
-import base64
 import datetime as _dt
-import html
 import json
 import math
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
+from fem_rmpm.campaign.html_parts import CSS, SCRIPT, esc, html_figure, html_table, num
 from fem_rmpm.campaign.report3d import report_3d
 from fem_rmpm.io.output import _atomic_write_bytes
 from fem_rmpm.measures import table
@@ -92,47 +91,6 @@ def _records(campaign: Path) -> list[dict]:
     return out
 
 
-# ----------------------------------------------------------------------------- formatting
-
-def _esc(x: Any) -> str:
-    return html.escape(str(x), quote=True)
-
-
-def _num(x: Any, digits: int = 3) -> str:
-    if x is None:
-        return "–"
-    if isinstance(x, bool):
-        return "yes" if x else "no"
-    if isinstance(x, int):
-        return str(x)
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return _esc(x)
-    if not math.isfinite(v):
-        return _esc(v)
-    if v != 0 and (abs(v) >= 1e5 or abs(v) < 1e-3):
-        return f"{v:.{digits}g}"
-    return (f"{v:.{digits}g}" if abs(v) < 1
-            else f"{v:.{max(digits - 1, 1)}f}".rstrip("0").rstrip("."))
-
-
-def _png_data_uri(path: Path) -> str:
-    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
-
-
-def _figure(path: Path, caption: str, alt: str) -> str:
-    return (f'<figure><img src="{_png_data_uri(path)}" alt="{_esc(alt)}">'
-            f"<figcaption>{_esc(caption)}</figcaption></figure>")
-
-
-def _table(header: Sequence[str], rows: Iterable[Iterable[str]], cls: str = "") -> str:
-    head = "".join(f"<th>{h}</th>" for h in header)
-    head = f"<thead><tr>{head}</tr></thead>" if any(header) else ""
-    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
-    return f'<table class="{cls}">{head}<tbody>{body}</tbody></table>'
-
-
 # ----------------------------------------------------------------------------- sections
 
 def _provenance(summary: dict, campaign: dict, records: list[dict]) -> str:
@@ -141,27 +99,27 @@ def _provenance(summary: dict, campaign: dict, records: list[dict]) -> str:
     cpu = summary.get("realization_cpu_time", {}).get("total")
     wall = summary.get("realization_wall_time", {}).get("total")
     rows = [
-        ("scene", _esc(summary.get("scene", "?"))),
-        ("scene file", _esc(summary.get("scene_file") or "embedded default")),
-        ("fem_rmpm version of the records", _esc(", ".join(versions) or "?")),
-        ("campaign seed", _esc(summary.get("campaign_seed", campaign.get("campaign_seed")))),
-        ("seed of realization i", _esc(campaign.get("seed_rule", "?"))),
-        ("realizations", _esc(", ".join(f"{c.get('label', c.get('name'))}: {c.get('ok', 0)} ok"
+        ("scene", esc(summary.get("scene", "?"))),
+        ("scene file", esc(summary.get("scene_file") or "embedded default")),
+        ("fem_rmpm version of the records", esc(", ".join(versions) or "?")),
+        ("campaign seed", esc(summary.get("campaign_seed", campaign.get("campaign_seed")))),
+        ("seed of realization i", esc(campaign.get("seed_rule", "?"))),
+        ("realizations", esc(", ".join(f"{c.get('label', c.get('name'))}: {c.get('ok', 0)} ok"
                                          f" of {c.get('requested', c.get('realizations', '?'))}"
                                          for c in summary.get("cases", [])))),
         ("failure criterion", _failure_criterion(summary)),
-        ("cost (all records)", f"{_num(cpu)} s CPU = {_num((cpu or 0) / 3600, 3)} core-hours; "
-                               f"{_num(wall)} s wall summed over realizations"),
-        ("last command", f"computed {_esc(this_run.get('computed', '?'))} realization(s) on "
-                         f"{_esc(this_run.get('workers', '?'))} in "
-                         f"{_num(this_run.get('wall_time'))} s"),
+        ("cost (all records)", f"{num(cpu)} s CPU = {num((cpu or 0) / 3600, 3)} core-hours; "
+                               f"{num(wall)} s wall summed over realizations"),
+        ("last command", f"computed {esc(this_run.get('computed', '?'))} realization(s) on "
+                         f"{esc(this_run.get('workers', '?'))} in "
+                         f"{num(this_run.get('wall_time'))} s"),
     ]
     if this_run.get("machine"):
         rows.append(("machine of the last command", _machine_text(this_run["machine"])))
     ran_on = tally(r.get("worker") for r in records)
     if ran_on:
         rows.append(("realizations ran on", _workers_text(ran_on)))
-    return "<h2>Scene and provenance</h2>" + _table(("", ""), rows, "kv")
+    return "<h2>Scene and provenance</h2>" + html_table(("", ""), rows, "kv")
 
 
 def _machine_text(m: dict) -> str:
@@ -175,7 +133,7 @@ def _machine_text(m: dict) -> str:
             + f"; Python {m.get('python', '?')}, numpy {m.get('numpy', '?')}, "
               f"numba {m.get('numba', '?')} (local workers ran here, cluster workers on "
               "their own nodes)")
-    return _esc(text)
+    return esc(text)
 
 
 def _workers_text(machines: list[dict], shown: int = 6) -> str:
@@ -185,16 +143,16 @@ def _workers_text(machines: list[dict], shown: int = 6) -> str:
     if len(machines) > shown:
         rest = sum(m["runs"] for m in machines[shown:])
         parts.append(f"{len(machines) - shown} more machines: {rest}")
-    return _esc("; ".join(parts) + " realization(s)")
+    return esc("; ".join(parts) + " realization(s)")
 
 
 def _failure_criterion(summary: dict) -> str:
     """The failure criterion in words (a campaign from before ``failure_area``: any point)."""
-    moved = f"moved more than {_num(summary.get('failure_displacement'))} m"
+    moved = f"moved more than {num(summary.get('failure_displacement'))} m"
     area = summary.get("failure_area")
     if not area:
         return f"a point {moved}"
-    return f"at least {_num(area)} m2/m of points {moved}"
+    return f"at least {num(area)} m2/m of points {moved}"
 
 
 def _measure_keys(cases: list[dict]) -> list[str]:
@@ -206,7 +164,7 @@ def _measure_keys(cases: list[dict]) -> list[str]:
 
 
 def _label(c: dict) -> str:
-    return _esc(c.get("label", c.get("name"))) + (" <small>(deterministic)</small>"
+    return esc(c.get("label", c.get("name"))) + (" <small>(deterministic)</small>"
                                                     if c.get("deterministic") else "")
 
 
@@ -215,33 +173,32 @@ def _results(summary: dict) -> str:
     rows = []
     for c in cases:
         w = c.get("wilson95") or [None, None]
-        rows.append([_label(c), _num(c.get("ok")), _num(c.get("numerical_failures")),
-                     _num(c.get("slope_failures")),
-                     f"{_num(c.get('p_failure'))} ± {_num(c.get('se'))}",
-                     f"[{_num(w[0])}, {_num(w[1])}]",
-                     _num(c.get("measure_runs", c.get("mpm_runs", c.get("ok"))))])
+        rows.append([_label(c), num(c.get("ok")), num(c.get("numerical_failures")),
+                     num(c.get("slope_failures")),
+                     f"{num(c.get('p_failure'))} ± {num(c.get('se'))}",
+                     f"[{num(w[0])}, {num(w[1])}]",
+                     num(c.get("measure_runs", c.get("mpm_runs", c.get("ok"))))])
     head = ("case", "N finished", "numerical failures", "slope failures",
             "P(failure) ± SE", "Wilson 95 %", "run to rest (measures)")
     k_rest = summary.get("runs_to_rest")
     decided = ("" if k_rest is None else
-               f" Realizations with index ≥ {_num(k_rest)} stopped once their failure was "
+               f" Realizations with index ≥ {num(k_rest)} stopped once their failure was "
                "decided (the failure area of points moved more than the failure displacement); "
-               "they count "
-               "in P(failure) only.")
+               "they count in P(failure) only.")
     mrows = []
     for key in _measure_keys(cases):
-        row = [f'<span title="{_esc(key)}">{_esc(table.label(key))}</span> '
-               f"<small>({_esc(table.unit(key))})</small>"]
+        row = [f'<span title="{esc(key)}">{esc(table.label(key))}</span> '
+               f"<small>({esc(table.unit(key))})</small>"]
         for c in cases:
             s = c.get(key)
             row.append("–" if not isinstance(s, dict) else
-                       f"{_num(s.get('mean'))} ± {_num(s.get('se'))}<br><small>"
-                       f"[{_num(s.get('q05'))}, {_num(s.get('q50'))}, {_num(s.get('q95'))}]"
+                       f"{num(s.get('mean'))} ± {num(s.get('se'))}<br><small>"
+                       f"[{num(s.get('q05'))}, {num(s.get('q50'))}, {num(s.get('q95'))}]"
                        "</small>")
         mrows.append(row)
     return ("<h2>Results per case</h2><p>P(failure): fraction of finished realizations in "
-            f"which {_esc(_failure_criterion(summary))}; SE = sqrt(p (1 - p) / N); "
-            "Wilson 95 % score interval." + _esc(decided) + "</p>" + _table(head, rows, "cases")
+            f"which {esc(_failure_criterion(summary))}; SE = sqrt(p (1 - p) / N); "
+            "Wilson 95 % score interval." + esc(decided) + "</p>" + html_table(head, rows, "cases")
             + _decision_check(summary)
             + (_table_of_measures(cases, mrows) if any(
                 c.get("measure_runs", c.get("ok")) for c in cases) else
@@ -253,11 +210,11 @@ def _results(summary: dict) -> str:
 def _table_of_measures(cases: list[dict], mrows: list) -> str:
     return ("<p>Measures: mean ± standard error of the mean, [5 %, 50 %, 95 %] "
             "quantiles, over the realizations of each case run to rest.</p>"
-            + _table(["measure"] + [_label(c) for c in cases], mrows, "measures"))
+            + html_table(["measure"] + [_label(c) for c in cases], mrows, "measures"))
 
 
 def _ci(w: Any) -> str:
-    return "–" if not w else f"[{_num(w[0])}, {_num(w[1])}]"
+    return "–" if not w else f"[{num(w[0])}, {num(w[1])}]"
 
 
 def _why_failed(summary: dict) -> str:
@@ -274,20 +231,20 @@ def _why_failed(summary: dict) -> str:
         sp, fit, a = f["split"], f.get("probit"), fs.get("agreement") or {}
         out = a.get("outside_margin") or {}
         fit_txt = "no fit (all failed or none)" if not fit else (
-            f"{_num(fit['fs50'])} {_ci(fit['fs50_interval95'])}<br><small>s = "
-            f"{_num(fit['s'])}{', separated' if fit['separated'] else ''}</small>")
-        rows.append([_label(c), _num(f["n"]),
-                     f"{_num(f['p_failure'])} {_ci(f['p_failure_wilson95'])}",
-                     f"{_num(f['p_fs_below_1'])} {_ci(f['p_fs_below_1_wilson95'])}",
-                     f"{_num(sp['progressive'])} of {_num(sp['failures'])}: "
-                     f"{_num(sp['progressive_fraction'])} {_ci(sp['progressive_wilson95'])}",
-                     f"{_num(sp['strength_limited'])}: {_num(sp['strength_limited_fraction'])}"
+            f"{num(fit['fs50'])} {_ci(fit['fs50_interval95'])}<br><small>s = "
+            f"{num(fit['s'])}{', separated' if fit['separated'] else ''}</small>")
+        rows.append([_label(c), num(f["n"]),
+                     f"{num(f['p_failure'])} {_ci(f['p_failure_wilson95'])}",
+                     f"{num(f['p_fs_below_1'])} {_ci(f['p_fs_below_1_wilson95'])}",
+                     f"{num(sp['progressive'])} of {num(sp['failures'])}: "
+                     f"{num(sp['progressive_fraction'])} {_ci(sp['progressive_wilson95'])}",
+                     f"{num(sp['strength_limited'])}: {num(sp['strength_limited_fraction'])}"
                      f" {_ci(sp['strength_limited_wilson95'])}", fit_txt,
-                     f"{_num(a.get('agree'))} of {_num(a.get('n'))}; outside ±"
-                     f"{_num(out.get('margin'))}: {_num(out.get('agree'))} of "
-                     f"{_num(out.get('n'))}"])
-        differ += [[_label(c), _num(d["index"]), _num(d["seed"]), _num(d["factor_of_safety"]),
-                    _num(d["failed"]), _num(d.get("max_displacement"))]
+                     f"{num(a.get('agree'))} of {num(a.get('n'))}; outside ±"
+                     f"{num(out.get('margin'))}: {num(out.get('agree'))} of "
+                     f"{num(out.get('n'))}"])
+        differ += [[_label(c), num(d["index"]), num(d["seed"]), num(d["factor_of_safety"]),
+                    num(d["failed"]), num(d.get("max_displacement"))]
                    for d in a.get("disagree") or []]
     if not rows:
         return ""
@@ -298,18 +255,18 @@ def _why_failed(summary: dict) -> str:
             "A failure with FS ≥ 1 is progressive: the slope stands at peak strength and the "
             "softening after first yield brings it down; one with FS < 1 is strength-limited. "
             "A strength-reduction analysis at peak strength (RFEM) counts only the second kind. ")
-    head = [_esc(h) for h in (
+    head = [esc(h) for h in (
         "case", "N (FS and MPM)", "P(failure) [Wilson 95 %]", "P(FS < 1) [Wilson 95 %]",
         "progressive failures (FS ≥ 1)", "strength-limited (FS < 1)",
         "FS50 (P = 0.5) [profile 95 %]", "stand/fail agrees with FS < 1")]
     listing = ("" if not differ else "<p>Realizations where stand/fail and FS &lt; 1 differ:</p>"
-               + _table(("case", "index", "seed", "FS", "MPM failed", "max displacement (m)"),
+               + html_table(("case", "index", "seed", "FS", "MPM failed", "max displacement (m)"),
                         differ))
-    return ("<h2>Why the realizations failed</h2><p>" + _esc(mode) + "FS: strength reduction "
+    return ("<h2>Why the realizations failed</h2><p>" + esc(mode) + "FS: strength reduction "
             "at peak strength of the same random field (perfectly plastic). Fragility: probit "
             "P(failure | FS) = Φ((FS50 − FS)/s) fitted by maximum likelihood; the interval of "
             "FS50 is the profile-likelihood 95 % interval (figure fragility.png).</p>"
-            + _table(head, rows, "fragility") + listing)
+            + html_table(head, rows, "fragility") + listing)
 
 
 def _what_n_buys(summary: dict, campaign: Path) -> str:
@@ -323,8 +280,8 @@ def _what_n_buys(summary: dict, campaign: Path) -> str:
             continue
         q = min(max(p, 1.0 / (n + 1)), 1 - 1.0 / (n + 1))   # 0 or 1: one count's worth
         need = math.ceil(1.959963984540054 ** 2 * q * (1 - q) / 0.05 ** 2)
-        rows.append([_label(c), _num(n), _num(p), f"± {_num((w[1] - w[0]) / 2)}",
-                     f"{_num(0.98 / math.sqrt(n))}", _num(need)])
+        rows.append([_label(c), num(n), num(p), f"± {num((w[1] - w[0]) / 2)}",
+                     f"{num(0.98 / math.sqrt(n))}", num(need)])
     if not rows:
         return ""
     try:
@@ -335,8 +292,8 @@ def _what_n_buys(summary: dict, campaign: Path) -> str:
         "re-run the same command with a larger -n: the finished realizations are reused")
     return ("<h2>What N buys</h2><p>The Wilson 95 % interval of P(failure) narrows as "
             "1/√N: its half-width is at most about 0.98/√N (at P = 0.5). For the full study: "
-            f"<code>{_esc(extend)}</code>.</p>"
-            + _table(("case", "N", "P(failure)", "Wilson 95 % half-width now",
+            f"<code>{esc(extend)}</code>.</p>"
+            + html_table(("case", "N", "P(failure)", "Wilson 95 % half-width now",
                       "worst case 0.98/√N", "N for ± 0.05 at this P"), rows))
 
 
@@ -351,32 +308,32 @@ def _linked(campaign: Path) -> str:
             continue
         if not isinstance(s, dict) or "cases" not in s:
             continue
-        rows = [[_label(c), _num(c.get("ok")), _num(c.get("slope_failures")),
-                 f"{_num(c.get('p_failure'))} {_ci(c.get('wilson95'))}",
-                 _num((c.get("runout_distance") or {}).get("mean")),
-                 _num((c.get("sliding_area") or {}).get("mean"))] for c in s["cases"]]
-        figs = "".join(_figure(sub / name, f"{s.get('scene', sub.name)}: {cap}", name)
+        rows = [[_label(c), num(c.get("ok")), num(c.get("slope_failures")),
+                 f"{num(c.get('p_failure'))} {_ci(c.get('wilson95'))}",
+                 num((c.get("runout_distance") or {}).get("mean")),
+                 num((c.get("sliding_area") or {}).get("mean"))] for c in s["cases"]]
+        figs = "".join(html_figure(sub / name, f"{s.get('scene', sub.name)}: {cap}", name)
                        for name, cap in (("cases_mechanism.png", "one realization per case at "
                                           "the mechanism time"),
                                          ("cases.png", "one realization per case at rest"))
                        if (sub / name).is_file())
-        parts.append(f"<h3>{_esc(s.get('scene', sub.name))} "
-                     f'(<a href="{_esc(sub.name)}/report.html">{_esc(sub.name)}/</a>)</h3>'
-                     + _table(("case", "N", "failures", "P(failure) [Wilson 95 %]",
+        parts.append(f"<h3>{esc(s.get('scene', sub.name))} "
+                     f'(<a href="{esc(sub.name)}/report.html">{esc(sub.name)}/</a>)</h3>'
+                     + html_table(("case", "N", "failures", "P(failure) [Wilson 95 %]",
                                "run-out mean (m)", "sliding area mean (m2/m)"), rows) + figs)
     return "" if not parts else "<h2>Linked campaigns</h2>" + "".join(parts)
 
 
 def _decision_check(summary: dict) -> str:
     """The stopping rule checked on the runs to rest that recorded their decision time."""
-    rows = [[_esc(name), _num(d.get("checked")), _num(d.get("agree")),
-             _esc(", ".join(map(str, d.get("failed_never_decided") or [])) or "none"),
-             _esc(", ".join(map(str, d.get("decided_but_stood") or [])) or "none")]
+    rows = [[esc(name), num(d.get("checked")), num(d.get("agree")),
+             esc(", ".join(map(str, d.get("failed_never_decided") or [])) or "none"),
+             esc(", ".join(map(str, d.get("decided_but_stood") or [])) or "none")]
             for name, d in (summary.get("decision_check") or {}).items() if d.get("checked")]
     if not rows:
         return ""
     return ("<p>Stopping rule on the runs to rest (decided as failed exactly when failed):</p>"
-            + _table(("case", "runs to rest checked", "agree", "failed, never decided",
+            + html_table(("case", "runs to rest checked", "agree", "failed, never decided",
                       "decided, stood"), rows))
 
 
@@ -385,21 +342,21 @@ def _subset(summary: dict) -> str:
     sub = summary.get("subset")
     if not isinstance(sub, dict):
         return ""
-    rows = [("failure", _esc(sub.get("failure", sub.get("response")))),
-            ("P(failure)", f"{_num(sub.get('probability'), 4)} (coefficient of variation "
-                           f"{_num(sub.get('cov'))}, Au & Beck 2001, chain correlation included)"),
-            ("p0, samples per level", f"{_num(sub.get('p0'))}, "
-                                      f"{_num(sub.get('samples_per_level'))}"),
-            ("runs", f"{_num(sub.get('total_runs'))} (crude Monte Carlo for the same "
-                     f"coefficient of variation: {_num(sub.get('crude_equivalent_runs'))}); "
-                     f"{_num(sub.get('failed_runs'))} failed numerically")]
-    rows += [("note", _esc(n)) for n in sub.get("notes") or []]
-    levels = [[_num(lv.get("level")), _num(lv.get("threshold_response"), 4),
-               _num(lv.get("conditional_probability")), _num(lv.get("cov")),
-               _num(lv.get("gamma")), _num(lv.get("acceptance")), _num(lv.get("runs"))]
+    rows = [("failure", esc(sub.get("failure", sub.get("response")))),
+            ("P(failure)", f"{num(sub.get('probability'), 4)} (coefficient of variation "
+                           f"{num(sub.get('cov'))}, Au & Beck 2001, chain correlation included)"),
+            ("p0, samples per level", f"{num(sub.get('p0'))}, "
+                                      f"{num(sub.get('samples_per_level'))}"),
+            ("runs", f"{num(sub.get('total_runs'))} (crude Monte Carlo for the same "
+                     f"coefficient of variation: {num(sub.get('crude_equivalent_runs'))}); "
+                     f"{num(sub.get('failed_runs'))} failed numerically")]
+    rows += [("note", esc(n)) for n in sub.get("notes") or []]
+    levels = [[num(lv.get("level")), num(lv.get("threshold_response"), 4),
+               num(lv.get("conditional_probability")), num(lv.get("cov")),
+               num(lv.get("gamma")), num(lv.get("acceptance")), num(lv.get("runs"))]
               for lv in sub.get("levels") or []]
-    return ("<h2>Subset simulation</h2>" + _table(("", ""), rows, "kv")
-            + _table(("level", "threshold", "P(level | previous)", "COV", "gamma",
+    return ("<h2>Subset simulation</h2>" + html_table(("", ""), rows, "kv")
+            + html_table(("level", "threshold", "P(level | previous)", "COV", "gamma",
                       "acceptance", "runs"), levels))
 
 
@@ -420,22 +377,22 @@ def _risk_study(campaign: Path) -> str:
         ro = (c.get("runout_distance") or {}).get("given_failure") or {}
         m = c.get("modes") or {}
         h = c.get("slip_surface_height") or {}
-        rows.append([_esc(name), _num(c.get("n")),
-                     f"{_num(c.get('n_measure', c.get('n')))} ({_num(c.get('failed_measure'))})",
-                     f"{_num(c.get('p_failure'))} [{_num(w[0])}, {_num(w[1])}]",
-                     f"{_num(f.get('p_fs_below_1'))} (N {_num(f.get('n'))})" if f else "-",
-                     f"{_num(a.get('mean'))} ({_num(a.get('cov'), 2)})",
-                     f"{_num(ro.get('mean'))} ({_num(ro.get('cov'), 2)})",
-                     " / ".join(_num(m.get(k)) for k in ("toe slump", "translational",
+        rows.append([esc(name), num(c.get("n")),
+                     f"{num(c.get('n_measure', c.get('n')))} ({num(c.get('failed_measure'))})",
+                     f"{num(c.get('p_failure'))} [{num(w[0])}, {num(w[1])}]",
+                     f"{num(f.get('p_fs_below_1'))} (N {num(f.get('n'))})" if f else "-",
+                     f"{num(a.get('mean'))} ({num(a.get('cov'), 2)})",
+                     f"{num(ro.get('mean'))} ({num(ro.get('cov'), 2)})",
+                     " / ".join(num(m.get(k)) for k in ("toe slump", "translational",
                                                          "retrogressive")),
-                     f"{_num(h.get('q50'))} ({_num(c.get('above_base'))})"])
+                     f"{num(h.get('q50'))} ({num(c.get('above_base'))})"])
     rule = (f"Failure modes: toe slump when the retrogression is at most "
-            f"{_num(rules.get('toe_slump_retrogression_m'))} m; otherwise translational when at "
-            f"least {_num(rules.get('translational_early_fraction'))} of the final sliding area "
+            f"{num(rules.get('toe_slump_retrogression_m'))} m; otherwise translational when at "
+            f"least {num(rules.get('translational_early_fraction'))} of the final sliding area "
             "moved by the mechanism time, else retrogressive. Above the base: failure-surface "
-            f"height over {_num(rules.get('above_base_height_m'))} m.")
-    return ("<h2>Risk study</h2><p>" + _esc(rule) + "</p>"
-            + _table(("case", "N", "run to rest: n (failed)", "P(failure) [Wilson 95 %]",
+            f"height over {num(rules.get('above_base_height_m'))} m.")
+    return ("<h2>Risk study</h2><p>" + esc(rule) + "</p>"
+            + html_table(("case", "N", "run to rest: n (failed)", "P(failure) [Wilson 95 %]",
                       "P(FS < 1)",
                       f"{table.axis_label('sliding_area')} given failure: mean (COV)",
                       f"{table.axis_label('runout_distance')} given failure: mean (COV)",
@@ -447,16 +404,16 @@ def _risk_study(campaign: Path) -> str:
 
 def _decided_check(study: dict) -> str:
     """A decided-only campaign against the runs to rest, pair by pair, when the study has it."""
-    rows = [[_esc(name), _num(d.get("pairs")), _num(d.get("agree")),
-             _esc(", ".join(map(str, d.get("disagree") or [])) or "none"),
-             _num(d.get("decided_time_max"))]
+    rows = [[esc(name), num(d.get("pairs")), num(d.get("agree")),
+             esc(", ".join(map(str, d.get("disagree") or [])) or "none"),
+             num(d.get("decided_time_max"))]
             for name, d in (study.get("decided_check") or {}).items() if d]
     if not rows:
         return ""
     return ("<h3>Runs stopped once decided against the runs to rest</h3><p>The same "
             "realizations in a campaign with every run stopped once decided ("
-            + _esc(study.get("decided_campaign") or "") + ").</p>"
-            + _table(("case", "pairs", "same failed", "indices that differ",
+            + esc(study.get("decided_campaign") or "") + ").</p>"
+            + html_table(("case", "pairs", "same failed", "indices that differ",
                       "latest decision (s)"), rows))
 
 
@@ -468,17 +425,17 @@ def _mesh_check(study: dict) -> str:
             continue
         ca, fa = ((m.get(k) or {}).get("sliding_area_given_failure") or {}
                   for k in ("coarse", "fine"))
-        rows.append([_esc(name), _num(m.get("n")),
-                     f"{_num((m.get('coarse') or {}).get('p_failure'))} / "
-                     f"{_num((m.get('fine') or {}).get('p_failure'))}",
-                     _num(m.get("agree")), f"{_num(ca.get('mean'))} / {_num(fa.get('mean'))}",
-                     f"{_num(m.get('area_abs_difference_mean'))} ({_num(m.get('both_failed'))})"])
+        rows.append([esc(name), num(m.get("n")),
+                     f"{num((m.get('coarse') or {}).get('p_failure'))} / "
+                     f"{num((m.get('fine') or {}).get('p_failure'))}",
+                     num(m.get("agree")), f"{num(ca.get('mean'))} / {num(fa.get('mean'))}",
+                     f"{num(m.get('area_abs_difference_mean'))} ({num(m.get('both_failed'))})"])
     if not rows:
         return ""
     area = table.unit("sliding_area")
     return ("<h3>Mesh check</h3><p>The same realizations (same random field) on the scene's "
-            "mesh and on a finer one (" + _esc(study.get("mesh_campaign") or "") + ").</p>"
-            + _table(("case", "pairs", "P(failure) scene / finer", "agree",
+            "mesh and on a finer one (" + esc(study.get("mesh_campaign") or "") + ").</p>"
+            + html_table(("case", "pairs", "P(failure) scene / finer", "agree",
                       f"sliding area given failure ({area}) scene / finer",
                       f"mean |difference| where both failed ({area}) (n)"), rows))
 
@@ -487,11 +444,11 @@ def _failures(records: list[dict]) -> str:
     bad = [r for r in records if r.get("status") != "ok"]
     if not bad:
         return "<h2>Numerical failures</h2><p>None: every realization finished.</p>"
-    rows = [[_esc(r.get("case")), _num(r.get("index")), _esc(r.get("seed")),
-             _esc(r.get("error") or "")] for r in bad]
+    rows = [[esc(r.get("case")), num(r.get("index")), esc(r.get("seed")),
+             esc(r.get("error") or "")] for r in bad]
     return ("<h2>Numerical failures</h2><p>Realizations that stopped with an error are "
             "recorded and left out of the statistics.</p>"
-            + _table(("case", "index", "seed", "message"), rows))
+            + html_table(("case", "index", "seed", "message"), rows))
 
 
 def _figures(campaign: Path) -> str:
@@ -499,16 +456,16 @@ def _figures(campaign: Path) -> str:
     for name, caption in FIGURES:
         known.add(name)
         if (campaign / name).is_file():
-            parts.append(_figure(campaign / name, caption, name))
+            parts.append(html_figure(campaign / name, caption, name))
     for p in sorted(campaign.glob("*.png")):
         if p.name not in known:
-            parts.append(_figure(p, p.stem.replace("_", " "), p.name))
+            parts.append(html_figure(p, p.stem.replace("_", " "), p.name))
     return "<h2>Figures</h2>" + ("".join(parts) or "<p>No figure was written.</p>")
 
 
 def _measures_text(m: dict) -> str:
     """The headline measures of a record, ``label value unit`` each, escaped."""
-    return ", ".join(_esc(table.label(k)) + f" {_num(m.get(k))} " + _esc(table.unit(k))
+    return ", ".join(esc(table.label(k)) + f" {num(m.get(k))} " + esc(table.unit(k))
                      for k in table.headline())
 
 
@@ -522,7 +479,7 @@ def _representatives(campaign: Path, records: list[dict]) -> str:
         kept = [r for r in recs if r.get("vtk") and (campaign / r["vtk"]).is_dir()
                 and (r.get("measures") or {}).get("runout_distance") is not None]
         if not kept:
-            parts.append(f"<h3>{_esc(case)}</h3><p>No realization of this case kept its VTK "
+            parts.append(f"<h3>{esc(case)}</h3><p>No realization of this case kept its VTK "
                          "(use <code>--keep-vtk</code> to keep some).</p>")
             continue
         kept.sort(key=lambda r: (float(r["measures"]["runout_distance"]), r["index"]))
@@ -534,42 +491,15 @@ def _representatives(campaign: Path, records: list[dict]) -> str:
             vtk = campaign / r["vtk"]
             fig = vtk / "plastic_shear_strain.png"
             m = r["measures"]
-            text = (f"{_esc(what)} among {len(kept)} kept: realization {r['index']} "
+            text = (f"{esc(what)} among {len(kept)} kept: realization {r['index']} "
                     f"(seed {r['seed']}), {_measures_text(m)}, "
-                    f"failed: {_num(m.get('failed'))}. "
-                    f'<a href="{_esc(r["vtk"])}/particles.pvd">particles.pvd</a> · '
-                    f'<a href="{_esc(r["vtk"])}/grid.vtu">grid.vtu</a>')
-            img = _figure(fig, f"realization {r['index']}", fig.name) if fig.is_file() else ""
+                    f"failed: {num(m.get('failed'))}. "
+                    f'<a href="{esc(r["vtk"])}/particles.pvd">particles.pvd</a> · '
+                    f'<a href="{esc(r["vtk"])}/grid.vtu">grid.vtu</a>')
+            img = html_figure(fig, f"realization {r['index']}", fig.name) if fig.is_file() else ""
             cells.append(f'<div class="rep">{img}<p>{text}</p></div>')
-        parts.append(f"<h3>{_esc(case)}</h3><div class=\"reps\">{''.join(cells)}</div>")
+        parts.append(f"<h3>{esc(case)}</h3><div class=\"reps\">{''.join(cells)}</div>")
     return "<h2>Representative realizations</h2>" + "".join(parts)
-
-
-_CSS = """
-body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:2em auto;max-width:1300px;
-color:#222;line-height:1.4;padding:0 1em}
-h1{font-size:1.6em;margin-bottom:.2em}h2{border-bottom:1px solid #ccc;margin-top:1.6em}
-table{border-collapse:collapse;margin:.6em 0;font-size:.9em}
-td,th{border:1px solid #ccc;padding:.3em .6em;text-align:left;vertical-align:top}
-th{background:#f2f2f2}table.kv td:first-child{font-weight:600;white-space:nowrap}
-figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}
-figcaption{font-size:.9em;color:#555}.reps{display:flex;gap:1.5em;flex-wrap:wrap}
-.rep{flex:1 1 500px}small{color:#666}code{background:#f4f4f4;padding:0 .2em}
-"""
-
-_SCRIPT = """
-var femRmpmErrors = 0;
-window.addEventListener('error', function () {
-  femRmpmErrors += 1;
-  if (document.body) { document.body.setAttribute('data-errors', String(femRmpmErrors)); }
-}, true);
-window.addEventListener('load', function () {
-  var imgs = Array.prototype.slice.call(document.images);
-  var ok = imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; }).length;
-  document.body.setAttribute('data-images-loaded', ok + '/' + imgs.length);
-  document.body.setAttribute('data-errors', String(femRmpmErrors));
-});
-"""
 
 
 def _check_campaign_summary(campaign: Path, summary: Any) -> None:
@@ -605,16 +535,16 @@ def report_html(campaign_dir: str | Path) -> str:
     title = f"fem_rmpm campaign report: {summary.get('scene', campaign.name)}"
     made = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     body = "".join((
-        f"<h1>{_esc(title)}</h1><p><small>Written {made} from {_esc(campaign.resolve())}. "
+        f"<h1>{esc(title)}</h1><p><small>Written {made} from {esc(campaign.resolve())}. "
         'Files: <a href="results.csv">results.csv</a> · <a href="summary.json">summary.json</a>'
         ' · <a href="records/">records/</a></small></p>',
         _provenance(summary, identity, records), _subset(summary), _results(summary),
         _why_failed(summary), _what_n_buys(summary, campaign),
         _risk_study(campaign), _failures(records),
-        _figures(campaign), report_3d(campaign, records, _figure, _esc, _table),
+        _figures(campaign), report_3d(campaign, records),
         _linked(campaign), _representatives(campaign, records)))
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
-            f"<title>{_esc(title)}</title><style>{_CSS}</style><script>{_SCRIPT}</script>"
+            f"<title>{esc(title)}</title><style>{CSS}</style><script>{SCRIPT}</script>"
             f"</head><body>{body}</body></html>\n")
 
 

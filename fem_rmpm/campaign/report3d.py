@@ -35,6 +35,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (after the backend)
 import numpy as np  # noqa: E402
 
+from fem_rmpm.campaign.html_parts import esc, html_figure, html_table  # noqa: E402
 from fem_rmpm.measures import table  # noqa: E402
 
 __all__ = ["VIEWS", "is_three_d_campaign", "figures_3d", "report_3d", "representative_3d",
@@ -210,10 +211,9 @@ def _means(recs: list[dict]) -> list[str]:
     return cells
 
 
-def report_3d(campaign: Path, records: Sequence[dict], figure, esc, make_table) -> str:
+def report_3d(campaign: Path, records: Sequence[dict]) -> str:
     """The report's section "Three-dimensional views" (module docstring); "" for a
-    plane-strain campaign.  ``figure``, ``esc``, ``make_table``: the report's helpers
-    (a figure, HTML escaping, a table)."""
+    plane-strain campaign."""
     if not is_three_d_campaign(records):
         return ""
     views = Path(campaign) / VIEWS
@@ -224,7 +224,7 @@ def report_3d(campaign: Path, records: Sequence[dict], figure, esc, make_table) 
     parts = ["<h2>Three-dimensional views</h2><p>Measures along the strike (slices one grid "
              "cell long; a slide is a run of slices each holding at least the failure area "
              "x the slice length of sliding volume), means over the realizations run to "
-             "rest:</p>", make_table(header, rows)]
+             "rest:</p>", html_table(header, rows)]
     rep_file = views / "representative.json"
     rep = json.loads(rep_file.read_text()) if rep_file.is_file() else None
     for name, caption in (
@@ -235,7 +235,7 @@ def report_3d(campaign: Path, records: Sequence[dict], figure, esc, make_table) 
             ("render_3d.png", "Off-screen PyVista render of the representative realization "
              "at the end of its run (colour: displacement)")):
         if (views / name).is_file():
-            parts.append(figure(views / name, caption, name))
+            parts.append(html_figure(views / name, caption, name))
     if rep is None:
         parts.append("<p>No 3-D realization kept its VTK: no plan view or render "
                      "(use <code>--keep-vtk</code>).</p>")
