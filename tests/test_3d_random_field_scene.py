@@ -15,6 +15,7 @@ from fem_rmpm import api
 from fem_rmpm.cli import main
 from fem_rmpm.random_field import model_from_spec_3d
 from fem_rmpm.scene import load_scene, with_values
+from tests.test_3d_scene import _bad as refused_run
 
 MESHES = Path(__file__).parents[1] / "meshes"
 SMALL = MESHES / "slope_small_3d.toml"
@@ -22,17 +23,8 @@ TEXT = SMALL.read_text()
 
 
 def _bad(capsys, tmp_path, text, *words):
-    path = tmp_path / "bad.toml"
-    path.write_text(text)
-    out = tmp_path / "out"
-    code = main(["run", str(path), "--out", str(out), "--quiet", "--seed", "1"])
-    err = capsys.readouterr().err.strip()
-    assert code == 2, err
-    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
-    for w in words:
-        assert w in err, err
-    assert not out.exists()
-    return err
+    """A seeded run of the scene ``text`` refused (:func:`tests.test_3d_scene._bad`)."""
+    return refused_run(capsys, tmp_path, text, *words, seed=1)
 
 
 def _cohesion(scene, seed):

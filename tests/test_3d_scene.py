@@ -17,11 +17,14 @@ MESHES = Path(__file__).parents[1] / "meshes"
 COLUMN = (MESHES / "column_3d.toml").read_text()
 
 
-def _bad(capsys, tmp_path, text, *words):
+def _bad(capsys, tmp_path, text, *words, seed: int | None = None):
+    """``fem-rmpm run`` (with ``--seed`` when given) of the scene ``text``: exit 2, one
+    line holding every one of ``words``, nothing written; returns the line."""
     path = tmp_path / "bad.toml"
     path.write_text(text)
     out = tmp_path / "out"
-    code = main(["run", str(path), "--out", str(out), "--quiet"])
+    seeded = [] if seed is None else ["--seed", str(seed)]
+    code = main(["run", str(path), "--out", str(out), "--quiet", *seeded])
     err = capsys.readouterr().err.strip()
     assert code == 2, err
     assert len(err.splitlines()) == 1 and "Traceback" not in err, err

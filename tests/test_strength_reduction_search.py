@@ -12,7 +12,6 @@ import math
 import pytest
 
 from fem_rmpm import api
-from fem_rmpm.scene import with_values
 from fem_rmpm.schemes.implicit.srm_solves import (
     FSOptions,
     continue_strength,
@@ -20,25 +19,9 @@ from fem_rmpm.schemes.implicit.srm_solves import (
     srm_scene,
 )
 from fem_rmpm.schemes.implicit.strength_reduction import _next_trial, factor_of_safety
+from tests.test_strength_reduction import closed_form, infinite_slope
 
-GAMMA = 20.0
-
-
-def infinite_slope(meshes, c, z=5.0, beta=30.0, rows=20, hx=0.5, length=12.0):
-    """meshes/infinite_slope.toml: vertical depth z (m), angle beta (deg), ``rows`` cells
-    across the normal thickness t, cells ``hx`` t long, a layer ``length`` t long."""
-    sc = api.load_scene(meshes / "infinite_slope.toml")
-    t = z * math.cos(math.radians(beta))
-    L = length * t
-    return with_values(sc, {"scene.frame_angle_deg": beta, "grid.size": [L, t],
-                            "grid.cell": [hx * t, t / rows],
-                            "soil.polygon": [[0, 0], [L, 0], [L, t], [0, t]],
-                            "soil.cohesion_peak": c, "soil.cohesion_residual": c})
-
-
-def closed_form(c, z=5.0, beta=30.0):
-    b = math.radians(beta)
-    return c / (GAMMA * z * math.sin(b) * math.cos(b))
+GAMMA = 20.0     # kN/m3, meshes/infinite_slope.toml
 
 
 def test_next_trial_marches_bisects_and_never_repeats_the_bracket_end():
@@ -62,7 +45,7 @@ def test_rejection_keeps_converging_solves_and_shortens_failing_ones(meshes):
     converge alike with and without the rejection of a growing residual (same
     iterations, same maximum displacement); past collapse (1.7) both fail, the rejecting
     solve in fewer iterations (seen: 8 against 12)."""
-    sc = infinite_slope(meshes, 60.0, rows=8, hx=1.0)
+    sc = infinite_slope(meshes, rows=8, hx=1.0, c=60.0)
     grid, pts = api.prepare(sc)
     never = FSOptions(growth_rejection=0.0)
     rejecting = dataclasses.replace(never, growth_rejection=1.5)
@@ -87,7 +70,7 @@ def test_failure_over_a_small_change_is_decisive_a_large_one_is_not(meshes):
     a solve to 1.48 (1.4 %) that fails fails the trial there; a converged solve below
     FS (1.47) moves the state on.  Then the search: no decisive failure lies below its
     bracket's lower end."""
-    sc = infinite_slope(meshes, 60.0, rows=8, hx=1.0)
+    sc = infinite_slope(meshes, rows=8, hx=1.0, c=60.0)
     grid, pts = api.prepare(sc)
     o = FSOptions()
     srm = srm_scene(sc, o)
@@ -115,8 +98,8 @@ def test_search_matches_closed_form_and_the_gravity_anew_search(meshes):
     tolerance (0.5 %).  Achieves 1.4147 (10 static solves, 115 Newton iterations) and
     1.4170 (11 solves, 263 iterations): 0.16 % apart
     (asserts 0.6 %), -0.46 % from the half-row closed form (asserts 1.5 %)."""
-    sc = infinite_slope(meshes, 60.0)
-    exact = closed_form(60.0) * 20 / 19.5
+    sc = infinite_slope(meshes, rows=20, hx=0.5, c=60.0)
+    exact = closed_form(60.0, GAMMA, 5.0, 30.0) * 20 / 19.5
     grid, pts = api.prepare(sc)
     fast = factor_of_safety(sc, options=FSOptions(), grid=grid, pts=pts)
     grid, pts = api.prepare(sc)
