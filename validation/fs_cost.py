@@ -70,7 +70,7 @@ def mpm_run(scene) -> dict:
 def risk_rows(case: str, n: int, label: str) -> list[dict]:
     """FS and decided MPM run of realizations 0..n-1 of ``case`` of the risk slope."""
     from fem_rmpm.campaign.cases import parse_case, realization_seed
-    from fem_rmpm.campaign.decide import FailureWatch
+    from fem_rmpm.campaign.decide import FailureWatch, failure_threshold
     base = api.load_scene(str(ROOT / "meshes" / "slope_risk.toml"))
     scene = parse_case(case, base).scene
     rows = []
@@ -79,7 +79,8 @@ def risk_rows(case: str, n: int, label: str) -> list[dict]:
     for i in range(n):
         seed = realization_seed(scene.montecarlo.seed, i)
         res, cpu_fs, wall_fs = timed(lambda: _fs_seed(scene, seed))
-        watch = FailureWatch(scene.montecarlo.failure_displacement, stop=True)
+        watch = FailureWatch(scene.montecarlo.failure_displacement,
+                             failure_threshold(scene), stop=True)
         run, cpu_mpm, wall_mpm = timed(lambda: api.run(
             scene, out=None, seed=seed, progress=False, vtk=False, figures=False,
             stop_when=watch))
@@ -122,7 +123,7 @@ def interleaved_rows(case: str, n: int, label: str, other: Path) -> list[dict]:
     """FS of realizations 0..n-1 by this checkout and by ``other`` (a second process, one
     realization at a time, in alternating order), and this checkout's decided MPM run."""
     from fem_rmpm.campaign.cases import parse_case, realization_seed
-    from fem_rmpm.campaign.decide import FailureWatch
+    from fem_rmpm.campaign.decide import FailureWatch, failure_threshold
     path = str(ROOT / "meshes" / "slope_risk.toml")
     scene = parse_case(case, api.load_scene(path)).scene
     env = dict(os.environ, PYTHONPATH=str(other))
@@ -146,7 +147,8 @@ def interleaved_rows(case: str, n: int, label: str, other: Path) -> list[dict]:
             res, cpu_fs, _ = timed(lambda: _fs_seed(scene, seed))
             if i % 2 == 1:
                 o = theirs(i)
-            watch = FailureWatch(scene.montecarlo.failure_displacement, stop=True)
+            watch = FailureWatch(scene.montecarlo.failure_displacement,
+                                 failure_threshold(scene), stop=True)
             _, cpu_mpm, _ = timed(lambda: api.run(scene, out=None, seed=seed, progress=False,
                                                   vtk=False, figures=False, stop_when=watch))
             row = {"label": label, "case": case, "index": i, "seed": seed, "fs": res.fs,

@@ -68,9 +68,9 @@ What a campaign is
   times); if it is still lost, it has no record and the next run computes it.
 * **Runs stopped once decided** (:mod:`.decide`): with ``[montecarlo] runs_to_rest = K``
   realization ``i >= K`` stops at the first output at which ``failure_area`` (1 m2/m) of
-  points has moved more
-  than ``failure_displacement`` (its record: ``stop_reason = "failure decided"``, only
-  ``failed``, ``decided_time``, ``decided_area``); a run never decided so runs to rest.
+  points has moved more than ``failure_displacement`` (its record: ``stop_reason =
+  "failure decided"``, only ``failed``, ``decided_time``, ``decided_area``); a run never
+  decided so runs to rest.
   P(failure) is over all realizations, the measures over the runs to rest with ``i < K``
   (``measure_runs`` in the statistics).  ``runs_to_rest`` is not part of the identity:
   a larger K reruns the decided records below it to rest.
