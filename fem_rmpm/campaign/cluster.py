@@ -18,6 +18,7 @@ from distributed.core import Status
 from fem_rmpm import api
 from fem_rmpm.campaign.cases import CampaignError
 from fem_rmpm.campaign.task import MALLOC_THRESHOLDS, campaign_threads
+from fem_rmpm.runtime import signals
 from fem_rmpm.runtime.machine import usable_cores as _usable_cpus
 from fem_rmpm.runtime.signals import sigint_ignored_by_children
 from fem_rmpm.scene import with_values
@@ -92,9 +93,25 @@ class WorkerDeathNotice(logging.Handler):
             return                  # a worker killed by the cluster's own closing
         died = (" was killed by " in msg or " exited with status " in msg)
         if msg.startswith("Worker process ") and died and not msg.endswith(" status 0"):
+            if _interrupted_with_the_command(msg):
+                return
             print(f"fem-rmpm: warning: a Dask worker process died ({msg}; out of memory is "
                   "the usual cause): its realization runs again on a worker, and is lost "
                   "if the worker dies again and again", file=sys.stderr, flush=True)
+
+
+def _interrupted_with_the_command(msg: str, wait: float = 0.5) -> bool:
+    """True when a worker killed by SIGINT or SIGTERM went down with this command: the
+    signal of a terminal's Ctrl-C or a job's SIGTERM reaches the whole process group at
+    once, and the nanny may log the worker's death (in its thread) before the command's
+    handler has run in the main thread; so wait up to ``wait`` s for that handler
+    (:mod:`fem_rmpm.runtime.signals`) before calling the death news."""
+    if not msg.endswith((" signal 15", " signal 2")):
+        return False
+    deadline = time.monotonic() + wait
+    while not signals._pending and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return bool(signals._pending)
 
 
 def _notice_worker_deaths(cluster) -> None:
