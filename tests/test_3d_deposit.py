@@ -5,6 +5,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from fem_rmpm.measures.deposit import deposit_points
 from fem_rmpm.measures.deposit3d import compute_measures_3d, deposit_points_3d
@@ -64,3 +65,6 @@ def test_a_stray_point_does_not_move_the_3d_runout():
     assert abs(thrown["runout_distance"] - 1.0) < 1e-12
     assert abs(thrown["runout_distance_mean"] - 1.0) < 1e-12
     assert plain["excluded_stray_points"] == 0 and thrown["excluded_stray_points"] == 1
+    # per metre of strike, as the 2-D measure (m2/m): one point of 0.25**3 m3 over the
+    # block's 2 m of strike
+    assert thrown["excluded_stray_volume"] == pytest.approx(0.25 ** 3 / 2.0, rel=1e-12)

@@ -41,7 +41,8 @@ realization has at least one slide unless its sliding volume is spread thinner t
 failure area over every slice.
 ``intact_blocks`` counts the 3-D connected components of the cells of sliding intact
 points (:func:`intact_blocks_3d`).  ``excluded_frozen_*`` and ``excluded_stray_*`` give the
-excluded points per reason (count and initial volume, m3).
+excluded points per reason (count, and initial volume per metre of strike, m2/m, as the
+plane-strain measures).
 """
 from __future__ import annotations
 
@@ -187,7 +188,7 @@ def compute_measures_3d(pts, grid, frame_angle_deg: float, threshold: float,
         "strike_length": length,
         "failure_displacement": float(threshold),
         "excluded_frozen_points": int(frozen.sum()),
-        "excluded_frozen_volume": float(pts.volume0[frozen].sum()),
+        "excluded_frozen_volume": float(pts.volume0[frozen].sum()) / length,
         "excluded_stray_points": int(stray.sum()),
-        "excluded_stray_volume": float(pts.volume0[stray].sum()),
+        "excluded_stray_volume": float(pts.volume0[stray].sum()) / length,
     }
