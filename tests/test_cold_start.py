@@ -218,3 +218,15 @@ def test_compile_stats_count_numba_compiles_in_this_process():
     assert n1 == n0 + 1 and s1 > s0
     twice(2.5)
     assert compile_stats() == (n1, s1)
+
+
+def test_a_three_d_campaign_loads_nothing_ahead():
+    """A 3-D scene: the one compile, and no one-step run on the other workers (each would
+    set up the whole 3-D scene once more)."""
+    from types import SimpleNamespace
+
+    scene = SimpleNamespace(grid=SimpleNamespace(dimension=3))
+    client = _Client(2)
+    line = warm_workers(client, [{"scene": scene, "seed": 1}], run=_compiled, load=_loaded)
+    assert len(client.submitted) == 1, "the warm-up only"
+    assert line.endswith("the others load them from numba's on-disk cache"), line

@@ -205,12 +205,13 @@ def warm_workers(client, tasks: list[dict], run=warm_kernels, say=None,
     workers of a machine share numba's on-disk cache, so they then load the kernels
     instead of each compiling them (20-30 s of CPU each on a fresh install).  Runs
     ``run(tasks[0])`` (:func:`warm_kernels`) on one worker and waits for it; when it
-    compiled, ``load(tasks[0])`` (:func:`load_kernels`) on each other worker, so that the
-    line says what they compiled and how long their load took.  Returns the line to print
-    (None: one worker, no explicit realization, or the kernels were cached).  ``say(line)``
-    is told before the wait when ``cold(task)`` (this process's view of the cache) finds
-    the kernels uncompiled.  A warm-up that fails is left to the realizations to report
-    (None; a failed load on another worker is left out of the line)."""
+    compiled, ``load(tasks[0])`` (:func:`load_kernels`) on each other worker (plane-strain
+    scenes), so that the line says what they compiled and how long their load took.
+    Returns the line to print (None: one worker, no explicit realization, or the kernels
+    were cached).  ``say(line)`` is told before the wait when ``cold(task)`` (this
+    process's view of the cache) finds the kernels uncompiled.  A warm-up that fails is
+    left to the realizations to report (None; a failed load on another worker is left out
+    of the line)."""
     task = tasks[0] if tasks else None
     if task is None or "scene" not in task or task.get("fs") == "only":
         return None
@@ -232,6 +233,9 @@ def warm_workers(client, tasks: list[dict], run=warm_kernels, say=None,
             f"({res['cpu_seconds']:.1f} s CPU"
             + (f", {res['functions']} functions" if "functions" in res else "")
             + ") on one worker")
+    if getattr(getattr(task["scene"], "grid", None), "dimension", 2) == 3:
+        # (a one-step 3-D run per worker would set up the whole 3-D scene again)
+        return line + "; the others load them from numba's on-disk cache"
     return line + _loads_text(client, task, workers[1:], load)
 
 
