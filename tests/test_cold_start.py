@@ -49,7 +49,11 @@ class _Client:
 
 
 def _compiled(task):
-    return {"compiled": True, "seconds": 21.5, "cpu_seconds": 20.25}
+    return {"compiled": True, "functions": 26, "seconds": 21.5, "cpu_seconds": 20.25}
+
+
+def _loaded(task):
+    return {"compiled": False, "functions": 0, "seconds": 0.75, "cpu_seconds": 0.5}
 
 
 TASKS = [{"scene": "first", "seed": 1}, {"scene": "second", "seed": 2}]
@@ -59,13 +63,35 @@ def test_kernels_are_compiled_once_on_one_worker_before_the_others_start():
     """Two workers: the first task's kernels compiled by one submitted call, awaited, and
     a line saying so (its seconds as measured)."""
     client, said = _Client(2), []
-    line = warm_workers(client, TASKS, run=_compiled, say=said.append, cold=lambda t: True)
-    assert client.submitted == [(TASKS[0],)], "exactly one warm-up task, the first one"
+    line = warm_workers(client, TASKS, run=_compiled, say=said.append, cold=lambda t: True,
+                        load=_loaded)
+    assert client.submitted == [(TASKS[0],), (TASKS[0],)], \
+        "one warm-up task (the first one), then one load on the other worker"
     assert "once for all workers" in line and "21.5 s" in line and "20.2 s CPU" in line
+    assert "26 functions" in line, line
+    assert "1 other worker(s) loaded them" in line and "no function compiled" in line, line
+    assert "0.8 s" in line and "compiled again" not in line, line
     assert len(said) == 1 and "compiling the kernels once" in said[0], said
     said.clear()
-    warm_workers(_Client(2), TASKS, run=_compiled, say=said.append, cold=lambda t: False)
+    warm_workers(_Client(2), TASKS, run=_compiled, say=said.append, cold=lambda t: False,
+                 load=_loaded)
     assert said == [], "nothing announced when this process sees the kernels cached"
+
+
+def test_a_worker_that_compiles_again_is_named_in_the_line():
+    """Three workers, one of the two others compiling again (a cache of its own): the
+    line says one loaded and one compiled, with its count and seconds; a load that
+    fails is left out."""
+    answers = iter([_loaded(None), {"compiled": True, "functions": 24, "seconds": 19.0,
+                                    "cpu_seconds": 18.0}])
+    line = warm_workers(_Client(3), TASKS, run=_compiled, load=lambda t: next(answers))
+    assert "1 other worker(s) loaded them" in line, line
+    assert "1 other worker(s) compiled again (24 functions, up to 19.0 s)" in line, line
+
+    def lost(task):
+        raise RuntimeError("worker died")
+    line = warm_workers(_Client(2), TASKS, run=_compiled, load=lost)
+    assert line.endswith("the others load them from numba's on-disk cache"), line
 
 
 def test_no_warm_up_where_it_cannot_save_a_compile():
@@ -174,3 +200,33 @@ def test_the_cold_check_reads_the_cache_of_explicit_realizations_only():
     assert isinstance(kernels_cold_here({"scene": scene}), bool)
     implicit = with_values(scene, {"solver.scheme": "implicit"})
     assert kernels_cold_here({"scene": implicit}) is False
+
+
+def test_compile_stats_count_numba_compiles_in_this_process():
+    """A new numba function compiles once (one more function counted, seconds grow); its
+    second call compiles nothing."""
+    from numba import njit
+
+    from fem_rmpm.runtime.numba_cache import compile_stats
+
+    @njit
+    def twice(x):
+        return 2.0 * x
+    n0, s0 = compile_stats()
+    assert twice(1.5) == 3.0
+    n1, s1 = compile_stats()
+    assert n1 == n0 + 1 and s1 > s0
+    twice(2.5)
+    assert compile_stats() == (n1, s1)
+
+
+def test_a_three_d_campaign_loads_nothing_ahead():
+    """A 3-D scene: the one compile, and no one-step run on the other workers (each would
+    set up the whole 3-D scene once more)."""
+    from types import SimpleNamespace
+
+    scene = SimpleNamespace(grid=SimpleNamespace(dimension=3))
+    client = _Client(2)
+    line = warm_workers(client, [{"scene": scene, "seed": 1}], run=_compiled, load=_loaded)
+    assert len(client.submitted) == 1, "the warm-up only"
+    assert line.endswith("the others load them from numba's on-disk cache"), line

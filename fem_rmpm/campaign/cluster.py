@@ -20,11 +20,12 @@ from fem_rmpm.campaign.cases import CampaignError
 from fem_rmpm.campaign.task import MALLOC_THRESHOLDS, campaign_threads
 from fem_rmpm.runtime import signals
 from fem_rmpm.runtime.machine import usable_cores as _usable_cpus
+from fem_rmpm.runtime.numba_cache import compile_stats
 from fem_rmpm.runtime.signals import sigint_ignored_by_children
 from fem_rmpm.scene import with_values
 
 __all__ = ["worker_environment", "local_worker_count", "local_workers_text",
-           "start_local_cluster", "start_client", "warm_kernels", "warm_workers",
+           "start_local_cluster", "start_client", "warm_kernels", "load_kernels", "warm_workers",
            "kernels_cold_here", "WorkerDeathNotice"]
 
 _THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
@@ -160,24 +161,34 @@ def start_local_cluster(workers: int, threads: int = 1):
 WARM_UP_TIME = 1e-9
 
 
-def warm_kernels(task: dict) -> dict:
+def warm_kernels(task: dict, always: bool = False) -> dict:
     """Dask task: fill numba's on-disk cache with the explicit kernels realization ``task``
     (a :func:`fem_rmpm.campaign.task.run_realization` task) runs, by running its scene
     for one step (:data:`WARM_UP_TIME`, no output), on the threads the campaign gives it.
-    Returns ``{"compiled": whether the kernels were cold, "seconds": wall time (s),
-    "cpu_seconds": this process's CPU time (s)}``; ``compiled`` False (nothing run) when
-    they were cached or the scene is not an explicit numba run."""
+    Returns ``{"compiled": whether numba compiled anything, "functions": how many it
+    compiled (:func:`fem_rmpm.runtime.numba_cache.compile_stats`; 0: every kernel came
+    from the cache), "seconds": wall time (s), "cpu_seconds": this process's CPU time
+    (s)}``; nothing run (``compiled`` False, no ``functions``) when the kernels were
+    cached and not ``always``, or the scene is not an explicit numba run."""
     t0, c0 = time.perf_counter(), time.process_time()
     scene = task["scene"]
     threads = campaign_threads(scene)
-    if not (api.explicit_numba(scene.solver)
-            and api.kernels_cold(threads, bool(getattr(scene.solver, "fbar", False)))):
+    if not (api.explicit_numba(scene.solver) and (always or api.kernels_cold(
+            threads, bool(getattr(scene.solver, "fbar", False))))):
         return {"compiled": False, "seconds": 0.0, "cpu_seconds": 0.0}
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     short = with_values(scene, {"solver.threads": threads, "solver.t_end": WARM_UP_TIME})
+    before = compile_stats()[0]
     api.run(short, out=None, seed=task.get("seed"), noise=task.get("noise"), progress=False)
-    return {"compiled": True, "seconds": time.perf_counter() - t0,
-            "cpu_seconds": time.process_time() - c0}
+    functions = compile_stats()[0] - before
+    return {"compiled": functions > 0, "functions": functions,
+            "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0}
+
+
+def load_kernels(task: dict) -> dict:
+    """Dask task: :func:`warm_kernels` run also when the kernels are cached — a worker
+    loading what the first one compiled says how long that took and what it compiled."""
+    return warm_kernels(task, always=True)
 
 
 def kernels_cold_here(task: dict) -> bool:
@@ -189,30 +200,71 @@ def kernels_cold_here(task: dict) -> bool:
 
 
 def warm_workers(client, tasks: list[dict], run=warm_kernels, say=None,
-                 cold=kernels_cold_here) -> str | None:
+                 cold=kernels_cold_here, load=load_kernels) -> str | None:
     """Compile the kernels of ``tasks`` once, on one worker, before the others start: the
     workers of a machine share numba's on-disk cache, so they then load the kernels
     instead of each compiling them (20-30 s of CPU each on a fresh install).  Runs
-    ``run(tasks[0])`` (:func:`warm_kernels`) on one worker and waits for it; returns the
-    line to print (None: one worker, no explicit realization, or the kernels were
-    cached).  ``say(line)`` is told before the wait when ``cold(task)`` (this process's
-    view of the cache) finds the kernels uncompiled.  A warm-up that fails is left to the
-    realizations to report (None)."""
+    ``run(tasks[0])`` (:func:`warm_kernels`) on one worker and waits for it; when it
+    compiled, ``load(tasks[0])`` (:func:`load_kernels`) on each other worker (plane-strain
+    scenes), so that the line says what they compiled and how long their load took.
+    Returns the line to print (None: one worker, no explicit realization, or the kernels
+    were cached).  ``say(line)`` is told before the wait when ``cold(task)`` (this
+    process's view of the cache) finds the kernels uncompiled.  A warm-up that fails is
+    left to the realizations to report (None; a failed load on another worker is left out
+    of the line)."""
     task = tasks[0] if tasks else None
     if task is None or "scene" not in task or task.get("fs") == "only":
         return None
     try:
-        if len(client.nthreads()) < 2:
+        workers = list(client.nthreads())
+        if len(workers) < 2:
             return None
         if say is not None and cold(task):
             say("compiling the kernels once, on one worker, for all workers (first "
                 "campaign after an install or an upgrade) ...")
         res = client.submit(run, task, pure=False, key=f"rmpm-warm-up-{os.getpid()}",
+                            workers=workers[:1], allow_other_workers=True,
                             retries=0).result()
     except Exception:  # noqa: BLE001 - the realizations report their own errors
         return None
     if not res.get("compiled"):
         return None
-    return (f"compiled the kernels once for all workers: {res['seconds']:.1f} s "
-            f"({res['cpu_seconds']:.1f} s CPU) on one worker; the others load them from "
-            "numba's on-disk cache")
+    line = (f"compiled the kernels once for all workers: {res['seconds']:.1f} s "
+            f"({res['cpu_seconds']:.1f} s CPU"
+            + (f", {res['functions']} functions" if "functions" in res else "")
+            + ") on one worker")
+    if getattr(getattr(task["scene"], "grid", None), "dimension", 2) == 3:
+        # (a one-step 3-D run per worker would set up the whole 3-D scene again)
+        return line + "; the others load them from numba's on-disk cache"
+    return line + _loads_text(client, task, workers[1:], load)
+
+
+def _loads_text(client, task: dict, others: list, load) -> str:
+    """``load(task)`` on each worker of ``others`` (addresses), awaited; the end of
+    :func:`warm_workers`' line: how many loaded the kernels from the cache (no compile),
+    in how many seconds, and any that compiled."""
+    futures = [client.submit(load, task, pure=False, key=f"rmpm-load-{os.getpid()}-{k}",
+                             workers=[addr], allow_other_workers=False, retries=0)
+               for k, addr in enumerate(others)]
+    results = []
+    for fut in futures:
+        try:
+            results.append(fut.result())
+        except Exception:  # noqa: BLE001 - a worker lost here is the realizations' news
+            continue
+    loaded = [r for r in results if r.get("functions") == 0]
+    compiled = [r for r in results if r.get("functions")]
+    if not loaded and not compiled:
+        return "; the others load them from numba's on-disk cache"
+    text = ""
+    if loaded:
+        secs = sorted(r["seconds"] for r in loaded)
+        span = f"{secs[0]:.1f} s" if len(secs) == 1 else f"{secs[0]:.1f}-{secs[-1]:.1f} s"
+        text += (f"; {len(loaded)} other worker(s) loaded them from numba's on-disk cache, "
+                 f"no function compiled ({span} for a one-step run each)")
+    if compiled:
+        text += (f"; {len(compiled)} other worker(s) compiled again "
+                 f"({max(r['functions'] for r in compiled)} functions, up to "
+                 f"{max(r['seconds'] for r in compiled):.1f} s): they do not share the "
+                 "first worker's cache (another NUMBA_CACHE_DIR, machine or package copy)")
+    return text

@@ -25,19 +25,29 @@ helper still recompiles every kernel that may inline it.
 Functions of other packages keep numba's own rule.  It runs when :mod:`fem_rmpm` is
 imported, before any kernel is decorated.  If numba's locator interface changes, the
 package falls back to numba's rule (no error).
+
+:func:`install` also counts numba's compiles in this process (numba's event API: a
+function loaded from the on-disk cache is no compile), so a run and a campaign worker can
+say whether their kernels came from the cache: :func:`compile_stats`.
 """
 from __future__ import annotations
 
 import functools
 import hashlib
+import time
 from pathlib import Path
 
 try:
     from numba.core.caching import CacheImpl
 except ImportError:          # numba's internals moved: numba's own rule applies (install)
     CacheImpl = None
+try:
+    from numba.core import event as numba_event
+except ImportError:          # no event API: no compile count (compile_stats)
+    numba_event = None
 
-__all__ = ["COMPILED_SOURCES", "EXPLICIT_SOURCES", "sources_hash", "stamp_group", "install"]
+__all__ = ["COMPILED_SOURCES", "EXPLICIT_SOURCES", "sources_hash", "stamp_group", "install",
+           "compile_stats"]
 
 PACKAGE = Path(__file__).resolve().parents[1]
 #: The package's compiled (numba) code, relative to the package directory: folders
@@ -111,9 +121,49 @@ def _package_locator(base):
     return Locator
 
 
+#: numba compiles in this process: [functions compiled, wall seconds in the outermost ones]
+_COMPILES = [0, 0.0]
+_OPEN: list = []        # start times of the compiles under way (nested: callees while typing)
+
+
+def compile_stats() -> tuple[int, float]:
+    """``(functions, seconds)``: the functions numba compiled in this process so far (each
+    specialisation, callees included; loads from the on-disk cache do not count) and the
+    wall time (s) spent in them (outermost compiles only, callees are inside).  (0, 0.0)
+    where numba's event API is missing."""
+    return _COMPILES[0], _COMPILES[1]
+
+
+def _count_compiles() -> bool:
+    """Register the listener of :func:`compile_stats` with numba's event API (once)."""
+    event = numba_event
+    if event is None:
+        return False
+
+    class CompileCounter(event.Listener):
+        def on_start(self, ev):
+            _OPEN.append(time.perf_counter())
+
+        def on_end(self, ev):
+            t0 = _OPEN.pop() if _OPEN else time.perf_counter()
+            _COMPILES[0] += 1
+            if not _OPEN:
+                _COMPILES[1] += time.perf_counter() - t0
+
+    if not any(isinstance(x, event.Listener) and type(x).__name__ == "CompileCounter"
+               for x in event._registered.get("numba:compile", ())):
+        event.register("numba:compile", CompileCounter())
+    return True
+
+
 def install() -> bool:
-    """Put the package's locators first in numba's list (idempotent).  False if numba's
-    cache machinery does not look as expected (then numba's own rule applies)."""
+    """Put the package's locators first in numba's list (idempotent) and count numba's
+    compiles (:func:`compile_stats`).  False if numba's cache machinery does not look as
+    expected (then numba's own rule applies)."""
+    try:
+        _count_compiles()
+    except Exception:       # noqa: BLE001 - numba's event API moved: no count, never an error
+        pass
     try:
         classes = list(CacheImpl._locator_classes)
     except AttributeError:   # also CacheImpl None

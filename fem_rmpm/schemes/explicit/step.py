@@ -127,7 +127,7 @@ def advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, th
                       bool(sv.fbar), int(threads), work.model, work.block)
     clock[:4] = clock0[0], clock0[2], rec.dt_min, rec.dt_max
     count[0], count[2] = clock0[1], 0
-    serial, parallel, pair = step_drivers(o.model)
+    serial, parallel, pair = step_drivers(o.model, o.fbar)
     if threads > 1:
         both = pair_driver_fits(threads, bool(sv.fbar)) and numba.get_num_threads() >= 2
         call(pair if both else parallel, P, M, N, K.top_of(N), N.half, S, o, ctl, clock,

@@ -20,6 +20,7 @@ from numba.np.ufunc import parallel as numba_parallel
 
 from fem_rmpm.runtime.machine import slow_threads_warning, threading_layer
 from fem_rmpm.runtime.machine import usable_cores as _cores
+from fem_rmpm.runtime.numba_cache import compile_stats
 from fem_rmpm.schemes.common import RunRecord
 
 __all__ = ["auto_threads", "run_threads", "busy_threads_warning", "threads_from_auto",
@@ -123,10 +124,15 @@ def threads_from_auto(resolved: bool):
 
 
 def first_step_done(rec: RunRecord, seconds: float, threads: int) -> None:
-    """Book the first step's wall time (s) and, on two or more threads, numba's threading
-    layer in ``rec.solver``; warn (once per process) when that layer is the slow one
+    """Book the first step's wall time (s), the functions numba compiled in this process
+    up to it and the wall seconds that took (``numba_compiles``,
+    :func:`fem_rmpm.runtime.numba_cache.compile_stats`: 0 when every kernel came from the
+    on-disk cache) and, on two or more threads, numba's threading layer in ``rec.solver``;
+    warn (once per process) when that layer is the slow one
     (:func:`fem_rmpm.runtime.machine.slow_threads_warning`)."""
     rec.solver["first_step_time"] = seconds
+    functions, compile_seconds = compile_stats()
+    rec.solver["numba_compiles"] = {"functions": functions, "seconds": compile_seconds}
     if threads > 1:
         layer = rec.solver["threading_layer"] = threading_layer()
         _print_once("layer", slow_threads_warning(layer, threads))

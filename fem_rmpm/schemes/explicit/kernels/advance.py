@@ -179,7 +179,7 @@ def pair_worker(version, only, P, M, T, H, S, o, c, clock, count, energy, w):
         _move_half(P, M, T, H, S, op, w)                        # 2. solve, 3a. map back
         if not arrive(bar, k + 4):
             break
-        _stress_queue_call(version, only, P, M, T, H, S, op, w)  # 3b, 3c. stress update
+        _stress_queue_call(version, only, False, P, M, T, H, S, op, w)  # 3b, 3c. stress
         if not arrive(bar, k + 6):
             break
         if w == 0:
@@ -194,10 +194,11 @@ def pair_worker(version, only, P, M, T, H, S, o, c, clock, count, energy, w):
     count[1] = STALL
 
 
-def _make_drivers(version, only):
-    """``(serial, parallel, pair)`` drivers for one registry version and model restriction
-    (the stress pass's, :func:`.stress.material_kernels`; ``pair``: exactly two threads, no
-    F-bar, module docstring).  All take the step options ``o``
+def _make_drivers(version, only, fbar):
+    """``(serial, parallel, pair)`` drivers for one registry version, model restriction
+    and F-bar or not (the stress pass's, :func:`.stress.material_kernels`; ``fbar`` a
+    closure value, so a driver without F-bar compiles none of its passes; ``pair``: exactly
+    two threads, no F-bar, module docstring).  All take the step options ``o``
     of the previous step (their dt, gravity and damping are replaced), a :class:`RunControl`
     ``c``, ``clock`` (float64 (7,): t, peak kinetic energy, smallest and largest dt so far,
     then the last step's kinetic energy, max |v_pic| and dt), ``count`` (int64 (3,): the
@@ -211,10 +212,10 @@ def _make_drivers(version, only):
             op = _options(o, c, clock[0], S.out[0], S.out[1])
             map_to_nodes(P, M, N, S, op)                      # 1. map to nodes
             ke, vmax = solve_and_move(P, M, N, S, op)         # 2. solve, 3a. map back
-            if op.fbar:                                       # 3b, 3c. stress update
+            if fbar:                                          # 3b, 3c. stress update
                 nodal_velocities(M, N)
                 fbar_gradient_pass(P, M, N, S, op)
-            serial_stress_pass(version, only, P, M, N, S, op)
+            serial_stress_pass(version, only, fbar, P, M, N, S, op)
             if _tick(c, op, S, clock, count, energy, ke, vmax) >= 0:
                 break
 
@@ -227,11 +228,11 @@ def _make_drivers(version, only):
             ke, vmax = solve_and_move_parallel(P, M, T, H, S, op)
             if not nodal_in_pass(op, S):                      # (else in the stress pass)
                 nodal_velocities_parallel(M, T, H)
-            if op.fbar:
+            if fbar:
                 fbar_gradient_pass_parallel(P, M, T, H, S, op)
             _reset_queues(S)
             for ch in prange(nch):
-                _stress_queue_call(version, only, P, M, T, H, S, op, np.int64(ch))
+                _stress_queue_call(version, only, fbar, P, M, T, H, S, op, np.int64(ch))
             _combine(S, nch)
             if _tick(c, op, S, clock, count, energy, ke, vmax) >= 0:
                 break
@@ -254,11 +255,12 @@ def pair_driver_fits(threads: int, fbar: bool) -> bool:
 _BY_VERSION: dict = {}
 
 
-def step_drivers(only: int = -1):
-    """``(advance, advance_parallel, advance_pair)`` compiled for the current model registry
-    and model restriction ``only`` (the one model id of all points, -1: any; see
-    :func:`.stress.material_kernels`)."""
-    key = (registry.version(), int(only))
+def step_drivers(only: int = -1, fbar: bool = False):
+    """``(advance, advance_parallel, advance_pair)`` compiled for the current model registry,
+    model restriction ``only`` (the one model id of all points, -1: any; see
+    :func:`.stress.material_kernels`) and F-bar or not (``fbar``: the ``o.fbar`` of the
+    steps they run)."""
+    key = (registry.version(), int(only), bool(fbar))
     if key not in _BY_VERSION:
         _BY_VERSION[key] = _make_drivers(*key)
     return _BY_VERSION[key]

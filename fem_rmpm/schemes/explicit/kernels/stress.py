@@ -34,7 +34,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import prange
+from numba import prange, types
+from numba.core.errors import TypingError
+from numba.extending import overload
 
 from fem_rmpm.materials import registry
 from fem_rmpm.materials.dispatch import block_dispatch, has_block_update, point_dispatch
@@ -83,12 +85,35 @@ def _trial_strain(geostatic, i, j, W, ta, tb, ls):
     return x0, x1, ls[i, 2] + 0.0, x3
 
 
+def point_kinematics(fbar, P, M, vn, S, o, W, ta, tb, tc, b, e):
+    """Step 2 of the pass on points ``b:e``: :func:`.strain.fbar_apply_points` where
+    ``fbar`` (a literal), else :func:`.strain.kinematics_points`.  Placeholder called from
+    numba code only: chosen when the calling kernel is compiled, so a pass without F-bar
+    compiles no F-bar code (and one with F-bar no plain kinematics)."""
+    raise NotImplementedError("point_kinematics runs inside numba kernels only")
+
+
+@overload(point_kinematics, inline="always", prefer_literal=True)
+def _point_kinematics(fbar, P, M, vn, S, o, W, ta, tb, tc, b, e):
+    if not isinstance(fbar, types.BooleanLiteral):
+        raise TypingError("point_kinematics needs F-bar as a literal (a closure value of "
+                          "the calling kernel)")
+    if fbar.literal_value:
+        def impl(fbar, P, M, vn, S, o, W, ta, tb, tc, b, e):
+            fbar_apply_points(P, S, o, W, ta, tb, tc, b, e)
+    else:
+        def impl(fbar, P, M, vn, S, o, W, ta, tb, tc, b, e):
+            kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e)
+    return impl
+
+
 # The model dispatch is called in the factories' bodies, where ``version`` is a closure
-# value and so a compile-time literal (see fem_rmpm.materials.dispatch).
-def _make_stress_pass(version, only):
-    """``(serial, parallel)`` stress pass compiled for one registry version and model
+# value and so a compile-time literal (see fem_rmpm.materials.dispatch); so is ``fbar``.
+def _make_stress_pass(version, only, fbar):
+    """``(serial, parallel)`` stress pass compiled for one registry version, model
     restriction ``only`` (-1: any model; else the one model id of all points; see
-    :mod:`fem_rmpm.materials.dispatch`); ``S.out`` (4,) = max P-wave speed
+    :mod:`fem_rmpm.materials.dispatch`) and F-bar or not (``fbar``, the steps' ``o.fbar``:
+    only that kinematics is compiled, :func:`point_kinematics`); ``S.out`` (4,) = max P-wave speed
     sqrt(M / rho), max |v|, number of non-finite points, number outside the grid.
     ``serial``: the nodal velocities of both halves (:func:`.transfer.nodal_velocity`;
     with F-bar they are computed before, for the gradient pass), then every block of
@@ -98,30 +123,30 @@ def _make_stress_pass(version, only):
     Maxima and counts are combined exactly: the same result in both."""
     @kernel
     def stress_pass(P, M, N, S, o):
-        serial_stress_pass(version, only, P, M, N, S, o)
+        serial_stress_pass(version, only, fbar, P, M, N, S, o)
 
     @kernel_parallel
     def stress_pass_parallel(P, M, T, H, S, o):
         nch = workers(o, S)
         _reset_queues(S)
         for c in prange(nch):
-            _stress_queue_call(version, only, P, M, T, H, S, o, np.int64(c))
+            _stress_queue_call(version, only, fbar, P, M, T, H, S, o, np.int64(c))
         _combine(S, nch)
     return stress_pass, stress_pass_parallel
 
 
 @inline
-def serial_stress_pass(version, only, P, M, N, S, o):
+def serial_stress_pass(version, only, fbar, P, M, N, S, o):
     """The serial stress pass (the body of :func:`_make_stress_pass`'s ``serial``, also run
     by the step driver, :mod:`.advance`): the nodal velocities of both halves (with F-bar
     the caller computed them before its gradient pass), then every block of points in
-    order, one worker; ``version``, ``only``: literals, as there."""
+    order, one worker; ``version``, ``only``, ``fbar``: literals, as there."""
     T = top(N)
     if not o.fbar:
         nodal_velocity_half(M, T, N.half, np.int64(0))
         nodal_velocity_half(M, T, N.half, np.int64(1))
     _reset_queues(S)
-    _stress_queue_call(version, only, P, M, T, N.half, S, o, np.int64(0))
+    _stress_queue_call(version, only, fbar, P, M, T, N.half, S, o, np.int64(0))
     _combine(S, 1)
 
 
@@ -151,7 +176,7 @@ def _reset_queues(S):
 
 
 @kernel
-def _stress_queue_call(version, only, P, M, T, H, S, o, c):
+def _stress_queue_call(version, only, fbar, P, M, T, H, S, o, c):
     """Worker ``c`` of the stress pass: takes the next block of :data:`.common.BLOCK`
     points from the queue of its own half of the points (half ``c % 2``, the half its
     thread mapped and moved: those points are in its core's cache), then from the other
@@ -170,13 +195,13 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
     changes nothing in it: every block is computed by this one compiled function, maxima
     and counts combine exactly, so any thread count and any interleaving give bitwise the
     same result (``tests/test_threads.py``, with a half switched off so that one worker
-    takes most of the other's blocks).  ``version`` and ``only`` are literals (one compile
-    and cache entry per pair); not inlined into the threaded loop: numba's parfor passes,
-    run over the inlined model update, can change the result (1 and 2 threads would
-    differ).  Module level, not a closure of :func:`_make_stress_pass`: numba's cache key
-    of a closure holds its cell values pickled, and a dispatcher pickles with a random
-    uuid, so a threaded pass closing over this dispatcher would miss the cache in every
-    new process."""
+    takes most of the other's blocks).  ``version``, ``only`` and ``fbar`` (``o.fbar``) are
+    literals (one compile and cache entry per triple); not inlined into the threaded loop:
+    numba's parfor passes, run over the inlined model update, can change the result (1 and
+    2 threads would differ).  Module level, not a closure of :func:`_make_stress_pass`:
+    numba's cache key of a closure holds its cell values pickled, and a dispatcher pickles
+    with a random uuid, so a threaded pass closing over this dispatcher would miss the
+    cache in every new process."""
     n = P.x.shape[0]
     fixed_columns(P, S)
     bounds = (0, half_split(n) // BLOCK, (n + BLOCK - 1) // BLOCK)   # blocks of the halves
@@ -196,7 +221,8 @@ def _stress_queue_call(version, only, P, M, T, H, S, o, c):
             if k >= bounds[h + 1]:
                 break
             b = k * BLOCK
-            c2, nb = _stress_points(version, only, P, M, vn, S, o, b, min(b + BLOCK, n), c)
+            c2, nb = _stress_points(version, only, fbar, P, M, vn, S, o, b, min(b + BLOCK, n),
+                                    c)
             c2max = max(c2max, c2)
             n_bad += nb
     S.parts[c, 0] = c2max
@@ -220,7 +246,7 @@ def _combine(S, nch):
 
 
 @inline
-def _stress_points(version, only, P, M, vn, S, o, start, stop, row):
+def _stress_points(version, only, fbar, P, M, vn, S, o, start, stop, row):
     """The stress pass over points ``start:stop`` (whole blocks from a multiple of
     :data:`.common.BLOCK`) with the nodal velocities ``vn`` (2 nn,) and the block scratch
     ``row`` of ``S`` (one per thread: the same BLOCK rows for every block, so they stay in
@@ -238,10 +264,7 @@ def _stress_points(version, only, P, M, vn, S, o, start, stop, row):
         e = min(b + np.uint64(BLOCK), stop_)
         if not o.geostatic:
             exp_block(P.log_strain, tb, tc, b, e)
-        if o.fbar:
-            fbar_apply_points(P, S, o, W, ta, tb, tc, b, e)
-        else:
-            kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e)
+        point_kinematics(fbar, P, M, vn, S, o, W, ta, tb, tc, b, e)
         if not o.geostatic:
             log_block(W, ta, tb, tc, e - b)
         c2, nb = _finish(version, only, P, o, W, ta, tb, Z, b, e)
@@ -348,16 +371,20 @@ def _make_material_pass(version):
 
 
 _BY_VERSION: dict = {}
+_MATERIAL_PASS: dict = {}
 
 
-def material_kernels(only: int = -1):
+def material_kernels(only: int = -1, fbar: bool = False):
     """``(stress_pass, material_pass, stress_pass_parallel)`` compiled
     for the current model registry; the stress passes for points of model ``only`` alone
-    (-1: any model; the material pass always takes any model)."""
-    key = (registry.version(), int(only))
+    (-1: any model; the material pass always takes any model) and for steps with F-bar
+    (``fbar``, the steps' ``o.fbar``) or without."""
+    key = (registry.version(), int(only), bool(fbar))
     if key not in _BY_VERSION:
+        if key[0] not in _MATERIAL_PASS:
+            _MATERIAL_PASS[key[0]] = _make_material_pass(key[0])
         serial, parallel = _make_stress_pass(*key)
-        _BY_VERSION[key] = (serial, _make_material_pass(key[0]), parallel)
+        _BY_VERSION[key] = (serial, _MATERIAL_PASS[key[0]], parallel)
     return _BY_VERSION[key]
 
 
@@ -375,7 +402,7 @@ def update_stress(P, M, N, S, o, call=_direct) -> None:
     :mod:`fem_rmpm.schemes.locking`): the nodal velocities and
     :func:`.strain.fbar_gradient_pass` first.  ``call(kernel, *args)`` runs a kernel
     (e.g. :meth:`.Workspace.call`)."""
-    serial, _, parallel = material_kernels(o.model)
+    serial, _, parallel = material_kernels(o.model, o.fbar)
     if o.threads <= 1:
         if o.fbar:
             call(nodal_velocities, M, N)
