@@ -19,8 +19,8 @@ strike length against its volume) with ``--figure``.  Usage::
 
     fem-rmpm mc meshes/slope_long_3d.toml -n 30 --set montecarlo.runs_to_rest=10 --out runs/long3d
     fem-rmpm mc meshes/slope_long_section.toml -n 30 --out runs/long_section
-    python validation/long_slope_3d.py runs/long3d runs/long_section [--section-large DIR]
-        [--figure docs/validation/figures/long_slope_3d.png]
+    python validation/long_slope_3d.py runs/long_section runs/long3d [more 3-D campaigns]
+        [--section-large DIR] [--figure docs/validation/figures/long_slope_3d.png]
 
 Nothing is recomputed: the script reads ``records/`` (JSON) of each campaign.
 """
@@ -126,13 +126,13 @@ def figure(rows: list[dict], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(1, 3, figsize=(14, 4.2))
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4.6), width_ratios=(1.2, 1, 1))
     y = np.arange(len(rows))
     p = np.array([r["p"] for r in rows])
     lo = np.array([r["wilson"][0] for r in rows])
     hi = np.array([r["wilson"][1] for r in rows])
     ax[0].errorbar(p, y, xerr=[p - lo, hi - p], fmt="o", capsize=4, color="k")
-    ax[0].set_yticks(y, [f"{r['case']}\n(N = {r['n']})" for r in rows])
+    ax[0].set_yticks(y, [f"{r['case']}, N = {r['n']}" for r in rows], fontsize=8)
     ax[0].set_xlabel("P(failure), Wilson 95 % interval")
     ax[0].set_xlim(0, 1)
     ax[0].invert_yaxis()
@@ -146,12 +146,15 @@ def figure(rows: list[dict], path: Path) -> None:
         if r["slides"]:
             a = np.array(r["slides"])
             ax[2].scatter(a[:, 0], a[:, 1], label=r["case"], alpha=0.8)
-    ax[1].set_xlabel("separate slides along the strike, per failed run to rest")
-    ax[1].set_ylabel("failed runs to rest")
+    ax[1].set_xlabel("separate slides along the strike, per failed run to t_end")
+    ax[1].set_ylabel("failed runs to t_end")
+    ax[1].yaxis.get_major_locator().set_params(integer=True)
     ax[1].set_xticks(range(1, 6))
     ax[2].axvline(STRIKE_LENGTH, color="0.5", ls="--", lw=1)
-    ax[2].text(STRIKE_LENGTH, 0, " whole strike", color="0.4", va="bottom", ha="right",
-               rotation=90)
+    ax[2].text(STRIKE_LENGTH, 0.02, "whole strike ", color="0.4", va="bottom", ha="right",
+               rotation=90, transform=ax[2].get_xaxis_transform())
+    ax[2].set_xlim(0, STRIKE_LENGTH + 2)
+    ax[2].set_ylim(bottom=0)
     ax[2].set_xlabel("slide length along the strike (m)")
     ax[2].set_ylabel("slide volume (m3)")
     for a in ax[1:]:
@@ -163,21 +166,78 @@ def figure(rows: list[dict], path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
+def spread(vtk_dir: Path, geostatic_time: float, threshold: float = 0.5,
+           least: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How a kept realization's failure spreads along the strike: for every output of its
+    VTK series (``particles.pvd``) after the geostatic phase, the sliding volume (m3) of
+    each 1 m strike slice -- points moved more than ``threshold`` m since the output at
+    ``geostatic_time`` s (the campaign's rule).  Returns (times s, slice z m, volume
+    array (times, slices)); a slice holds a slide when its volume >= ``least`` m3."""
+    import re
+    import meshio
+    pvd = Path(vtk_dir, "particles.pvd").read_text()
+    series = [(float(t), f) for t, f in re.findall(r'timestep="([^"]+)"[^>]*file="([^"]+)"', pvd)]
+    t0, f0 = min(((t, f) for t, f in series if t >= geostatic_time - 0.5),
+                 key=lambda tf: abs(tf[0] - geostatic_time))
+    x0 = meshio.read(Path(vtk_dir, f0)).points
+    k = np.floor(x0[:, 2]).astype(int)
+    times, rows = [], []
+    for t, f in series:
+        if t < t0:
+            continue
+        m = meshio.read(Path(vtk_dir, f))
+        moved = np.linalg.norm(m.points - x0, axis=1) > threshold
+        rows.append(np.bincount(k, weights=m.point_data["volume"] * moved, minlength=k.max() + 1))
+        times.append(t)
+    return np.array(times), np.arange(k.max() + 1) + 0.5, np.array(rows)
+
+
+def spread_figure(runs: list[tuple[str, Path]], geostatic_time: float, path: Path) -> None:
+    """Sliding volume per strike slice against time for kept failed realizations."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(1, len(runs), figsize=(5.5 * len(runs), 4), squeeze=False)
+    for a, (label, d) in zip(ax[0], runs):
+        t, z, v = spread(d, geostatic_time)
+        im = a.pcolormesh(z, t, v, shading="nearest", cmap="magma_r")
+        fig.colorbar(im, ax=a, label="sliding volume per 1 m slice (m3)")
+        a.set_xlabel("strike z (m)")
+        a.set_ylabel("time (s)")
+        a.set_ylim(t[0], min(t[-1], t[0] + 14))
+        a.set_title(label, fontsize=10)
+        first = [tt for tt, row in zip(t, v) if (row >= 1.0).any()]
+        if first:
+            row = v[list(t).index(first[0])]
+            print(f"  {label}: first slide at {first[0]:.0f} s over "
+                  f"{int((row >= 1.0).sum())} m of strike; whole strike "
+                  + next((f"at {tt:.0f} s" for tt, r in zip(t, v) if (r >= 1.0).all()),
+                         "never"))
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("three_d", type=Path, help="campaign directory of slope_long_3d.toml")
     ap.add_argument("section", type=Path, help="campaign directory of slope_long_section.toml "
                     "at the same N")
+    ap.add_argument("three_d", type=Path, nargs="+", help="campaign directories of "
+                    "slope_long_3d.toml (their cases in order)")
     ap.add_argument("--section-large", type=Path, help="the section at a larger N (optional)")
     ap.add_argument("--figure", type=Path, help="write the figure (PNG) here")
+    ap.add_argument("--spread", nargs=2, action="append", metavar=("LABEL", "VTK_DIR"),
+                    default=[], help="a kept failed realization's VTK directory: how its "
+                    "slide spreads along the strike (repeatable)")
+    ap.add_argument("--spread-figure", type=Path, help="write the spread figure (PNG) here")
     a = ap.parse_args(argv)
-    for d in (a.three_d, a.section, a.section_large):
+    for d in (*a.three_d, a.section, a.section_large):
         if d is not None and not Path(d, "campaign.json").is_file():
             print(f"long_slope_3d: {d} is not a campaign directory (no campaign.json)",
                   file=sys.stderr)
             return 2
     rows3d = [case_row(c.replace("random_field.", ""), recs, True)
-              for c, recs in read_cases(a.three_d).items()]
+              for d in a.three_d for c, recs in read_cases(d).items()]
+    rows3d.sort(key=lambda r: float(r["case"].split("=")[-1]))
     sec = [case_row("section (2-D)", recs, False)
            for recs in read_cases(a.section).values()]
     if a.section_large is not None:
@@ -196,6 +256,10 @@ def main(argv: list[str] | None = None) -> int:
     if a.figure:
         figure(rows, a.figure)
         print(f"figure: {a.figure}")
+    if a.spread:
+        print("\nHow the kept failures spread along the strike:")
+        spread_figure([(lab, Path(d)) for lab, d in a.spread], 6.0,
+                      a.spread_figure or Path("long_slope_spread.png"))
     return 0
 
 

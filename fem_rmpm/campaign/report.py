@@ -32,6 +32,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from fem_rmpm.campaign.decide import in_measure_sample
 from fem_rmpm.campaign.html_parts import CSS, SCRIPT, esc, html_figure, html_table, num
 from fem_rmpm.campaign.report3d import report_3d
 from fem_rmpm.io.output import _atomic_write_bytes
@@ -541,7 +542,9 @@ def report_html(campaign_dir: str | Path) -> str:
         _provenance(summary, identity, records), _subset(summary), _results(summary),
         _why_failed(summary), _what_n_buys(summary, campaign),
         _risk_study(campaign), _failures(records),
-        _figures(campaign), report_3d(campaign, records),
+        _figures(campaign),
+        report_3d(campaign, [r for r in records
+                             if in_measure_sample(r, summary.get("runs_to_rest"))]),
         _linked(campaign), _representatives(campaign, records)))
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
             f"<title>{esc(title)}</title><style>{CSS}</style><script>{SCRIPT}</script>"

@@ -121,11 +121,22 @@ def _last_points(vtk_dir: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(m.points, float), np.asarray(m.point_data["displacement"], float)
 
 
+def _strike_cell(vtk_dir: Path) -> float | None:
+    """The grid's strike cell hz (m) from the kept run's ``grid.vtu``, or None."""
+    import meshio   # lazy: VTK reading only for the 3-D views
+    try:
+        z = np.unique(np.round(meshio.read(vtk_dir / "grid.vtu").points[:, 2], 9))
+    except Exception:     # noqa: BLE001 - no grid file: the plan view bins by points
+        return None
+    return float(np.min(np.diff(z))) if len(z) > 1 else None
+
+
 def plot_plan_view(path: Path, x: np.ndarray, u: np.ndarray, threshold: float,
-                   slides: Sequence, title: str) -> Path:
+                   slides: Sequence, title: str, hz: float | None = None) -> Path:
     """``plan_view.png``: points at their initial plan position (x, z) coloured by
-    |displacement| (m), sliding points (above ``threshold``, m) outlined; the slides'
-    strike ranges as bars beside the plan."""
+    |displacement| (m), the crown of the sliding points (above ``threshold``, m: the
+    most up-slope one of each strike slice of ``hz`` m, the grid's strike cell) as a line; the slides' strike ranges as bars
+    beside the plan, with their volumes."""
     x0 = x - u
     d = np.linalg.norm(u, axis=1)
     order = np.argsort(d)
@@ -133,19 +144,27 @@ def plot_plan_view(path: Path, x: np.ndarray, u: np.ndarray, threshold: float,
     sc = ax.scatter(x0[order, 0], x0[order, 2], c=d[order], s=6, cmap="viridis",
                     vmin=0.0, vmax=max(float(d.max()), threshold))
     slid = d > threshold
-    if slid.any():
-        ax.scatter(x0[slid, 0], x0[slid, 2], s=14, facecolors="none", edgecolors="r",
-                   linewidths=0.4, label=f"sliding (|u| > {threshold:g} m)")
-        ax.legend(loc="upper left", fontsize=8)
-    left = float(x0[:, 0].min()) - 0.02 * float(np.ptp(x0[:, 0]) or 1.0)
-    for z0, z1, vol in slides:
-        ax.plot([left, left], [z0, z1], lw=5, color="r", solid_capstyle="butt")
-        ax.text(left, 0.5 * (z0 + z1), f" {vol:.3g} m3", va="center", fontsize=7)
+    if slid.any():        # the crown: the most up-slope sliding point of each strike slice
+        h = hz or max(float(np.ptp(x0[:, 2])) / 40.0, 1e-9)
+        k = np.floor(x0[:, 2] / h).astype(np.int64)        # strike slice of each point
+        ks = np.unique(k[slid])
+        crown = [float(x0[slid & (k == j), 0].min()) for j in ks]
+        ax.step(crown, (ks + 0.5) * h, where="mid", color="r", lw=1.5,
+                label=f"crown: up-slope limit of sliding "
+                f"(|u| > {threshold:g} m)")
+    left = float(x0[:, 0].min()) - 0.03 * float(np.ptp(x0[:, 0]) or 1.0)
+    for k, (z0, z1, vol) in enumerate(slides):
+        ax.plot([left, left], [z0, z1], lw=5, color="k", solid_capstyle="butt",
+                label="slides along the strike" if k == 0 else None)
+        ax.text(left, 0.5 * (z0 + z1), f"{vol:.3g} m3 ", va="center", ha="right",
+                fontsize=7, rotation=90)
+    if slid.any() or len(slides):
+        ax.legend(loc="upper right", fontsize=8, framealpha=0.9)
     fig.colorbar(sc, ax=ax, label="displacement at the end (m)")
     ax.set_xlabel("x, along the slope (grid frame, m)")
     ax.set_ylabel("z, along the strike (m)")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_title(title, fontsize=10)
+    ax.set_title(title.replace(": ", ":\n", 1), fontsize=9)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -193,7 +212,8 @@ def figures_3d(campaign: Path, records: Sequence[dict], threshold: float) -> lis
     who = (f"case {rep['case']}, realization {rep['index']} (seed {rep['seed']}): "
            f"{table.value_text('sliding_volume', rep['measures'].get('sliding_volume'), '.1f')}"
            f", {len(rep['slides'])} slide(s)")
-    out.append(plot_plan_view(views / "plan_view.png", x, u, threshold, rep["slides"], who))
+    out.append(plot_plan_view(views / "plan_view.png", x, u, threshold, rep["slides"], who,
+                              _strike_cell(Path(campaign) / rep["vtk"])))
     render = render_points_3d(views / "render_3d.png", x, u, who)
     if render is not None:
         out.append(render)
@@ -218,13 +238,14 @@ def report_3d(campaign: Path, records: Sequence[dict]) -> str:
         return ""
     views = Path(campaign) / VIEWS
     cases = _by_case(_ok(records))
-    header = ["case", "runs to rest"] + [table.axis_label(k) + " (mean)"
+    header = ["case", "runs to rest (measures)"] + [table.axis_label(k) + " (mean)"
                                          for k in table.strike()]
     rows = [[esc(c), str(len(r))] + _means(r) for c, r in cases.items()]
     parts = ["<h2>Three-dimensional views</h2><p>Measures along the strike (slices one grid "
              "cell long; a slide is a run of slices each holding at least the failure area "
              "x the slice length of sliding volume), means over the realizations run to "
-             "rest:</p>", html_table(header, rows)]
+             "rest of the measure sample (index below runs_to_rest, as the measures "
+             "above):</p>", html_table(header, rows)]
     rep_file = views / "representative.json"
     rep = json.loads(rep_file.read_text()) if rep_file.is_file() else None
     for name, caption in (
