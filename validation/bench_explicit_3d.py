@@ -55,32 +55,26 @@ def stage_profile(stage_time: float, steps: int) -> dict:
     """ns of CPU per point-step of each stage of the 3-D step (module docstring), on the
     slab's state at ``stage_time`` s; also the fraction of points that yielded."""
     from fem_rmpm import api
-    from fem_rmpm.schemes.explicit3d import kernels as K
+    from fem_rmpm.schemes.explicit3d import step as S
     from fem_rmpm.schemes.explicit3d.loop import Workspace3D, run_explicit_3d
 
     scene = api.with_value(api.load_scene(SCENE), "solver.t_end", stage_time)
     grid, pts = api.prepare(scene)
     run_explicit_3d(scene, grid, pts)
     w = Workspace3D(grid, pts)
+    P, G, W = w.points, w.grid, w.scratch
     g = np.array([*scene.gravity_vector, 0.0])
     dt, flip = 0.25 * float(np.min(grid.cell)) / 40.0, scene.solver.flip
     gamma0 = pts.state[:, 0].copy()
+    # the stages of the one-thread step (step.step_3d), each half after the other
     stages = {
-        "map to nodes": lambda: K.map_to_nodes_3d(
-            pts.x, pts.velocity, pts.mass, pts.volume, pts.stress, pts.active, grid.origin,
-            grid.cell, w.shape, w.cellbase, w.cellxi, w.m, w.p, w.f, w.touched, w.nodes,
-            w.cell_touched, w.cells, w.nact),
-        "solve on nodes": lambda: K.solve_nodes_3d(w.m, w.p, w.f, w.v2, grid.fixed, g, dt,
-                                                   0.0, w.nodes, w.nact),
-        "map back": lambda: K.map_back_3d(pts.x, pts.velocity, pts.mass, pts.active,
-                                          pts.u_geostatic, w.cellbase, w.cellxi, grid.cell,
-                                          w.shape, w.p, w.f, w.v2, dt, flip, False),
-        "nodal velocity": lambda: K.nodal_velocity_3d(w.m, w.v2, grid.fixed, w.nodes, w.nact),
-        "stress": lambda: K.stress_3d(
-            pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.stress,
-            pts.log_strain, w.be, w.lam, w.mu, pts.active, w.cellbase, w.cellxi,
-            grid.origin, grid.cell, w.shape, w.v2, dt, False, pts.model, pts.plastic,
-            pts.state, w.e3, w.out),
+        "map to nodes": lambda: (S._map_half(P, G, W, 0), S._map_half(P, G, W, 1)),
+        "solve on nodes": lambda: S._nodal(G, W, g, dt, 0.0),
+        "map back": lambda: (S._back_half(P, G, W, 0, dt, flip, False),
+                             S._back_half(P, G, W, 1, dt, flip, False)),
+        "nodal velocity": lambda: S._nodal_velocity(G, W),
+        "stress": lambda: (S._stress_half(P, G, W, 0, dt, False),
+                           S._stress_half(P, G, W, 1, dt, False)),
     }
     cpu = dict.fromkeys(stages, 0.0)
     for k in range(steps + 1):
