@@ -22,7 +22,7 @@ from fem_rmpm.discretise.grid3d import Grid3D
 from fem_rmpm.discretise.points3d import Particles3D
 from fem_rmpm.scene import Scene
 from fem_rmpm.schemes.common import RunRecord, SimulationError, at_rest
-from fem_rmpm.schemes.explicit3d.elastic import stretch_from_log_strain
+from fem_rmpm.schemes.explicit3d.elastic import EIG_BLOCK, stretch_from_log_strain
 from fem_rmpm.schemes.explicit.threads import first_step_done, run_threads
 from fem_rmpm.schemes.explicit3d.kernels import N_STATS, NODE_COLUMNS
 from fem_rmpm.schemes.explicit3d.step import (
@@ -67,7 +67,8 @@ class Workspace3D:
             cell_touched=np.zeros((2, nc), dtype=np.bool_),
             cells=np.zeros((2, nc), dtype=np.int64), nact=np.zeros((3, 2), dtype=np.int64),
             node=np.zeros((nn, NODE_COLUMNS)), unodes=np.zeros(nn, dtype=np.int64),
-            stats=np.zeros((2, 5)), e3=np.zeros((2, 3)))
+            stats=np.zeros((2, 5)), e3=np.zeros((2, 3)), blk=np.zeros((2, 20, EIG_BLOCK)),
+            idx=np.zeros((2, EIG_BLOCK), np.int64))
         self.grid = StepGrid(grid.origin, grid.cell, self.shape, grid.fixed)
         self.points = StepPoints(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0,
                                  pts.stress, pts.log_strain, self.be, self.lam, self.mu,

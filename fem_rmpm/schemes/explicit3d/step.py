@@ -44,9 +44,10 @@ StepGrid = namedtuple("StepGrid", "origin h shape fixed")
 #: (per half: nodes, cells; then the nodes of both); the totals ``node`` (nn, 8) and the
 #: nodes of both halves ``unodes`` (nn,); ``stats`` (2, 5) per half (squared P-wave
 #: speed, squared point speed, non-finite points, points outside, squared grid velocity);
-#: ``e3`` (2, 3) per half.
+#: ``e3`` (2, 3), the stress pass's blocks ``blk`` (2, 20, B) and ``idx`` (2, B) per half
+#: (:func:`.stress3d.stress_3d`).
 StepScratch = namedtuple("StepScratch", "cellbase cellxi buf touched nodes cell_touched cells "
-                                        "nact node unodes stats e3")
+                                        "nact node unodes stats e3 blk idx")
 
 
 @kernel
@@ -77,7 +78,8 @@ def _stress_half(P, G, W, w, dt, geostatic):
     lo, hi = _bounds(P.x.shape[0], w)
     stress_3d(P.x, P.v, P.mass, P.vol, P.vol0, P.stress, P.eps, P.be, P.lam, P.mu,
               P.active, W.cellbase, W.cellxi, G.origin, G.h, G.shape, W.node, lo, hi, dt,
-              geostatic, P.model, P.plastic, P.state, W.e3[w], W.stats[w])
+              geostatic, P.model, P.plastic, P.state, W.e3[w], W.blk[w], W.idx[w],
+              W.stats[w])
 
 
 @kernel

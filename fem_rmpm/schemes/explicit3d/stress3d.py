@@ -16,7 +16,9 @@ from fem_rmpm.schemes.explicit3d.elastic import (
     compose_sym3,
     elastic_tau_3d,
     small_strain_elastic_3d,
+    EIG_BLOCK,
     sym_eig3,
+    sym_eig3_block,
 )
 from fem_rmpm.schemes.explicit3d.plastic import MODEL_ELASTIC, plastic_return_principal_3d
 
@@ -95,28 +97,29 @@ def _hencky_trial(dF, be, i):
 
 
 @inline
-def _finite_strain(i, dF, be, eps, lam, mu, model, plastic, state, e3):
-    """Hencky update and plastic return of point ``i`` (:mod:`.elastic`): ``eps[i]`` and
-    ``be[i]`` updated, the plastic shear strain increment returned."""
-    bt = _hencky_trial(dF, be, i)
-    r = sym_eig3(bt[0], bt[1], bt[2], bt[3], bt[4], bt[5])
-    e3[0] = 0.5 * math.log(r[0])
-    e3[1] = 0.5 * math.log(r[1])
-    e3[2] = 0.5 * math.log(r[2])
+def _finite_strain(i, j, blk, be, eps, lam, mu, model, plastic, state, e3):
+    """Hencky update and plastic return of point ``i`` from its trial ``b_tr`` (rows
+    0-5 of column ``j`` of ``blk``) and that tensor's eigen-decomposition (rows 6-17,
+    :func:`.elastic.sym_eig3_block`), :mod:`.elastic`: ``eps[i]`` and ``be[i]`` updated,
+    the plastic shear strain increment returned."""
+    e3[0] = 0.5 * math.log(blk[6, j])
+    e3[1] = 0.5 * math.log(blk[7, j])
+    e3[2] = 0.5 * math.log(blk[8, j])
+    x0, y0, z0, x1, y1, z1 = blk[9, j], blk[10, j], blk[11, j], blk[12, j], blk[13, j], blk[14, j]
+    x2, y2, z2 = blk[15, j], blk[16, j], blk[17, j]
     dg, returned = 0.0, False
     if model[i] != MODEL_ELASTIC:
         l0, l1, l2 = e3[0], e3[1], e3[2]
         dg = plastic_return_principal_3d(model[i], e3, lam[i], mu[i], plastic[i], state[i])
         # a Mohr-Coulomb return to the apex moves e3 with a zero shear increment
         returned = dg > 0.0 or e3[0] != l0 or e3[1] != l1 or e3[2] != l2
-    compose_sym3(e3[0], e3[1], e3[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10],
-                 r[11], eps, i)
+    compose_sym3(e3[0], e3[1], e3[2], x0, y0, z0, x1, y1, z1, x2, y2, z2, eps, i)
     if returned:
         compose_sym3(math.exp(2.0 * e3[0]), math.exp(2.0 * e3[1]), math.exp(2.0 * e3[2]),
-                     r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], be, i)
+                     x0, y0, z0, x1, y1, z1, x2, y2, z2, be, i)
     else:
         for k in range(6):
-            be[i, k] = bt[k]
+            be[i, k] = blk[k, j]
     return dg
 
 
@@ -136,51 +139,96 @@ def _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3):
     return dg
 
 
-# long function: the per-point gather, update and checks of the stress pass
+@inline
+def _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz):
+    """The velocity gradient at point ``i`` (9 entries, row-major, 1/s)."""
+    base, a, b, c = cellbase[i], cellxi[i, 0], cellxi[i, 1], cellxi[i, 2]
+    l00, l01, l02 = _gradient_row(node, 1, base, sy, sz, a, b, c, ihx, ihy, ihz)
+    l10, l11, l12 = _gradient_row(node, 2, base, sy, sz, a, b, c, ihx, ihy, ihz)
+    l20, l21, l22 = _gradient_row(node, 3, base, sy, sz, a, b, c, ihx, ihy, ihz)
+    return l00, l01, l02, l10, l11, l12, l20, l21, l22
+
+
+@inline
+def _trial_block(start, hi, node, P, cellbase, cellxi, sy, sz, ihx, ihy, ihz, dt, blk, idx):
+    """The next block of at most :data:`.elastic.EIG_BLOCK` active points from ``start``:
+    their indices in ``idx``, trial ``b_tr`` (rows 0-5) and ``det dF`` (row 18) in the
+    columns of ``blk``; returns (points in the block, the point after it)."""
+    x, active, be = P
+    nb, i = 0, start
+    while i < hi and nb < EIG_BLOCK:
+        if active[i]:
+            L = _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz)
+            hw = _hughes_winget(L[0], L[1], L[2], L[3], L[4], L[5], L[6], L[7], L[8], dt)
+            bt = _hencky_trial(hw[:9], be, i)
+            for k in range(6):
+                blk[k, nb] = bt[k]
+            blk[18, nb] = hw[9]
+            idx[nb] = i
+            nb += 1
+        i += 1
+    return nb, i
+
+
+@inline
+def _stress_and_checks(i, J, x, v, mass, vol, vol0, stress, eps, lam, mu, origin, upper,
+                       acc):
+    """Volume, Cauchy stress of point ``i`` and its part of the maxima and counts ``acc``
+    (c2max, pmax2, nbad, nout)."""
+    vol[i] *= J
+    ratio = vol0[i] / vol[i]
+    elastic_tau_3d(eps, i, lam[i], mu[i], stress, i)
+    ok = True
+    for k in range(6):
+        stress[i, k] *= ratio
+        ok &= math.isfinite(stress[i, k])
+    nout = 0
+    for k in range(3):
+        ok &= math.isfinite(x[i, k]) and math.isfinite(v[i, k])
+        if x[i, k] < origin[k] or x[i, k] > upper[k]:
+            nout = 1
+            break
+    c2max = max(acc[0], (lam[i] + 2.0 * mu[i]) * vol[i] / mass[i])
+    pmax2 = max(acc[1], v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
+    return c2max, pmax2, acc[2] + (0 if ok else 1), acc[3] + nout
+
+
+# long function: the stress pass's loops (geostatic, then finite strain in blocks)
 @kernel
 def stress_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase, cellxi,
               origin, h, shape, node, lo, hi, dt, geostatic, model, plastic, state, e3,
-              stats):
+              blk, idx, stats):
     """Stage 4 (module docstring) on the active points ``lo:hi``, with the nodal
-    velocities in columns 1-3 of ``node`` (nn, 8); ``e3`` (3,) scratch; fills ``stats``
-    (4,) with the largest squared P-wave speed and squared point speed (m2/s2), the count
-    of non-finite points and of points outside the grid box (``origin`` to
-    ``origin + h shape``)."""
+    velocities in columns 1-3 of ``node`` (nn, 8); scratch ``e3`` (3,), ``blk`` (20, B),
+    ``idx`` (B,); fills ``stats`` (4,) with the largest squared P-wave
+    speed and squared point speed (m2/s2), the count of non-finite points and of points
+    outside the grid box (``origin`` to ``origin + h shape``).  The finite-strain update
+    runs in blocks of B points: the trial tensors of the block, their eigen-decompositions
+    in one vectorized loop (:func:`.elastic.sym_eig3_block`), then the rest point by
+    point."""
     assume_columns(node, 8)
+    assume_columns(blk, EIG_BLOCK)
     sy, sz = shape[0] + 1, (shape[0] + 1) * (shape[1] + 1)
     ihx, ihy, ihz = 1.0 / h[0], 1.0 / h[1], 1.0 / h[2]
     upper = (origin[0] + h[0] * shape[0], origin[1] + h[1] * shape[1],
              origin[2] + h[2] * shape[2])
-    nbad, nout, c2max, pmax2 = 0, 0, 0.0, 0.0
-    for i in range(lo, hi):
-        if not active[i]:
-            continue
-        base, a, b, c = cellbase[i], cellxi[i, 0], cellxi[i, 1], cellxi[i, 2]
-        l00, l01, l02 = _gradient_row(node, 1, base, sy, sz, a, b, c, ihx, ihy, ihz)
-        l10, l11, l12 = _gradient_row(node, 2, base, sy, sz, a, b, c, ihx, ihy, ihz)
-        l20, l21, l22 = _gradient_row(node, 3, base, sy, sz, a, b, c, ihx, ihy, ihz)
-        L = (l00, l01, l02, l10, l11, l12, l20, l21, l22)
-        if geostatic:
-            _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3)
-            J = 1.0
-        else:
-            hw = _hughes_winget(l00, l01, l02, l10, l11, l12, l20, l21, l22, dt)
-            J = hw[9]
-            _finite_strain(i, hw[:9], be, eps, lam, mu, model, plastic, state, e3)
-        vol[i] *= J
-        ratio = vol0[i] / vol[i]
-        elastic_tau_3d(eps, i, lam[i], mu[i], stress, i)
-        ok = True
-        for k in range(6):
-            stress[i, k] *= ratio
-            ok &= math.isfinite(stress[i, k])
-        for k in range(3):
-            ok &= math.isfinite(x[i, k]) and math.isfinite(v[i, k])
-            if x[i, k] < origin[k] or x[i, k] > upper[k]:
-                nout += 1
-                break
-        if not ok:
-            nbad += 1
-        c2max = max(c2max, (lam[i] + 2.0 * mu[i]) * vol[i] / mass[i])
-        pmax2 = max(pmax2, v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
-    stats[0], stats[1], stats[2], stats[3] = c2max, pmax2, nbad, nout
+    acc = (0.0, 0.0, 0, 0)
+    if geostatic:
+        for i in range(lo, hi):
+            if active[i]:
+                L = _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz)
+                _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3)
+                acc = _stress_and_checks(i, 1.0, x, v, mass, vol, vol0, stress, eps, lam,
+                                         mu, origin, upper, acc)
+    else:
+        i = lo
+        while i < hi:
+            nb, i = _trial_block(i, hi, node, (x, active, be), cellbase, cellxi, sy, sz,
+                                 ihx, ihy, ihz, dt, blk, idx)
+            sym_eig3_block(blk)
+            for j in range(nb):
+                k = idx[j]
+                _finite_strain(k, j, blk, be, eps, lam, mu, model, plastic, state, e3)
+                acc = _stress_and_checks(k, blk[18, j], x, v, mass, vol, vol0, stress, eps,
+                                         lam, mu, origin, upper, acc)
+    stats[0], stats[1], stats[2], stats[3] = acc[0], acc[1], acc[2], acc[3]
