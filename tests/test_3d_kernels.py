@@ -13,7 +13,7 @@ from fem_rmpm.discretise.grid3d import make_grid_3d
 from fem_rmpm.scene import scene_from_dict
 from fem_rmpm.schemes.explicit3d import kernels as K
 from fem_rmpm.schemes.explicit3d.elastic import EIG_BLOCK
-from fem_rmpm.schemes.explicit3d.stress3d import stress_3d
+from fem_rmpm.schemes.explicit3d.stress3d import BLOCK_ROWS, stress_3d
 
 
 def _setup(n=300):
@@ -81,7 +81,7 @@ def test_velocity_gradient_equals_the_numpy_basis_sum():
     stress_3d(a["x"], a["v"], a["mass"], a["vol"], a["vol"].copy(), a["stress"], eps, be,
               lam, mu, a["active"], a["cellbase"], a["cellxi"], grid.origin, grid.cell,
               np.array(grid.shape), node, 0, n, 1.0, True, model, plastic, state, np.zeros(3),
-              np.zeros((20, EIG_BLOCK)), np.zeros(EIG_BLOCK, np.int64), np.zeros(4))
+              np.zeros((BLOCK_ROWS, EIG_BLOCK)), np.zeros(EIG_BLOCK, np.int64), np.zeros(4))
     _, nodes, _, dN, _ = hex8_at_points(grid, a["x"])
     L = np.einsum("nqr,nqc->nrc", v2[nodes], dN)
     ref = np.stack([L[:, 0, 0], L[:, 1, 1], L[:, 2, 2], 0.5 * (L[:, 0, 1] + L[:, 1, 0]),

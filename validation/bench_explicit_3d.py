@@ -13,7 +13,8 @@ loop's wall (and CPU) time from ``summary.json`` (imports, set-up and output aft
 loop not included).  Memory per point: the peak resident set of the run's process minus
 that of a process that imports the package and loads the scene, over the points.
 Per stage: the slab run in this process to ``--stage-time`` (3 s: sliding, softening),
-then ``--stage-steps`` steps with each stage kernel of :mod:`fem_rmpm.schemes.explicit3d.kernels`
+then ``--stage-steps`` steps with each stage of the one-thread step
+(:mod:`fem_rmpm.schemes.explicit3d.step`: both halves of the points, one after the other)
 called and timed alone (process CPU time), in ns per point-step; the sum is the step.
 The machine is shared: CPU figures are the less noisy; the load average is printed.
 Writes ``validation/out/bench_explicit_3d.json``.
@@ -129,14 +130,17 @@ def main(argv=None) -> int:
             "mpups_wall": work / s["wall_time"] / 1e6, "mpups_cpu": work / s["cpu_time"] / 1e6,
             "ns_per_point_step_cpu": s["ns_per_particle_step_cpu"],
             "threads_used": s["solver"].get("threads"),
+            "first_step_s": s["solver"].get("first_step_time"),
+            "load_average": os.getloadavg()[0],
             "bytes_per_point": (r["peak_rss_mib"] - base) * 2**20 / s["particles"],
         }
         print(f"{threads} thread(s) asked, {rows[threads]['threads_used']} used: "
               f"{s['particles']} points x {s['steps']} steps, wall {s['wall_time']:.2f} s "
               f"({rows[threads]['mpups_wall']:.2f} MPUPS), CPU {s['cpu_time']:.2f} s "
-              f"({rows[threads]['mpups_cpu']:.2f} MPUPS); memory "
+              f"({rows[threads]['mpups_cpu']:.2f} MPUPS), first step (the kernels' load) "
+              f"{rows[threads]['first_step_s']:.2f} s wall; memory "
               f"{rows[threads]['bytes_per_point']:.0f} B per point above the "
-              f"{base:.0f} MiB of imports")
+              f"{base:.0f} MiB of imports; load average {rows[threads]['load_average']:.2f}")
     # after the runs: a child's peak RSS counts its parent's at the fork (Linux keeps the
     # high-water mark across exec), so this process stays small until they are done
     print(f"per stage (load average {os.getloadavg()[0]:.2f}):")

@@ -150,7 +150,7 @@ EIG_BLOCK = 64
 @inline
 def sym_eig3_block(blk):
     """:func:`sym_eig3` of the :data:`EIG_BLOCK` tensors in the columns of rows 0-5 of
-    ``blk`` (20, EIG_BLOCK) (``xx, yy, zz, xy, yz, xz``) into rows 6-17 (the tuple of
+    ``blk`` (rows >= 18, EIG_BLOCK) (``xx, yy, zz, xy, yz, xz``) into rows 6-17 (the tuple of
     :func:`sym_eig3`).  A loop of fixed length with no branch over one array whose rows
     have a fixed length, so LLVM proves its loads and stores independent and vectorizes
     it over the points (8 points per AVX-512 instruction): the same IEEE operations on

@@ -32,6 +32,7 @@ from fem_rmpm.schemes.explicit3d.step import (
     step_3d,
     step_3d_threaded,
 )
+from fem_rmpm.schemes.explicit3d.stress3d import BLOCK_ROWS
 
 __all__ = ["run_explicit_3d", "wave_speed_3d", "Workspace3D", "RECORD_EVERY"]
 
@@ -67,7 +68,7 @@ class Workspace3D:
             cell_touched=np.zeros((2, nc), dtype=np.bool_),
             cells=np.zeros((2, nc), dtype=np.int64), nact=np.zeros((3, 2), dtype=np.int64),
             node=np.zeros((nn, NODE_COLUMNS)), unodes=np.zeros(nn, dtype=np.int64),
-            stats=np.zeros((2, 5)), e3=np.zeros((2, 3)), blk=np.zeros((2, 20, EIG_BLOCK)),
+            stats=np.zeros((2, 5)), e3=np.zeros((2, 3)), blk=np.zeros((2, BLOCK_ROWS, EIG_BLOCK)),
             idx=np.zeros((2, EIG_BLOCK), np.int64))
         self.grid = StepGrid(grid.origin, grid.cell, self.shape, grid.fixed)
         self.points = StepPoints(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0,

@@ -44,7 +44,7 @@ StepGrid = namedtuple("StepGrid", "origin h shape fixed")
 #: (per half: nodes, cells; then the nodes of both); the totals ``node`` (nn, 8) and the
 #: nodes of both halves ``unodes`` (nn,); ``stats`` (2, 5) per half (squared P-wave
 #: speed, squared point speed, non-finite points, points outside, squared grid velocity);
-#: ``e3`` (2, 3), the stress pass's blocks ``blk`` (2, 20, B) and ``idx`` (2, B) per half
+#: ``e3`` (2, 3), the stress pass's blocks ``blk`` (2, BLOCK_ROWS, B) and ``idx`` (2, B) per half
 #: (:func:`.stress3d.stress_3d`).
 StepScratch = namedtuple("StepScratch", "cellbase cellxi buf touched nodes cell_touched cells "
                                         "nact node unodes stats e3 blk idx")

@@ -22,7 +22,12 @@ from fem_rmpm.schemes.explicit3d.elastic import (
 )
 from fem_rmpm.schemes.explicit3d.plastic import MODEL_ELASTIC, plastic_return_principal_3d
 
-__all__ = ["stress_3d"]
+__all__ = ["stress_3d", "BLOCK_ROWS"]
+
+#: Rows of the stress pass's block (one column per point): ``b`` then the trial ``b_tr``
+#: (0-5), the eigen-decomposition (6-17, :func:`.elastic.sym_eig3_block`), ``det dF``
+#: (18), the velocity gradient (19-27).
+BLOCK_ROWS = 28
 
 
 @inline
@@ -73,11 +78,10 @@ def _hughes_winget(l00, l01, l02, l10, l11, l12, l20, l21, l22, dt):
 
 # long function: the Hencky update written out on scalars (nothing allocated)
 @inline
-def _hencky_trial(dF, be, i):
+def _hencky_trial(dF, b00, b11, b22, b01, b12, b02):
     """The trial ``b_tr = dF b dF^T`` (six components) from ``dF`` (9-tuple) and the
-    point's ``b`` (row ``i`` of ``be``)."""
+    point's ``b`` (six components)."""
     f00, f01, f02, f10, f11, f12, f20, f21, f22 = dF
-    b00, b11, b22, b01, b12, b02 = be[i, 0], be[i, 1], be[i, 2], be[i, 3], be[i, 4], be[i, 5]
     # G = dF b (rows)
     g00 = f00 * b00 + f01 * b01 + f02 * b02
     g01 = f00 * b01 + f01 * b11 + f02 * b12
@@ -150,24 +154,39 @@ def _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz):
 
 
 @inline
-def _trial_block(start, hi, node, P, cellbase, cellxi, sy, sz, ihx, ihy, ihz, dt, blk, idx):
+def _gather_block(start, hi, node, active, be, cellbase, cellxi, sy, sz, ihx, ihy, ihz,
+                  blk, idx):
     """The next block of at most :data:`.elastic.EIG_BLOCK` active points from ``start``:
-    their indices in ``idx``, trial ``b_tr`` (rows 0-5) and ``det dF`` (row 18) in the
+    their indices in ``idx``, ``b`` (rows 0-5) and velocity gradient (rows 19-27) in the
     columns of ``blk``; returns (points in the block, the point after it)."""
-    x, active, be = P
     nb, i = 0, start
     while i < hi and nb < EIG_BLOCK:
         if active[i]:
             L = _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz)
-            hw = _hughes_winget(L[0], L[1], L[2], L[3], L[4], L[5], L[6], L[7], L[8], dt)
-            bt = _hencky_trial(hw[:9], be, i)
+            for k in range(9):
+                blk[19 + k, nb] = L[k]
             for k in range(6):
-                blk[k, nb] = bt[k]
-            blk[18, nb] = hw[9]
+                blk[k, nb] = be[i, k]
             idx[nb] = i
             nb += 1
         i += 1
     return nb, i
+
+
+@inline
+def _trial_block(blk, dt):
+    """Per column of ``blk`` (:data:`BLOCK_ROWS`, EIG_BLOCK): the Hughes-Winget ``dF`` of
+    the gradient (rows 19-27), ``det dF`` into row 18 and the trial ``dF b dF^T`` over
+    ``b`` (rows 0-5); a fixed-length loop with no branch, vectorized like
+    :func:`.elastic.sym_eig3_block` (the same bits as point by point)."""
+    assume_columns(blk, EIG_BLOCK)
+    for j in range(EIG_BLOCK):
+        hw = _hughes_winget(blk[19, j], blk[20, j], blk[21, j], blk[22, j], blk[23, j],
+                            blk[24, j], blk[25, j], blk[26, j], blk[27, j], dt)
+        bt = _hencky_trial(hw[:9], blk[0, j], blk[1, j], blk[2, j], blk[3, j], blk[4, j],
+                           blk[5, j])
+        blk[0, j], blk[1, j], blk[2, j], blk[3, j], blk[4, j], blk[5, j] = bt
+        blk[18, j] = hw[9]
 
 
 @inline
@@ -199,7 +218,7 @@ def stress_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase,
               origin, h, shape, node, lo, hi, dt, geostatic, model, plastic, state, e3,
               blk, idx, stats):
     """Stage 4 (module docstring) on the active points ``lo:hi``, with the nodal
-    velocities in columns 1-3 of ``node`` (nn, 8); scratch ``e3`` (3,), ``blk`` (20, B),
+    velocities in columns 1-3 of ``node`` (nn, 8); scratch ``e3`` (3,), ``blk`` (:data:`BLOCK_ROWS`, B),
     ``idx`` (B,); fills ``stats`` (4,) with the largest squared P-wave
     speed and squared point speed (m2/s2), the count of non-finite points and of points
     outside the grid box (``origin`` to ``origin + h shape``).  The finite-strain update
@@ -223,8 +242,9 @@ def stress_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase,
     else:
         i = lo
         while i < hi:
-            nb, i = _trial_block(i, hi, node, (x, active, be), cellbase, cellxi, sy, sz,
-                                 ihx, ihy, ihz, dt, blk, idx)
+            nb, i = _gather_block(i, hi, node, active, be, cellbase, cellxi, sy, sz, ihx,
+                                  ihy, ihz, blk, idx)
+            _trial_block(blk, dt)
             sym_eig3_block(blk)
             for j in range(nb):
                 k = idx[j]
