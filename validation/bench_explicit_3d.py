@@ -10,8 +10,9 @@ Case: ``meshes/slope_extruded_3d.toml`` (the reference slope's section extruded 
 0.5 m hexahedra, 36 448 points, von Mises softening), run with ``fem-rmpm run`` in a fresh
 process after a short run that fills numba's cache.  MPUPS = points x steps / the time
 loop's wall (and CPU) time from ``summary.json`` (imports, set-up and output after the
-loop not included).  Memory per point: the peak resident set of the run's process minus
-that of a process that imports the package and loads the scene, over the points.
+loop not included).  Memory per point: the peak resident set of the run's process (its own
+``wait4`` accounting) minus that of a process that imports the package and loads the
+scene, over the points.
 Per stage: the slab run in this process to ``--stage-time`` (3 s: sliding, softening),
 then ``--stage-steps`` steps with each stage of the one-thread step
 (:mod:`fem_rmpm.schemes.explicit3d.step`: both halves of the points, one after the other)
@@ -24,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -45,11 +45,13 @@ def _run(threads: int, t_end: float) -> dict:
         cmd = [sys.executable, "-m", "fem_rmpm.cli", "run", str(SCENE), "--out", str(out),
                "--quiet", "--set", f"solver.threads={threads}", "--set", f"solver.t_end={t_end}",
                "--set", "output.vtk=false", "--set", "output.png=false"]
-        before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
-        rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
+        _, status, usage = os.wait4(proc.pid, 0)        # this child's own peak RSS
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        if proc.returncode:
+            raise subprocess.CalledProcessError(proc.returncode, cmd)
         summary = json.loads((out / "summary.json").read_text())
-    return {"summary": summary, "peak_rss_mib": max(rss, before) / 1024}
+    return {"summary": summary, "peak_rss_mib": usage.ru_maxrss / 1024}
 
 
 def stage_profile(stage_time: float, steps: int) -> dict:
@@ -117,7 +119,8 @@ def main(argv=None) -> int:
         print(f"per stage (load average {env_load[0]:.2f}):")
         stage_profile(a.stage_time, a.stage_steps)
         return 0
-    _run(1, 0.05)                                   # fills numba's cache
+    _run(1, 0.05)                                   # fills numba's cache (one thread
+    _run(2, 0.05)                                   # and the threaded kernels)
     base = _baseline_rss()
     rows = {}
     for threads in (1, 2):
