@@ -40,7 +40,8 @@ import numpy as np
 
 from fem_rmpm.runtime.compiled import assume_columns, inline, jit
 
-__all__ = ["sym_eig3", "sym_eig3_block", "eig_blocks", "EIG_BLOCK", "compose_sym3", "small_strain_elastic_3d", "elastic_tau_3d",
+__all__ = ["sym_eig3", "sym_eig3_block", "eig_blocks", "EIG_BLOCK", "compose_sym3",
+           "small_strain_elastic_3d", "elastic_tau_3d",
            "spectral_3d", "stretch_from_log_strain"]
 
 #: 2 cos(acos(h) / 3), the largest root of beta^3 - 3 beta = 2 h, for h in [0, 1]: the

@@ -33,8 +33,9 @@ BLOCK_ROWS = 28
 @inline
 def _gradient_row(v2, k, base, sy, sz, a, b, c, ihx, ihy, ihz):
     """Row ``k - 1`` of the velocity gradient ``sum_I v_I (x) grad N_I`` (1/s) from column
-    ``k`` of the nodal rows ``v2`` (velocity component ``k - 1``, m/s), in the factored form of the trilinear gradient: along x the differences of the cell's four
-    x-edges weighted by the bilinear (y, z) values, and likewise along y and z."""
+    ``k`` of the nodal rows ``v2`` (velocity component ``k - 1``, m/s), in the factored
+    form of the trilinear gradient: along x the differences of the cell's four x-edges
+    weighted by the bilinear (y, z) values, and likewise along y and z."""
     u000, u100 = v2[base, k], v2[base + 1, k]
     u010, u110 = v2[base + sy, k], v2[base + sy + 1, k]
     u001, u101 = v2[base + sz, k], v2[base + sz + 1, k]
@@ -218,8 +219,8 @@ def stress_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase,
               origin, h, shape, node, lo, hi, dt, geostatic, model, plastic, state, e3,
               blk, idx, stats):
     """Stage 4 (module docstring) on the active points ``lo:hi``, with the nodal
-    velocities in columns 1-3 of ``node`` (nn, 8); scratch ``e3`` (3,), ``blk`` (:data:`BLOCK_ROWS`, B),
-    ``idx`` (B,); fills ``stats`` (4,) with the largest squared P-wave
+    velocities in columns 1-3 of ``node`` (nn, 8); scratch ``e3`` (3,), ``blk``
+    (:data:`BLOCK_ROWS`, B), ``idx`` (B,); fills ``stats`` (4,) with the largest squared P-wave
     speed and squared point speed (m2/s2), the count of non-finite points and of points
     outside the grid box (``origin`` to ``origin + h shape``).  The finite-strain update
     runs in blocks of B points: the trial tensors of the block, their eigen-decompositions
