@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fem_rmpm.schemes.explicit3d.elastic import spectral_3d
+from fem_rmpm.schemes.explicit3d.elastic import eig_blocks, spectral_3d
 
 #: Achieved: 2.2e-15 of the largest |eigenvalue| over 4000 matrices of each kind.
 TOL = 1e-14
@@ -62,3 +62,23 @@ def test_eigen_decomposition_of_diagonal_and_zero_matrices():
         assert np.allclose(np.sort(spectral_3d(v, 0)), np.sort(d), rtol=0, atol=1e-15)
         Q = np.abs(spectral_3d(v, 3).reshape(3, 3))
         assert np.allclose(np.sort(Q, axis=None), [0] * 6 + [1] * 3, atol=1e-15)
+
+
+def test_vectorized_blocks_give_the_one_point_results_bitwise():
+    """The stress pass's blocked eigen-decomposition (:func:`~fem_rmpm.schemes.explicit3d.
+    elastic.sym_eig3_block`, vectorized by LLVM) performs the IEEE operations of
+    :func:`~fem_rmpm.schemes.explicit3d.elastic.sym_eig3` on each point, so eigenvalues
+    and eigenvectors are the same bits as one point at a time, over random, degenerate,
+    near-identity, zero and NaN tensors in blocks with a partial last block."""
+    rng = np.random.default_rng(11)
+    kinds = ["random", "near-degenerate", "double", "triple", "near-identity"]
+    rows = []
+    for k in range(1000):
+        R, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        A = R @ np.diag(_eigenvalues(kinds[k % 5], rng)) @ R.T
+        rows.append(_six(0.5 * (A + A.T)))
+    rows += [np.zeros(6), np.array([2.0, 2.0, 2.0, 0, 0, 0]), np.full(6, np.nan)]
+    a6 = np.array(rows)
+    got = eig_blocks(a6)
+    one = np.array([np.concatenate([spectral_3d(r, 0), spectral_3d(r, 3)]) for r in a6])
+    assert np.array_equal(got, one, equal_nan=True)

@@ -12,6 +12,8 @@ from fem_rmpm.discretise.basis3d import hex8_at_points
 from fem_rmpm.discretise.grid3d import make_grid_3d
 from fem_rmpm.scene import scene_from_dict
 from fem_rmpm.schemes.explicit3d import kernels as K
+from fem_rmpm.schemes.explicit3d.elastic import EIG_BLOCK
+from fem_rmpm.schemes.explicit3d.stress3d import BLOCK_ROWS, stress_3d
 
 
 def _setup(n=300):
@@ -28,8 +30,8 @@ def _setup(n=300):
     arrays = dict(x=x, v=rng.normal(size=(n, 3)), mass=rng.random(n) + 0.5,
                   vol=rng.random(n) + 0.5, stress=rng.normal(size=(n, 6)) * 10.0,
                   active=np.ones(n, dtype=np.bool_), cellbase=np.zeros(n, np.int64),
-                  cellxi=np.zeros((n, 3)), m=np.zeros(nn), p=np.zeros((nn, 3)),
-                  f=np.zeros((nn, 3)), touched=np.zeros(nn, np.bool_),
+                  cellxi=np.zeros((n, 3)), buf=np.zeros((nn, K.NODE_COLUMNS)),
+                  touched=np.zeros(nn, np.bool_),
                   nodes=np.zeros(nn, np.int64), cell_touched=np.zeros(grid.n_cells, np.bool_),
                   cells=np.zeros(grid.n_cells, np.int64), nact=np.zeros(2, np.int64))
     return grid, arrays
@@ -38,7 +40,7 @@ def _setup(n=300):
 def _map(grid, a):
     K.map_to_nodes_3d(a["x"], a["v"], a["mass"], a["vol"], a["stress"], a["active"],
                       grid.origin, grid.cell, np.array(grid.shape), a["cellbase"], a["cellxi"],
-                      a["m"], a["p"], a["f"], a["touched"], a["nodes"], a["cell_touched"],
+                      0, len(a["mass"]), a["buf"], a["touched"], a["nodes"], a["cell_touched"],
                       a["cells"], a["nact"])
 
 
@@ -50,11 +52,13 @@ def test_map_to_nodes_equals_the_numpy_basis_sums():
     _, nodes, N, dN, _ = hex8_at_points(grid, a["x"])
     s = a["stress"]
     sig = np.stack([s[:, [0, 3, 5]], s[:, [3, 1, 4]], s[:, [5, 4, 2]]], axis=1)   # (n, 3, 3)
-    m, p, f = np.zeros_like(a["m"]), np.zeros_like(a["p"]), np.zeros_like(a["f"])
+    nn = grid.n_nodes
+    m, p, f = np.zeros(nn), np.zeros((nn, 3)), np.zeros((nn, 3))
     np.add.at(m, nodes, N * a["mass"][:, None])
     np.add.at(p, nodes, (N * a["mass"][:, None])[..., None] * a["v"][:, None, :])
     np.add.at(f, nodes, -a["vol"][:, None, None] * np.einsum("nrc,nqc->nqr", sig, dN))
-    for got, ref in ((a["m"], m), (a["p"], p), (a["f"], f)):
+    buf = a["buf"]
+    for got, ref in ((buf[:, 0], m), (buf[:, 1:4], p), (buf[:, 4:7], f)):
         assert np.abs(got - ref).max() <= 1e-12 * np.abs(ref).max()
     listed = np.sort(a["nodes"][:a["nact"][0]])
     assert np.array_equal(listed, np.unique(nodes))
@@ -72,10 +76,12 @@ def test_velocity_gradient_equals_the_numpy_basis_sum():
     eps, be = np.zeros((n, 6)), np.zeros((n, 6))
     lam, mu = np.full(n, 1e3), np.full(n, 5e2)
     model, plastic, state = np.zeros(n, np.int64), np.zeros((n, 4)), np.zeros((n, 2))
-    K.stress_3d(a["x"], a["v"], a["mass"], a["vol"], a["vol"].copy(), a["stress"], eps, be,
-                lam, mu, a["active"], a["cellbase"], a["cellxi"], grid.origin, grid.cell,
-                np.array(grid.shape), v2, 1.0, True, model, plastic, state, np.zeros(3),
-                np.zeros(K.N_STATS))
+    node = np.zeros((grid.n_nodes, K.NODE_COLUMNS))
+    node[:, 1:4] = v2
+    stress_3d(a["x"], a["v"], a["mass"], a["vol"], a["vol"].copy(), a["stress"], eps, be,
+              lam, mu, a["active"], a["cellbase"], a["cellxi"], grid.origin, grid.cell,
+              np.array(grid.shape), node, 0, n, 1.0, True, model, plastic, state, np.zeros(3),
+              np.zeros((BLOCK_ROWS, EIG_BLOCK)), np.zeros(EIG_BLOCK, np.int64), np.zeros(4))
     _, nodes, _, dN, _ = hex8_at_points(grid, a["x"])
     L = np.einsum("nqr,nqc->nrc", v2[nodes], dN)
     ref = np.stack([L[:, 0, 0], L[:, 1, 1], L[:, 2, 2], 0.5 * (L[:, 0, 1] + L[:, 1, 0]),

@@ -10,10 +10,12 @@ Case: ``meshes/slope_extruded_3d.toml`` (the reference slope's section extruded 
 0.5 m hexahedra, 36 448 points, von Mises softening), run with ``fem-rmpm run`` in a fresh
 process after a short run that fills numba's cache.  MPUPS = points x steps / the time
 loop's wall (and CPU) time from ``summary.json`` (imports, set-up and output after the
-loop not included).  Memory per point: the peak resident set of the run's process minus
-that of a process that imports the package and loads the scene, over the points.
+loop not included).  Memory per point: the peak resident set of the run's process (its own
+``wait4`` accounting) minus that of a process that imports the package and loads the
+scene, over the points.
 Per stage: the slab run in this process to ``--stage-time`` (3 s: sliding, softening),
-then ``--stage-steps`` steps with each stage kernel of :mod:`fem_rmpm.schemes.explicit3d.kernels`
+then ``--stage-steps`` steps with each stage of the one-thread step
+(:mod:`fem_rmpm.schemes.explicit3d.step`: both halves of the points, one after the other)
 called and timed alone (process CPU time), in ns per point-step; the sum is the step.
 The machine is shared: CPU figures are the less noisy; the load average is printed.
 Writes ``validation/out/bench_explicit_3d.json``.
@@ -23,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -44,43 +45,39 @@ def _run(threads: int, t_end: float) -> dict:
         cmd = [sys.executable, "-m", "fem_rmpm.cli", "run", str(SCENE), "--out", str(out),
                "--quiet", "--set", f"solver.threads={threads}", "--set", f"solver.t_end={t_end}",
                "--set", "output.vtk=false", "--set", "output.png=false"]
-        before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
-        rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
+        _, status, usage = os.wait4(proc.pid, 0)        # this child's own peak RSS
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        if proc.returncode:
+            raise subprocess.CalledProcessError(proc.returncode, cmd)
         summary = json.loads((out / "summary.json").read_text())
-    return {"summary": summary, "peak_rss_mib": max(rss, before) / 1024}
+    return {"summary": summary, "peak_rss_mib": usage.ru_maxrss / 1024}
 
 
 def stage_profile(stage_time: float, steps: int) -> dict:
     """ns of CPU per point-step of each stage of the 3-D step (module docstring), on the
     slab's state at ``stage_time`` s; also the fraction of points that yielded."""
     from fem_rmpm import api
-    from fem_rmpm.schemes.explicit3d import kernels as K
+    from fem_rmpm.schemes.explicit3d import step as S
     from fem_rmpm.schemes.explicit3d.loop import Workspace3D, run_explicit_3d
 
     scene = api.with_value(api.load_scene(SCENE), "solver.t_end", stage_time)
     grid, pts = api.prepare(scene)
     run_explicit_3d(scene, grid, pts)
     w = Workspace3D(grid, pts)
+    P, G, W = w.points, w.grid, w.scratch
     g = np.array([*scene.gravity_vector, 0.0])
     dt, flip = 0.25 * float(np.min(grid.cell)) / 40.0, scene.solver.flip
     gamma0 = pts.state[:, 0].copy()
+    # the stages of the one-thread step (step.step_3d), each half after the other
     stages = {
-        "map to nodes": lambda: K.map_to_nodes_3d(
-            pts.x, pts.velocity, pts.mass, pts.volume, pts.stress, pts.active, grid.origin,
-            grid.cell, w.shape, w.cellbase, w.cellxi, w.m, w.p, w.f, w.touched, w.nodes,
-            w.cell_touched, w.cells, w.nact),
-        "solve on nodes": lambda: K.solve_nodes_3d(w.m, w.p, w.f, w.v2, grid.fixed, g, dt,
-                                                   0.0, w.nodes, w.nact),
-        "map back": lambda: K.map_back_3d(pts.x, pts.velocity, pts.mass, pts.active,
-                                          pts.u_geostatic, w.cellbase, w.cellxi, grid.cell,
-                                          w.shape, w.p, w.f, w.v2, dt, flip, False),
-        "nodal velocity": lambda: K.nodal_velocity_3d(w.m, w.v2, grid.fixed, w.nodes, w.nact),
-        "stress": lambda: K.stress_3d(
-            pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.stress,
-            pts.log_strain, w.be, w.lam, w.mu, pts.active, w.cellbase, w.cellxi,
-            grid.origin, grid.cell, w.shape, w.v2, dt, False, pts.model, pts.plastic,
-            pts.state, w.e3, w.out),
+        "map to nodes": lambda: (S._map_half(P, G, W, 0), S._map_half(P, G, W, 1)),
+        "solve on nodes": lambda: S._nodal(G, W, g, dt, 0.0),
+        "map back": lambda: (S._back_half(P, G, W, 0, dt, flip, False),
+                             S._back_half(P, G, W, 1, dt, flip, False)),
+        "nodal velocity": lambda: S._nodal_velocity(G, W),
+        "stress": lambda: (S._stress_half(P, G, W, 0, dt, False),
+                           S._stress_half(P, G, W, 1, dt, False)),
     }
     cpu = dict.fromkeys(stages, 0.0)
     for k in range(steps + 1):
@@ -122,7 +119,8 @@ def main(argv=None) -> int:
         print(f"per stage (load average {env_load[0]:.2f}):")
         stage_profile(a.stage_time, a.stage_steps)
         return 0
-    _run(1, 0.05)                                   # fills numba's cache
+    _run(1, 0.05)                                   # fills numba's cache (one thread
+    _run(2, 0.05)                                   # and the threaded kernels)
     base = _baseline_rss()
     rows = {}
     for threads in (1, 2):
@@ -135,14 +133,17 @@ def main(argv=None) -> int:
             "mpups_wall": work / s["wall_time"] / 1e6, "mpups_cpu": work / s["cpu_time"] / 1e6,
             "ns_per_point_step_cpu": s["ns_per_particle_step_cpu"],
             "threads_used": s["solver"].get("threads"),
+            "first_step_s": s["solver"].get("first_step_time"),
+            "load_average": os.getloadavg()[0],
             "bytes_per_point": (r["peak_rss_mib"] - base) * 2**20 / s["particles"],
         }
         print(f"{threads} thread(s) asked, {rows[threads]['threads_used']} used: "
               f"{s['particles']} points x {s['steps']} steps, wall {s['wall_time']:.2f} s "
               f"({rows[threads]['mpups_wall']:.2f} MPUPS), CPU {s['cpu_time']:.2f} s "
-              f"({rows[threads]['mpups_cpu']:.2f} MPUPS); memory "
+              f"({rows[threads]['mpups_cpu']:.2f} MPUPS), first step (the kernels' load) "
+              f"{rows[threads]['first_step_s']:.2f} s wall; memory "
               f"{rows[threads]['bytes_per_point']:.0f} B per point above the "
-              f"{base:.0f} MiB of imports")
+              f"{base:.0f} MiB of imports; load average {rows[threads]['load_average']:.2f}")
     # after the runs: a child's peak RSS counts its parent's at the fork (Linux keeps the
     # high-water mark across exec), so this process stays small until they are done
     print(f"per stage (load average {os.getloadavg()[0]:.2f}):")

@@ -28,25 +28,27 @@ BASE_BYTES = 200e6
 
 #: Point state of :class:`fem_rmpm.discretise.points3d.Particles3D` (positions, velocity,
 #: strain, stress, Lame constants, material rows), the step's per-point arrays (the elastic
-#: stretch b, the cell and local coordinates, the Lame columns), the seeding and the
-#: measures' temporaries: set so that the estimate meets the peak resident set of the
-#: extruded slab (241 MiB: 155 MiB of imports, 2.48 kB per point with its 112 065 nodes;
-#: ``validation/bench_explicit_3d.py``, 2026-12-07, commit fc646a9).
-BYTES_PER_POINT_3D = 850.0
-#: Per node: fixed flags, the step's nodal arrays (10 numbers, the touched-node list),
-#: coordinates and cell tables built for the output and the FEM reference.
-BYTES_PER_NODE_3D = 200.0
+#: stretch b, the cell and local coordinates, the Lame columns), the seeding, the measures'
+#: temporaries and the compiled step's code: set so that the estimate meets the peak
+#: resident set of a one-thread run of the extruded slab (279 MiB with its 36 448 points
+#: and 112 065 nodes, ``fem-rmpm run`` to 2 s, measured 2026-12-07 at commit 6e3a6e4).
+BYTES_PER_POINT_3D = 1540.0
+#: Per node: fixed flags, the step's nodal rows (two halves of 8 numbers and their totals,
+#: 24 numbers; node flags and lists), coordinates and cell tables built for the output and
+#: the FEM reference.
+BYTES_PER_NODE_3D = 330.0
 #: Whole-run cost per point-step of the 3-D explicit step, one thread (ns of CPU): the
 #: extruded reference slope with von Mises softening (``meshes/slope_extruded_3d.toml``,
-#: 36 448 points, first 2 s: 234 steps in 2.91 s of CPU with the kernels' load from
-#: numba's cache, 341 ns; the step alone while the slab slides, 58 % of the points
-#: yielding: 287 ns), measured 2026-12-07 at commit fc646a9 on a loaded 2-core AMD EPYC VM
-#: (Zen 4, load average 9) (``validation/bench_explicit_3d.py`` re-measures it).
-NS_PER_POINT_STEP_3D = 340.0
+#: 36 448 points, first 2 s: 234 steps in 1.78 s of CPU with the kernels' load from
+#: numba's cache, 209 ns; 185-217 ns over five runs; the step alone while the slab
+#: slides, 58 % of the points yielding: 187 ns), measured 2026-12-07 at commit 6e3a6e4 on
+#: a loaded 2-core AMD EPYC VM (Zen 4, load average 6.1-6.5)
+#: (``validation/bench_explicit_3d.py`` re-measures it).
+NS_PER_POINT_STEP_3D = 210.0
 #: The same for a scene whose soils are all linear elastic (no return mapping, no
 #: eigen-decomposition in the geostatic phase): ``meshes/slope_elastic_3d.toml``, 6656
-#: points, 526 steps to rest, 152 ns per point-step on the same machine and commit.
-NS_PER_POINT_STEP_3D_ELASTIC = 150.0
+#: points, 528 steps to rest, 156-178 ns per point-step on the same machine and commit.
+NS_PER_POINT_STEP_3D_ELASTIC = 170.0
 
 
 def _cost_3d(scene: Scene) -> tuple[float, str]:

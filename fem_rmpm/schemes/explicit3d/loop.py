@@ -6,20 +6,33 @@ geostatic phase on the fixed geometry until at rest or ``geostatic_time``, the g
 (non-finite state: an error naming the point; a point leaving the grid: frozen or the
 run stopped, ``edge_policy``; a point moving more than half a cell in a step: an error),
 the output callback, progress every 20 steps and the at-rest test
-(:func:`fem_rmpm.schemes.common.at_rest`).  One thread: the scatter runs in point order.
+(:func:`fem_rmpm.schemes.common.at_rest`).  ``[solver] threads`` of 2 or more (or 0, auto,
+:func:`fem_rmpm.schemes.explicit.threads.run_threads`, giving 2 or more) runs the step's
+two halves of the points on two threads (:mod:`.step`, bitwise the one-thread run); the
+run's record says the threads used.
 """
 from __future__ import annotations
 
 import time
 
+import numba
 import numpy as np
 
 from fem_rmpm.discretise.grid3d import Grid3D
 from fem_rmpm.discretise.points3d import Particles3D
 from fem_rmpm.scene import Scene
 from fem_rmpm.schemes.common import RunRecord, SimulationError, at_rest
-from fem_rmpm.schemes.explicit3d.elastic import stretch_from_log_strain
-from fem_rmpm.schemes.explicit3d.kernels import N_STATS, step_3d
+from fem_rmpm.schemes.explicit3d.elastic import EIG_BLOCK, stretch_from_log_strain
+from fem_rmpm.schemes.explicit.threads import first_step_done, run_threads
+from fem_rmpm.schemes.explicit3d.kernels import N_STATS, NODE_COLUMNS
+from fem_rmpm.schemes.explicit3d.step import (
+    StepGrid,
+    StepPoints,
+    StepScratch,
+    step_3d,
+    step_3d_threaded,
+)
+from fem_rmpm.schemes.explicit3d.stress3d import BLOCK_ROWS
 
 __all__ = ["run_explicit_3d", "wave_speed_3d", "Workspace3D", "RECORD_EVERY"]
 
@@ -38,25 +51,30 @@ class Workspace3D:
     """What the step keeps besides the points, made once per run: the elastic left
     Cauchy-Green tensor of each point (``b = exp(2 eps)``, (n, 6), :mod:`.elastic`), the
     Lame constants as contiguous columns, the points' cells and local coordinates, the
-    nodal arrays with the lists of touched nodes and cells, and the stats of the last step."""
+    nodal rows of each half of the points and their totals with the lists of touched
+    nodes and cells (:data:`.step.StepScratch`), and the stats of the last step."""
 
     def __init__(self, grid: Grid3D, pts: Particles3D):
-        nn, n = grid.n_nodes, pts.n
-        self.m, self.p, self.f, self.v2 = (np.zeros(nn), np.zeros((nn, 3)), np.zeros((nn, 3)),
-                                           np.zeros((nn, 3)))
-        self.touched = np.zeros(nn, dtype=np.bool_)
-        self.nodes = np.zeros(nn, dtype=np.int64)
-        self.cell_touched = np.zeros(grid.n_cells, dtype=np.bool_)
-        self.cells = np.zeros(grid.n_cells, dtype=np.int64)
-        self.nact = np.zeros(2, dtype=np.int64)
-        self.cellbase = np.zeros(n, dtype=np.int64)
-        self.cellxi = np.zeros((n, 3))
+        nn, n, nc = grid.n_nodes, pts.n, grid.n_cells
         self.shape = np.array(grid.shape, dtype=np.int64)
         self.lam = np.ascontiguousarray(pts.lame[:, 0])
         self.mu = np.ascontiguousarray(pts.lame[:, 1])
         self.be = np.empty((n, 6))
-        self.e3 = np.zeros(3)
         self.out = np.zeros(N_STATS)
+        self.scratch = StepScratch(
+            cellbase=np.zeros(n, dtype=np.int64), cellxi=np.zeros((n, 3)),
+            buf=np.zeros((2, nn, NODE_COLUMNS)), touched=np.zeros((2, nn), dtype=np.bool_),
+            nodes=np.zeros((2, nn), dtype=np.int64),
+            cell_touched=np.zeros((2, nc), dtype=np.bool_),
+            cells=np.zeros((2, nc), dtype=np.int64), nact=np.zeros((3, 2), dtype=np.int64),
+            node=np.zeros((nn, NODE_COLUMNS)), unodes=np.zeros(nn, dtype=np.int64),
+            stats=np.zeros((2, 5)), e3=np.zeros((2, 3)), blk=np.zeros((2, BLOCK_ROWS, EIG_BLOCK)),
+            idx=np.zeros((2, EIG_BLOCK), np.int64))
+        self.grid = StepGrid(grid.origin, grid.cell, self.shape, grid.fixed)
+        self.points = StepPoints(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0,
+                                 pts.stress, pts.log_strain, self.be, self.lam, self.mu,
+                                 pts.active, pts.u_geostatic, pts.model, pts.plastic,
+                                 pts.state)
         self.stretch_from_strain(pts)
 
     def stretch_from_strain(self, pts: Particles3D) -> None:
@@ -65,14 +83,10 @@ class Workspace3D:
         stretch_from_log_strain(pts.log_strain, self.be)
 
 
-def _step(grid, pts, work, dt, g, damping, flip, geostatic) -> np.ndarray:
-    step_3d(pts.x, pts.velocity, pts.mass, pts.volume, pts.volume0, pts.stress,
-            pts.log_strain, work.be, work.lam, work.mu, pts.active, pts.u_geostatic,
-            work.cellbase, work.cellxi, grid.origin, grid.cell, work.shape, grid.fixed,
-            work.m, work.p, work.f, work.v2, work.touched, work.nodes, work.cell_touched,
-            work.cells, work.nact, dt, g, damping, flip, geostatic, pts.model, pts.plastic,
-            pts.state, work.e3, work.out)
-    return work.out.copy()
+def _step(work: Workspace3D, dt, g, damping, flip, geostatic, threads: int) -> np.ndarray:
+    step = step_3d if threads <= 1 else step_3d_threaded
+    step(work.points, work.grid, work.scratch, dt, g, damping, flip, geostatic, work.out)
+    return work.out
 
 
 def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None,
@@ -83,7 +97,8 @@ def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None
     work = Workspace3D(grid, pts)
     h_min = float(np.min(grid.cell))
     g_full = np.array([*scene.gravity_vector, 0.0])
-    rec = RunRecord(scheme="explicit", solver={"threads": 1, "dimension": 3})
+    threads = _threads_used(run_threads(int(getattr(sv, "threads", 0)), "numba"))
+    rec = RunRecord(scheme="explicit", solver={"threads": threads, "dimension": 3})
     t, step, ke_peak, next_out = 0.0, 0, 0.0, sv.output_interval
     geostatic = sv.gravity_phase == "geostatic"
     speeds = (wave_speed_3d(pts), 0.0)
@@ -94,8 +109,10 @@ def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None
         dt = min(sv.cfl * h_min / (speeds[0] + speeds[1]), sv.t_end - t)
         ramp = 1.0 if sv.gravity_ramp_time <= 0 else min(1.0, (t + dt) / sv.gravity_ramp_time)
         damping = sv.damping if (geostatic or t < sv.damping_time) else 0.0
-        stats = _step(grid, pts, work, dt, ramp * g_full, damping, sv.flip, geostatic)
+        stats = _step(work, dt, ramp * g_full, damping, sv.flip, geostatic, threads)
         t, step = t + dt, step + 1
+        if step == 1:
+            first_step_done(rec, time.perf_counter() - wall0, threads)
         rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
         ke, max_speed, wave, point_speed, n_bad, n_out = stats
         if n_bad:
@@ -134,6 +151,13 @@ def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None
     if on_output and next_out - sv.output_interval < t - 1e-12:
         on_output(t, pts)
     return rec
+
+
+def _threads_used(asked: int) -> int:
+    """1, or 2 when two or more threads are asked for and numba's pool has two."""
+    if asked <= 1:
+        return 1
+    return 2 if numba.get_num_threads() >= 2 else 1
 
 
 def _non_finite(pts: Particles3D, step: int, t: float, cfl: float) -> None:
