@@ -5,6 +5,7 @@ campaigns refuse (exit 2, one line, nothing written)."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -14,6 +15,7 @@ import pytest
 from fem_rmpm import api
 from fem_rmpm import campaign as mc
 from fem_rmpm.campaign.decide import failure_threshold
+from fem_rmpm.campaign.report import write_report
 from fem_rmpm.cli import main
 from fem_rmpm.measures import table
 from fem_rmpm.measures.deposit3d import compute_measures_3d
@@ -76,6 +78,12 @@ def test_the_decision_rule_of_a_3d_scene_is_the_failure_volume():
     assert failure_threshold(two_d) == two_d.montecarlo.failure_area
 
 
+def _strike_table(page: str) -> str:
+    """The table of the report's section "Three-dimensional views"."""
+    i = page.index("Three-dimensional views")
+    return page[page.index("<table", i):page.index("</table>", i)]
+
+
 def _records(out: Path) -> dict[int, dict]:
     return {json.loads(p.read_text())["index"]: json.loads(p.read_text())
             for p in sorted((out / "records").glob("realization_*.json"))}
@@ -109,6 +117,13 @@ def test_a_3d_campaign_records_resumes_and_reports(tmp_path, dask_client):
     assert "Three-dimensional views" in page and "strike_distributions.png" in page
     assert (out / "views3d" / "strike_distributions.png").is_file()
     assert (out / "views3d" / "plan_view.png").is_file()
+    # the strike table takes the measure sample (index < runs_to_rest), as the measures
+    # table: with runs_to_rest = 1 in the summary, one run of the three
+    summary = json.loads((out / "summary.json").read_text())
+    summary["runs_to_rest"] = 1
+    (out / "summary.json").write_text(json.dumps(summary))
+    strike = _strike_table(write_report(out).read_text())
+    assert re.search(r"<tbody><tr><td>[^<]*</td><td>1</td>", strike), strike
 
 
 @pytest.mark.parametrize("options, key", [(["--fs"], "--fs"), (["--fs-only"], "--fs-only"),

@@ -135,8 +135,8 @@ def plot_plan_view(path: Path, x: np.ndarray, u: np.ndarray, threshold: float,
                    slides: Sequence, title: str, hz: float | None = None) -> Path:
     """``plan_view.png``: points at their initial plan position (x, z) coloured by
     |displacement| (m), the crown of the sliding points (above ``threshold``, m: the
-    most up-slope one of each strike slice of ``hz`` m, the grid's strike cell) as a line; the slides' strike ranges as bars
-    beside the plan, with their volumes."""
+    most up-slope one of each strike slice of ``hz`` m, the grid's strike cell) as a
+    line; the slides' strike ranges as bars beside the plan, with their volumes."""
     x0 = x - u
     d = np.linalg.norm(u, axis=1)
     order = np.argsort(d)
