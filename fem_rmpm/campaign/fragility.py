@@ -24,7 +24,6 @@ import math
 from typing import Sequence
 
 import numpy as np
-from scipy import optimize, stats
 
 from fem_rmpm.campaign.statistics import wilson_interval
 from fem_rmpm.materials.strength import strengths
@@ -82,12 +81,14 @@ def binned_fragility(fs: np.ndarray, failed: np.ndarray, bins: int | None = None
 
 
 def _loglik(fs50: float, s: float, fs: np.ndarray, failed: np.ndarray) -> float:
+    from scipy import stats  # lazy: scipy.stats costs 0.3 s at the command line's start
     z = (fs50 - fs) / s
     return float(np.sum(np.where(failed, stats.norm.logcdf(z), stats.norm.logcdf(-z))))
 
 
 def _profile(fs50: float, fs: np.ndarray, failed: np.ndarray, s_max: float) -> tuple[float, float]:
     """(max over s of the log-likelihood at ``fs50``, that s)."""
+    from scipy import optimize  # lazy: with scipy.stats (_loglik)
     res = optimize.minimize_scalar(lambda ls: -_loglik(fs50, math.exp(ls), fs, failed),
                                    bounds=(math.log(S_MIN), math.log(s_max)), method="bounded",
                                    options={"xatol": 1e-6})
@@ -99,6 +100,7 @@ def fit_probit(fs: np.ndarray, failed: np.ndarray) -> dict | None:
     the 95 % profile-likelihood interval of FS50 (module docstring); None when every
     realization failed or none did (no curve to fit).  An interval bound that the profile
     does not reach within the data range +- 1 is None (open)."""
+    from scipy import optimize  # lazy: with scipy.stats (_loglik)
     fs, failed = np.asarray(fs, float), np.asarray(failed, bool)
     if len(fs) < 2 or failed.all() or not failed.any():
         return None
@@ -133,6 +135,7 @@ def fit_probit(fs: np.ndarray, failed: np.ndarray) -> dict | None:
 
 def probit_curve(fit: dict, fs: np.ndarray) -> np.ndarray:
     """P(failure | FS) of a :func:`fit_probit` result at ``fs``."""
+    from scipy import stats  # lazy: with _loglik
     return stats.norm.cdf((fit["fs50"] - np.asarray(fs, float)) / fit["s"])
 
 

@@ -29,20 +29,24 @@ import math
 from pathlib import Path
 from typing import Sequence
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402  (after the backend)
-import numpy as np  # noqa: E402
-
-from fem_rmpm.campaign.html_parts import esc, html_figure, html_table  # noqa: E402
-from fem_rmpm.measures import table  # noqa: E402
+from fem_rmpm.campaign.html_parts import esc, html_figure, html_table
+from fem_rmpm.measures import table
 
 __all__ = ["VIEWS", "is_three_d_campaign", "figures_3d", "report_3d", "representative_3d",
            "render_points_3d"]
 
 #: The folder of the 3-D views in a campaign directory (apart from the campaign figures).
 VIEWS = "views3d"
+
+
+def _pyplot():
+    """matplotlib's pyplot on the Agg backend."""
+    import matplotlib  # lazy: figures only (the command line starts without matplotlib)
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # lazy: figures only, after the backend
+    return plt
 
 
 def is_three_d_campaign(records: Sequence[dict]) -> bool:
@@ -71,6 +75,7 @@ def plot_strike_distributions(path: Path, records: Sequence[dict]) -> Path | Non
               ("slide_count", table.axis_label("slide_count")),
               ("slide_length", "strike length of each slide (m)"),
               ("slide_volume", "volume of each slide (m3)")]
+    plt = _pyplot()
     fig, axes = plt.subplots(1, 4, figsize=(16, 3.6))
     for (key, xlabel), ax in zip(panels, axes):
         for case, recs in cases.items():
@@ -140,6 +145,7 @@ def plot_plan_view(path: Path, x: np.ndarray, u: np.ndarray, threshold: float,
     x0 = x - u
     d = np.linalg.norm(u, axis=1)
     order = np.argsort(d)
+    plt = _pyplot()
     fig, ax = plt.subplots(figsize=(9, 5))
     sc = ax.scatter(x0[order, 0], x0[order, 2], c=d[order], s=6, cmap="viridis",
                     vmin=0.0, vmax=max(float(d.max()), threshold))
