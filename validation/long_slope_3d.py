@@ -27,7 +27,6 @@ Nothing is recomputed: the script reads ``records/`` (JSON) of each campaign.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -36,6 +35,8 @@ import numpy as np
 
 from fem_rmpm.campaign.decide import is_decided
 from fem_rmpm.campaign.statistics import wilson_interval
+from fem_rmpm.campaign.store import read_record
+from fem_rmpm.io.output import read_pvd
 
 STRIKE_LENGTH = 40.0   # m, meshes/slope_long_3d.toml [grid] size[2]
 
@@ -44,8 +45,9 @@ def read_cases(out: Path) -> dict[str, list[dict]]:
     """The finished ``ok`` records of a campaign directory, by case, in index order."""
     cases: dict[str, list[dict]] = {}
     for f in sorted(Path(out, "records").rglob("realization_*.json")):
-        rec = json.loads(f.read_text())
-        if rec.get("status") == "ok" and (rec.get("measures") or {}).get("failed") is not None:
+        rec = read_record(f)
+        if rec and rec.get("status") == "ok" and (rec.get("measures") or {}).get("failed") \
+                is not None:
             cases.setdefault(rec["case"], []).append(rec)
     for recs in cases.values():
         recs.sort(key=lambda r: r["index"])
@@ -173,19 +175,17 @@ def spread(vtk_dir: Path, geostatic_time: float, threshold: float = 0.5,
     each 1 m strike slice -- points moved more than ``threshold`` m since the output at
     ``geostatic_time`` s (the campaign's rule).  Returns (times s, slice z m, volume
     array (times, slices)); a slice holds a slide when its volume >= ``least`` m3."""
-    import re
     import meshio
-    pvd = Path(vtk_dir, "particles.pvd").read_text()
-    series = [(float(t), f) for t, f in re.findall(r'timestep="([^"]+)"[^>]*file="([^"]+)"', pvd)]
+    series = read_pvd(Path(vtk_dir, "particles.pvd"))
     t0, f0 = min(((t, f) for t, f in series if t >= geostatic_time - 0.5),
                  key=lambda tf: abs(tf[0] - geostatic_time))
-    x0 = meshio.read(Path(vtk_dir, f0)).points
+    x0 = meshio.read(f0).points
     k = np.floor(x0[:, 2]).astype(int)
     times, rows = [], []
     for t, f in series:
         if t < t0:
             continue
-        m = meshio.read(Path(vtk_dir, f))
+        m = meshio.read(f)
         moved = np.linalg.norm(m.points - x0, axis=1) > threshold
         rows.append(np.bincount(k, weights=m.point_data["volume"] * moved, minlength=k.max() + 1))
         times.append(t)

@@ -18,13 +18,12 @@
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import meshio
 import numpy as np
 
-from fem_rmpm.io.output import to_true_frame
+from fem_rmpm.io.output import read_pvd, to_true_frame
 from fem_rmpm.io.plots import _plt, strain_norm, strain_panel
 from fem_rmpm.measures import table
 
@@ -172,20 +171,14 @@ def snapshot_at(vtk_dir: Path, time: float | None = None):
     """(points (n, 2) grid frame, plastic shear strain (n,), time) of the entry of
     ``vtk_dir/particles.pvd`` (our own PvdSeries file) nearest to ``time`` (None: the
     last), or None."""
-    pvd = Path(vtk_dir) / "particles.pvd"
-    if not pvd.exists():
+    series = read_pvd(Path(vtk_dir) / "particles.pvd")
+    if not series:
         return None
-    try:
-        ds = ET.parse(pvd).getroot().findall(".//DataSet")
-    except ET.ParseError:
-        return None
-    if not ds:
-        return None
-    times = np.array([float(d.get("timestep")) for d in ds])
-    entry = ds[-1] if time is None else ds[int(np.argmin(np.abs(times - time)))]
-    mesh = meshio.read(pvd.parent / entry.get("file"))
+    times = np.array([t for t, _ in series])
+    t, vtu = series[-1] if time is None else series[int(np.argmin(np.abs(times - time)))]
+    mesh = meshio.read(vtu)
     return (np.asarray(mesh.points[:, :2]), np.asarray(mesh.point_data["plastic_shear_strain"]),
-            float(entry.get("timestep")))
+            t)
 
 
 def final_snapshot(vtk_dir: Path):

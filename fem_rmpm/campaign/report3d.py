@@ -32,6 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from fem_rmpm.campaign.html_parts import esc, html_figure, html_table
+from fem_rmpm.io.output import read_pvd
 from fem_rmpm.measures import table
 
 __all__ = ["VIEWS", "is_three_d_campaign", "figures_3d", "report_3d", "representative_3d",
@@ -119,10 +120,10 @@ def representative_3d(campaign: Path, records: Sequence[dict]) -> dict | None:
 def _last_points(vtk_dir: Path) -> tuple[np.ndarray, np.ndarray]:
     """(current positions (n, 3), displacements (n, 3)) of the last output of a kept run."""
     import meshio   # lazy: VTK reading only for the 3-D views
-    files = sorted(vtk_dir.glob("particles_*.vtu"))
-    if not files:
-        raise FileNotFoundError(f"{vtk_dir}: no particles_*.vtu")
-    m = meshio.read(files[-1])
+    series = read_pvd(vtk_dir / "particles.pvd")
+    if not series:
+        raise FileNotFoundError(f"{vtk_dir}: no particles.pvd series of particles_*.vtu")
+    m = meshio.read(series[-1][1])
     return np.asarray(m.points, float), np.asarray(m.point_data["displacement"], float)
 
 

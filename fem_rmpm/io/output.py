@@ -28,7 +28,7 @@ from fem_rmpm.discretise.points import Particles
 from fem_rmpm.materials import cohesion
 
 __all__ = ["write_json", "write_particles", "write_points_vtu", "write_grid", "PvdSeries",
-           "to_true_frame", "OutputError"]
+           "read_pvd", "to_true_frame", "OutputError"]
 
 
 class OutputError(RuntimeError):
@@ -341,6 +341,18 @@ class PvdSeries:
                f'byte_order="LittleEndian">\n  <Collection>\n{rows}\n  </Collection>\n</VTKFile>\n')
         _atomic_write_bytes(self.dir / f"{self.stem}.pvd", xml.encode(), durable=False)
         return self.dir / name
+
+
+def read_pvd(path: str | Path) -> list[tuple[float, Path]]:
+    """The snapshots a ``.pvd`` series file (:class:`PvdSeries`) lists, in its order:
+    ``(time s, path of the .vtu)``; [] when the file is missing or not valid XML."""
+    import xml.etree.ElementTree as ET  # lazy: reading a series back only
+    path = Path(path)
+    try:
+        entries = ET.parse(path).getroot().findall(".//DataSet")
+    except (OSError, ET.ParseError):
+        return []
+    return [(float(d.get("timestep")), path.parent / d.get("file")) for d in entries]
 
 
 def to_true_frame(x: np.ndarray, frame_angle_deg: float) -> np.ndarray:
