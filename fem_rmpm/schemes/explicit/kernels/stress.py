@@ -142,7 +142,7 @@ def serial_stress_pass(version, only, fbar, P, M, N, S, o):
     the caller computed them before its gradient pass), then every block of points in
     order, one worker; ``version``, ``only``, ``fbar``: literals, as there."""
     T = top(N)
-    if not o.fbar:
+    if not fbar:
         nodal_velocity_half(M, T, N.half, np.int64(0))
         nodal_velocity_half(M, T, N.half, np.int64(1))
     _reset_queues(S)
