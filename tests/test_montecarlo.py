@@ -429,11 +429,10 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys):
         port = s.getsockname()[1]
     import dask
     with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
-        t0 = time.monotonic()
         err = _one_line_error(capsys, ["mc", str(TINY), "--out", str(out), "--scheduler",
                                        f"tcp://127.0.0.1:{port}"])
-        assert time.monotonic() - t0 < 30
         assert "cannot reach the Dask scheduler" in err and str(port) in err
+        assert "within 2s" in err              # dask's configured connect timeout, used
         err = _one_line_error(capsys, ["mc", str(TINY), "--out", str(out), "--scheduler",
                                        "nonsense://nowhere"])
         assert "not a scheduler address" in err      # its syntax: refused before connecting
