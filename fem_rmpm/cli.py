@@ -160,7 +160,8 @@ def _cmd_mc(a) -> int:
         est = campaign.estimate_campaign(scene, a.out, realizations=a.realizations,
                                          cases=cases, workers=a.workers,
                                          scheduler=a.scheduler, force=a.force,
-                                         keep_vtk=a.keep_vtk, cluster=cluster)
+                                         keep_vtk=a.keep_vtk, cluster=cluster,
+                                         fs_only=a.fs_only)
         print(campaign.estimate_text(est))
         return 0
     res = campaign.run_campaign(scene, a.out, realizations=a.realizations, cases=cases,

@@ -17,6 +17,11 @@ and the CFL step count of one run from :func:`fem_rmpm.runtime.budget.estimate_r
   so the load of the machine at the time of the dry run is in the figure.  In 3-D the
   probe's first steps are elastic (geostatic phase, gravity ramp): the cost per
   point-step is at least the 3-D budget's whole-run figure (return mapping included);
+* **the other parts of a realization**: the strength-reduction FS (``--fs``, ``--fs-only``)
+  costs the mean FS CPU of this campaign's records, else one FS of the probe's
+  realization measured in this process (the loading of its compiled kernels included:
+  an upper bound); a run stopped once decided (``runs_to_rest``) costs the mean CPU of
+  this campaign's decided runs, else the full run's (an upper bound, said in a note);
 * **core-hours** = the sum over the realizations to run, plus one worker start per
   worker (the CPU this process spent on its imports, plus the probe's warm-up beyond a
   warm run: loading or compiling the numba kernels);
@@ -40,11 +45,13 @@ from fem_rmpm.api import run as run_one
 from fem_rmpm.campaign.backends import ClusterSpec, campaign_backend
 from fem_rmpm.campaign.case_campaign import pending_work
 from fem_rmpm.campaign.cases import CampaignError, Case
+from fem_rmpm.campaign.decide import is_decided
 from fem_rmpm.runtime.budget import STEPS_FACTOR, RunEstimate, estimate_run, thread_speed_up
 from fem_rmpm.scene import Scene, with_value
 
-__all__ = ["STEPS_FACTOR", "CaseEstimate", "CampaignEstimate", "Calibration",
-           "estimate_campaign", "probe_calibration", "records_calibration", "estimate_text"]
+__all__ = ["STEPS_FACTOR", "CaseEstimate", "CampaignEstimate", "Calibration", "PartCosts",
+           "estimate_campaign", "probe_calibration", "records_calibration", "part_costs",
+           "estimate_text"]
 
 #: CPU of point-steps the probe aims at (s): long enough to time, short enough for a dry run.
 PROBE_SECONDS = 2.0
@@ -63,6 +70,18 @@ class Calibration:
 
 
 @dataclass(frozen=True)
+class PartCosts:
+    """CPU seconds of the parts of a realization besides its MPM run to the end:
+    ``fs_seconds`` (one strength-reduction FS; None: no realization has one),
+    ``decided_seconds`` (an MPM run stopped once decided; None: priced as a full run), and
+    where each comes from."""
+    fs_seconds: float | None
+    fs_source: str
+    decided_seconds: float | None
+    decided_source: str
+
+
+@dataclass(frozen=True)
 class CaseEstimate:
     name: str
     label: str
@@ -71,7 +90,11 @@ class CaseEstimate:
     points: int
     budget_steps: int
     steps: int
-    cpu_seconds: float          # per realization
+    cpu_seconds: float          # per realization to run: the mean over its parts
+    full_run_seconds: float = 0.0    # an MPM run to its end (setup included)
+    full_runs: int = 0               # realizations to run with an MPM run to the end
+    decided_runs: int = 0            # ... with an MPM run stopped once decided
+    fs_runs: int = 0                 # ... with a factor of safety
 
 
 @dataclass
@@ -80,6 +103,7 @@ class CampaignEstimate:
     out: Path
     cases: list[CaseEstimate]
     calibration: Calibration
+    parts: PartCosts
     workers: int
     plan: dict
     memory_per_worker_bytes: float
@@ -118,10 +142,45 @@ def records_calibration(records: Sequence[dict], budget: dict[str, RunEstimate]
     if not ok:
         return None
     point_steps = sum(r["steps"] * r["particles"] for r in ok)
-    ns = 1e9 * sum(r["cpu_time"] for r in ok) / point_steps
+    ns = 1e9 * sum(r["cpu_time"] - _fs_cpu(r) for r in ok) / point_steps
     factor = sum(r["steps"] / max(budget[r["case"]].steps, 1) for r in ok) / len(ok)
     return Calibration(ns, 0.0, 0.0, factor, f"the {len(ok)} finished record(s) of this "
                        "campaign (CPU time over point-steps; setup and worker starts included)")
+
+
+def _fs_cpu(rec: dict) -> float:
+    """CPU seconds of a record's factor of safety (0 without one)."""
+    return float((rec.get("fs") or {}).get("cpu_time") or 0.0)
+
+
+def part_costs(records: Sequence[dict], fs_probe=None) -> PartCosts:
+    """The FS and decided-run costs (:class:`PartCosts`) from the records of this campaign:
+    the mean FS CPU of those with a factor of safety, else ``fs_probe()`` if given (CPU
+    seconds of one FS measured now), else None; the mean CPU of the decided runs (their
+    FS taken out), else None."""
+    with_fs = [_fs_cpu(r) for r in records if _fs_cpu(r) > 0.0]
+    decided = [r["cpu_time"] - _fs_cpu(r) for r in records
+               if is_decided(r) and r.get("cpu_time") is not None]
+    if with_fs:
+        fs, fs_src = sum(with_fs) / len(with_fs), f"the {len(with_fs)} record(s) with an FS"
+    elif fs_probe is not None:
+        fs, fs_src = fs_probe(), ("one FS of the probe's realization measured now, the "
+                                  "loading of its compiled kernels included")
+    else:
+        fs, fs_src = None, "no factor of safety"
+    if decided:
+        return PartCosts(fs, fs_src, sum(decided) / len(decided),
+                         f"the {len(decided)} decided run(s) of this campaign")
+    return PartCosts(fs, fs_src, None, "priced as full runs: an upper bound until this "
+                     "campaign has recorded some")
+
+
+def _fs_probe(scene: Scene, seed: int) -> float:
+    """CPU seconds of the factor of safety of realization ``seed`` of ``scene``, now."""
+    from fem_rmpm.campaign.factor_of_safety import fs_measures    # lazy: the implicit scheme
+    c0 = time.process_time()
+    fs_measures(scene, seed)
+    return time.process_time() - c0
 
 
 def _timed_run(scene: Scene, seed: int, t_end: float) -> tuple[float, int]:
@@ -179,40 +238,46 @@ def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = 
                       cases: Sequence[str | Case] | None = None, *,
                       workers: int | None = None, scheduler: str | None = None,
                       force: bool = False, keep_vtk=None,
-                      cluster: ClusterSpec | None = None, probe: bool = True
-                      ) -> CampaignEstimate:
+                      cluster: ClusterSpec | None = None, probe: bool = True,
+                      fs_only: bool = False) -> CampaignEstimate:
     """The size and cost of ``run_campaign`` with the same arguments (module docstring);
     raises :class:`fem_rmpm.campaign.CampaignError` for the input errors it would raise
     (bad N, cases, options, another campaign in ``out``, a refused job script).
-    ``probe=False`` uses the budget's constant instead of measuring."""
+    ``probe=False`` uses the budget's constant instead of measuring (and prices no FS
+    without records of one)."""
     out = Path(out)
     n = scene.montecarlo.realizations if realizations is None else realizations
     if isinstance(n, bool) or not isinstance(n, int) or n <= 0:
         raise CampaignError(f"-n {n}: the number of realizations must be a positive integer")
-    pending = pending_work(scene, out, n, cases, keep_vtk=keep_vtk, force=force)
+    pending = pending_work(scene, out, n, cases, keep_vtk=keep_vtk, force=force,
+                           fs_only=fs_only)
     case_list, counts = pending.cases, pending.counts
     tasks, finished = pending.tasks, pending.finished
     backend = campaign_backend(cluster, workers, scheduler, case_list)
     plan = backend.plan(max(len(tasks), 1))
     budget = {c.name: estimate_run(c.scene) for c in case_list}
-    cal = records_calibration(list(finished.values()), budget)
-    if cal is None and tasks and probe:
-        first = next(c for c in case_list if c.name == tasks[0]["case"])
-        cal = _whole_run_floor(probe_calibration(first.scene, tasks[0]["seed"]),
+    records = list(finished.values())
+    cal = records_calibration(records, budget)
+    with_mpm = [t for t in tasks if t["fs"] != "only"]
+    if cal is None and with_mpm and probe:
+        first = next(c for c in case_list if c.name == with_mpm[0]["case"])
+        cal = _whole_run_floor(probe_calibration(first.scene, with_mpm[0]["seed"]),
                                budget[first.name], first.scene)
     if cal is None:
         e = next(iter(budget.values()))
         cal = Calibration(e.ns_per_point_step, 0.0, 0.0, STEPS_FACTOR,
                           f"the budget's constant ({e.machine})")
-    per_case = []
-    for c in case_list:
-        e = budget[c.name]
-        steps = int(round(e.steps * cal.steps_factor))
-        cpu = cal.setup_seconds + e.points * steps * cal.ns_per_point_step * 1e-9
-        per_case.append(CaseEstimate(c.name, c.label, sum(t["case"] == c.name for t in tasks),
-                                     sum(1 for (k, i) in finished if k == c.name
-                                         and i < counts[c.name]),
-                                     e.points, e.steps, steps, cpu))
+    with_fs = [t for t in tasks if t["fs"] != "off"]
+    fs_probe = None
+    if with_fs and probe:
+        first = next(c for c in case_list if c.name == with_fs[0]["case"])
+        fs_probe = lambda: _fs_probe(first.scene, with_fs[0]["seed"])  # noqa: E731
+    parts = part_costs(records, fs_probe)
+    per_case = [_case_estimate(c, budget[c.name], cal, parts,
+                               [t for t in tasks if t["case"] == c.name],
+                               sum(1 for (k, i) in finished if k == c.name
+                                   and i < counts[c.name]))
+                for c in case_list]
     k = _worker_count(plan, len(tasks))
     work = sum(ce.to_run * ce.cpu_seconds for ce in per_case)
     mean = work / max(len(tasks), 1)
@@ -226,7 +291,23 @@ def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = 
     if per_worker is not None and per_worker < memory:
         notes.append(f"the worker memory ({per_worker / 2**20:.0f} MiB) is below the estimated "
                      f"peak of one realization ({memory / 2**20:.0f} MiB): raise --memory")
-    return CampaignEstimate(out, per_case, cal, k, plan, memory, cpu, wall, notes)
+    return CampaignEstimate(out, per_case, cal, parts, k, plan, memory, cpu, wall, notes)
+
+
+def _case_estimate(case: Case, e: RunEstimate, cal: Calibration, parts: PartCosts,
+                   tasks: list[dict], finished: int) -> CaseEstimate:
+    """One case's line of the estimate: each task to run costs its parts (the MPM run to
+    its end or stopped once decided, the FS) and :attr:`CaseEstimate.cpu_seconds` is
+    their mean."""
+    steps = int(round(e.steps * cal.steps_factor))
+    full = cal.setup_seconds + e.points * steps * cal.ns_per_point_step * 1e-9
+    decided = full if parts.decided_seconds is None else parts.decided_seconds
+    n_full = sum(t["fs"] != "only" and not t.get("decide") for t in tasks)
+    n_decided = sum(t["fs"] != "only" and bool(t.get("decide")) for t in tasks)
+    n_fs = sum(t["fs"] != "off" for t in tasks)
+    work = n_full * full + n_decided * decided + n_fs * (parts.fs_seconds or 0.0)
+    return CaseEstimate(case.name, case.label, len(tasks), finished, e.points, e.steps, steps,
+                        work / len(tasks) if tasks else full, full, n_full, n_decided, n_fs)
 
 
 def _worker_count(plan: dict, n_tasks: int) -> int:
@@ -248,10 +329,24 @@ def estimate_text(est: CampaignEstimate) -> str:
     cal = est.calibration
     lines = [f"Dry run of the campaign in {est.out}: nothing written, no worker started.",
              f"  realizations to run: {est.to_run} ({est.finished} already finished)"]
+    parts = est.parts
     for c in est.cases:
         lines.append(f"  {c.label}: {c.to_run} to run, {c.points:,} points, about "
                      f"{c.steps:,} steps each ({c.budget_steps:,} CFL steps at rest x "
-                     f"{cal.steps_factor:.2f}), {c.cpu_seconds:.1f} s CPU each")
+                     f"{cal.steps_factor:.2f}), {c.cpu_seconds:.1f} s CPU each"
+                     + (":" if c.decided_runs or c.fs_runs else ""))
+        if c.decided_runs or c.fs_runs:
+            if c.full_runs:
+                lines.append(f"    {c.full_runs} MPM run(s) to the end, "
+                             f"{c.full_run_seconds:.1f} s CPU each")
+            if c.decided_runs:
+                t = (c.full_run_seconds if parts.decided_seconds is None
+                     else parts.decided_seconds)
+                lines.append(f"    {c.decided_runs} MPM run(s) stopped once decided, {t:.1f} s "
+                             f"CPU each ({parts.decided_source})")
+            if c.fs_runs:
+                lines.append(f"    {c.fs_runs} factor(s) of safety, {parts.fs_seconds or 0:.1f} s "
+                             f"CPU each ({parts.fs_source})")
     lines += [f"  cost per point-step: {cal.ns_per_point_step:.0f} ns CPU, setup "
               f"{cal.setup_seconds:.1f} s, worker start {cal.worker_start_seconds:.1f} s "
               f"(from {cal.source})",
