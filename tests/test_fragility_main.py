@@ -25,11 +25,17 @@ def test_main_scene_is_the_risk_slope_with_a_small_campaign():
     assert "meshes/slope_risk.toml" in FULL_STUDY and "--fs" in FULL_STUDY
 
 
-def test_main_job_dry_run_writes_nothing(tmp_path, capsys):
+def test_main_job_dry_run_writes_nothing(tmp_path, capsys, monkeypatch):
+    """Its realizations are priced with their FS (the FS probe stubbed: 2 s) and as runs
+    stopped once decided."""
+    from fem_rmpm.campaign import estimate
+    monkeypatch.setattr(estimate, "_fs_probe", lambda scene, seed: 2.0)
     out = tmp_path / "mc"
     assert main(["mc", "--out", str(out), "--dry-run"]) == 0
     text = capsys.readouterr().out
     assert "xi = 12: 16 to run" in text and "seed_slope" in text and "homogeneous" in text
+    assert "16 MPM run(s) stopped once decided" in text
+    assert "16 factor(s) of safety, 2.0 s CPU each" in text
     assert not out.exists()
 
 
