@@ -40,8 +40,7 @@ class StepSystem:
         self.host = host_cells(grid, x)                     # F-bar cells
         # the host cells numbered 0..n_host-1: the cell sums over the points (bincount in
         # point order, the same sums as over grid cells) on arrays of the used cells only
-        _, cell = np.unique(self.host, return_inverse=True)
-        self.cell = cell.ravel().astype(np.int64)
+        self.cell = _dense_rank(self.host, grid.n_cells)
         self.n_host = int(self.cell.max()) + 1 if len(self.cell) else 0
         _, nodes, N, dN, _ = shape_at_points(grid, x, shape, half_width)
         self.nodes, self.N, self.dN = nodes, N, dN
@@ -61,31 +60,21 @@ class StepSystem:
         self.point_dofs = (2 * nodes[:, :, None] + np.arange(2)).reshape(n, 2 * k)  # global
         # group the points by their node set (Q4: the host cell, identified by node 0)
         if k == 4:
-            _, inv = np.unique(nodes[:, 0], return_inverse=True)
+            inv = _dense_rank(nodes[:, 0], nn)
         else:
             _, inv = np.unique(nodes, axis=0, return_inverse=True)
-        inv = inv.ravel()
+            inv = inv.ravel()
         ng = int(inv.max()) + 1 if n else 0
         self.n_groups = ng
         first = np.zeros(ng, dtype=np.int64)
         first[inv] = np.arange(n)                                  # a representative point
-        gd = fnum[self.point_dofs[first]].reshape(ng, k, 2)        # free index or -1
-        # block entries are laid out [a, i, l, b]: row dof (a, i), column dof (b, l)
-        rows = np.broadcast_to(gd[:, :, :, None, None], (ng, k, 2, 2, k)).ravel()
-        cols = np.broadcast_to(np.swapaxes(gd, 1, 2)[:, None, None, :, :],
-                               (ng, k, 2, 2, k)).ravel()
-        keep = (rows >= 0) & (cols >= 0)
-        key = rows[keep] * nf + cols[keep]
-        ukey, self._pos = np.unique(key, return_inverse=True)     # CSR order: row, then column
-        self._pos = self._pos.ravel()
-        self._indices = (ukey % nf).astype(np.int32) if nf else ukey.astype(np.int32)
-        self._indptr = np.searchsorted(ukey, np.arange(nf + 1) * nf).astype(np.int32)
-        self.nnz = len(ukey)
-        self._diag = np.searchsorted(ukey, np.arange(nf) * (nf + 1))   # position of (r, r)
-        # the same positions per node set, -1 for entries of prescribed DOFs (compiled path)
-        positions = np.full(ng * 4 * k * k, -1, dtype=np.int64)
-        positions[keep] = self._pos
-        self._positions = positions.reshape(ng, 4 * k * k)
+        gd = fnum[self.point_dofs[first]]                          # (ng, 2k) free or -1
+        # the CSR pattern of the free DOFs (rows, then sorted columns) and the position of
+        # each block entry [a, i, l, b] (row dof (a, i), column dof (b, l)) in its data
+        # array, -1 for entries of prescribed DOFs (:func:`point_kernels.block_pattern`)
+        (self._indptr, self._indices, self._positions, self._diag,
+         self.transpose) = pk.block_pattern(np.ascontiguousarray(gd), nf)
+        self.nnz = len(self._indices)
         self._group = inv.astype(np.int64)
         # Q4: the node sets are the host cells, so the B-bar terms are blocks of the
         # pattern (compiled path of :meth:`bbar_tangent_into`)
@@ -100,7 +89,8 @@ class StepSystem:
 
     def interpolate(self, nodal: np.ndarray) -> np.ndarray:
         """Nodal vector (n_nodes, 2) at the points (n, 2)."""
-        return np.einsum("pa,pai->pi", self.N, nodal[self.nodes])
+        return pk.interpolate(np.ascontiguousarray(nodal, dtype=float), self.nodes, self.N,
+                              np.empty((self.n, 2)))
 
     def to_nodes(self, free_vec: np.ndarray, prescribed: np.ndarray | None = None) -> np.ndarray:
         """Free-DOF vector -> nodal (n_nodes, 2); the other DOFs are zero, or take the
@@ -185,6 +175,14 @@ class StepSystem:
         return np.bincount(self.nodes.ravel(), (self.N * mass[:, None]).ravel(),
                            minlength=self.grid.n_nodes)
 
+    def mass_and_momenta(self, mass: np.ndarray, v: np.ndarray, a: np.ndarray):
+        """``(lumped_mass(mass), momentum(mass, v), momentum(mass, a))`` in one pass."""
+        nn = self.grid.n_nodes
+        m, mv, ma = np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2))
+        pk.nodal_mass_momentum(self.nodes, self.N, mass, np.ascontiguousarray(v),
+                               np.ascontiguousarray(a), m, mv, ma)
+        return m, mv, ma
+
     def momentum(self, mass: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Nodal ``sum_p m_p v_p N_a`` (n_nodes, 2)."""
         w = self.N * mass[:, None]
@@ -208,6 +206,14 @@ class StepSystem:
 
     def rigid_body_modes(self) -> np.ndarray:
         return rigid_body_modes(self.grid.nodes, self.free_dofs)
+
+
+def _dense_rank(values: np.ndarray, size: int) -> np.ndarray:
+    """The rank of each value among the distinct ``values`` (int64, ``0 <= values <
+    size``): ``np.unique(values, return_inverse=True)[1]`` by a table of ``size``."""
+    present = np.zeros(size + 1, dtype=np.int64)
+    present[values + 1] = 1
+    return np.cumsum(present)[values]
 
 
 def rigid_body_modes(node_xy: np.ndarray, free_dofs: np.ndarray) -> np.ndarray:

@@ -28,6 +28,7 @@ from fem_rmpm.materials import MaterialPoints, small_strain_update, stress_updat
 from fem_rmpm.scene import Scene, SceneError
 from fem_rmpm.schemes.common import SimulationError
 from fem_rmpm.schemes.explicit import kernels
+from fem_rmpm.schemes.implicit import point_kernels as pk
 from fem_rmpm.schemes.implicit.assembly import StepSystem
 from fem_rmpm.schemes.implicit.linear import LinearSolver
 from fem_rmpm.schemes.implicit.newton import NewtonFailure, NewtonResult, newton
@@ -261,7 +262,7 @@ class StepKind:
         st = sys_.begin(lf_new, lf_old, dt, self.dynamic)
         t_setup = time.perf_counter() - t_setup
         du0 = self.predictor(st)
-        sys_.solver.new_step()
+        sys_.solver.new_step(st.S)
         res = newton(lambda du: self.residual(st, du), lambda: self.tangent(st), du0,
                      sys_.solver, sv.max_iterations, sv.tolerance,
                      modes=st.S.rigid_body_modes)
@@ -371,9 +372,9 @@ class QuasiStatic(StepKind):
 
     def material(self, st, H):
         sys_ = self.sys
-        dF = _EYE + H
-        Finv, det = inv2(dF)
-        if not np.all(det > 0):
+        n, S = len(H), st.S
+        dF, det, g = np.empty((n, 2, 2)), np.empty(n), np.empty_like(S.dN)
+        if not pk.spatial_gradients(np.ascontiguousarray(H), S.dN, dF, det, g) > 0:
             i = st.act[np.argmin(det)]
             raise NewtonFailure(f"material point {i} inverted (det dF = {det.min():.3g})", [],
                                 inverted=True)
@@ -386,7 +387,6 @@ class QuasiStatic(StepKind):
         t1 = time.perf_counter()
         ls, q, tau = sys_.stress_update(dFm, st.ls0, st.state0, st.soil)
         st.clock["material"] += time.perf_counter() - t1
-        g = np.matmul(st.S.dN, Finv)
         st.cache.update(H=H, dF=dFm, g=g, tau=tau)
         return ls, q, tau, g, dFm
 
@@ -459,11 +459,11 @@ class NewmarkDynamic(QuasiStatic):
 
     def predictor(self, st):
         S, pts, act, mass, dt = st.S, self.sys.pts, st.act, st.mass, st.dt
-        m_nodes = S.lumped_mass(mass)
+        m_nodes, mv, ma = S.mass_and_momenta(mass, pts.velocity[act], self.sys.acc[act])
         has = m_nodes > _MASS_TOL
         inv_m = np.where(has, 1.0 / np.where(has, m_nodes, 1.0), 0.0)[:, None]
-        v_n = (S.momentum(mass, pts.velocity[act]) * inv_m).ravel()[S.free_dofs]
-        a_n = (S.momentum(mass, self.sys.acc[act]) * inv_m).ravel()[S.free_dofs]
+        v_n = (mv * inv_m).ravel()[S.free_dofs]
+        a_n = (ma * inv_m).ravel()[S.free_dofs]
         frac = float(self.sys.sv.min_mass_fraction)
         m_min = frac * float(mass.sum() / st.Vn.sum()) * float(np.prod(self.sys.grid.cell))
         m_free = np.maximum(np.repeat(m_nodes, 2)[S.free_dofs], m_min)
