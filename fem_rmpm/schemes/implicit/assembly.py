@@ -167,8 +167,10 @@ class StepSystem:
 
     def body_force(self, mass: np.ndarray, gravity) -> np.ndarray:
         """``f_ai = sum_p m_p g_i N_a`` on the free DOFs (kN per m)."""
-        return self._scatter(self.N[:, :, None] * mass[:, None, None]
-                             * np.asarray(gravity, dtype=float))
+        gx, gy = (float(v) for v in np.asarray(gravity, dtype=float))
+        f = pk.body_force(self.nodes, self.N, np.ascontiguousarray(mass, dtype=float), gx, gy,
+                          np.zeros((self.grid.n_nodes, 2)))
+        return f.ravel()[self.free_dofs]
 
     def lumped_mass(self, mass: np.ndarray) -> np.ndarray:
         """Nodal lumped mass ``m_a = sum_p m_p N_a`` (n_nodes,), t per m."""

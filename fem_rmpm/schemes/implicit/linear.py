@@ -92,9 +92,7 @@ class LinearSolver:
             cholmod.numeric(c["A"], c["F"])
         except ArithmeticError:              # not positive definite
             return self._superlu(K, b)
-        x = cvxopt.matrix(np.array(b, dtype=float))
-        cholmod.solve(c["F"], x)
-        x = np.array(x).ravel()
+        x = _cholmod_solve(c["F"], b)
         if not np.all(np.isfinite(x)):
             return self._superlu(K, b)
         self.factorizations += 1
@@ -165,6 +163,12 @@ def _ordering(K: sp.csr_matrix, ip: np.ndarray) -> dict:
     return {"indptr": K.indptr.copy(), "indices": K.indices.copy(), "ip": ip,
             "gather": Kp.data.astype(np.int64) - 1, "p_indices": Kp.indices,
             "p_indptr": Kp.indptr}
+
+
+def _cholmod_solve(F, b: np.ndarray) -> np.ndarray:
+    x = cvxopt.matrix(np.array(b, dtype=float))
+    cholmod.solve(F, x)
+    return np.array(x).ravel()
 
 
 def symmetric_lower(data: np.ndarray, transpose: np.ndarray, lower: np.ndarray,

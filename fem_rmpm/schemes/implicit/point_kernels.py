@@ -12,7 +12,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ["assemble_tangent", "assemble_bbar_tangent", "displacement_gradient", "block_pattern",
-           "interpolate", "spatial_gradients", "nodal_mass_momentum",
+           "interpolate", "spatial_gradients", "nodal_mass_momentum", "move_points",
+           "body_force",
            "internal_force"]
 
 
@@ -274,3 +275,41 @@ def nodal_mass_momentum(nodes, N, mass, v, a, m, mv, ma):
             mv[q, 1] += w * v[p, 1]
             ma[q, 0] += w * a[p, 0]
             ma[q, 1] += w * a[p, 1]
+
+
+@njit(cache=True, error_model="numpy")
+def move_points(act, dx, dF, V0, tau4, x, F, volume, stress):
+    """The converged step at the active points ``act``: ``x += dx``, ``F <- dF F``,
+    ``V = det(F) V0`` and the Cauchy stress ``tau / det F`` (``x``, ``F``, ``volume``,
+    ``stress``: the arrays of all points, in place; ``dx``, ``dF``, ``V0``, ``tau4``: per
+    active point)."""
+    for j in range(len(act)):
+        p = act[j]
+        x[p, 0] = x[p, 0] + dx[j, 0]
+        x[p, 1] = x[p, 1] + dx[j, 1]
+        a00, a01, a10, a11 = dF[j, 0, 0], dF[j, 0, 1], dF[j, 1, 0], dF[j, 1, 1]
+        b00, b01, b10, b11 = F[p, 0, 0], F[p, 0, 1], F[p, 1, 0], F[p, 1, 1]
+        f00 = a00 * b00 + a01 * b10
+        f01 = a00 * b01 + a01 * b11
+        f10 = a10 * b00 + a11 * b10
+        f11 = a10 * b01 + a11 * b11
+        F[p, 0, 0], F[p, 0, 1], F[p, 1, 0], F[p, 1, 1] = f00, f01, f10, f11
+        J = f00 * f11 - f01 * f10
+        volume[p] = J * V0[j]
+        for c in range(stress.shape[1]):
+            stress[p, c] = tau4[j, c] / J
+
+
+
+@njit(cache=True, error_model="numpy")
+def body_force(nodes, N, mass, gx, gy, out):
+    """``out[nodes[p, a], i] += (N[p, a] m_p) g_i`` (``out`` (n_nodes, 2), zeroed by the
+    caller): the nodal body force, summed in point order (as a ``bincount``)."""
+    n, k = nodes.shape
+    for p in range(n):
+        for a in range(k):
+            w = N[p, a] * mass[p]
+            q = nodes[p, a]
+            out[q, 0] += w * gx
+            out[q, 1] += w * gy
+    return out

@@ -409,12 +409,9 @@ class QuasiStatic(StepKind):
             info = self.sys.reactions(st, res.du, self.force_stress(st, tau),
                                       np.matmul(S.dN, Finv))
         pts.log_strain[act], pts.state[act] = ls, q
-        pts.x[act] = pts.x[act] + S.interpolate(du_nodes)
-        pts.F[act] = dFm @ pts.F[act]
-        F = pts.F[act]
-        J = F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
-        pts.volume[act] = J * st.V0
-        pts.stress[act] = tau / J[:, None]
+        # x += N du, F <- dF F, V = det(F) V0, sigma = tau / det F (one compiled pass)
+        pk.move_points(act, S.interpolate(du_nodes), np.ascontiguousarray(dFm), st.V0,
+                       np.ascontiguousarray(tau), pts.x, pts.F, pts.volume, pts.stress)
         return info
 
     def limits(self, st, res):
