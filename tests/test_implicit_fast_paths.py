@@ -134,3 +134,40 @@ def test_search_uses_one_solver_policy():
     assert FSOptions().linear_solver == "cholmod"
     assert strength_reduction.FSOptions.__dataclass_fields__["linear_solver"].default == \
         "cholmod"
+
+
+def test_halo_pattern_solves_as_the_exact_one(meshes):
+    """A dynamic step's system on the occupied cells plus a halo of empty cells (free
+    DOFs with only the mass-floor diagonal) gives the same nodal solution of
+    ``(K + diag(d)) u = f`` as the system on the occupied cells alone, to round-off
+    (1e-12 of the largest); a later step whose points stay in those cells keeps the
+    numbering and pattern, one whose point leaves them gets new ones."""
+    import scipy.sparse.linalg as spla
+    sc = api.load_scene(meshes / "slope_reference.toml")
+    grid, pts = api.prepare(sc)
+    rng = np.random.default_rng(5)
+    exact = StepSystem(grid, pts.x)
+    halo = StepSystem(grid, pts.x, halo=True)
+    assert halo.n_free > exact.n_free and halo.halo_cells is not None
+    n = exact.n
+    A = rng.normal(size=(n, 2, 2, 2, 2))
+    A = 0.5 * (A + A.transpose(0, 3, 4, 1, 2)) + 4.0 * np.einsum(
+        "ik,jl->ijkl", np.eye(2), np.eye(2))[None]
+    V0 = pts.volume0
+
+    def nodal_solution(S):
+        d = np.full(S.n_free, 50.0)                  # the Newmark mass term
+        K = S.tangent(V0, S.dN, A, diagonal=d)
+        f = S.body_force(pts.mass, [0.3, -9.81])
+        return S.to_nodes(spla.spsolve(K.tocsc(), f))
+
+    u_exact, u_halo = nodal_solution(exact), nodal_solution(halo)
+    assert np.abs(u_halo - u_exact).max() <= 1e-12 * np.abs(u_exact).max()
+    nudged = pts.x + rng.uniform(-1e-3, 1e-3, pts.x.shape)
+    kept = StepSystem(grid, nudged, keep=halo, halo=True)
+    assert kept._indices is halo._indices and kept.n_free == halo.n_free
+    far = pts.x.copy()
+    far[0] += [30.0, 20.0]                              # into an empty cell far away
+    moved = StepSystem(grid, far, keep=halo, halo=True)
+    assert moved._indices is not halo._indices
+    assert moved._group_of[moved.nodes[0, 0]] >= 0

@@ -34,7 +34,8 @@ class StepSystem:
     """
 
     def __init__(self, grid: Grid, x: np.ndarray, shape: str = "standard", half_width=None,
-                 fixed: np.ndarray | None = None):
+                 fixed: np.ndarray | None = None, keep: "StepSystem | None" = None,
+                 halo: bool = False):
         self.grid = grid
         fixed = grid.fixed if fixed is None else fixed      # (n_nodes, 2) prescribed DOFs
         self.host = host_cells(grid, x)                     # F-bar cells
@@ -58,6 +59,10 @@ class StepSystem:
         fnum[self.free_dofs] = np.arange(nf)
         self.fnum = fnum
         self.point_dofs = (2 * nodes[:, :, None] + np.arange(2)).reshape(n, 2 * k)  # global
+        self.halo_cells = None
+        if k == 4 and halo:
+            self._cell_pattern(grid, fixed, keep)
+            return
         # group the points by their node set (Q4: the host cell, identified by node 0)
         if k == 4:
             inv = _dense_rank(nodes[:, 0], nn)
@@ -80,6 +85,64 @@ class StepSystem:
         # pattern (compiled path of :meth:`bbar_tangent_into`)
         self.groups_are_cells = k == 4 and bool(
             np.all(self.host == self.host[first][self._group]))
+
+    def _cell_pattern(self, grid: Grid, fixed: np.ndarray, keep) -> None:
+        """Q4 dynamic steps: the DOF numbering and sparsity pattern of a set of cells that
+        holds every point's host cell, with a halo: the cells next to an occupied one,
+        empty now, whose nodes are free DOFs with only the diagonal (the Newmark mass
+        floor) and no load, so their increment stays zero and the solution is that of
+        the occupied cells alone.  ``keep``: a previous system's cells, numbering and
+        pattern, taken as they are if they hold every host cell (same prescribed DOFs):
+        the linear solver then keeps its symbolic factorization; else the occupied cells
+        and their halo anew."""
+        nodes = self.nodes
+        fits = keep is not None and keep.halo_cells is not None \
+            and np.array_equal(keep._fixed, fixed)
+        if fits:
+            inv = keep._group_of[nodes[:, 0]]
+            fits = not (len(inv) and inv.min() < 0)
+        if fits:
+            for name in ("free_dofs", "n_free", "fnum", "n_groups", "_indptr", "_indices",
+                         "_positions", "_diag", "transpose", "nnz", "halo_cells",
+                         "_group_of", "_fixed"):
+                setattr(self, name, getattr(keep, name))
+        else:
+            self._halo_pattern(grid, fixed)
+        self._group = self._group_of[nodes[:, 0]]
+        self.groups_are_cells = False          # B-bar (geostatic steps) needs the exact sets
+
+    def _halo_pattern(self, grid: Grid, fixed: np.ndarray) -> None:
+        """The occupied cells and the 8 around each: their free DOFs and pattern."""
+        nn = grid.n_nodes
+        nx, ny = grid.shape
+        occupied = np.zeros((ny, nx), dtype=bool)
+        occupied.ravel()[self.host] = True
+        near = occupied.copy()
+        near[1:, :] |= occupied[:-1, :]
+        near[:-1, :] |= occupied[1:, :]
+        rows = near.copy()
+        near[:, 1:] |= rows[:, :-1]
+        near[:, :-1] |= rows[:, 1:]
+        cells = np.nonzero(near.ravel())[0]
+        cn = grid.cells[cells]                           # (nc, 4) nodes, as the basis's
+        order = np.argsort(cn[:, 0], kind="stable")      # node sets ranked by node 0
+        cells, cn = cells[order], cn[order]
+        pattern_nodes = np.zeros(nn, dtype=bool)
+        pattern_nodes[cn.ravel()] = True
+        self.free_dofs = np.nonzero((pattern_nodes[:, None] & ~fixed).ravel())[0]
+        self.n_free = nf = len(self.free_dofs)
+        fnum = np.full(2 * nn, -1, dtype=np.int64)
+        fnum[self.free_dofs] = np.arange(nf)
+        self.fnum = fnum
+        gd = fnum[(2 * cn[:, :, None] + np.arange(2)).reshape(len(cells), 8)]
+        (self._indptr, self._indices, self._positions, self._diag,
+         self.transpose) = pk.block_pattern(np.ascontiguousarray(gd), nf)
+        self.nnz = len(self._indices)
+        self.n_groups = len(cells)
+        self.halo_cells = cells
+        self._group_of = np.full(nn, -1, dtype=np.int64)
+        self._group_of[cn[:, 0]] = np.arange(len(cells))
+        self._fixed = fixed.copy()
 
     # --- kinematics
     def gradient(self, du: np.ndarray) -> np.ndarray:

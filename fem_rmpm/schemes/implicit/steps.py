@@ -126,7 +126,7 @@ class ImplicitSystem:
         if len(act) == 0:
             raise SimulationError("no active material point left (all frozen at the grid "
                                   "edge); enlarge [grid] size")
-        S = self._step_system(act)
+        S = self._step_system(act, dynamic)
         mass = pts.mass[act]
         presc = None
         if self.presc_mask.any():
@@ -139,10 +139,13 @@ class ImplicitSystem:
         return StepData(S, act, pts.volume0[act], pts.volume[act], mass, pts.log_strain[act],
                         pts.state[act], pts.soil.take(act), f_ext, lf_new, lf_old, presc, dt)
 
-    def _step_system(self, act: np.ndarray) -> StepSystem:
+    def _step_system(self, act: np.ndarray, dynamic: bool = False) -> StepSystem:
         """The StepSystem at the active points' positions: the cached one if the same
         points sit at the same positions (same half widths, same prescribed DOFs and
-        grid), else a new one (then cached)."""
+        grid), else a new one (then cached).  Dynamic Q4 steps with CHOLMOD keep the
+        cells, DOF numbering and pattern of an earlier step while they hold every host
+        cell (:meth:`StepSystem._cell_pattern`: the occupied cells and a halo around
+        them), so the symbolic factorization is reused."""
         pts, c = self.pts, self.pattern_cache
         x = pts.x[act]
         hw = pts.half_width[act] if pts.half_width is not None else None
@@ -153,7 +156,12 @@ class ImplicitSystem:
                 and (hw is None) == (c["hw"] is None) \
                 and (hw is None or np.array_equal(c["hw"], hw)):
             return S
-        S = StepSystem(self.grid, x, self.sv.shape, hw, fixed=self.fixed)
+        halo = dynamic and self.sv.shape == "standard" and self.sv.linear_solver == "cholmod"
+        keep = c.get("cells") if halo and c.get("cells_grid") is self.grid else None
+        S = StepSystem(self.grid, x, self.sv.shape, hw, fixed=self.fixed, keep=keep,
+                       halo=halo)
+        if S.halo_cells is not None:
+            c.update(cells=S, cells_grid=self.grid)
         c.update(S=S, grid=self.grid, shape=self.sv.shape, act=act.copy(), x=x.copy(),
                  fixed=self.fixed.copy(), hw=None if hw is None else hw.copy())
         return S
