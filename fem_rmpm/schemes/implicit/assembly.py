@@ -28,8 +28,9 @@ class StepSystem:
     prescribed by a boundary (``grid.fixed``); only they enter the solve.  The
     sparsity pattern is built once per step (the CSR structure of the free DOFs and, per
     node set -- a host cell for Q4 -- the position of each block entry in its data
-    array); every Newton iteration then adds the per-point blocks straight into the
-    data array (:func:`fem_rmpm.schemes.implicit.point_kernels.assemble_tangent`, one compiled
+    array; ``halo``: of the occupied cells and the empty cells around them, kept from
+    ``keep`` while it holds every point, see :meth:`_cell_pattern`); every Newton
+    iteration then adds the per-point blocks straight into the data array (:func:`fem_rmpm.schemes.implicit.point_kernels.assemble_tangent`, one compiled
     loop over the points), with no sparse products, sorting or index building.
     """
 
