@@ -30,8 +30,9 @@ class StepSystem:
     node set -- a host cell for Q4 -- the position of each block entry in its data
     array; ``halo``: of the occupied cells and the empty cells around them, kept from
     ``keep`` while it holds every point, see :meth:`_cell_pattern`); every Newton
-    iteration then adds the per-point blocks straight into the data array (:func:`fem_rmpm.schemes.implicit.point_kernels.assemble_tangent`, one compiled
-    loop over the points), with no sparse products, sorting or index building.
+    iteration then adds the per-point blocks straight into the data array
+    (:func:`fem_rmpm.schemes.implicit.point_kernels.assemble_tangent`, one compiled loop
+    over the points), with no sparse products, sorting or index building.
     """
 
     def __init__(self, grid: Grid, x: np.ndarray, shape: str = "standard", half_width=None,
