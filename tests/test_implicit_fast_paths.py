@@ -1,5 +1,6 @@
 """The fast paths of the implicit scheme and of strength reduction against their
-references: the compiled B-bar tangent against the sparse products of
+references: the compiled sparsity pattern against the sorted block keys, the compiled
+B-bar tangent against the sparse products of
 :func:`fem_rmpm.schemes.locking.bbar_tangent_correction`, the StepSystem reused on a fixed
 geometry, and the search that skips continuation solves already known to fail against
 the search that runs them again (the same decisions, the same FS)."""
@@ -30,6 +31,46 @@ def infinite_slope(meshes, c, rows=8, hx=1.0, z=5.0, beta=30.0, length=12.0):
                             "grid.cell": [hx * t, t / rows],
                             "soil.polygon": [[0, 0], [L, 0], [L, t], [0, t]],
                             "soil.cohesion_peak": c, "soil.cohesion_residual": c})
+
+
+def _pattern_by_sorting(gd: np.ndarray, nf: int):
+    """The reference of :func:`point_kernels.block_pattern`: the sorted unique keys
+    ``row * nf + col`` of every block entry ``[a, i, l, b]`` of every node set."""
+    ng, m = gd.shape
+    k = m // 2
+    g3 = gd.reshape(ng, k, 2)
+    rows = np.broadcast_to(g3[:, :, :, None, None], (ng, k, 2, 2, k)).ravel()
+    cols = np.broadcast_to(np.swapaxes(g3, 1, 2)[:, None, None, :, :], (ng, k, 2, 2, k)).ravel()
+    keep = (rows >= 0) & (cols >= 0)
+    ukey, pos = np.unique(rows[keep] * nf + cols[keep], return_inverse=True)
+    positions = np.full(ng * m * m, -1, dtype=np.int64)
+    positions[keep] = pos.ravel()
+    indptr = np.searchsorted(ukey, np.arange(nf + 1) * nf)
+    return indptr, ukey % nf, positions.reshape(ng, m * m), ukey
+
+
+@pytest.mark.parametrize("shape", ["standard", "gimp"])
+def test_block_pattern_equals_sorted_keys(meshes, shape):
+    """The one-pass pattern of the grid reset (the reference slope's points moved at
+    random, prescribed DOFs at the base and sides; Q4 and uGIMP node sets) equals the
+    sorted unique block keys: the same row pointer, columns and block positions; the
+    diagonal and transpose gathers point at the entries (r, r) and (c, r)."""
+    from fem_rmpm.schemes.implicit import point_kernels as pk
+    sc = with_values(api.load_scene(meshes / "slope_reference.toml"), {"solver.shape": shape})
+    grid, pts = api.prepare(sc)
+    x = pts.x + np.random.default_rng(3).normal(scale=0.06, size=pts.x.shape)
+    S = StepSystem(grid, x, shape, pts.half_width)
+    first = np.zeros(S.n_groups, dtype=np.int64)
+    first[S._group] = np.arange(S.n)
+    gd = np.ascontiguousarray(S.fnum[S.point_dofs[first]])
+    assert (gd < 0).any()                            # prescribed DOFs are in the sets
+    indptr, indices, positions, diag, transpose = pk.block_pattern(gd, S.n_free)
+    r_indptr, r_indices, r_positions, key = _pattern_by_sorting(gd, S.n_free)
+    assert np.array_equal(indptr, r_indptr) and np.array_equal(indices, r_indices)
+    assert np.array_equal(positions, r_positions)
+    row = np.repeat(np.arange(S.n_free), np.diff(indptr))
+    assert np.array_equal(key[diag], np.arange(S.n_free) * (S.n_free + 1))
+    assert np.array_equal(key[transpose], indices.astype(np.int64) * S.n_free + row)
 
 
 def test_compiled_bbar_tangent_equals_sparse_products(meshes):
@@ -93,3 +134,40 @@ def test_search_uses_one_solver_policy():
     assert FSOptions().linear_solver == "cholmod"
     assert strength_reduction.FSOptions.__dataclass_fields__["linear_solver"].default == \
         "cholmod"
+
+
+def test_halo_pattern_solves_as_the_exact_one(meshes):
+    """A dynamic step's system on the occupied cells plus a halo of empty cells (free
+    DOFs with only the mass-floor diagonal) gives the same nodal solution of
+    ``(K + diag(d)) u = f`` as the system on the occupied cells alone, to round-off
+    (1e-12 of the largest); a later step whose points stay in those cells keeps the
+    numbering and pattern, one whose point leaves them gets new ones."""
+    import scipy.sparse.linalg as spla
+    sc = api.load_scene(meshes / "slope_reference.toml")
+    grid, pts = api.prepare(sc)
+    rng = np.random.default_rng(5)
+    exact = StepSystem(grid, pts.x)
+    halo = StepSystem(grid, pts.x, halo=True)
+    assert halo.n_free > exact.n_free and halo.halo_cells is not None
+    n = exact.n
+    A = rng.normal(size=(n, 2, 2, 2, 2))
+    A = 0.5 * (A + A.transpose(0, 3, 4, 1, 2)) + 4.0 * np.einsum(
+        "ik,jl->ijkl", np.eye(2), np.eye(2))[None]
+    V0 = pts.volume0
+
+    def nodal_solution(S):
+        d = np.full(S.n_free, 50.0)                  # the Newmark mass term
+        K = S.tangent(V0, S.dN, A, diagonal=d)
+        f = S.body_force(pts.mass, [0.3, -9.81])
+        return S.to_nodes(spla.spsolve(K.tocsc(), f))
+
+    u_exact, u_halo = nodal_solution(exact), nodal_solution(halo)
+    assert np.abs(u_halo - u_exact).max() <= 1e-12 * np.abs(u_exact).max()
+    nudged = pts.x + rng.uniform(-1e-3, 1e-3, pts.x.shape)
+    kept = StepSystem(grid, nudged, keep=halo, halo=True)
+    assert kept._indices is halo._indices and kept.n_free == halo.n_free
+    far = pts.x.copy()
+    far[0] += [30.0, 20.0]                              # into an empty cell far away
+    moved = StepSystem(grid, far, keep=halo, halo=True)
+    assert moved._indices is not halo._indices
+    assert moved._group_of[moved.nodes[0, 0]] >= 0

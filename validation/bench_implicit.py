@@ -29,6 +29,18 @@ per repeat and appends it to ``validation/out/bench_implicit_case_i.jsonl``.  It
 ``PYTHONPATH=/path/to/other nice python validation/bench_implicit.py --case-i --label other``
 interleaved with ``--label this``.
 
+``--whole-run``: case (i) to rest, implicit dynamics (default settings) against the
+explicit run of the same scene, both through :func:`fem_rmpm.api.run` without output on
+``--threads`` numba threads (1 by default; the implicit Newton step is serial) and one
+BLAS thread, each in a fresh process (``--one explicit|implicit``: a 0.1 s warm-up run
+that loads numba's cache, then the timed run), in interleaved pairs (explicit, implicit,
+explicit, implicit, ...; ``--repeat`` pairs).  Per run: wall (``perf_counter``) and CPU
+(``process_time``) seconds, the steps, and for the implicit run the Newton iterations and
+its per-iteration parts; per pair the implicit / explicit ratios of wall and CPU, and the
+load average before and after.  Appends each pair to
+``validation/out/bench_implicit_whole_run.jsonl``.  ``--t-end``: stop both runs at that
+simulated time instead of at rest (default 40 s, the scene's: they stop at rest).
+
 ``--fs N``: the factor of safety of realizations 0..N-1 of the risk slope (xi = 12)
 against the MPM run of the same realization stopped once decided, both in CPU seconds on
 one numba thread (:mod:`fs_cost`, ``--risk``), and the median ratio; with ``--other
@@ -149,6 +161,69 @@ def case_i(t_end: float, label: str, linear_solver: str | None) -> dict:
             "load_average": os.getloadavg()}
 
 
+def one_whole_run(scheme: str, threads: int, t_end: float) -> dict:
+    """One run of case (i) in this process (see ``--whole-run``): a 0.1 s warm-up, then
+    the timed run to rest (or ``t_end``); returns its figures."""
+    from fem_rmpm import api
+    from fem_rmpm.scene import with_value
+    scene = load_scene(HERE.parent / "meshes" / "slope_reference.toml")
+    scene = with_value(scene, "solver.threads", threads)
+    if scheme == "implicit":
+        scene = with_value(with_value(scene, "solver.scheme", "implicit"),
+                           "solver.dynamic", True)
+    api.run(with_value(scene, "solver.t_end", 0.1))            # warm-up: numba's cache
+    scene = with_value(scene, "solver.t_end", t_end)
+    w0, c0 = time.perf_counter(), time.process_time()
+    res = api.run(scene)
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    rec = res.record
+    row = {"scheme": scheme, "threads": threads, "wall_s": wall, "cpu_s": cpu,
+           "stop_reason": rec.stop_reason, "time_s": rec.time, "steps": rec.steps,
+           "runout_m": res.measures["runout_distance"]}
+    if scheme == "implicit":
+        s = rec.solver
+        row.update(iterations=s["iterations_total"], cuts=s["cuts_total"],
+                   rejected=s["rejected_total"], limited_by=s["limited_by"],
+                   ms_per_iteration=s["ms_per_iteration"],
+                   factorizations_by=s["factorizations_by"],
+                   symbolic_analyses=s["symbolic_analyses"])
+    return row
+
+
+def whole_run(pairs: int, threads: int, t_end: float, label: str) -> None:
+    """Interleaved pairs of whole runs, each in a fresh process (``--whole-run``)."""
+    import subprocess
+    import sys
+    env = dict(os.environ, NUMBA_NUM_THREADS=str(max(threads, 1)))
+
+    def one(scheme):
+        out = subprocess.run([sys.executable, __file__, "--one", scheme, "--threads",
+                              str(threads), "--t-end", str(t_end)], env=env, check=True,
+                             capture_output=True, text=True).stdout
+        return json.loads(out.strip().splitlines()[-1])
+
+    for k in range(pairs):
+        load0 = os.getloadavg()
+        exp, imp = one("explicit"), one("implicit")
+        load1 = os.getloadavg()
+        pair = {"label": label, "threads": threads, "explicit": exp, "implicit": imp,
+                "ratio_wall": imp["wall_s"] / exp["wall_s"],
+                "ratio_cpu": imp["cpu_s"] / exp["cpu_s"], "load_before": load0,
+                "load_after": load1}
+        m = imp["ms_per_iteration"]
+        print(f"pair {k + 1}, {threads} thread(s): explicit {exp['stop_reason']} at "
+              f"{exp['time_s']:.1f} s, {exp['steps']} steps, wall {exp['wall_s']:.1f} s, CPU "
+              f"{exp['cpu_s']:.1f} s; implicit {imp['stop_reason']} at {imp['time_s']:.1f} s, "
+              f"{imp['steps']} steps, {imp['iterations']} iterations, wall "
+              f"{imp['wall_s']:.1f} s, CPU {imp['cpu_s']:.1f} s ("
+              + ", ".join(f"{p} {v:.1f}" for p, v in m.items())
+              + f" ms per iteration); implicit / explicit: wall {pair['ratio_wall']:.2f}x, "
+              f"CPU {pair['ratio_cpu']:.2f}x; load {load0[0]:.2f} -> {load1[0]:.2f}",
+              flush=True)
+        with open(OUT / "bench_implicit_whole_run.jsonl", "a") as f:
+            f.write(json.dumps(pair) + "\n")
+
+
 def fs_against_mpm(n: int, label: str, other=None) -> None:
     """One line per realization and the summary: CPU of the FS over CPU of the decided
     MPM run (one numba thread, as a campaign worker); ``other``: a checkout whose FS is
@@ -176,9 +251,15 @@ def main():
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--case-i", action="store_true",
                     help="CPU ms per Newton iteration of case (i) implicit dynamics")
-    ap.add_argument("--t-end", type=float, default=1.0, help="--case-i: simulated time (s)")
+    ap.add_argument("--t-end", type=float, default=None,
+                    help="simulated time (s): --case-i 1 by default, --whole-run 40")
     ap.add_argument("--label", default="", help="--case-i: a name for this code version")
     ap.add_argument("--linear-solver", default=None, help="--case-i: override the scene's")
+    ap.add_argument("--whole-run", action="store_true",
+                    help="case (i) to rest, implicit against explicit, interleaved pairs")
+    ap.add_argument("--one", choices=("explicit", "implicit"), default=None,
+                    help="--whole-run: one timed run in this process (prints JSON)")
+    ap.add_argument("--threads", type=int, default=1, help="--whole-run: numba threads")
     ap.add_argument("--fs", type=int, default=0, metavar="N",
                     help="the FS of realizations 0..N-1 of the risk slope (xi = 12) against "
                          "their MPM runs stopped once decided, CPU (validation/fs_cost.py)")
@@ -186,12 +267,18 @@ def main():
                     help="--fs: interleave with the FS of the checkout at PATH")
     a = ap.parse_args()
     OUT.mkdir(exist_ok=True)
+    if a.one:
+        print(json.dumps(one_whole_run(a.one, a.threads, a.t_end or 40.0)))
+        return
+    if a.whole_run:
+        whole_run(a.repeat, a.threads, a.t_end or 40.0, a.label)
+        return
     if a.fs:
         fs_against_mpm(a.fs, a.label or "this", a.other)
         return
     if a.case_i:
         for _ in range(a.repeat):
-            r = case_i(a.t_end, a.label, a.linear_solver)
+            r = case_i(a.t_end or 1.0, a.label, a.linear_solver)
             m = r["ms_per_iteration"]
             print(f"{r['label'] or r['code']}: {r['steps']} steps, {r['iterations']} its; "
                   + ", ".join(f"{k} {v:.1f}" for k, v in m.items())

@@ -28,20 +28,22 @@ class StepSystem:
     prescribed by a boundary (``grid.fixed``); only they enter the solve.  The
     sparsity pattern is built once per step (the CSR structure of the free DOFs and, per
     node set -- a host cell for Q4 -- the position of each block entry in its data
-    array); every Newton iteration then adds the per-point blocks straight into the
-    data array (:func:`fem_rmpm.schemes.implicit.point_kernels.assemble_tangent`, one compiled
-    loop over the points), with no sparse products, sorting or index building.
+    array; ``halo``: of the occupied cells and the empty cells around them, kept from
+    ``keep`` while it holds every point, see :meth:`_cell_pattern`); every Newton
+    iteration then adds the per-point blocks straight into the data array
+    (:func:`fem_rmpm.schemes.implicit.point_kernels.assemble_tangent`, one compiled loop
+    over the points), with no sparse products, sorting or index building.
     """
 
     def __init__(self, grid: Grid, x: np.ndarray, shape: str = "standard", half_width=None,
-                 fixed: np.ndarray | None = None):
+                 fixed: np.ndarray | None = None, keep: "StepSystem | None" = None,
+                 halo: bool = False):
         self.grid = grid
         fixed = grid.fixed if fixed is None else fixed      # (n_nodes, 2) prescribed DOFs
         self.host = host_cells(grid, x)                     # F-bar cells
         # the host cells numbered 0..n_host-1: the cell sums over the points (bincount in
         # point order, the same sums as over grid cells) on arrays of the used cells only
-        _, cell = np.unique(self.host, return_inverse=True)
-        self.cell = cell.ravel().astype(np.int64)
+        self.cell = _dense_rank(self.host, grid.n_cells)
         self.n_host = int(self.cell.max()) + 1 if len(self.cell) else 0
         _, nodes, N, dN, _ = shape_at_points(grid, x, shape, half_width)
         self.nodes, self.N, self.dN = nodes, N, dN
@@ -59,38 +61,90 @@ class StepSystem:
         fnum[self.free_dofs] = np.arange(nf)
         self.fnum = fnum
         self.point_dofs = (2 * nodes[:, :, None] + np.arange(2)).reshape(n, 2 * k)  # global
+        self.halo_cells = None
+        if k == 4 and halo:
+            self._cell_pattern(grid, fixed, keep)
+            return
         # group the points by their node set (Q4: the host cell, identified by node 0)
         if k == 4:
-            _, inv = np.unique(nodes[:, 0], return_inverse=True)
+            inv = _dense_rank(nodes[:, 0], nn)
         else:
             _, inv = np.unique(nodes, axis=0, return_inverse=True)
-        inv = inv.ravel()
+            inv = inv.ravel()
         ng = int(inv.max()) + 1 if n else 0
         self.n_groups = ng
         first = np.zeros(ng, dtype=np.int64)
         first[inv] = np.arange(n)                                  # a representative point
-        gd = fnum[self.point_dofs[first]].reshape(ng, k, 2)        # free index or -1
-        # block entries are laid out [a, i, l, b]: row dof (a, i), column dof (b, l)
-        rows = np.broadcast_to(gd[:, :, :, None, None], (ng, k, 2, 2, k)).ravel()
-        cols = np.broadcast_to(np.swapaxes(gd, 1, 2)[:, None, None, :, :],
-                               (ng, k, 2, 2, k)).ravel()
-        keep = (rows >= 0) & (cols >= 0)
-        key = rows[keep] * nf + cols[keep]
-        ukey, self._pos = np.unique(key, return_inverse=True)     # CSR order: row, then column
-        self._pos = self._pos.ravel()
-        self._indices = (ukey % nf).astype(np.int32) if nf else ukey.astype(np.int32)
-        self._indptr = np.searchsorted(ukey, np.arange(nf + 1) * nf).astype(np.int32)
-        self.nnz = len(ukey)
-        self._diag = np.searchsorted(ukey, np.arange(nf) * (nf + 1))   # position of (r, r)
-        # the same positions per node set, -1 for entries of prescribed DOFs (compiled path)
-        positions = np.full(ng * 4 * k * k, -1, dtype=np.int64)
-        positions[keep] = self._pos
-        self._positions = positions.reshape(ng, 4 * k * k)
+        gd = fnum[self.point_dofs[first]]                          # (ng, 2k) free or -1
+        # the CSR pattern of the free DOFs (rows, then sorted columns) and the position of
+        # each block entry [a, i, l, b] (row dof (a, i), column dof (b, l)) in its data
+        # array, -1 for entries of prescribed DOFs (:func:`point_kernels.block_pattern`)
+        (self._indptr, self._indices, self._positions, self._diag,
+         self.transpose) = pk.block_pattern(np.ascontiguousarray(gd), nf)
+        self.nnz = len(self._indices)
         self._group = inv.astype(np.int64)
         # Q4: the node sets are the host cells, so the B-bar terms are blocks of the
         # pattern (compiled path of :meth:`bbar_tangent_into`)
         self.groups_are_cells = k == 4 and bool(
             np.all(self.host == self.host[first][self._group]))
+
+    def _cell_pattern(self, grid: Grid, fixed: np.ndarray, keep) -> None:
+        """Q4 dynamic steps: the DOF numbering and sparsity pattern of a set of cells that
+        holds every point's host cell, with a halo: the cells next to an occupied one,
+        empty now, whose nodes are free DOFs with only the diagonal (the Newmark mass
+        floor) and no load, so their increment stays zero and the solution is that of
+        the occupied cells alone.  ``keep``: a previous system's cells, numbering and
+        pattern, taken as they are if they hold every host cell (same prescribed DOFs):
+        the linear solver then keeps its symbolic factorization; else the occupied cells
+        and their halo anew."""
+        nodes = self.nodes
+        fits = keep is not None and keep.halo_cells is not None \
+            and np.array_equal(keep._fixed, fixed)
+        if fits:
+            inv = keep._group_of[nodes[:, 0]]
+            fits = not (len(inv) and inv.min() < 0)
+        if fits:
+            for name in ("free_dofs", "n_free", "fnum", "n_groups", "_indptr", "_indices",
+                         "_positions", "_diag", "transpose", "nnz", "halo_cells",
+                         "_group_of", "_fixed"):
+                setattr(self, name, getattr(keep, name))
+        else:
+            self._halo_pattern(grid, fixed)
+        self._group = self._group_of[nodes[:, 0]]
+        self.groups_are_cells = False          # B-bar (geostatic steps) needs the exact sets
+
+    def _halo_pattern(self, grid: Grid, fixed: np.ndarray) -> None:
+        """The occupied cells and the 8 around each: their free DOFs and pattern."""
+        nn = grid.n_nodes
+        nx, ny = grid.shape
+        occupied = np.zeros((ny, nx), dtype=bool)
+        occupied.ravel()[self.host] = True
+        near = occupied.copy()
+        near[1:, :] |= occupied[:-1, :]
+        near[:-1, :] |= occupied[1:, :]
+        rows = near.copy()
+        near[:, 1:] |= rows[:, :-1]
+        near[:, :-1] |= rows[:, 1:]
+        cells = np.nonzero(near.ravel())[0]
+        cn = grid.cells[cells]                           # (nc, 4) nodes, as the basis's
+        order = np.argsort(cn[:, 0], kind="stable")      # node sets ranked by node 0
+        cells, cn = cells[order], cn[order]
+        pattern_nodes = np.zeros(nn, dtype=bool)
+        pattern_nodes[cn.ravel()] = True
+        self.free_dofs = np.nonzero((pattern_nodes[:, None] & ~fixed).ravel())[0]
+        self.n_free = nf = len(self.free_dofs)
+        fnum = np.full(2 * nn, -1, dtype=np.int64)
+        fnum[self.free_dofs] = np.arange(nf)
+        self.fnum = fnum
+        gd = fnum[(2 * cn[:, :, None] + np.arange(2)).reshape(len(cells), 8)]
+        (self._indptr, self._indices, self._positions, self._diag,
+         self.transpose) = pk.block_pattern(np.ascontiguousarray(gd), nf)
+        self.nnz = len(self._indices)
+        self.n_groups = len(cells)
+        self.halo_cells = cells
+        self._group_of = np.full(nn, -1, dtype=np.int64)
+        self._group_of[cn[:, 0]] = np.arange(len(cells))
+        self._fixed = fixed.copy()
 
     # --- kinematics
     def gradient(self, du: np.ndarray) -> np.ndarray:
@@ -100,7 +154,8 @@ class StepSystem:
 
     def interpolate(self, nodal: np.ndarray) -> np.ndarray:
         """Nodal vector (n_nodes, 2) at the points (n, 2)."""
-        return np.einsum("pa,pai->pi", self.N, nodal[self.nodes])
+        return pk.interpolate(np.ascontiguousarray(nodal, dtype=float), self.nodes, self.N,
+                              np.empty((self.n, 2)))
 
     def to_nodes(self, free_vec: np.ndarray, prescribed: np.ndarray | None = None) -> np.ndarray:
         """Free-DOF vector -> nodal (n_nodes, 2); the other DOFs are zero, or take the
@@ -177,13 +232,23 @@ class StepSystem:
 
     def body_force(self, mass: np.ndarray, gravity) -> np.ndarray:
         """``f_ai = sum_p m_p g_i N_a`` on the free DOFs (kN per m)."""
-        return self._scatter(self.N[:, :, None] * mass[:, None, None]
-                             * np.asarray(gravity, dtype=float))
+        gx, gy = (float(v) for v in np.asarray(gravity, dtype=float))
+        f = pk.body_force(self.nodes, self.N, np.ascontiguousarray(mass, dtype=float), gx, gy,
+                          np.zeros((self.grid.n_nodes, 2)))
+        return f.ravel()[self.free_dofs]
 
     def lumped_mass(self, mass: np.ndarray) -> np.ndarray:
         """Nodal lumped mass ``m_a = sum_p m_p N_a`` (n_nodes,), t per m."""
         return np.bincount(self.nodes.ravel(), (self.N * mass[:, None]).ravel(),
                            minlength=self.grid.n_nodes)
+
+    def mass_and_momenta(self, mass: np.ndarray, v: np.ndarray, a: np.ndarray):
+        """``(lumped_mass(mass), momentum(mass, v), momentum(mass, a))`` in one pass."""
+        nn = self.grid.n_nodes
+        m, mv, ma = np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2))
+        pk.nodal_mass_momentum(self.nodes, self.N, mass, np.ascontiguousarray(v),
+                               np.ascontiguousarray(a), m, mv, ma)
+        return m, mv, ma
 
     def momentum(self, mass: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Nodal ``sum_p m_p v_p N_a`` (n_nodes, 2)."""
@@ -208,6 +273,14 @@ class StepSystem:
 
     def rigid_body_modes(self) -> np.ndarray:
         return rigid_body_modes(self.grid.nodes, self.free_dofs)
+
+
+def _dense_rank(values: np.ndarray, size: int) -> np.ndarray:
+    """The rank of each value among the distinct ``values`` (int64, ``0 <= values <
+    size``): ``np.unique(values, return_inverse=True)[1]`` by a table of ``size``."""
+    present = np.zeros(size + 1, dtype=np.int64)
+    present[values + 1] = 1
+    return np.cumsum(present)[values]
 
 
 def rigid_body_modes(node_xy: np.ndarray, free_dofs: np.ndarray) -> np.ndarray:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 from scipy.sparse.linalg import cg, gmres, splu
 
 try:                                   # SuiteSparse's CHOLMOD (cvxopt ships it in its wheels)
@@ -48,11 +49,16 @@ class LinearSolver:
         self.factorizations = 0
         self.factorizations_by = {"cholmod": 0, "superlu": 0}
         self.symbolic_analyses = 0
+        self._system = None       # the step's StepSystem (its pattern's transpose gather)
 
-    def new_step(self) -> None:
-        """A new step: the pyamg hierarchy is rebuilt (the LU ordering of a sparsity
-        pattern is kept while the pattern stays)."""
+    def new_step(self, system=None) -> None:
+        """A new step: the pyamg hierarchy is rebuilt (the LU ordering and CHOLMOD's
+        symbolic factor of a sparsity pattern are kept while the pattern stays).
+        ``system``: the step's :class:`~fem_rmpm.schemes.implicit.assembly.StepSystem`,
+        whose tangents share its CSR index arrays; CHOLMOD then takes the transpose
+        gather of the pattern from it instead of searching for it."""
         self._ml = None
+        self._system = system
 
     def solve(self, K: sp.csr_matrix, b: np.ndarray, modes=None, rtol: float = 1e-10) -> np.ndarray:
         if self.kind == "cholmod":
@@ -69,22 +75,24 @@ class LinearSolver:
         c = self._chol
         if c is None or not (np.array_equal(c["indptr"], K.indptr)
                              and np.array_equal(c["indices"], K.indices)):
-            c = self._chol = _cholmod_pattern(K)
+            S = self._system
+            given = S is not None and np.array_equal(K.indptr, S._indptr) \
+                and np.array_equal(K.indices, S._indices)
+            c = self._chol = _cholmod_pattern(K, S.transpose if given else None)
             self.symbolic_analyses += 1
-        data = K.data
-        if c["transpose"] is None or np.max(np.abs(data - data[c["transpose"]]), initial=0.0) \
-                > 1e-12 * np.max(np.abs(data), initial=0.0):
+        if c["transpose"] is None:
             return self._superlu(K, b)
-        c["A"].V = cvxopt.matrix(data[c["lower"]])
+        lower = symmetric_lower(K.data, c["transpose"], c["lower"], 1e-12)
+        if lower is None:
+            return self._superlu(K, b)
+        c["A"].V = cvxopt.matrix(lower)
         try:
             if c["F"] is None:
                 c["F"] = cholmod.symbolic(c["A"], uplo="L")
             cholmod.numeric(c["A"], c["F"])
         except ArithmeticError:              # not positive definite
             return self._superlu(K, b)
-        x = cvxopt.matrix(np.array(b, dtype=float))
-        cholmod.solve(c["F"], x)
-        x = np.array(x).ravel()
+        x = _cholmod_solve(c["F"], b)
         if not np.all(np.isfinite(x)):
             return self._superlu(K, b)
         self.factorizations += 1
@@ -157,23 +165,55 @@ def _ordering(K: sp.csr_matrix, ip: np.ndarray) -> dict:
             "p_indptr": Kp.indptr}
 
 
-def _cholmod_pattern(K: sp.csr_matrix) -> dict:
+def _cholmod_solve(F, b: np.ndarray) -> np.ndarray:
+    x = cvxopt.matrix(np.array(b, dtype=float))
+    cholmod.solve(F, x)
+    return np.array(x).ravel()
+
+
+def symmetric_lower(data: np.ndarray, transpose: np.ndarray, lower: np.ndarray,
+                    rtol: float) -> np.ndarray | None:
+    """``data[lower]`` if the matrix is symmetric to ``rtol`` of its largest entry
+    (``|data - data[transpose]| <= rtol max|data|``), else None (one compiled pass)."""
+    out = np.empty(len(lower))
+    return out if _symmetric_lower(data, transpose, lower, rtol, out) else None
+
+
+@njit(cache=True)
+def _symmetric_lower(data, transpose, lower, rtol, out):
+    big = 0.0
+    diff = 0.0
+    for q in range(len(data)):
+        a = abs(data[q])
+        if a > big:
+            big = a
+        d = abs(data[q] - data[transpose[q]])
+        if d > diff:
+            diff = d
+    for j in range(len(lower)):
+        out[j] = data[lower[j]]
+    return diff <= rtol * big
+
+
+def _cholmod_pattern(K: sp.csr_matrix, transpose: np.ndarray | None = None) -> dict:
     """For a CSR pattern: the entries of its lower triangle in
     CHOLMOD's column order (CSR row ``j`` from the diagonal on is column ``j`` of the lower
     triangle of a symmetric matrix), the gather ``transpose`` with ``data[transpose]`` the
     data of ``K^T`` in ``K``'s pattern (None for a pattern that is not symmetric, e.g.
     with the F-bar coupling), and cvxopt's matrix of that triangle (its values are
-    replaced per factorization)."""
+    replaced per factorization).  ``transpose``: that gather if known (a symmetric
+    pattern built with it, :func:`.point_kernels.block_pattern`)."""
     n = K.shape[0]
     row = np.repeat(np.arange(n, dtype=np.int64), np.diff(K.indptr))
     col = K.indices.astype(np.int64)
-    key = row * n + col                                   # sorted: CSR order
-    transpose = np.searchsorted(key, col * n + row)
-    if len(key) and not np.array_equal(key[np.minimum(transpose, len(key) - 1)],
-                                       col * n + row):
-        return {"indptr": K.indptr.copy(), "indices": K.indices.copy(), "transpose": None}
+    base = {"indptr": K.indptr.copy(), "indices": K.indices.copy(), "transpose": None}
+    if transpose is None:
+        key = row * n + col                                   # sorted: CSR order
+        transpose = np.searchsorted(key, col * n + row)
+        if len(key) and not np.array_equal(key[np.minimum(transpose, len(key) - 1)],
+                                           col * n + row):
+            return base
     lower = np.nonzero(col >= row)[0]
     A = cvxopt.spmatrix(K.data[lower], cvxopt.matrix(col[lower]), cvxopt.matrix(row[lower]),
                         (n, n))
-    return {"indptr": K.indptr.copy(), "indices": K.indices.copy(), "transpose": transpose,
-            "lower": lower, "A": A, "F": None}
+    return {**base, "transpose": transpose, "lower": lower, "A": A, "F": None}

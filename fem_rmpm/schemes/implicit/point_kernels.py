@@ -11,7 +11,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["assemble_tangent", "assemble_bbar_tangent", "displacement_gradient",
+__all__ = ["assemble_tangent", "assemble_bbar_tangent", "displacement_gradient", "block_pattern",
+           "interpolate", "spatial_gradients", "nodal_mass_momentum", "move_points",
+           "body_force",
            "internal_force"]
 
 
@@ -135,4 +137,179 @@ def internal_force(tau4, V0, g, nodes, out):
             q = nodes[p, a]
             out[q, 0] += txx * g0 + txy * g1
             out[q, 1] += txy * g0 + tyy * g1
+    return out
+
+
+@njit(cache=True)
+def block_pattern(gd, nf):
+    """The CSR pattern of a matrix assembled from dense blocks, one per node set.
+
+    ``gd`` (ng, m): the free DOF index of each of the ``m = 2k`` DOFs of node set ``g``
+    (order ``[a, i]``: node ``a``, component ``i``), -1 for a prescribed DOF; ``nf`` the
+    number of free DOFs.  Returns ``(indptr, indices, positions, diag, transpose)``:
+    the CSR row pointer and sorted column indices (int32) of every pair of free DOFs
+    that share a node set; ``positions`` (ng, m*m) the data position of the block
+    entry ``[a, i, l, b]`` (row DOF ``(a, i)``, column DOF ``(b, l)``; -1 where either
+    is prescribed); ``diag`` (nf,) the position of each diagonal entry; ``transpose``
+    (nnz,) the position of entry ``(c, r)`` for the entry ``(r, c)`` (the pattern is
+    symmetric).  The same arrays as the sorted unique keys ``row * nf + col`` of all
+    block entries, in one pass over the rows (no sort of the ``ng m^2`` keys)."""
+    ng, m = gd.shape
+    k = m // 2
+    # the node sets of each row, with the row's local index in the set
+    cnt = np.zeros(nf + 1, dtype=np.int64)
+    for g in range(ng):
+        for e in range(m):
+            r = gd[g, e]
+            if r >= 0:
+                cnt[r + 1] += 1
+    rptr = np.cumsum(cnt)
+    rgrp = np.empty(rptr[nf], dtype=np.int64)
+    rloc = np.empty(rptr[nf], dtype=np.int64)
+    fill = rptr[:nf].copy()
+    for g in range(ng):
+        for e in range(m):
+            r = gd[g, e]
+            if r >= 0:
+                rgrp[fill[r]] = g
+                rloc[fill[r]] = e
+                fill[r] += 1
+    mark = np.full(nf, -1, dtype=np.int64)
+    colpos = np.empty(nf, dtype=np.int64)
+    buf = np.empty(rptr[nf] * m, dtype=np.int32)
+    indptr = np.zeros(nf + 1, dtype=np.int32)
+    positions = np.full((ng, m * m), -1, dtype=np.int64)
+    diag = np.empty(nf, dtype=np.int64)
+    nnz = 0
+    for r in range(nf):
+        # the columns of row r: the free DOFs of its node sets, once each, sorted
+        start = nnz
+        for q in range(rptr[r], rptr[r + 1]):
+            g = rgrp[q]
+            for e in range(m):
+                c = gd[g, e]
+                if c >= 0 and mark[c] != r:
+                    mark[c] = r
+                    j = nnz                     # insertion sort (at most a few dozen)
+                    while j > start and buf[j - 1] > c:
+                        buf[j] = buf[j - 1]
+                        j -= 1
+                    buf[j] = c
+                    nnz += 1
+        indptr[r + 1] = nnz
+        for q in range(start, nnz):
+            colpos[buf[q]] = q
+        diag[r] = colpos[r]
+        # the positions of row r's entries in each of its blocks
+        for q in range(rptr[r], rptr[r + 1]):
+            g, ri = rgrp[q], rloc[q]
+            for l in range(2):
+                for b in range(k):
+                    c = gd[g, 2 * b + l]
+                    if c >= 0:
+                        positions[g, ri * m + l * k + b] = colpos[c]
+    indices = buf[:nnz].copy()
+    # symmetric pattern: the entries (r, c) in CSR order fill each row c in ascending r
+    transpose = np.empty(nnz, dtype=np.int64)
+    nxt = indptr[:nf].astype(np.int64)
+    for r in range(nf):
+        for q in range(indptr[r], indptr[r + 1]):
+            c = indices[q]
+            transpose[q] = nxt[c]
+            nxt[c] += 1
+    return indptr, indices, positions, diag, transpose
+
+
+@njit(cache=True, error_model="numpy")
+def interpolate(nodal, nodes, N, out):
+    """``out[p, i] = sum_a N[p, a] nodal[nodes[p, a], i]`` (n, 2): a nodal vector
+    (n_nodes, 2) at the points."""
+    n, k = nodes.shape
+    for p in range(n):
+        s0 = s1 = 0.0
+        for a in range(k):
+            q = nodes[p, a]
+            s0 += N[p, a] * nodal[q, 0]
+            s1 += N[p, a] * nodal[q, 1]
+        out[p, 0], out[p, 1] = s0, s1
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def spatial_gradients(H, dN, dF, det, g):
+    """Per point: ``dF = I + H``, ``det = det dF`` and the spatial basis gradients
+    ``g[p, a, j] = sum_l dN[p, a, l] (dF^-1)_lj`` (n, k, 2); returns the smallest
+    ``det`` (``g`` is left unset at a point with ``det <= 0``)."""
+    n, k = dN.shape[0], dN.shape[1]
+    dmin = np.inf
+    for p in range(n):
+        f00, f01 = 1.0 + H[p, 0, 0], H[p, 0, 1]
+        f10, f11 = H[p, 1, 0], 1.0 + H[p, 1, 1]
+        dF[p, 0, 0], dF[p, 0, 1], dF[p, 1, 0], dF[p, 1, 1] = f00, f01, f10, f11
+        d = f00 * f11 - f01 * f10
+        det[p] = d
+        if d < dmin:
+            dmin = d
+        if not d > 0.0:
+            continue
+        i00, i11, i01, i10 = f11 / d, f00 / d, -f01 / d, -f10 / d
+        for a in range(k):
+            d0, d1 = dN[p, a, 0], dN[p, a, 1]
+            g[p, a, 0] = d0 * i00 + d1 * i10
+            g[p, a, 1] = d0 * i01 + d1 * i11
+    return dmin
+
+
+@njit(cache=True, error_model="numpy")
+def nodal_mass_momentum(nodes, N, mass, v, a, m, mv, ma):
+    """Lumped nodal mass ``m_b = sum_p m_p N_b`` and the nodal sums ``sum_p m_p N_b v_p``
+    and ``sum_p m_p N_b a_p`` (``m`` (n_nodes,), ``mv``, ``ma`` (n_nodes, 2), zeroed by
+    the caller)."""
+    n, k = nodes.shape
+    for p in range(n):
+        for b in range(k):
+            q = nodes[p, b]
+            w = N[p, b] * mass[p]
+            m[q] += w
+            mv[q, 0] += w * v[p, 0]
+            mv[q, 1] += w * v[p, 1]
+            ma[q, 0] += w * a[p, 0]
+            ma[q, 1] += w * a[p, 1]
+
+
+@njit(cache=True, error_model="numpy")
+def move_points(act, dx, dF, V0, tau4, x, F, volume, stress):
+    """The converged step at the active points ``act``: ``x += dx``, ``F <- dF F``,
+    ``V = det(F) V0`` and the Cauchy stress ``tau / det F`` (``x``, ``F``, ``volume``,
+    ``stress``: the arrays of all points, in place; ``dx``, ``dF``, ``V0``, ``tau4``: per
+    active point)."""
+    for j in range(len(act)):
+        p = act[j]
+        x[p, 0] = x[p, 0] + dx[j, 0]
+        x[p, 1] = x[p, 1] + dx[j, 1]
+        a00, a01, a10, a11 = dF[j, 0, 0], dF[j, 0, 1], dF[j, 1, 0], dF[j, 1, 1]
+        b00, b01, b10, b11 = F[p, 0, 0], F[p, 0, 1], F[p, 1, 0], F[p, 1, 1]
+        f00 = a00 * b00 + a01 * b10
+        f01 = a00 * b01 + a01 * b11
+        f10 = a10 * b00 + a11 * b10
+        f11 = a10 * b01 + a11 * b11
+        F[p, 0, 0], F[p, 0, 1], F[p, 1, 0], F[p, 1, 1] = f00, f01, f10, f11
+        J = f00 * f11 - f01 * f10
+        volume[p] = J * V0[j]
+        for c in range(stress.shape[1]):
+            stress[p, c] = tau4[j, c] / J
+
+
+
+@njit(cache=True, error_model="numpy")
+def body_force(nodes, N, mass, gx, gy, out):
+    """``out[nodes[p, a], i] += (N[p, a] m_p) g_i`` (``out`` (n_nodes, 2), zeroed by the
+    caller): the nodal body force, summed in point order (as a ``bincount``)."""
+    n, k = nodes.shape
+    for p in range(n):
+        for a in range(k):
+            w = N[p, a] * mass[p]
+            q = nodes[p, a]
+            out[q, 0] += w * gx
+            out[q, 1] += w * gy
     return out

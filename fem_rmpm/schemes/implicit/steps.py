@@ -28,6 +28,7 @@ from fem_rmpm.materials import MaterialPoints, small_strain_update, stress_updat
 from fem_rmpm.scene import Scene, SceneError
 from fem_rmpm.schemes.common import SimulationError
 from fem_rmpm.schemes.explicit import kernels
+from fem_rmpm.schemes.implicit import point_kernels as pk
 from fem_rmpm.schemes.implicit.assembly import StepSystem
 from fem_rmpm.schemes.implicit.linear import LinearSolver
 from fem_rmpm.schemes.implicit.newton import NewtonFailure, NewtonResult, newton
@@ -125,7 +126,7 @@ class ImplicitSystem:
         if len(act) == 0:
             raise SimulationError("no active material point left (all frozen at the grid "
                                   "edge); enlarge [grid] size")
-        S = self._step_system(act)
+        S = self._step_system(act, dynamic)
         mass = pts.mass[act]
         presc = None
         if self.presc_mask.any():
@@ -138,10 +139,13 @@ class ImplicitSystem:
         return StepData(S, act, pts.volume0[act], pts.volume[act], mass, pts.log_strain[act],
                         pts.state[act], pts.soil.take(act), f_ext, lf_new, lf_old, presc, dt)
 
-    def _step_system(self, act: np.ndarray) -> StepSystem:
+    def _step_system(self, act: np.ndarray, dynamic: bool = False) -> StepSystem:
         """The StepSystem at the active points' positions: the cached one if the same
         points sit at the same positions (same half widths, same prescribed DOFs and
-        grid), else a new one (then cached)."""
+        grid), else a new one (then cached).  Dynamic Q4 steps with CHOLMOD keep the
+        cells, DOF numbering and pattern of an earlier step while they hold every host
+        cell (:meth:`StepSystem._cell_pattern`: the occupied cells and a halo around
+        them), so the symbolic factorization is reused."""
         pts, c = self.pts, self.pattern_cache
         x = pts.x[act]
         hw = pts.half_width[act] if pts.half_width is not None else None
@@ -152,7 +156,12 @@ class ImplicitSystem:
                 and (hw is None) == (c["hw"] is None) \
                 and (hw is None or np.array_equal(c["hw"], hw)):
             return S
-        S = StepSystem(self.grid, x, self.sv.shape, hw, fixed=self.fixed)
+        halo = dynamic and self.sv.shape == "standard" and self.sv.linear_solver == "cholmod"
+        keep = c.get("cells") if halo and c.get("cells_grid") is self.grid else None
+        S = StepSystem(self.grid, x, self.sv.shape, hw, fixed=self.fixed, keep=keep,
+                       halo=halo)
+        if S.halo_cells is not None:
+            c.update(cells=S, cells_grid=self.grid)
         c.update(S=S, grid=self.grid, shape=self.sv.shape, act=act.copy(), x=x.copy(),
                  fixed=self.fixed.copy(), hw=None if hw is None else hw.copy())
         return S
@@ -261,7 +270,7 @@ class StepKind:
         st = sys_.begin(lf_new, lf_old, dt, self.dynamic)
         t_setup = time.perf_counter() - t_setup
         du0 = self.predictor(st)
-        sys_.solver.new_step()
+        sys_.solver.new_step(st.S)
         res = newton(lambda du: self.residual(st, du), lambda: self.tangent(st), du0,
                      sys_.solver, sv.max_iterations, sv.tolerance,
                      modes=st.S.rigid_body_modes)
@@ -371,9 +380,9 @@ class QuasiStatic(StepKind):
 
     def material(self, st, H):
         sys_ = self.sys
-        dF = _EYE + H
-        Finv, det = inv2(dF)
-        if not np.all(det > 0):
+        n, S = len(H), st.S
+        dF, det, g = np.empty((n, 2, 2)), np.empty(n), np.empty_like(S.dN)
+        if not pk.spatial_gradients(np.ascontiguousarray(H), S.dN, dF, det, g) > 0:
             i = st.act[np.argmin(det)]
             raise NewtonFailure(f"material point {i} inverted (det dF = {det.min():.3g})", [],
                                 inverted=True)
@@ -386,7 +395,6 @@ class QuasiStatic(StepKind):
         t1 = time.perf_counter()
         ls, q, tau = sys_.stress_update(dFm, st.ls0, st.state0, st.soil)
         st.clock["material"] += time.perf_counter() - t1
-        g = np.matmul(st.S.dN, Finv)
         st.cache.update(H=H, dF=dFm, g=g, tau=tau)
         return ls, q, tau, g, dFm
 
@@ -409,12 +417,9 @@ class QuasiStatic(StepKind):
             info = self.sys.reactions(st, res.du, self.force_stress(st, tau),
                                       np.matmul(S.dN, Finv))
         pts.log_strain[act], pts.state[act] = ls, q
-        pts.x[act] = pts.x[act] + S.interpolate(du_nodes)
-        pts.F[act] = dFm @ pts.F[act]
-        F = pts.F[act]
-        J = F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
-        pts.volume[act] = J * st.V0
-        pts.stress[act] = tau / J[:, None]
+        # x += N du, F <- dF F, V = det(F) V0, sigma = tau / det F (one compiled pass)
+        pk.move_points(act, S.interpolate(du_nodes), np.ascontiguousarray(dFm), st.V0,
+                       np.ascontiguousarray(tau), pts.x, pts.F, pts.volume, pts.stress)
         return info
 
     def limits(self, st, res):
@@ -459,11 +464,11 @@ class NewmarkDynamic(QuasiStatic):
 
     def predictor(self, st):
         S, pts, act, mass, dt = st.S, self.sys.pts, st.act, st.mass, st.dt
-        m_nodes = S.lumped_mass(mass)
+        m_nodes, mv, ma = S.mass_and_momenta(mass, pts.velocity[act], self.sys.acc[act])
         has = m_nodes > _MASS_TOL
         inv_m = np.where(has, 1.0 / np.where(has, m_nodes, 1.0), 0.0)[:, None]
-        v_n = (S.momentum(mass, pts.velocity[act]) * inv_m).ravel()[S.free_dofs]
-        a_n = (S.momentum(mass, self.sys.acc[act]) * inv_m).ravel()[S.free_dofs]
+        v_n = (mv * inv_m).ravel()[S.free_dofs]
+        a_n = (ma * inv_m).ravel()[S.free_dofs]
         frac = float(self.sys.sv.min_mass_fraction)
         m_min = frac * float(mass.sum() / st.Vn.sum()) * float(np.prod(self.sys.grid.cell))
         m_free = np.maximum(np.repeat(m_nodes, 2)[S.free_dofs], m_min)

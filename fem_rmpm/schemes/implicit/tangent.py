@@ -77,7 +77,8 @@ def trial_stiffness(eps_tr: np.ndarray, state: np.ndarray, soil: MaterialPoints,
     n = len(eps_tr)
     st = state[:, None] if state.ndim == 1 else state
     out = np.empty((n, 4, 3))
-    ids = np.unique(soil.model)
+    models = soil.model
+    ids = models[:1] if n and models.min() == models.max() else np.unique(models)
     for k in ids:
         idx = slice(None) if len(ids) == 1 else np.nonzero(soil.model == k)[0]
         hook = getattr(registry.model(int(k)), "tangent", None)
