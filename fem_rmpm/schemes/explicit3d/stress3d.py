@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import math
 
-from fem_rmpm.runtime.compiled import assume_columns, inline, kernel
+import numpy as np
+
+from fem_rmpm.runtime.compiled import assume_columns, inline, jit, kernel
 from fem_rmpm.schemes.explicit3d.elastic import (
     compose_sym3,
     elastic_tau_3d,
@@ -20,14 +22,16 @@ from fem_rmpm.schemes.explicit3d.elastic import (
     sym_eig3,
     sym_eig3_block,
 )
+from fem_rmpm.schemes.explicit3d.finite_block import (
+    BLOCK_ROWS,
+    R_J,
+    R_TAU,
+    finite_strain_block,
+    gather_material,
+)
 from fem_rmpm.schemes.explicit3d.plastic import MODEL_ELASTIC, plastic_return_principal_3d
 
-__all__ = ["stress_3d", "BLOCK_ROWS"]
-
-#: Rows of the stress pass's block (one column per point): ``b`` then the trial ``b_tr``
-#: (0-5), the eigen-decomposition (6-17, :func:`.elastic.sym_eig3_block`), ``det dF``
-#: (18), the velocity gradient (19-27).
-BLOCK_ROWS = 28
+__all__ = ["stress_3d", "stress_points_3d", "BLOCK_ROWS"]
 
 
 @inline
@@ -156,7 +160,7 @@ def _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz):
 
 @inline
 def _gather_block(start, hi, node, active, be, cellbase, cellxi, sy, sz, ihx, ihy, ihz,
-                  blk, idx):
+                  blk, idx, lam, mu, model, plastic, state):
     """The next block of at most :data:`.elastic.EIG_BLOCK` active points from ``start``:
     their indices in ``idx``, ``b`` (rows 0-5) and velocity gradient (rows 19-27) in the
     columns of ``blk``; returns (points in the block, the point after it)."""
@@ -168,6 +172,7 @@ def _gather_block(start, hi, node, active, be, cellbase, cellxi, sy, sz, ihx, ih
                 blk[19 + k, nb] = L[k]
             for k in range(6):
                 blk[k, nb] = be[i, k]
+            gather_material(i, nb, blk, lam, mu, model, plastic, state)
             idx[nb] = i
             nb += 1
         i += 1
@@ -191,13 +196,11 @@ def _trial_block(blk, dt):
 
 
 @inline
-def _stress_and_checks(i, J, x, v, mass, vol, vol0, stress, eps, lam, mu, origin, upper,
-                       acc):
-    """Volume, Cauchy stress of point ``i`` and its part of the maxima and counts ``acc``
-    (c2max, pmax2, nbad, nout)."""
+def _stress_and_checks(i, J, x, v, mass, vol, vol0, stress, lam, mu, origin, upper, acc):
+    """Volume, Cauchy stress of point ``i`` (from the Kirchhoff stress in ``stress[i]``)
+    and its part of the maxima and counts ``acc`` (c2max, pmax2, nbad, nout)."""
     vol[i] *= J
     ratio = vol0[i] / vol[i]
-    elastic_tau_3d(eps, i, lam[i], mu[i], stress, i)
     ok = True
     for k in range(6):
         stress[i, k] *= ratio
@@ -213,6 +216,33 @@ def _stress_and_checks(i, J, x, v, mass, vol, vol0, stress, eps, lam, mu, origin
     return c2max, pmax2, acc[2] + (0 if ok else 1), acc[3] + nout
 
 
+@inline
+def _pass_frame(origin, h, shape):
+    """Node strides, inverse cell sizes (1/m) and the grid box's upper corner (m)."""
+    sy, sz = shape[0] + 1, (shape[0] + 1) * (shape[1] + 1)
+    ihx, ihy, ihz = 1.0 / h[0], 1.0 / h[1], 1.0 / h[2]
+    upper = (origin[0] + h[0] * shape[0], origin[1] + h[1] * shape[1],
+             origin[2] + h[2] * shape[2])
+    return sy, sz, ihx, ihy, ihz, upper
+
+
+@inline
+def _geostatic_pass(x, v, mass, vol, vol0, stress, eps, lam, mu, active, cellbase, cellxi,
+                    origin, node, lo, hi, dt, model, plastic, state, e3, frame):
+    """The geostatic (small-strain) update of the active points ``lo:hi``, point by
+    point; the maxima and counts (:func:`_stress_and_checks`)."""
+    sy, sz, ihx, ihy, ihz, upper = frame
+    acc = (0.0, 0.0, 0, 0)
+    for i in range(lo, hi):
+        if active[i]:
+            L = _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz)
+            _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3)
+            elastic_tau_3d(eps, i, lam[i], mu[i], stress, i)
+            acc = _stress_and_checks(i, 1.0, x, v, mass, vol, vol0, stress, lam, mu,
+                                     origin, upper, acc)
+    return acc
+
+
 # long function: the stress pass's loops (geostatic, then finite strain in blocks)
 @kernel
 def stress_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase, cellxi,
@@ -223,33 +253,69 @@ def stress_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase,
     (:data:`BLOCK_ROWS`, B), ``idx`` (B,); fills ``stats`` (4,) with the largest squared P-wave
     speed and squared point speed (m2/s2), the count of non-finite points and of points
     outside the grid box (``origin`` to ``origin + h shape``).  The finite-strain update
-    runs in blocks of B points: the trial tensors of the block, their eigen-decompositions
-    in one vectorized loop (:func:`.elastic.sym_eig3_block`), then the rest point by
-    point."""
+    runs in blocks of B points: the trial tensors of the block and their
+    eigen-decompositions in vectorized loops (:func:`.elastic.sym_eig3_block`), the
+    logarithms, von Mises returns, exponentials and new tensors of
+    :func:`.finite_block.finite_strain_block`, then volume, Cauchy stress and checks point
+    by point; bitwise :func:`stress_points_3d`."""
     assume_columns(node, 8)
     assume_columns(blk, EIG_BLOCK)
-    sy, sz = shape[0] + 1, (shape[0] + 1) * (shape[1] + 1)
-    ihx, ihy, ihz = 1.0 / h[0], 1.0 / h[1], 1.0 / h[2]
-    upper = (origin[0] + h[0] * shape[0], origin[1] + h[1] * shape[1],
-             origin[2] + h[2] * shape[2])
-    acc = (0.0, 0.0, 0, 0)
+    frame = _pass_frame(origin, h, shape)
+    sy, sz, ihx, ihy, ihz, upper = frame
     if geostatic:
-        for i in range(lo, hi):
-            if active[i]:
-                L = _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz)
-                _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3)
-                acc = _stress_and_checks(i, 1.0, x, v, mass, vol, vol0, stress, eps, lam,
-                                         mu, origin, upper, acc)
+        acc = _geostatic_pass(x, v, mass, vol, vol0, stress, eps, lam, mu, active, cellbase,
+                              cellxi, origin, node, lo, hi, dt, model, plastic, state, e3,
+                              frame)
     else:
+        acc = (0.0, 0.0, 0, 0)
         i = lo
         while i < hi:
             nb, i = _gather_block(i, hi, node, active, be, cellbase, cellxi, sy, sz, ihx,
-                                  ihy, ihz, blk, idx)
+                                  ihy, ihz, blk, idx, lam, mu, model, plastic, state)
             _trial_block(blk, dt)
             sym_eig3_block(blk)
+            finite_strain_block(nb, blk, idx, eps, be, lam, mu, model, plastic, state, e3)
             for j in range(nb):
                 k = idx[j]
-                _finite_strain(k, j, blk, be, eps, lam, mu, model, plastic, state, e3)
-                acc = _stress_and_checks(k, blk[18, j], x, v, mass, vol, vol0, stress, eps,
-                                         lam, mu, origin, upper, acc)
+                for m in range(6):
+                    stress[k, m] = blk[R_TAU + m, j]
+                acc = _stress_and_checks(k, blk[R_J, j], x, v, mass, vol, vol0, stress, lam,
+                                         mu, origin, upper, acc)
+    stats[0], stats[1], stats[2], stats[3] = acc[0], acc[1], acc[2], acc[3]
+
+
+@jit
+def stress_points_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase,
+                     cellxi, origin, h, shape, node, lo, hi, dt, geostatic, model, plastic,
+                     state, stats):
+    """:func:`stress_3d` one point at a time (the same arguments without the scratch):
+    gradient, trial stretch, :func:`.elastic.sym_eig3`, logarithms, return
+    (:func:`.plastic.plastic_return_principal_3d`), new tensors, volume, Cauchy stress.
+    The reference of the blocked pass (``tests/test_3d_stress_block.py``)."""
+    frame = _pass_frame(origin, h, shape)
+    sy, sz, ihx, ihy, ihz, upper = frame
+    e3 = np.zeros(3)
+    if geostatic:
+        acc = _geostatic_pass(x, v, mass, vol, vol0, stress, eps, lam, mu, active, cellbase,
+                              cellxi, origin, node, lo, hi, dt, model, plastic, state, e3,
+                              frame)
+    else:
+        acc = (0.0, 0.0, 0, 0)
+        one = np.zeros((18, 1))
+        for i in range(lo, hi):
+            if not active[i]:
+                continue
+            L = _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz)
+            hw = _hughes_winget(L[0], L[1], L[2], L[3], L[4], L[5], L[6], L[7], L[8], dt)
+            bt = _hencky_trial(hw[:9], be[i, 0], be[i, 1], be[i, 2], be[i, 3], be[i, 4],
+                               be[i, 5])
+            r = sym_eig3(bt[0], bt[1], bt[2], bt[3], bt[4], bt[5])
+            for k in range(6):
+                one[k, 0] = bt[k]
+            for k in range(12):
+                one[6 + k, 0] = r[k]
+            _finite_strain(i, 0, one, be, eps, lam, mu, model, plastic, state, e3)
+            elastic_tau_3d(eps, i, lam[i], mu[i], stress, i)
+            acc = _stress_and_checks(i, hw[9], x, v, mass, vol, vol0, stress, lam, mu,
+                                     origin, upper, acc)
     stats[0], stats[1], stats[2], stats[3] = acc[0], acc[1], acc[2], acc[3]
