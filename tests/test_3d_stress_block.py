@@ -54,9 +54,8 @@ def _points(n: int, rng: np.random.Generator) -> dict:
 
 def _pass(p: dict, node: np.ndarray, blocked: bool) -> np.ndarray:
     stats = np.zeros(4)
-    args = (p["x"], p["v"], p["mass"], p["vol"], p["vol0"], p["stress"], p["eps"], p["be"],
-            p["lam"], p["mu"], p["active"], p["cellbase"], p["cellxi"], ORIGIN, H, SHAPE,
-            node, 0, len(p["x"]), 0.01, False, p["model"], p["plastic"], p["state"])
+    args = (p["mass"], p["vol"], p["vol0"], p["stress"], p["eps"], p["be"], p["lam"],
+            p["mu"], p["active"], p["cellbase"], p["cellxi"], H, SHAPE, node, 0, len(p["x"]), 0.01, False, p["model"], p["plastic"], p["state"])
     if blocked:
         stress_3d(*args, np.zeros(3), np.zeros((BLOCK_ROWS, EIG_BLOCK)),
                   np.zeros(EIG_BLOCK, np.int64), stats)

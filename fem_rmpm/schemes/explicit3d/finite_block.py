@@ -9,9 +9,10 @@ Kirchhoff stress of every point of the block, in five loops over its columns:
 2. (vectorized) the radial return of every von Mises point with the linear softening law,
    without a branch: each case is computed and the results selected;
 3. (point by point) the exponentials of the returned points' principal log strains;
-4. (vectorized) the new log strain and stretch ``sum_k f_k n_k n_k^T`` and the Kirchhoff
-   stress ``lam tr(eps) I + 2 mu eps``;
-5. (point by point) the point rows written back, volume, Cauchy stress and the checks.
+4. (vectorized) the new log strain and stretch ``sum_k f_k n_k n_k^T``, the Kirchhoff
+   stress ``lam tr(eps) I + 2 mu eps``
+   with volume ``V J``, Cauchy stress ``tau V0 / V`` and squared P-wave speed;
+5. (point by point) the point rows written back and the checks.
 
 Loops 2 and 4 run over all :data:`.elastic.EIG_BLOCK` columns with no branch, so LLVM
 vectorizes them (8 points per AVX-512 instruction).  Every point goes through the IEEE
@@ -32,7 +33,8 @@ from fem_rmpm.schemes.explicit3d.plastic import (
     plastic_return_principal_3d,
 )
 
-__all__ = ["BLOCK_ROWS", "gather_material", "finite_strain_block"]
+__all__ = ["BLOCK_ROWS", "gather_material", "finite_strain_block", "R_J", "R_TAU", "R_VOL",
+           "R_MASS"]
 
 # Rows of the block (one column per point), :func:`.stress3d.stress_3d`:
 #: b, then the trial b_tr, then the new b (0-5)
@@ -54,21 +56,28 @@ R_KIND = 34
 R_RET = 35
 #: exp(2 e_k) of a returned point (36-38)
 R_EXP = 36
-#: the Kirchhoff stress (39-44)
+#: the Kirchhoff stress, then the Cauchy stress (39-44, kPa)
 R_TAU = 39
+#: the point's volume (m3), then the new one; its initial volume (m3); its mass (t), then
+#: its squared P-wave speed (m2/s2)
+R_VOL, R_VOL0, R_MASS = 45, 46, 47
 #: Rows of the stress pass's block.
-BLOCK_ROWS = 45
+BLOCK_ROWS = 48
 
 KIND_NONE, KIND_VECTOR, KIND_POINT, KIND_YIELDED = 0.0, 1.0, 2.0, 3.0
 
 
 @inline
-def gather_material(i, j, blk, lam, mu, model, plastic, state):
+def gather_material(i, j, blk, lam, mu, model, plastic, state, vol, vol0, mass):
     """Column ``j`` of ``blk``: point ``i``'s Lame constants, von Mises parameters,
-    plastic shear strain and the kind of its return (the row comments above)."""
+    plastic shear strain, the kind of its return, volumes and mass (the row comments
+    above)."""
     m = model[i]
     blk[R_LAM, j] = lam[i]
     blk[R_MU, j] = mu[i]
+    blk[R_VOL, j] = vol[i]
+    blk[R_VOL0, j] = vol0[i]
+    blk[R_MASS, j] = mass[i]
     if m == MODEL_VON_MISES and plastic[i, 3] == 0.0:
         blk[R_CP, j] = plastic[i, 0]
         blk[R_CR, j] = plastic[i, 1]
@@ -156,7 +165,9 @@ def _compose(f0, f1, f2, x0, y0, z0, x1, y1, z1, x2, y2, z2):
 @inline
 def _compose_block(blk):
     """Loop 4: the new log strain (rows 19-24), stretch (rows 0-5: recomposed where the
-    return moved the point, else b_tr as it is) and Kirchhoff stress (rows 39-44, kPa)."""
+    return moved the point, else b_tr as it is), volume ``V J`` (row 45), Cauchy stress
+    ``tau V0 / V`` (rows 39-44, kPa) and squared P-wave speed ``(lam + 2 mu) V / m``
+    (row 47, m2/s2)."""
     assume_columns(blk, EIG_BLOCK)
     for j in range(EIG_BLOCK):
         x0, y0, z0 = blk[R_EIG + 3, j], blk[R_EIG + 4, j], blk[R_EIG + 5, j]
@@ -169,10 +180,14 @@ def _compose_block(blk):
         ret = blk[R_RET, j] != 0.0
         two_mu, lam = 2.0 * blk[R_MU, j], blk[R_LAM, j]
         tr = eps[0] + eps[1] + eps[2]
+        vol = blk[R_VOL, j] * blk[R_J, j]
+        ratio = blk[R_VOL0, j] / vol
         for k in range(6):
             blk[R_EPS + k, j] = eps[k]
             blk[R_B + k, j] = b[k] if ret else blk[R_B + k, j]
-            blk[R_TAU + k, j] = two_mu * eps[k] + (lam * tr if k < 3 else 0.0)
+            blk[R_TAU + k, j] = (two_mu * eps[k] + (lam * tr if k < 3 else 0.0)) * ratio
+        blk[R_VOL, j] = vol
+        blk[R_MASS, j] = (lam + 2.0 * blk[R_MU, j]) * vol / blk[R_MASS, j]
 
 
 @inline
@@ -180,8 +195,8 @@ def finite_strain_block(nb, blk, idx, eps, be, lam, mu, model, plastic, state, e
     """Loops 1-4 (module docstring) on the first ``nb`` columns of ``blk`` (points
     ``idx[:nb]``), whose trial stretches (rows 0-5), eigen-decompositions (6-17) and
     material (28-35, :func:`gather_material`) are set; writes each point's ``eps``,
-    ``be`` and plastic state.  The Kirchhoff stress is left in rows 39-44 for the
-    caller (loop 5)."""
+    ``be`` and plastic state.  The Cauchy stress, volume and squared P-wave speed are
+    left in rows 39-47 for the caller (loop 5)."""
     _logs_and_point_returns(nb, blk, idx, lam, mu, model, plastic, state, e3)
     _von_mises_block(blk)
     _exponentials(nb, blk)

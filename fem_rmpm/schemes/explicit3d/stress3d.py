@@ -24,8 +24,9 @@ from fem_rmpm.schemes.explicit3d.elastic import (
 )
 from fem_rmpm.schemes.explicit3d.finite_block import (
     BLOCK_ROWS,
-    R_J,
+    R_MASS,
     R_TAU,
+    R_VOL,
     finite_strain_block,
     gather_material,
 )
@@ -160,7 +161,7 @@ def _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz):
 
 @inline
 def _gather_block(start, hi, node, active, be, cellbase, cellxi, sy, sz, ihx, ihy, ihz,
-                  blk, idx, lam, mu, model, plastic, state):
+                  blk, idx, lam, mu, model, plastic, state, vol, vol0, mass):
     """The next block of at most :data:`.elastic.EIG_BLOCK` active points from ``start``:
     their indices in ``idx``, ``b`` (rows 0-5) and velocity gradient (rows 19-27) in the
     columns of ``blk``; returns (points in the block, the point after it)."""
@@ -172,7 +173,7 @@ def _gather_block(start, hi, node, active, be, cellbase, cellxi, sy, sz, ihx, ih
                 blk[19 + k, nb] = L[k]
             for k in range(6):
                 blk[k, nb] = be[i, k]
-            gather_material(i, nb, blk, lam, mu, model, plastic, state)
+            gather_material(i, nb, blk, lam, mu, model, plastic, state, vol, vol0, mass)
             idx[nb] = i
             nb += 1
         i += 1
@@ -196,111 +197,114 @@ def _trial_block(blk, dt):
 
 
 @inline
-def _stress_and_checks(i, J, x, v, mass, vol, vol0, stress, lam, mu, origin, upper, acc):
+def _stress_and_checks(i, J, mass, vol, vol0, stress, lam, mu, acc):
     """Volume, Cauchy stress of point ``i`` (from the Kirchhoff stress in ``stress[i]``)
-    and its part of the maxima and counts ``acc`` (c2max, pmax2, nbad, nout)."""
+    and its part of the maxima and counts ``acc`` (:func:`_point_checks`)."""
     vol[i] *= J
     ratio = vol0[i] / vol[i]
     ok = True
     for k in range(6):
         stress[i, k] *= ratio
         ok &= math.isfinite(stress[i, k])
-    nout = 0
-    for k in range(3):
-        ok &= math.isfinite(x[i, k]) and math.isfinite(v[i, k])
-        if x[i, k] < origin[k] or x[i, k] > upper[k]:
-            nout = 1
-            break
-    c2max = max(acc[0], (lam[i] + 2.0 * mu[i]) * vol[i] / mass[i])
-    pmax2 = max(acc[1], v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
-    return c2max, pmax2, acc[2] + (0 if ok else 1), acc[3] + nout
+    c2 = (lam[i] + 2.0 * mu[i]) * vol[i] / mass[i]
+    return _point_checks(ok, c2, acc)
 
 
 @inline
-def _pass_frame(origin, h, shape):
-    """Node strides, inverse cell sizes (1/m) and the grid box's upper corner (m)."""
+def _point_checks(ok, c2, acc):
+    """A point's part of the pass's largest squared P-wave speed and count of non-finite
+    stresses ``acc`` (c2max, nbad): ``ok`` its stress is finite, ``c2`` its squared
+    P-wave speed (m2/s2)."""
+    return max(acc[0], c2), acc[1] + (0 if ok else 1)
+
+
+@inline
+def _write_and_check(i, j, blk, vol, stress, acc):
+    """Point ``i``'s Cauchy stress and volume from column ``j`` of the block and its part
+    of the maxima and counts ``acc`` (:func:`_point_checks`)."""
+    ok = True
+    for k in range(6):
+        stress[i, k] = blk[R_TAU + k, j]
+        ok &= math.isfinite(stress[i, k])
+    vol[i] = blk[R_VOL, j]
+    return _point_checks(ok, blk[R_MASS, j], acc)
+
+
+@inline
+def _pass_frame(h, shape):
+    """Node strides and inverse cell sizes (1/m)."""
     sy, sz = shape[0] + 1, (shape[0] + 1) * (shape[1] + 1)
-    ihx, ihy, ihz = 1.0 / h[0], 1.0 / h[1], 1.0 / h[2]
-    upper = (origin[0] + h[0] * shape[0], origin[1] + h[1] * shape[1],
-             origin[2] + h[2] * shape[2])
-    return sy, sz, ihx, ihy, ihz, upper
+    return sy, sz, 1.0 / h[0], 1.0 / h[1], 1.0 / h[2]
 
 
 @inline
-def _geostatic_pass(x, v, mass, vol, vol0, stress, eps, lam, mu, active, cellbase, cellxi,
-                    origin, node, lo, hi, dt, model, plastic, state, e3, frame):
+def _geostatic_pass(mass, vol, vol0, stress, eps, lam, mu, active, cellbase, cellxi, node,
+                    lo, hi, dt, model, plastic, state, e3, frame):
     """The geostatic (small-strain) update of the active points ``lo:hi``, point by
     point; the maxima and counts (:func:`_stress_and_checks`)."""
-    sy, sz, ihx, ihy, ihz, upper = frame
-    acc = (0.0, 0.0, 0, 0)
+    sy, sz, ihx, ihy, ihz = frame
+    acc = (0.0, 0)
     for i in range(lo, hi):
         if active[i]:
             L = _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz)
             _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3)
             elastic_tau_3d(eps, i, lam[i], mu[i], stress, i)
-            acc = _stress_and_checks(i, 1.0, x, v, mass, vol, vol0, stress, lam, mu,
-                                     origin, upper, acc)
+            acc = _stress_and_checks(i, 1.0, mass, vol, vol0, stress, lam, mu, acc)
     return acc
 
 
 # long function: the stress pass's loops (geostatic, then finite strain in blocks)
 @kernel
-def stress_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase, cellxi,
-              origin, h, shape, node, lo, hi, dt, geostatic, model, plastic, state, e3,
-              blk, idx, stats):
+def stress_3d(mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase, cellxi, h, shape,
+              node, lo, hi, dt, geostatic, model, plastic, state, e3, blk, idx, stats):
     """Stage 4 (module docstring) on the active points ``lo:hi``, with the nodal
     velocities in columns 1-3 of ``node`` (nn, 8); scratch ``e3`` (3,), ``blk``
-    (:data:`BLOCK_ROWS`, B), ``idx`` (B,); fills ``stats`` (4,) with the largest squared P-wave
-    speed and squared point speed (m2/s2), the count of non-finite points and of points
-    outside the grid box (``origin`` to ``origin + h shape``).  The finite-strain update
-    runs in blocks of B points: the trial tensors of the block and their
-    eigen-decompositions in vectorized loops (:func:`.elastic.sym_eig3_block`), the
-    logarithms, von Mises returns, exponentials and new tensors of
-    :func:`.finite_block.finite_strain_block`, then volume, Cauchy stress and checks point
-    by point; bitwise :func:`stress_points_3d`."""
+    (:data:`BLOCK_ROWS`, B), ``idx`` (B,); sets ``stats[0]`` to the largest squared P-wave
+    speed (m2/s2) and adds the count of points with a non-finite stress to ``stats[2]``
+    (the map back checks positions and velocities, :func:`.kernels.map_back_3d`).  The
+    finite-strain update runs in blocks of B points: the trial tensors of the block and
+    their eigen-decompositions in vectorized loops (:func:`.elastic.sym_eig3_block`), the
+    logarithms, von Mises returns, exponentials, new tensors and Cauchy stress of
+    :func:`.finite_block.finite_strain_block`, then the points' rows written back and
+    checked; bitwise :func:`stress_points_3d`."""
     assume_columns(node, 8)
     assume_columns(blk, EIG_BLOCK)
-    frame = _pass_frame(origin, h, shape)
-    sy, sz, ihx, ihy, ihz, upper = frame
+    frame = _pass_frame(h, shape)
+    sy, sz, ihx, ihy, ihz = frame
     if geostatic:
-        acc = _geostatic_pass(x, v, mass, vol, vol0, stress, eps, lam, mu, active, cellbase,
-                              cellxi, origin, node, lo, hi, dt, model, plastic, state, e3,
-                              frame)
+        acc = _geostatic_pass(mass, vol, vol0, stress, eps, lam, mu, active, cellbase,
+                              cellxi, node, lo, hi, dt, model, plastic, state, e3, frame)
     else:
-        acc = (0.0, 0.0, 0, 0)
+        acc = (0.0, 0)
         i = lo
         while i < hi:
             nb, i = _gather_block(i, hi, node, active, be, cellbase, cellxi, sy, sz, ihx,
-                                  ihy, ihz, blk, idx, lam, mu, model, plastic, state)
+                                  ihy, ihz, blk, idx, lam, mu, model, plastic, state, vol,
+                                  vol0, mass)
             _trial_block(blk, dt)
             sym_eig3_block(blk)
             finite_strain_block(nb, blk, idx, eps, be, lam, mu, model, plastic, state, e3)
             for j in range(nb):
-                k = idx[j]
-                for m in range(6):
-                    stress[k, m] = blk[R_TAU + m, j]
-                acc = _stress_and_checks(k, blk[R_J, j], x, v, mass, vol, vol0, stress, lam,
-                                         mu, origin, upper, acc)
-    stats[0], stats[1], stats[2], stats[3] = acc[0], acc[1], acc[2], acc[3]
+                acc = _write_and_check(idx[j], j, blk, vol, stress, acc)
+    stats[0] = acc[0]
+    stats[2] += acc[1]
 
 
 @jit
-def stress_points_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase,
-                     cellxi, origin, h, shape, node, lo, hi, dt, geostatic, model, plastic,
-                     state, stats):
+def stress_points_3d(mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase, cellxi, h,
+                     shape, node, lo, hi, dt, geostatic, model, plastic, state, stats):
     """:func:`stress_3d` one point at a time (the same arguments without the scratch):
     gradient, trial stretch, :func:`.elastic.sym_eig3`, logarithms, return
     (:func:`.plastic.plastic_return_principal_3d`), new tensors, volume, Cauchy stress.
     The reference of the blocked pass (``tests/test_3d_stress_block.py``)."""
-    frame = _pass_frame(origin, h, shape)
-    sy, sz, ihx, ihy, ihz, upper = frame
+    frame = _pass_frame(h, shape)
+    sy, sz, ihx, ihy, ihz = frame
     e3 = np.zeros(3)
     if geostatic:
-        acc = _geostatic_pass(x, v, mass, vol, vol0, stress, eps, lam, mu, active, cellbase,
-                              cellxi, origin, node, lo, hi, dt, model, plastic, state, e3,
-                              frame)
+        acc = _geostatic_pass(mass, vol, vol0, stress, eps, lam, mu, active, cellbase,
+                              cellxi, node, lo, hi, dt, model, plastic, state, e3, frame)
     else:
-        acc = (0.0, 0.0, 0, 0)
+        acc = (0.0, 0)
         one = np.zeros((18, 1))
         for i in range(lo, hi):
             if not active[i]:
@@ -316,6 +320,6 @@ def stress_points_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, ce
                 one[6 + k, 0] = r[k]
             _finite_strain(i, 0, one, be, eps, lam, mu, model, plastic, state, e3)
             elastic_tau_3d(eps, i, lam[i], mu[i], stress, i)
-            acc = _stress_and_checks(i, hw[9], x, v, mass, vol, vol0, stress, lam, mu,
-                                     origin, upper, acc)
-    stats[0], stats[1], stats[2], stats[3] = acc[0], acc[1], acc[2], acc[3]
+            acc = _stress_and_checks(i, hw[9], mass, vol, vol0, stress, lam, mu, acc)
+    stats[0] = acc[0]
+    stats[2] += acc[1]
