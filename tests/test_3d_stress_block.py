@@ -89,3 +89,42 @@ def test_blocked_stress_pass_equals_the_point_by_point_update_bitwise():
     assert (dg[vm & ~linear] > 0).sum() > 20
     assert (dg[p["model"] == MODEL_MOHR_COULOMB] > 0).sum() > 20
     assert np.array_equal(p["stress"][~p["active"]], np.zeros((int((~p["active"]).sum()), 6)))
+
+
+def test_nodal_row_vectors_equal_the_scalar_sums_bitwise():
+    """The map back's interpolation of whole nodal rows and its re-mapped momentum
+    (:mod:`fem_rmpm.schemes.explicit3d.rows`, 8- and 4-wide vector operations) against
+    the scalar sums written out in the same order, on random rows and weights."""
+    from numba import njit
+
+    from fem_rmpm.schemes.explicit3d.rows import row_add4, row_diffs4, row_sum8
+
+    @njit
+    def both(g, n, w, buf):
+        r = row_sum8(g, (n[0], n[1], n[2], n[3], n[4], n[5], n[6], n[7]),
+                     (w[0], w[1], w[2], w[3], w[4], w[5], w[6], w[7]))
+        d = row_diffs4(g, (n[0], n[1], n[2], n[3]), (n[4], n[5], n[6], n[7]),
+                       (w[0], w[1], w[2], w[3]))
+        out = np.empty((4, 8))
+        for k in range(8):
+            out[0, k] = r[k]
+            out[1, k] = (w[0] * g[n[0], k] + w[1] * g[n[1], k] + w[2] * g[n[2], k]
+                         + w[3] * g[n[3], k] + w[4] * g[n[4], k] + w[5] * g[n[5], k]
+                         + w[6] * g[n[6], k] + w[7] * g[n[7], k])
+            out[2, k] = d[k]
+            out[3, k] = (w[0] * (g[n[0], k] - g[n[4], k]) + w[1] * (g[n[1], k] - g[n[5], k])
+                         + w[2] * (g[n[2], k] - g[n[6], k]) + w[3] * (g[n[3], k] - g[n[7], k]))
+        ref = buf.copy()
+        row_add4(buf, n[0], w[0], (0.0, w[1], w[2], w[3]))
+        for k in range(1, 4):
+            ref[n[0], k] += w[0] * w[k]
+        return out, buf, ref
+
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        g = rng.normal(size=(50, 8)) * 10.0 ** rng.integers(-3, 3, (50, 1))
+        n = rng.choice(50, 8, replace=False)
+        w = rng.uniform(0, 1, 8)
+        out, buf, ref = both(g, n, w, rng.normal(size=(50, 8)))
+        assert np.array_equal(out[0], out[1]) and np.array_equal(out[2], out[3])
+        assert np.array_equal(buf, ref)

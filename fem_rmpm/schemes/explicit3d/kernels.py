@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 
 from fem_rmpm.runtime.compiled import assume_columns, inline, kernel
-from fem_rmpm.schemes.explicit3d.rows import row_add4, row_add8, row_sum8
+from fem_rmpm.schemes.explicit3d.rows import row_add4, row_sum8
 
 __all__ = ["map_to_nodes_3d", "solve_nodes_3d", "map_back_3d", "nodal_velocity_3d",
            "half_split", "MASS_TOL", "N_STATS", "NODE_COLUMNS"]
@@ -57,12 +57,15 @@ def half_split(n):
 @inline
 def _scatter(buf, node, N, gx, gy, gz, mi, w0, w1, w2, sxx, syy, szz, sxy, syz, sxz):
     """One corner's share of a point: mass ``N mi``, momentum ``N mi v`` (``w``) and
-    force ``-V sigma grad N`` (the stress premultiplied by the volume), added to the
-    node's row as one vector (:func:`.rows.row_add8`; ``b - f`` is ``b + (-f)`` exactly)."""
-    row_add8(buf, node, (N * mi, N * w0, N * w1, N * w2,
-                         -(sxx * gx + sxy * gy + sxz * gz),
-                         -(sxy * gx + syy * gy + syz * gz),
-                         -(sxz * gx + syz * gy + szz * gz), 0.0))
+    force ``-V sigma grad N`` (the stress premultiplied by the volume).  (Scalar: as one
+    8-wide vector addition, :mod:`.rows`, the map took 1.2x the time.)"""
+    buf[node, 0] += N * mi
+    buf[node, 1] += N * w0
+    buf[node, 2] += N * w1
+    buf[node, 3] += N * w2
+    buf[node, 4] -= sxx * gx + sxy * gy + sxz * gz
+    buf[node, 5] -= sxy * gx + syy * gy + syz * gz
+    buf[node, 6] -= sxz * gx + syz * gy + szz * gz
 
 
 @inline

@@ -1,10 +1,11 @@
-"""Nodal rows as vectors: the eight numbers of a node's row (one 64-byte cache line,
-:data:`.kernels.NODE_COLUMNS`) read, combined and added as one ``<8 x double>`` (or the
-first four as one ``<4 x double>``) value.
+"""Nodal rows as vectors in the map back (:func:`.kernels.map_back_3d`): the eight numbers
+of a node's row (one 64-byte cache line, :data:`.kernels.NODE_COLUMNS`) read and combined
+as one ``<8 x double>`` value, the re-mapped momentum added to the first four as one
+``<4 x double>``.
 
-numba compiles scalar code and keeps LLVM's SLP vectorizer off, so the map's seven
-``buf[node, k] += ...`` of a corner are seven loads, additions and stores, and the map
-back's interpolation of six columns over the eight corners 48 loads.  These intrinsics
+numba compiles scalar code and keeps LLVM's SLP vectorizer off, so the map back's
+interpolation of six columns over the eight corners is 48 loads and as many products,
+and each corner's re-mapped momentum three loads, additions and stores.  These intrinsics
 write the vector operations out: each lane gets the IEEE operations of the scalar code in
 the same order (``sum_I N_I g_I`` left to right, a product then a sum, never fused: no
 fast-math flag), so the results are the same bits as the scalar code, in every caller,
@@ -19,7 +20,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-__all__ = ["row_sum8", "row_add8", "row_add4"]
+__all__ = ["row_sum8", "row_add4", "row_diffs4"]
 
 _F = types.float64
 _ROW8 = types.UniTuple(_F, 8)
@@ -84,21 +85,6 @@ def row_sum8(typingctx, g, n, w):
 
 
 @intrinsic
-def row_add8(typingctx, buf, i, x):
-    """``buf[i, 0:8] += x`` (an 8-tuple), one addition per lane."""
-    if not (_is_rows(buf) and isinstance(i, types.Integer) and x == _ROW8):
-        return None
-
-    def codegen(context, builder, signature, args):
-        buf, i, x = args
-        p = _row_ptr(context, builder, signature.args[0], buf, i, _V8)
-        builder.store(builder.fadd(builder.load(p, align=8), _from_tuple(builder, x, _V8)), p,
-                      align=8)
-        return context.get_dummy_value()
-    return types.none(buf, i, x), codegen
-
-
-@intrinsic
 def row_add4(typingctx, buf, i, w, x):
     """``buf[i, 0:4] += w x`` (``w`` a scalar, ``x`` a 4-tuple), the product rounded,
     then the sum, per lane."""
@@ -113,3 +99,31 @@ def row_add4(typingctx, buf, i, w, x):
         builder.store(builder.fadd(builder.load(p, align=8), prod), p, align=8)
         return context.get_dummy_value()
     return types.none(buf, i, _F, x), codegen
+
+
+@intrinsic
+def row_diffs4(typingctx, g, p, q, w):
+    """``sum_k w_k (g[p_k, 0:8] - g[q_k, 0:8])`` over four node pairs ``p``, ``q`` and
+    weights ``w`` (tuples), summed left to right, each difference, product and sum
+    rounded; an 8-tuple (the stress pass's velocity gradient along one axis, for each
+    velocity component at once, :func:`.stress3d._gradient`)."""
+    if not (_is_rows(g) and all(isinstance(t, types.UniTuple) and t.count == 4
+                                for t in (p, q, w))
+            and isinstance(p.dtype, types.Integer) and isinstance(q.dtype, types.Integer)
+            and w.dtype == _F):
+        return None
+
+    def codegen(context, builder, signature, args):
+        gty = signature.args[0]
+        g, p, q, w = args
+        acc = None
+        for k in range(4):
+            rp = builder.load(_row_ptr(context, builder, gty, g, builder.extract_value(p, k),
+                                       _V8), align=8)
+            rq = builder.load(_row_ptr(context, builder, gty, g, builder.extract_value(q, k),
+                                       _V8), align=8)
+            term = builder.fmul(_splat(builder, builder.extract_value(w, k), _V8),
+                                builder.fsub(rp, rq))
+            acc = term if acc is None else builder.fadd(acc, term)
+        return _to_tuple(context, builder, acc, _ROW8)
+    return _ROW8(g, p, q, w), codegen

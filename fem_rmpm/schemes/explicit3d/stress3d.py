@@ -31,6 +31,7 @@ from fem_rmpm.schemes.explicit3d.finite_block import (
     gather_material,
 )
 from fem_rmpm.schemes.explicit3d.plastic import MODEL_ELASTIC, plastic_return_principal_3d
+from fem_rmpm.schemes.explicit3d.rows import row_diffs4
 
 __all__ = ["stress_3d", "stress_points_3d", "BLOCK_ROWS"]
 
@@ -150,13 +151,32 @@ def _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3):
 
 
 @inline
-def _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz):
-    """The velocity gradient at point ``i`` (9 entries, row-major, 1/s)."""
+def _gradient_scalar(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz):
+    """:func:`_gradient` one component at a time (the reference's)."""
     base, a, b, c = cellbase[i], cellxi[i, 0], cellxi[i, 1], cellxi[i, 2]
     l00, l01, l02 = _gradient_row(node, 1, base, sy, sz, a, b, c, ihx, ihy, ihz)
     l10, l11, l12 = _gradient_row(node, 2, base, sy, sz, a, b, c, ihx, ihy, ihz)
     l20, l21, l22 = _gradient_row(node, 3, base, sy, sz, a, b, c, ihx, ihy, ihz)
     return l00, l01, l02, l10, l11, l12, l20, l21, l22
+
+
+@inline
+def _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz):
+    """The velocity gradient at point ``i`` (9 entries, row-major, 1/s): the arithmetic
+    of :func:`_gradient_row` on the three velocity components at once, as 8-wide vectors
+    over the nodal rows (:func:`.rows.row_diffs4`; component ``k`` in lane ``k + 1``)."""
+    base, a, b, c = cellbase[i], cellxi[i, 0], cellxi[i, 1], cellxi[i, 2]
+    a0, b0, c0 = 1.0 - a, 1.0 - b, 1.0 - c
+    n000, n100, n010, n110 = base, base + 1, base + sy, base + sy + 1
+    n001, n101, n011, n111 = base + sz, base + sz + 1, base + sz + sy, base + sz + sy + 1
+    gx = row_diffs4(node, (n100, n110, n101, n111), (n000, n010, n001, n011),
+                    (b0 * c0, b * c0, b0 * c, b * c))
+    gy = row_diffs4(node, (n010, n110, n011, n111), (n000, n100, n001, n101),
+                    (a0 * c0, a * c0, a0 * c, a * c))
+    gz = row_diffs4(node, (n001, n101, n011, n111), (n000, n100, n010, n110),
+                    (a0 * b0, a * b0, a0 * b, a * b))
+    return (gx[1] * ihx, gy[1] * ihy, gz[1] * ihz, gx[2] * ihx, gy[2] * ihy, gz[2] * ihz,
+            gx[3] * ihx, gy[3] * ihy, gz[3] * ihz)
 
 
 @inline
@@ -309,7 +329,7 @@ def stress_points_3d(mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase
         for i in range(lo, hi):
             if not active[i]:
                 continue
-            L = _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz)
+            L = _gradient_scalar(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz)
             hw = _hughes_winget(L[0], L[1], L[2], L[3], L[4], L[5], L[6], L[7], L[8], dt)
             bt = _hencky_trial(hw[:9], be[i, 0], be[i, 1], be[i, 2], be[i, 3], be[i, 4],
                                be[i, 5])
