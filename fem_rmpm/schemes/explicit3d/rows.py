@@ -1,11 +1,14 @@
-"""Nodal rows as vectors in the map back (:func:`.kernels.map_back_3d`): the eight numbers
-of a node's row (one 64-byte cache line, :data:`.kernels.NODE_COLUMNS`) read and combined
-as one ``<8 x double>`` value, the re-mapped momentum added to the first four as one
-``<4 x double>``.
+"""Nodal rows as vectors: the eight numbers of a node's row (one 64-byte cache line,
+:data:`.kernels.NODE_COLUMNS`) read and combined as one ``<8 x double>`` value in the map
+back's interpolation (:func:`.kernels.map_back_3d`) and the stress pass's velocity
+gradient (:func:`.stress3d._gradient`), the re-mapped momentum added to the first four
+as one ``<4 x double>``.  (The map's scatter stays scalar: as one 8-wide addition per
+corner it took 1.2 times as long.)
 
 numba compiles scalar code and keeps LLVM's SLP vectorizer off, so the map back's
 interpolation of six columns over the eight corners is 48 loads and as many products,
-and each corner's re-mapped momentum three loads, additions and stores.  These intrinsics
+each corner's re-mapped momentum three loads, additions and stores, and the gradient 24
+loads.  These intrinsics
 write the vector operations out: each lane gets the IEEE operations of the scalar code in
 the same order (``sum_I N_I g_I`` left to right, a product then a sum, never fused: no
 fast-math flag), so the results are the same bits as the scalar code, in every caller,
