@@ -78,9 +78,8 @@ def test_velocity_gradient_equals_the_numpy_basis_sum():
     model, plastic, state = np.zeros(n, np.int64), np.zeros((n, 4)), np.zeros((n, 2))
     node = np.zeros((grid.n_nodes, K.NODE_COLUMNS))
     node[:, 1:4] = v2
-    stress_3d(a["x"], a["v"], a["mass"], a["vol"], a["vol"].copy(), a["stress"], eps, be,
-              lam, mu, a["active"], a["cellbase"], a["cellxi"], grid.origin, grid.cell,
-              np.array(grid.shape), node, 0, n, 1.0, True, model, plastic, state, np.zeros(3),
+    stress_3d(a["mass"], a["vol"], a["vol"].copy(), a["stress"], eps, be, lam, mu,
+              a["active"], a["cellbase"], a["cellxi"], grid.cell, np.array(grid.shape), node, 0, n, 1.0, True, model, plastic, state, np.zeros(3),
               np.zeros((BLOCK_ROWS, EIG_BLOCK)), np.zeros(EIG_BLOCK, np.int64), np.zeros(4))
     _, nodes, _, dN, _ = hex8_at_points(grid, a["x"])
     L = np.einsum("nqr,nqc->nrc", v2[nodes], dN)

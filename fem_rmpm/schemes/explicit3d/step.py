@@ -43,7 +43,9 @@ StepGrid = namedtuple("StepGrid", "origin h shape fixed")
 #: flags ``cell_touched`` and list ``cells`` (2, n_cells); the counts ``nact`` (3, 2)
 #: (per half: nodes, cells; then the nodes of both); the totals ``node`` (nn, 8) and the
 #: nodes of both halves ``unodes`` (nn,); ``stats`` (2, 5) per half (squared P-wave
-#: speed, squared point speed, non-finite points, points outside, squared grid velocity);
+#: speed (the stress pass), squared point speed, non-finite points (map back: positions
+#: and velocities; the stress pass adds stresses), points outside, squared grid velocity
+#: (map back));
 #: ``e3`` (2, 3), the stress pass's blocks ``blk`` (2, BLOCK_ROWS, B) and ``idx`` (2, B) per half
 #: (:func:`.stress3d.stress_3d`).
 StepScratch = namedtuple("StepScratch", "cellbase cellxi buf touched nodes cell_touched cells "
@@ -68,16 +70,16 @@ def _map_half(P, G, W, w):
 @kernel
 def _back_half(P, G, W, w, dt, flip, geostatic):
     lo, hi = _bounds(P.x.shape[0], w)
-    W.stats[w, 4] = map_back_3d(P.x, P.v, P.mass, P.active, P.u_geo, W.cellbase, W.cellxi,
-                                G.shape, lo, hi, W.node, W.buf[w], W.nodes[w], W.nact[w], dt,
-                                flip, geostatic)
+    map_back_3d(P.x, P.v, P.mass, P.active, P.u_geo, W.cellbase, W.cellxi, G.origin, G.h,
+                G.shape, lo, hi, W.node, W.buf[w], W.nodes[w], W.nact[w], dt, flip, geostatic,
+                W.stats[w])
 
 
 @kernel
 def _stress_half(P, G, W, w, dt, geostatic):
     lo, hi = _bounds(P.x.shape[0], w)
-    stress_3d(P.x, P.v, P.mass, P.vol, P.vol0, P.stress, P.eps, P.be, P.lam, P.mu,
-              P.active, W.cellbase, W.cellxi, G.origin, G.h, G.shape, W.node, lo, hi, dt,
+    stress_3d(P.mass, P.vol, P.vol0, P.stress, P.eps, P.be, P.lam, P.mu, P.active,
+              W.cellbase, W.cellxi, G.h, G.shape, W.node, lo, hi, dt,
               geostatic, P.model, P.plastic, P.state, W.e3[w], W.blk[w], W.idx[w],
               W.stats[w])
 

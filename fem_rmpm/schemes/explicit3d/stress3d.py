@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import math
 
-from fem_rmpm.runtime.compiled import assume_columns, inline, kernel
+import numpy as np
+
+from fem_rmpm.runtime.compiled import assume_columns, inline, jit, kernel
 from fem_rmpm.schemes.explicit3d.elastic import (
     compose_sym3,
     elastic_tau_3d,
@@ -20,14 +22,18 @@ from fem_rmpm.schemes.explicit3d.elastic import (
     sym_eig3,
     sym_eig3_block,
 )
+from fem_rmpm.schemes.explicit3d.finite_block import (
+    BLOCK_ROWS,
+    R_MASS,
+    R_TAU,
+    R_VOL,
+    finite_strain_block,
+    gather_material,
+)
 from fem_rmpm.schemes.explicit3d.plastic import MODEL_ELASTIC, plastic_return_principal_3d
+from fem_rmpm.schemes.explicit3d.rows import row_diffs4
 
-__all__ = ["stress_3d", "BLOCK_ROWS"]
-
-#: Rows of the stress pass's block (one column per point): ``b`` then the trial ``b_tr``
-#: (0-5), the eigen-decomposition (6-17, :func:`.elastic.sym_eig3_block`), ``det dF``
-#: (18), the velocity gradient (19-27).
-BLOCK_ROWS = 28
+__all__ = ["stress_3d", "stress_points_3d", "BLOCK_ROWS"]
 
 
 @inline
@@ -145,8 +151,8 @@ def _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3):
 
 
 @inline
-def _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz):
-    """The velocity gradient at point ``i`` (9 entries, row-major, 1/s)."""
+def _gradient_scalar(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz):
+    """:func:`_gradient` one component at a time (the reference's)."""
     base, a, b, c = cellbase[i], cellxi[i, 0], cellxi[i, 1], cellxi[i, 2]
     l00, l01, l02 = _gradient_row(node, 1, base, sy, sz, a, b, c, ihx, ihy, ihz)
     l10, l11, l12 = _gradient_row(node, 2, base, sy, sz, a, b, c, ihx, ihy, ihz)
@@ -155,8 +161,27 @@ def _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz):
 
 
 @inline
+def _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz):
+    """The velocity gradient at point ``i`` (9 entries, row-major, 1/s): the arithmetic
+    of :func:`_gradient_row` on the three velocity components at once, as 8-wide vectors
+    over the nodal rows (:func:`.rows.row_diffs4`; component ``k`` in lane ``k + 1``)."""
+    base, a, b, c = cellbase[i], cellxi[i, 0], cellxi[i, 1], cellxi[i, 2]
+    a0, b0, c0 = 1.0 - a, 1.0 - b, 1.0 - c
+    n000, n100, n010, n110 = base, base + 1, base + sy, base + sy + 1
+    n001, n101, n011, n111 = base + sz, base + sz + 1, base + sz + sy, base + sz + sy + 1
+    gx = row_diffs4(node, (n100, n110, n101, n111), (n000, n010, n001, n011),
+                    (b0 * c0, b * c0, b0 * c, b * c))
+    gy = row_diffs4(node, (n010, n110, n011, n111), (n000, n100, n001, n101),
+                    (a0 * c0, a * c0, a0 * c, a * c))
+    gz = row_diffs4(node, (n001, n101, n011, n111), (n000, n100, n010, n110),
+                    (a0 * b0, a * b0, a0 * b, a * b))
+    return (gx[1] * ihx, gy[1] * ihy, gz[1] * ihz, gx[2] * ihx, gy[2] * ihy, gz[2] * ihz,
+            gx[3] * ihx, gy[3] * ihy, gz[3] * ihz)
+
+
+@inline
 def _gather_block(start, hi, node, active, be, cellbase, cellxi, sy, sz, ihx, ihy, ihz,
-                  blk, idx):
+                  blk, idx, lam, mu, model, plastic, state, vol, vol0, mass):
     """The next block of at most :data:`.elastic.EIG_BLOCK` active points from ``start``:
     their indices in ``idx``, ``b`` (rows 0-5) and velocity gradient (rows 19-27) in the
     columns of ``blk``; returns (points in the block, the point after it)."""
@@ -168,6 +193,7 @@ def _gather_block(start, hi, node, active, be, cellbase, cellxi, sy, sz, ihx, ih
                 blk[19 + k, nb] = L[k]
             for k in range(6):
                 blk[k, nb] = be[i, k]
+            gather_material(i, nb, blk, lam, mu, model, plastic, state, vol, vol0, mass)
             idx[nb] = i
             nb += 1
         i += 1
@@ -191,65 +217,129 @@ def _trial_block(blk, dt):
 
 
 @inline
-def _stress_and_checks(i, J, x, v, mass, vol, vol0, stress, eps, lam, mu, origin, upper,
-                       acc):
-    """Volume, Cauchy stress of point ``i`` and its part of the maxima and counts ``acc``
-    (c2max, pmax2, nbad, nout)."""
+def _stress_and_checks(i, J, mass, vol, vol0, stress, lam, mu, acc):
+    """Volume, Cauchy stress of point ``i`` (from the Kirchhoff stress in ``stress[i]``)
+    and its part of the maxima and counts ``acc`` (:func:`_point_checks`)."""
     vol[i] *= J
     ratio = vol0[i] / vol[i]
-    elastic_tau_3d(eps, i, lam[i], mu[i], stress, i)
     ok = True
     for k in range(6):
         stress[i, k] *= ratio
         ok &= math.isfinite(stress[i, k])
-    nout = 0
-    for k in range(3):
-        ok &= math.isfinite(x[i, k]) and math.isfinite(v[i, k])
-        if x[i, k] < origin[k] or x[i, k] > upper[k]:
-            nout = 1
-            break
-    c2max = max(acc[0], (lam[i] + 2.0 * mu[i]) * vol[i] / mass[i])
-    pmax2 = max(acc[1], v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
-    return c2max, pmax2, acc[2] + (0 if ok else 1), acc[3] + nout
+    c2 = (lam[i] + 2.0 * mu[i]) * vol[i] / mass[i]
+    return _point_checks(ok, c2, acc)
+
+
+@inline
+def _point_checks(ok, c2, acc):
+    """A point's part of the pass's largest squared P-wave speed and count of non-finite
+    stresses ``acc`` (c2max, nbad): ``ok`` its stress is finite, ``c2`` its squared
+    P-wave speed (m2/s2)."""
+    return max(acc[0], c2), acc[1] + (0 if ok else 1)
+
+
+@inline
+def _write_and_check(i, j, blk, vol, stress, acc):
+    """Point ``i``'s Cauchy stress and volume from column ``j`` of the block and its part
+    of the maxima and counts ``acc`` (:func:`_point_checks`)."""
+    ok = True
+    for k in range(6):
+        stress[i, k] = blk[R_TAU + k, j]
+        ok &= math.isfinite(stress[i, k])
+    vol[i] = blk[R_VOL, j]
+    return _point_checks(ok, blk[R_MASS, j], acc)
+
+
+@inline
+def _pass_frame(h, shape):
+    """Node strides and inverse cell sizes (1/m)."""
+    sy, sz = shape[0] + 1, (shape[0] + 1) * (shape[1] + 1)
+    return sy, sz, 1.0 / h[0], 1.0 / h[1], 1.0 / h[2]
+
+
+@inline
+def _geostatic_pass(mass, vol, vol0, stress, eps, lam, mu, active, cellbase, cellxi, node,
+                    lo, hi, dt, model, plastic, state, e3, frame):
+    """The geostatic (small-strain) update of the active points ``lo:hi``, point by
+    point; the maxima and counts (:func:`_stress_and_checks`)."""
+    sy, sz, ihx, ihy, ihz = frame
+    acc = (0.0, 0)
+    for i in range(lo, hi):
+        if active[i]:
+            L = _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz)
+            _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3)
+            elastic_tau_3d(eps, i, lam[i], mu[i], stress, i)
+            acc = _stress_and_checks(i, 1.0, mass, vol, vol0, stress, lam, mu, acc)
+    return acc
 
 
 # long function: the stress pass's loops (geostatic, then finite strain in blocks)
 @kernel
-def stress_3d(x, v, mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase, cellxi,
-              origin, h, shape, node, lo, hi, dt, geostatic, model, plastic, state, e3,
-              blk, idx, stats):
+def stress_3d(mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase, cellxi, h, shape,
+              node, lo, hi, dt, geostatic, model, plastic, state, e3, blk, idx, stats):
     """Stage 4 (module docstring) on the active points ``lo:hi``, with the nodal
     velocities in columns 1-3 of ``node`` (nn, 8); scratch ``e3`` (3,), ``blk``
-    (:data:`BLOCK_ROWS`, B), ``idx`` (B,); fills ``stats`` (4,) with the largest squared P-wave
-    speed and squared point speed (m2/s2), the count of non-finite points and of points
-    outside the grid box (``origin`` to ``origin + h shape``).  The finite-strain update
-    runs in blocks of B points: the trial tensors of the block, their eigen-decompositions
-    in one vectorized loop (:func:`.elastic.sym_eig3_block`), then the rest point by
-    point."""
+    (:data:`BLOCK_ROWS`, B), ``idx`` (B,); sets ``stats[0]`` to the largest squared P-wave
+    speed (m2/s2) and adds the count of points with a non-finite stress to ``stats[2]``
+    (the map back checks positions and velocities, :func:`.kernels.map_back_3d`).  The
+    finite-strain update runs in blocks of B points: the trial tensors of the block and
+    their eigen-decompositions in vectorized loops (:func:`.elastic.sym_eig3_block`), the
+    logarithms, von Mises returns, exponentials, new tensors and Cauchy stress of
+    :func:`.finite_block.finite_strain_block`, then the points' rows written back and
+    checked; bitwise :func:`stress_points_3d`."""
     assume_columns(node, 8)
     assume_columns(blk, EIG_BLOCK)
-    sy, sz = shape[0] + 1, (shape[0] + 1) * (shape[1] + 1)
-    ihx, ihy, ihz = 1.0 / h[0], 1.0 / h[1], 1.0 / h[2]
-    upper = (origin[0] + h[0] * shape[0], origin[1] + h[1] * shape[1],
-             origin[2] + h[2] * shape[2])
-    acc = (0.0, 0.0, 0, 0)
+    frame = _pass_frame(h, shape)
+    sy, sz, ihx, ihy, ihz = frame
     if geostatic:
-        for i in range(lo, hi):
-            if active[i]:
-                L = _gradient(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz)
-                _small_strain(i, L, dt, eps, lam, mu, model, plastic, state, e3)
-                acc = _stress_and_checks(i, 1.0, x, v, mass, vol, vol0, stress, eps, lam,
-                                         mu, origin, upper, acc)
+        acc = _geostatic_pass(mass, vol, vol0, stress, eps, lam, mu, active, cellbase,
+                              cellxi, node, lo, hi, dt, model, plastic, state, e3, frame)
     else:
+        acc = (0.0, 0)
         i = lo
         while i < hi:
             nb, i = _gather_block(i, hi, node, active, be, cellbase, cellxi, sy, sz, ihx,
-                                  ihy, ihz, blk, idx)
+                                  ihy, ihz, blk, idx, lam, mu, model, plastic, state, vol,
+                                  vol0, mass)
             _trial_block(blk, dt)
             sym_eig3_block(blk)
+            finite_strain_block(nb, blk, idx, eps, be, lam, mu, model, plastic, state, e3)
             for j in range(nb):
-                k = idx[j]
-                _finite_strain(k, j, blk, be, eps, lam, mu, model, plastic, state, e3)
-                acc = _stress_and_checks(k, blk[18, j], x, v, mass, vol, vol0, stress, eps,
-                                         lam, mu, origin, upper, acc)
-    stats[0], stats[1], stats[2], stats[3] = acc[0], acc[1], acc[2], acc[3]
+                acc = _write_and_check(idx[j], j, blk, vol, stress, acc)
+    stats[0] = acc[0]
+    stats[2] += acc[1]
+
+
+@jit
+def stress_points_3d(mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase, cellxi, h,
+                     shape, node, lo, hi, dt, geostatic, model, plastic, state, stats):
+    """:func:`stress_3d` one point at a time (the same arguments without the scratch):
+    gradient, trial stretch, :func:`.elastic.sym_eig3`, logarithms, return
+    (:func:`.plastic.plastic_return_principal_3d`), new tensors, volume, Cauchy stress.
+    The reference of the blocked pass (``tests/test_3d_stress_block.py``)."""
+    frame = _pass_frame(h, shape)
+    sy, sz, ihx, ihy, ihz = frame
+    e3 = np.zeros(3)
+    if geostatic:
+        acc = _geostatic_pass(mass, vol, vol0, stress, eps, lam, mu, active, cellbase,
+                              cellxi, node, lo, hi, dt, model, plastic, state, e3, frame)
+    else:
+        acc = (0.0, 0)
+        one = np.zeros((18, 1))
+        for i in range(lo, hi):
+            if not active[i]:
+                continue
+            L = _gradient_scalar(node, i, cellbase, cellxi, sy, sz, ihx, ihy, ihz)
+            hw = _hughes_winget(L[0], L[1], L[2], L[3], L[4], L[5], L[6], L[7], L[8], dt)
+            bt = _hencky_trial(hw[:9], be[i, 0], be[i, 1], be[i, 2], be[i, 3], be[i, 4],
+                               be[i, 5])
+            r = sym_eig3(bt[0], bt[1], bt[2], bt[3], bt[4], bt[5])
+            for k in range(6):
+                one[k, 0] = bt[k]
+            for k in range(12):
+                one[6 + k, 0] = r[k]
+            _finite_strain(i, 0, one, be, eps, lam, mu, model, plastic, state, e3)
+            elastic_tau_3d(eps, i, lam[i], mu[i], stress, i)
+            acc = _stress_and_checks(i, hw[9], mass, vol, vol0, stress, lam, mu, acc)
+    stats[0] = acc[0]
+    stats[2] += acc[1]
