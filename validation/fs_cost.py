@@ -111,8 +111,8 @@ scene = parse_case(sys.argv[2], api.load_scene(sys.argv[1])).scene
 for line in sys.stdin:
     i = int(line)
     seed = realization_seed(scene.montecarlo.seed, i)
-    grid, pts = api.prepare(scene, seed)
     c0 = time.process_time()
+    grid, pts = api.prepare(scene, seed)
     res = factor_of_safety(scene, seed=seed, options=FSOptions(), grid=grid, pts=pts)
     print(json.dumps({"index": i, "fs": res.fs, "cpu_fs": time.process_time() - c0,
                       "newton_iterations": sum(t.iterations for t in res.trials)}), flush=True)

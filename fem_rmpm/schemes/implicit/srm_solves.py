@@ -32,9 +32,9 @@ from fem_rmpm.scene import Scene, with_values
 from fem_rmpm.schemes.common import SimulationError
 from fem_rmpm.schemes.implicit.linear import LinearSolver
 from fem_rmpm.schemes.implicit.newton import NewtonFailure, newton
-from fem_rmpm.schemes.implicit.driver import run_implicit
 from fem_rmpm.schemes.implicit.steps import Geostatic, ImplicitSystem, StepOutcome
 from fem_rmpm.schemes.pore_pressure import scaled_water
+from fem_rmpm.schemes.regularisation import average_softening
 
 __all__ = ["FSOptions", "Trial", "KnownFailures", "reduce_strength", "gravity_solve",
            "continue_strength", "srm_scene"]
@@ -105,39 +105,65 @@ def srm_scene(scene: Scene, o: FSOptions) -> Scene:
         "solver.adaptive": False})         # fixed load steps: the criterion stays as stated
 
 
-def _failure_reason(msg: str) -> str:
-    """The Newton reason inside the solver's message ("... down to a step of h (REASON);")."""
-    head = msg.split("; relative residuals")[0]
-    i = head.find("(", head.find("down to a step of"))
-    return head[i + 1:-1] if i >= 0 and head.endswith(")") else head
-
-
 def _max_displacement(pts: Particles) -> float:
     """Largest point displacement magnitude (m) of the geostatic state."""
     return float(np.sqrt(np.max(np.sum(pts.u_geostatic ** 2, axis=1), initial=0.0)))
 
 
 def gravity_solve(scene: Scene, grid: Grid, base: Particles, F: float, o: FSOptions,
-                  load: float = 1.0) -> tuple[Trial, Particles]:
+                  load: float = 1.0, known: "KnownFailures | None" = None
+                  ) -> tuple[Trial, Particles]:
     """Apply ``load`` x gravity at trial factor ``F`` on a copy of ``base`` (``scene``:
-    :func:`srm_scene`)."""
+    :func:`srm_scene`) in ``[solver] load_steps`` geostatic load steps, each halved up to
+    ``[solver] max_cuts`` times while Newton fails (the implicit scheme's geostatic phase,
+    :func:`~fem_rmpm.schemes.implicit.driver.run_implicit`, with ``adaptive = false``), on
+    the system and linear solver the search shares (``known``)."""
+    known = KnownFailures() if known is None else known
     pts = base.copy()
     reduce_strength(pts, scene, F, o.softening)
     if load != 1.0:
         pts.mass = pts.mass * load
         scene = scaled_water(scene, load)        # pore water: its force follows the load
     t0 = time.perf_counter()
-    reason, lf = "", 1.0
-    try:
-        rec = run_implicit(scene, grid, pts)
-        stats = rec.solver
-    except SimulationError as exc:
-        stats = getattr(exc, "solver_stats", {})
-        reason = _failure_reason(str(exc))
-        lf = float(stats.get("last_converged_time", 0.0))
-    return Trial(F, not reason, _max_displacement(pts), lf,
-                 int(stats.get("iterations_total", 0)), int(stats.get("cuts_total", 0)),
+    system = ImplicitSystem(scene, grid, pts, known.solver(scene.solver.linear_solver),
+                            pattern_cache=known.patterns)
+    reason, pos, its, cuts = _load_steps(Geostatic(system), scene.solver)
+    return Trial(F, not reason, _max_displacement(pts), 1.0 if not reason else pos, its, cuts,
                  time.perf_counter() - t0, reason), pts
+
+
+def _load_steps(kind: Geostatic, sv) -> tuple[str, float, int, int]:
+    """Gravity from 0 to 1 in ``sv.load_steps`` equal steps; a step Newton cannot
+    converge is halved (the rest of its load step goes on at the halved size), at most
+    ``sv.max_cuts`` times.  Returns Newton's reason of the failure ("" when full gravity
+    is reached), the gravity fraction reached, the Newton iterations of the converged
+    steps and the cuts."""
+    n = int(sv.load_steps)
+    its = cuts_total = 0
+    for k in range(n):
+        pos, end = k / n, (k + 1) / n
+        h = 1.0 / n
+        while pos < end - 1e-12:
+            h = end - pos if end - pos < 1.05 * h else h     # no sliver before the end
+            cuts = 0
+            while True:
+                try:
+                    out = kind.solve(pos, pos + h)
+                    break
+                except NewtonFailure as f:
+                    reason = f.reason
+                except SimulationError as exc:
+                    reason = str(exc)
+                if cuts >= sv.max_cuts:
+                    return reason, pos, its, cuts_total
+                cuts += 1
+                cuts_total += 1
+                h *= 0.5
+            out.commit()
+            average_softening(kind.sys.grid, kind.sys.pts)   # staggered non-local softening
+            its += out.result.iterations
+            pos += h
+    return "", 1.0, its, cuts_total
 
 
 def _newton_rejecting(kind: Geostatic, growth: float) -> StepOutcome:
@@ -170,7 +196,7 @@ def _newton_rejecting(kind: Geostatic, growth: float) -> StepOutcome:
         return kind.tangent(st)
 
     res = newton(evaluate, tangent, du0, sys_.solver, sv.max_iterations, sv.tolerance,
-                 modes=st.S.rigid_body_modes)
+                 modes=st.S.rigid_body_modes, resume_step=True)
     return StepOutcome(res, lambda: kind.commit(st, res))
 
 

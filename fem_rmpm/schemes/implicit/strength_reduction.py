@@ -198,10 +198,11 @@ def _numerical(reason: str) -> str:
     return "non-finite residual"
 
 
-def _probe(scene: Scene, grid: Grid, base: Particles, o: FSOptions) -> None:
+def _probe(scene: Scene, grid: Grid, base: Particles, o: FSOptions,
+           known: KnownFailures | None = None) -> None:
     one = dataclasses.replace(o, load_steps=1, max_cuts=0)
-    t, _ = gravity_solve(with_values(scene, {"solver.load_steps": 1, "solver.max_cuts": 0}), grid,
-                  base, 1.0, one, load=o.probe_load)
+    t, _ = gravity_solve(with_values(scene, {"solver.load_steps": 1, "solver.max_cuts": 0}),
+                         grid, base, 1.0, one, load=o.probe_load, known=known)
     if not t.converged:
         raise NonPhysicalFailure(
             f"{scene.source}: strength reduction: Newton failed on an elastic probe "
@@ -210,13 +211,13 @@ def _probe(scene: Scene, grid: Grid, base: Particles, o: FSOptions) -> None:
             "grid) and [solver] linear_solver", cause=t.reason)
 
 
-def _prepared(scene: Scene, seed, o: FSOptions, grid, pts):
+def _prepared(scene: Scene, seed, o: FSOptions, grid, pts, known=None):
     _check_has_strength(scene)
     if grid is None or pts is None:
         raise TypeError("strength reduction needs the prepared realization: grid, pts = "
                         "api.prepare(scene, seed) (or use api.factor_of_safety)")
     srm = srm_scene(scene, o)
-    _probe(srm, grid, pts, o)
+    _probe(srm, grid, pts, o, known)
     return srm, grid, pts
 
 
@@ -228,8 +229,9 @@ def stable_at(scene: Scene, F: float = 1.0, seed: int | None = None,
     RFEM estimate of P(FS < 1) needs (Griffiths & Fenton 2004).  Raises like
     :func:`factor_of_safety`."""
     o = options or FSOptions()
-    srm, grid, pts = _prepared(scene, seed, o, grid, pts)
-    t, _ = gravity_solve(srm, grid, pts, F, o)
+    known = KnownFailures()
+    srm, grid, pts = _prepared(scene, seed, o, grid, pts, known)
+    t, _ = gravity_solve(srm, grid, pts, F, o, known=known)
     if not t.converged and any(k in t.reason for k in _NON_PHYSICAL):
         raise NonPhysicalFailure(f"{scene.source}: strength reduction at F = {F:.4g}: "
                                  f"Newton failed for a reason that is not a mechanism "
@@ -251,15 +253,15 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
     refuse_frictional(scene, "strength reduction")   # no contact in the implicit scheme
     o = options or FSOptions()
     wall0 = time.perf_counter()
-    srm, grid, pts = _prepared(scene, seed, o, grid, pts)
+    known = KnownFailures()          # and what the search's solves share
+    srm, grid, pts = _prepared(scene, seed, o, grid, pts, known)
     trials: list[Trial] = []
     best: dict = {}
-    known = KnownFailures()
 
     def run(F, continue_from=None):
         state_id = None
         if continue_from is None:
-            t, state = gravity_solve(srm, grid, pts, F, o)
+            t, state = gravity_solve(srm, grid, pts, F, o, known=known)
         else:
             t, state, state_id = continue_strength(srm, grid, pts, best["pts"], continue_from,
                                                    F, o, known, best["id"])
