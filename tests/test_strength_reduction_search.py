@@ -47,7 +47,7 @@ def test_rejection_keeps_converging_solves_and_shortens_failing_ones(meshes):
     solve in fewer iterations (seen: 8 against 12)."""
     sc = infinite_slope(meshes, rows=8, hx=1.0, c=60.0)
     grid, pts = api.prepare(sc)
-    never = FSOptions(growth_rejection=0.0)
+    never = FSOptions(line_search="residual", growth_rejection=0.0)
     rejecting = dataclasses.replace(never, growth_rejection=1.5)
     srm = srm_scene(sc, never)
     t1, start = gravity_solve(srm, grid, pts, 1.0, never)
@@ -62,6 +62,34 @@ def test_rejection_keeps_converging_solves_and_shortens_failing_ones(meshes):
         else:
             assert b.iterations < a.iterations
             assert "above its smallest" in b.reason and "smallest" not in a.reason
+
+
+def test_energy_line_search_converges_the_same_states_and_diverges_past_collapse(meshes):
+    """Same slope (this mesh: FS 1.475).  From the converged state at F = 1 the
+    continuations to 1.3, 1.45 and 1.47 converge with the energy line search and with
+    the residual-norm backtracking to the same state (maximum displacement within 1e-6:
+    the incremental problem of an associated elastic-plastic solid has one minimum), the
+    energy line search in as many iterations or fewer (seen: 5, 7, 10 against 5, 7, 12);
+    past collapse (1.7) the energy decreases without bound along the mechanism and the
+    solve fails as diverging, sooner than the residual norm's growth rejects it (seen:
+    4 against 8 iterations)."""
+    sc = infinite_slope(meshes, rows=8, hx=1.0, c=60.0)
+    grid, pts = api.prepare(sc)
+    energy = FSOptions()
+    residual = FSOptions(line_search="residual")
+    srm = srm_scene(sc, energy)
+    t1, start = gravity_solve(srm, grid, pts, 1.0, energy)
+    assert t1.converged
+    for F in (1.3, 1.45, 1.47):
+        a, _, _ = continue_strength(srm, grid, pts, start, 1.0, F, energy)
+        b, _, _ = continue_strength(srm, grid, pts, start, 1.0, F, residual)
+        assert a.converged and b.converged
+        assert a.iterations <= b.iterations - (F == 1.47), (F, a.iterations, b.iterations)
+        assert a.max_displacement == pytest.approx(b.max_displacement, rel=1e-6)
+    past, _, _ = continue_strength(srm, grid, pts, start, 1.0, 1.7, energy)
+    rejected, _, _ = continue_strength(srm, grid, pts, start, 1.0, 1.7, residual)
+    assert not past.converged and "diverging" in past.reason
+    assert not rejected.converged and past.iterations < rejected.iterations
 
 
 def test_failure_over_a_small_change_is_decisive_a_large_one_is_not(meshes):

@@ -1,5 +1,6 @@
-"""Full Newton-Raphson on the free DOFs of one implicit step, with a backtracking line
-search and the two-part convergence test (relative residual and predicted correction)."""
+"""Full Newton-Raphson on the free DOFs of one implicit step, with a line search
+(backtracking on the residual norm, or on the energy's directional derivative) and the
+two-part convergence test (relative residual and predicted correction)."""
 from __future__ import annotations
 
 import math
@@ -36,7 +37,7 @@ class NewtonResult:
 
 def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterations: int,
            tol: float, modes=None, line_search: int = 4,
-           resume_step: bool = False) -> NewtonResult:
+           energy: bool = False) -> NewtonResult:
     """Full Newton-Raphson on the free DOFs, with a backtracking line search.
 
     ``evaluate(du) -> (R, ref, state)``: residual (free DOFs), its reference
@@ -52,12 +53,21 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
     the solution full steps always lower the residual, so quadratic convergence is
     untouched; far from it, or where the softening law has a kink (the linear law
     reaching the residual cohesion), it stops the 2-cycles Newton otherwise falls into.
-    ``resume_step``: an iteration's line search starts from twice the step length the
-    previous one took (at most the full correction) instead of the full correction: a
-    solve whose corrections are cut to 1/8-1/16 for many iterations on end (strength
-    reduction near collapse) evaluates 1-2 residuals per iteration instead of 4-5, and a
-    step length recovers to 1 in a few iterations once the full corrections lower the
-    residual again.
+    ``energy``: the line search seeks the step length ``alpha`` at which the directional
+    derivative of the potential energy along the correction, ``g(alpha) = delta . R(du +
+    alpha delta)`` (``R = f_ext - f_int``), has fallen to half its value at ``alpha = 0``
+    in magnitude (Matthies & Strang 1979, the line search of the BFGS method; Crisfield
+    1991, ch. 9): the full correction, or a multiple of it (x4 per evaluation) while
+    ``g`` stays positive, or the Illinois regula falsi between the bracketing lengths,
+    ``line_search`` evaluations at most (:func:`_energy_step`).  For a small-strain
+    associated plastic solid the energy is convex and bounded below exactly when the
+    load can be carried: below collapse the step length is the energy minimum's along
+    the correction (which the residual norm, not monotone in a converging iteration of
+    a plastic solid, cuts to 1/8-1/16 for many iterations on end); past collapse the
+    energy decreases without bound along the mechanism, the step lengths grow and the
+    residual with them, so the solve fails as diverging within a few iterations.  A
+    tangent that is not positive definite on the correction (``g(0) <= 0``) falls back
+    to the residual-norm backtracking for that iteration.
     """
     def _evaluate(u):
         try:
@@ -69,7 +79,6 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
     res: list[float] = []
     t_sol = 0.0
     last_delta = 0.0
-    alpha = 1.0
     R, ref, state = _evaluate(du)
     ref0 = max(ref, float(np.linalg.norm(R)))
     for it in range(max_iterations + 1):
@@ -94,7 +103,13 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         except LinearSolveError as exc:
             raise NewtonFailure(f"linear solve failed ({exc})", res) from None
         t_sol += time.perf_counter() - t1
-        alpha = min(1.0, 2.0 * alpha) if resume_step and it > 0 else 1.0
+        g0 = float(delta @ R) if energy else 0.0
+        if g0 > 0:
+            alpha, R, ref, state = _energy_step(_evaluate, du, delta, g0, line_search)
+            du = du + alpha * delta
+            last_delta = alpha * float(np.linalg.norm(delta))
+            continue
+        alpha = 1.0
         for _ in range(line_search + 1):
             last = alpha < 0.5 ** (line_search - 0.5)
             try:
@@ -111,3 +126,42 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         last_delta = alpha * float(np.linalg.norm(delta))
     raise NewtonFailure(f"not converged in {max_iterations} iterations", res)
 
+
+
+#: the energy line search: |g(alpha)| <= ENERGY_ETA g(0) ends it; while g stays positive
+#: the step length grows by ENERGY_GROWTH per evaluation
+ENERGY_ETA, ENERGY_GROWTH = 0.5, 4.0
+
+
+def _energy_step(evaluate, du: np.ndarray, delta: np.ndarray, g0: float,
+                 evaluations: int) -> tuple[float, np.ndarray, float, tuple]:
+    """The step length along ``delta`` from ``du`` where ``|g(alpha)| <= ENERGY_ETA g0``,
+    ``g(alpha) = delta . R(du + alpha delta)`` and ``g0 = g(0) > 0`` (see :func:`newton`):
+    ``alpha = 1`` first, times ``ENERGY_GROWTH`` while ``g > 0`` and nothing bracketed,
+    else the Illinois regula falsi between the largest length with ``g > 0`` and the
+    smallest with ``g < 0`` (kept 1/10 of the bracket inside it); the last length tried
+    after ``evaluations + 1`` evaluations.  Returns it with the residual, its reference
+    norm and the state there."""
+    alpha, lo, g_lo, hi, g_hi = 1.0, 0.0, g0, math.inf, 0.0
+    side = 0                         # Illinois: the end kept twice in a row is halved
+    for k in range(evaluations + 1):
+        R, ref, state = evaluate(du + alpha * delta)
+        g = float(delta @ R)
+        if abs(g) <= ENERGY_ETA * g0 or k == evaluations:
+            break
+        if g > 0:
+            lo, g_lo = alpha, g
+            if math.isinf(hi):
+                alpha *= ENERGY_GROWTH
+                continue
+            if side > 0:
+                g_hi *= 0.5
+            side = 1
+        else:
+            hi, g_hi = alpha, g
+            if side < 0:
+                g_lo *= 0.5
+            side = -1
+        a = lo + (hi - lo) * g_lo / (g_lo - g_hi)
+        alpha = min(max(a, lo + 0.1 * (hi - lo)), hi - 0.1 * (hi - lo))
+    return alpha, R, ref, state

@@ -9,7 +9,7 @@ Two kinds, both small-strain geostatic Newton solves on the fixed in-situ geomet
   which decides the trial when it fails over a small change of ``F``.
 
 A continuation solve is rejected as soon as its residual grows to ``growth_rejection``
-(1.5) times the smallest residual of its earlier iterations (:func:`_newton_rejecting`).
+(1.5) times the smallest residual of its earlier iterations (:func:`_solve`).
 The line search keeps a step that lowers the residual whenever one of its halvings does,
 so a converging solve hardly ever lets it grow: in the strength-reduction searches of
 realizations 0-11 of the risk slope (xi = 12, the search that halved every failed
@@ -58,8 +58,11 @@ class FSOptions:
     march: float = 1.25           # first upward ratio of F from a converged state (doubles in ln F)
     decisive_change: float = 0.015  # a continuation solve failing over a change of F of at
     #                                 most this (relative) fails the trial; over more: not
-    growth_rejection: float = 1.5   # reject a continuation solve whose residual grows to
-    #                                 this times its smallest earlier one (0: never)
+    line_search: str = "energy"   # Newton's line search: "energy" (the energy's directional
+    #                               derivative) or "residual" (backtracking on the residual norm)
+    growth_rejection: float = 1.5   # "residual" line search: reject a continuation solve whose
+    #                                 residual grows to this times its smallest earlier one
+    #                                 (0: never)
 
 
 @dataclass
@@ -127,12 +130,13 @@ def gravity_solve(scene: Scene, grid: Grid, base: Particles, F: float, o: FSOpti
     t0 = time.perf_counter()
     system = ImplicitSystem(scene, grid, pts, known.solver(scene.solver.linear_solver),
                             pattern_cache=known.patterns)
-    reason, pos, its, cuts = _load_steps(Geostatic(system), scene.solver)
+    reason, pos, its, cuts = _load_steps(Geostatic(system), scene.solver,
+                                         o.line_search == "energy")
     return Trial(F, not reason, _max_displacement(pts), 1.0 if not reason else pos, its, cuts,
                  time.perf_counter() - t0, reason), pts
 
 
-def _load_steps(kind: Geostatic, sv) -> tuple[str, float, int, int]:
+def _load_steps(kind: Geostatic, sv, energy: bool) -> tuple[str, float, int, int]:
     """Gravity from 0 to 1 in ``sv.load_steps`` equal steps; a step Newton cannot
     converge is halved (the rest of its load step goes on at the halved size), at most
     ``sv.max_cuts`` times.  Returns Newton's reason of the failure ("" when full gravity
@@ -148,7 +152,7 @@ def _load_steps(kind: Geostatic, sv) -> tuple[str, float, int, int]:
             cuts = 0
             while True:
                 try:
-                    out = kind.solve(pos, pos + h)
+                    out = _solve(kind, pos, pos + h, 0.0, energy)
                     break
                 except NewtonFailure as f:
                     reason = f.reason
@@ -166,15 +170,18 @@ def _load_steps(kind: Geostatic, sv) -> tuple[str, float, int, int]:
     return "", 1.0, its, cuts_total
 
 
-def _newton_rejecting(kind: Geostatic, growth: float) -> StepOutcome:
-    """One geostatic Newton solve at full gravity (as :meth:`Geostatic.solve`), rejected
-    with a :class:`NewtonFailure` once the residual of an accepted iterate exceeds
-    ``growth`` times the smallest residual of the iterates before it (``growth <= 0``:
-    never).  The check runs where Newton asks for the tangent, i.e. on the accepted
-    iterate only (the line search's last evaluation), before the tangent is built."""
+def _solve(kind: Geostatic, lf_old: float, lf_new: float, growth: float,
+           energy: bool) -> StepOutcome:
+    """One geostatic Newton solve from gravity factor ``lf_old`` to ``lf_new`` (as
+    :meth:`Geostatic.solve`; ``energy``: the energy line search of
+    :func:`~fem_rmpm.schemes.implicit.newton.newton`), rejected with a
+    :class:`NewtonFailure` once the residual of an accepted iterate exceeds ``growth``
+    times the smallest residual of the iterates before it (``growth <= 0``: never).  The
+    check runs where Newton asks for the tangent, i.e. on the accepted iterate only (the
+    line search's last evaluation), before the tangent is built."""
     sys_ = kind.sys
     sv = sys_.sv
-    st = sys_.begin(1.0, 1.0)
+    st = sys_.begin(lf_new, lf_old)
     du0 = kind.predictor(st)
     sys_.solver.new_step()
     norms: list[float] = []
@@ -196,7 +203,7 @@ def _newton_rejecting(kind: Geostatic, growth: float) -> StepOutcome:
         return kind.tangent(st)
 
     res = newton(evaluate, tangent, du0, sys_.solver, sv.max_iterations, sv.tolerance,
-                 modes=st.S.rigid_body_modes, resume_step=True)
+                 modes=st.S.rigid_body_modes, energy=energy)
     return StepOutcome(res, lambda: kind.commit(st, res))
 
 
@@ -233,7 +240,9 @@ def continue_strength(scene: Scene, grid: Grid, base: Particles, start: Particle
         pts.soil = base.soil
         reduce_strength(pts, scene, F, o.softening)
         try:
-            out = _newton_rejecting(Geostatic(system), o.growth_rejection)
+            energy = o.line_search == "energy"
+            out = _solve(Geostatic(system), 1.0, 1.0, 0.0 if energy else o.growth_rejection,
+                         energy)
         except NewtonFailure as exc:
             its, reason = max(len(exc.residuals) - 1, 0), known.add(start_id, target,
                                                                    exc.reason)
