@@ -117,10 +117,14 @@ def gravity_solve(scene: Scene, grid: Grid, base: Particles, F: float, o: FSOpti
                   load: float = 1.0, known: "KnownFailures | None" = None
                   ) -> tuple[Trial, Particles]:
     """Apply ``load`` x gravity at trial factor ``F`` on a copy of ``base`` (``scene``:
-    :func:`srm_scene`) in ``[solver] load_steps`` geostatic load steps, each halved up to
-    ``[solver] max_cuts`` times while Newton fails (the implicit scheme's geostatic phase,
-    :func:`~fem_rmpm.schemes.implicit.driver.run_implicit`, with ``adaptive = false``), on
-    the system and linear solver the search shares (``known``)."""
+    :func:`srm_scene`): in one geostatic Newton solve first, and where that fails in
+    ``[solver] load_steps`` geostatic load steps, each halved up to ``[solver] max_cuts``
+    times while Newton fails (the implicit scheme's geostatic phase,
+    :func:`~fem_rmpm.schemes.implicit.driver.run_implicit`, with ``adaptive = false``).
+    Either converged solve is an equilibrium at full gravity within the reduced
+    strengths, so the slope stands at ``F``; the load steps decide a failure and the
+    gravity fraction it reached.  On the system and linear solver the search shares
+    (``known``).  ``Trial.iterations`` counts the Newton iterations of both."""
     known = KnownFailures() if known is None else known
     pts = base.copy()
     reduce_strength(pts, scene, F, o.softening)
@@ -130,19 +134,27 @@ def gravity_solve(scene: Scene, grid: Grid, base: Particles, F: float, o: FSOpti
     t0 = time.perf_counter()
     system = ImplicitSystem(scene, grid, pts, known.solver(scene.solver.linear_solver),
                             pattern_cache=known.patterns)
-    reason, pos, its, cuts = _load_steps(Geostatic(system), scene.solver,
-                                         o.line_search == "energy")
+    energy, sv = o.line_search == "energy", scene.solver
+    its0 = 0
+    if sv.load_steps > 1:                 # full gravity at once: the one solve's cost
+        reason, _, its0, _ = _load_steps(Geostatic(system), 1, 0, energy)
+        if not reason:
+            return Trial(F, True, _max_displacement(pts), 1.0, its0, 0,
+                         time.perf_counter() - t0), pts
+    reason, pos, its, cuts = _load_steps(Geostatic(system), sv.load_steps, sv.max_cuts,
+                                         energy)
+    its += its0
     return Trial(F, not reason, _max_displacement(pts), 1.0 if not reason else pos, its, cuts,
                  time.perf_counter() - t0, reason), pts
 
 
-def _load_steps(kind: Geostatic, sv, energy: bool) -> tuple[str, float, int, int]:
-    """Gravity from 0 to 1 in ``sv.load_steps`` equal steps; a step Newton cannot
-    converge is halved (the rest of its load step goes on at the halved size), at most
-    ``sv.max_cuts`` times.  Returns Newton's reason of the failure ("" when full gravity
-    is reached), the gravity fraction reached, the Newton iterations of the converged
-    steps and the cuts."""
-    n = int(sv.load_steps)
+def _load_steps(kind: Geostatic, n: int, max_cuts: int,
+                energy: bool) -> tuple[str, float, int, int]:
+    """Gravity from 0 to 1 in ``n`` equal steps; a step Newton cannot converge is halved
+    (the rest of its load step goes on at the halved size), at most ``max_cuts`` times.
+    Returns Newton's reason of the failure ("" when full gravity is reached), the
+    gravity fraction reached, the Newton iterations (of the failed attempts too) and
+    the cuts.  A failed attempt changes nothing: a step is committed once converged."""
     its = cuts_total = 0
     for k in range(n):
         pos, end = k / n, (k + 1) / n
@@ -156,9 +168,10 @@ def _load_steps(kind: Geostatic, sv, energy: bool) -> tuple[str, float, int, int
                     break
                 except NewtonFailure as f:
                     reason = f.reason
+                    its += max(len(f.residuals) - 1, 0)
                 except SimulationError as exc:
                     reason = str(exc)
-                if cuts >= sv.max_cuts:
+                if cuts >= max_cuts:
                     return reason, pos, its, cuts_total
                 cuts += 1
                 cuts_total += 1
