@@ -32,8 +32,10 @@ def test_next_trial_marches_bisects_and_never_repeats_the_bracket_end():
     assert _next_trial(9.0, math.inf, math.inf, 2 * step, o) == o.f_max
     # a failed solve below hi guides the bisection ...
     assert _next_trial(1.0, 1.25, 1.10, step, o) == pytest.approx(math.sqrt(1.10))
-    # ... and is itself the next trial once within decisive_change of lo
-    assert _next_trial(1.0, 1.25, 1.01, step, o) == pytest.approx(1.01)
+    # ... also within decisive_change of lo (the midpoint's failure decides too) ...
+    assert _next_trial(1.0, 1.25, 1.01, step, o) == pytest.approx(math.sqrt(1.01))
+    # ... and is itself the next trial once within the tolerance of lo
+    assert _next_trial(1.0, 1.25, 1.004, step, o) == pytest.approx(1.004)
     # hi is never tried again (its failure is known): the midpoint, however close
     assert _next_trial(1.0, 1.01, math.inf, step, o) == pytest.approx(math.sqrt(1.01))
     assert _next_trial(1.0, 1.01, 1.01, step, o) == pytest.approx(math.sqrt(1.01))

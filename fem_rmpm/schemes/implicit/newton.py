@@ -37,7 +37,7 @@ class NewtonResult:
 
 def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterations: int,
            tol: float, modes=None, line_search: int = 4,
-           energy: bool = False) -> NewtonResult:
+           energy: bool = False, diverging: float = 1e3) -> NewtonResult:
     """Full Newton-Raphson on the free DOFs, with a backtracking line search.
 
     ``evaluate(du) -> (R, ref, state)``: residual (free DOFs), its reference
@@ -87,8 +87,8 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         res.append(r)
         if not math.isfinite(r):
             raise NewtonFailure("non-finite residual", res)
-        if r > 1e3 * max(1.0, res[0]):
-            raise NewtonFailure("diverging (residual grew 1000-fold)", res)
+        if r > diverging * max(1.0, res[0]):
+            raise NewtonFailure(f"diverging (residual grew {diverging:g}-fold)", res)
         # correction the next iteration would make, |delta_k| r_{k+1} / r_k
         predicted = last_delta * r / res[-2] if it > 0 and res[-2] > 0 else 0.0
         if r <= tol and predicted <= math.sqrt(tol) * float(np.linalg.norm(du)):

@@ -60,6 +60,9 @@ class FSOptions:
     #                                 most this (relative) fails the trial; over more: not
     line_search: str = "energy"   # Newton's line search: "energy" (the energy's directional
     #                               derivative) or "residual" (backtracking on the residual norm)
+    diverging: float = 10.0       # a solve fails as diverging once its residual exceeds
+    #                               this times the gravity load's norm (the energy line
+    #                               search past collapse; the implicit scheme: 1000)
     growth_rejection: float = 1.5   # "residual" line search: reject a continuation solve whose
     #                                 residual grows to this times its smallest earlier one
     #                                 (0: never)
@@ -137,19 +140,19 @@ def gravity_solve(scene: Scene, grid: Grid, base: Particles, F: float, o: FSOpti
     energy, sv = o.line_search == "energy", scene.solver
     its0 = 0
     if sv.load_steps > 1:                 # full gravity at once: the one solve's cost
-        reason, _, its0, _ = _load_steps(Geostatic(system), 1, 0, energy)
+        reason, _, its0, _ = _load_steps(Geostatic(system), 1, 0, energy, o.diverging)
         if not reason:
             return Trial(F, True, _max_displacement(pts), 1.0, its0, 0,
                          time.perf_counter() - t0), pts
     reason, pos, its, cuts = _load_steps(Geostatic(system), sv.load_steps, sv.max_cuts,
-                                         energy)
+                                         energy, o.diverging)
     its += its0
     return Trial(F, not reason, _max_displacement(pts), 1.0 if not reason else pos, its, cuts,
                  time.perf_counter() - t0, reason), pts
 
 
-def _load_steps(kind: Geostatic, n: int, max_cuts: int,
-                energy: bool) -> tuple[str, float, int, int]:
+def _load_steps(kind: Geostatic, n: int, max_cuts: int, energy: bool,
+                diverging: float) -> tuple[str, float, int, int]:
     """Gravity from 0 to 1 in ``n`` equal steps; a step Newton cannot converge is halved
     (the rest of its load step goes on at the halved size), at most ``max_cuts`` times.
     Returns Newton's reason of the failure ("" when full gravity is reached), the
@@ -164,7 +167,7 @@ def _load_steps(kind: Geostatic, n: int, max_cuts: int,
             cuts = 0
             while True:
                 try:
-                    out = _solve(kind, pos, pos + h, 0.0, energy)
+                    out = _solve(kind, pos, pos + h, 0.0, energy, diverging)
                     break
                 except NewtonFailure as f:
                     reason = f.reason
@@ -184,14 +187,15 @@ def _load_steps(kind: Geostatic, n: int, max_cuts: int,
 
 
 def _solve(kind: Geostatic, lf_old: float, lf_new: float, growth: float,
-           energy: bool) -> StepOutcome:
+           energy: bool, diverging: float = 1e3) -> StepOutcome:
     """One geostatic Newton solve from gravity factor ``lf_old`` to ``lf_new`` (as
     :meth:`Geostatic.solve`; ``energy``: the energy line search of
     :func:`~fem_rmpm.schemes.implicit.newton.newton`), rejected with a
     :class:`NewtonFailure` once the residual of an accepted iterate exceeds ``growth``
     times the smallest residual of the iterates before it (``growth <= 0``: never).  The
     check runs where Newton asks for the tangent, i.e. on the accepted iterate only (the
-    line search's last evaluation), before the tangent is built."""
+    line search's last evaluation), before the tangent is built.  ``diverging``: the
+    relative residual at which Newton gives up as diverging."""
     sys_ = kind.sys
     sv = sys_.sv
     st = sys_.begin(lf_new, lf_old)
@@ -216,7 +220,7 @@ def _solve(kind: Geostatic, lf_old: float, lf_new: float, growth: float,
         return kind.tangent(st)
 
     res = newton(evaluate, tangent, du0, sys_.solver, sv.max_iterations, sv.tolerance,
-                 modes=st.S.rigid_body_modes, energy=energy)
+                 modes=st.S.rigid_body_modes, energy=energy, diverging=diverging)
     return StepOutcome(res, lambda: kind.commit(st, res))
 
 
@@ -255,7 +259,7 @@ def continue_strength(scene: Scene, grid: Grid, base: Particles, start: Particle
         try:
             energy = o.line_search == "energy"
             out = _solve(Geostatic(system), 1.0, 1.0, 0.0 if energy else o.growth_rejection,
-                         energy)
+                         energy, o.diverging)
         except NewtonFailure as exc:
             its, reason = max(len(exc.residuals) - 1, 0), known.add(start_id, target,
                                                                    exc.reason)
