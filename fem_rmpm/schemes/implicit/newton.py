@@ -67,7 +67,9 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
     energy decreases without bound along the mechanism, the step lengths grow and the
     residual with them, so the solve fails as diverging within a few iterations.  A
     tangent that is not positive definite on the correction (``g(0) <= 0``) falls back
-    to the residual-norm backtracking for that iteration.
+    to the residual-norm backtracking for that iteration.  ``diverging``: the relative
+    residual (to the larger of the reference norm and the first residual) beyond which
+    the solve fails as diverging.
     """
     def _evaluate(u):
         try:
@@ -125,7 +127,6 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         du = du + alpha * delta
         last_delta = alpha * float(np.linalg.norm(delta))
     raise NewtonFailure(f"not converged in {max_iterations} iterations", res)
-
 
 
 #: the energy line search: |g(alpha)| <= ENERGY_ETA g(0) ends it; while g stays positive
