@@ -1,6 +1,7 @@
 """The search of the strength reduction (fem_rmpm.schemes.implicit.strength_reduction) and
-its continuation solves (fem_rmpm.schemes.implicit.srm_solves): the rejection of a
-Newton solve whose residual grows, the decisive small change, the next trial F.
+its continuation solves (fem_rmpm.schemes.implicit.srm_solves): the energy line search,
+the rejection of a Newton solve whose residual grows, the decisive small change, the next
+trial F.
 
 Reference: the undrained infinite slope FS = c / (gamma z sin(beta) cos(beta)) (limit
 equilibrium of a slice; Duncan & Wright 2005, ch. 6); on a mesh of n rows across the
@@ -123,11 +124,11 @@ def test_failure_over_a_small_change_is_decisive_a_large_one_is_not(meshes):
 def test_search_matches_closed_form_and_the_gravity_anew_search(meshes):
     """Infinite slope z = 5 m, beta = 30 deg, c = 60 kPa, 20 rows (closed form 1.386,
     with the half-row shear band 1.421): the continued search (decisive small changes,
-    rejected growing residuals, bisection towards the lowest failure) and the plain
+    the energy line search, bisection towards the lowest failure) and the plain
     search (gravity applied anew at every trial, no continuation) bracket FS within their
-    tolerance (0.5 %).  Achieves 1.4147 (10 static solves, 115 Newton iterations) and
-    1.4170 (11 solves, 263 iterations): 0.16 % apart
-    (asserts 0.6 %), -0.46 % from the half-row closed form (asserts 1.5 %)."""
+    tolerance (0.5 %).  Achieves 1.4196 (10 static solves, 46 Newton iterations) and
+    1.4170 (11 solves, 409 iterations, the failed one-solve gravity attempts included):
+    0.19 % apart (asserts 0.6 %), -0.11 % from the half-row closed form (asserts 1.5 %)."""
     sc = infinite_slope(meshes, rows=20, hx=0.5, c=60.0)
     exact = closed_form(60.0, GAMMA, 5.0, 30.0) * 20 / 19.5
     grid, pts = api.prepare(sc)
