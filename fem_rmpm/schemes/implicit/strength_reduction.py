@@ -24,7 +24,7 @@ search is the energy's (``line_search = "energy"``: the step length where the
 directional derivative of the potential energy along the correction has fallen to half,
 :func:`~fem_rmpm.schemes.implicit.newton.newton`): below collapse the incremental
 energy of the associated perfectly plastic solid has a minimum, which Newton reaches in
-5-11 iterations on the risk slope; past collapse it decreases without bound along the
+5-17 iterations on the risk slope; past collapse it decreases without bound along the
 mechanism, the step lengths grow, and the solve fails once its residual exceeds
 ``diverging`` (10) times the gravity load, within 1-7 iterations.  A solve also fails
 when it does not converge within ``max_iterations``.  (``line_search = "residual"``:
