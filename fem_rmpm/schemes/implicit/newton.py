@@ -111,22 +111,33 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
             du = du + alpha * delta
             last_delta = alpha * float(np.linalg.norm(delta))
             continue
-        alpha = 1.0
-        for _ in range(line_search + 1):
-            last = alpha < 0.5 ** (line_search - 0.5)
-            try:
-                R, ref, state = _evaluate(du + alpha * delta)
-            except NewtonFailure as exc:      # an inverted point: try a shorter correction
-                if not exc.inverted or last:
-                    raise
-                alpha *= 0.5
-                continue
-            if float(np.linalg.norm(R)) < rn or last:
-                break
-            alpha *= 0.5
+        alpha, R, ref, state = _backtrack(_evaluate, du, delta, rn, line_search)
         du = du + alpha * delta
         last_delta = alpha * float(np.linalg.norm(delta))
     raise NewtonFailure(f"not converged in {max_iterations} iterations", res)
+
+
+def _backtrack(evaluate, du: np.ndarray, delta: np.ndarray, rn: float,
+               halvings: int) -> tuple[float, np.ndarray, float, tuple]:
+    """The residual-norm line search of :func:`newton`: the full correction, halved up to
+    ``halvings`` times until the residual norm falls below ``rn`` or a point is no longer
+    inverted (the last, smallest length is kept if none lowers it; a state with an
+    inverted point never is).  Returns the length, the residual, its reference norm and
+    the state there."""
+    alpha = 1.0
+    for _ in range(halvings + 1):
+        last = alpha < 0.5 ** (halvings - 0.5)
+        try:
+            R, ref, state = evaluate(du + alpha * delta)
+        except NewtonFailure as exc:      # an inverted point: try a shorter correction
+            if not exc.inverted or last:
+                raise
+            alpha *= 0.5
+            continue
+        if float(np.linalg.norm(R)) < rn or last:
+            break
+        alpha *= 0.5
+    return alpha, R, ref, state
 
 
 #: the energy line search: |g(alpha)| <= ENERGY_ETA g(0) ends it; while g stays positive
