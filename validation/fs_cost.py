@@ -111,8 +111,8 @@ scene = parse_case(sys.argv[2], api.load_scene(sys.argv[1])).scene
 for line in sys.stdin:
     i = int(line)
     seed = realization_seed(scene.montecarlo.seed, i)
-    grid, pts = api.prepare(scene, seed)
     c0 = time.process_time()
+    grid, pts = api.prepare(scene, seed)
     res = factor_of_safety(scene, seed=seed, options=FSOptions(), grid=grid, pts=pts)
     print(json.dumps({"index": i, "fs": res.fs, "cpu_fs": time.process_time() - c0,
                       "newton_iterations": sum(t.iterations for t in res.trials)}), flush=True)
@@ -123,7 +123,6 @@ def interleaved_rows(case: str, n: int, label: str, other: Path) -> list[dict]:
     """FS of realizations 0..n-1 by this checkout and by ``other`` (a second process, one
     realization at a time, in alternating order), and this checkout's decided MPM run."""
     from fem_rmpm.campaign.cases import parse_case, realization_seed
-    from fem_rmpm.campaign.decide import FailureWatch, failure_threshold
     path = str(ROOT / "meshes" / "slope_risk.toml")
     scene = parse_case(case, api.load_scene(path)).scene
     env = dict(os.environ, PYTHONPATH=str(other))
@@ -137,6 +136,7 @@ def interleaved_rows(case: str, n: int, label: str, other: Path) -> list[dict]:
 
     theirs(0)                                     # warm-up: numba's cache, the first solve
     _fs_seed(scene, realization_seed(scene.montecarlo.seed, 0))
+    _decided_run(scene, realization_seed(scene.montecarlo.seed, 0))   # and the MPM's
     rows, dest = [], ROOT / "validation" / "out"
     dest.mkdir(parents=True, exist_ok=True)
     try:
@@ -147,10 +147,7 @@ def interleaved_rows(case: str, n: int, label: str, other: Path) -> list[dict]:
             res, cpu_fs, _ = timed(lambda: _fs_seed(scene, seed))
             if i % 2 == 1:
                 o = theirs(i)
-            watch = FailureWatch(scene.montecarlo.failure_displacement,
-                                 failure_threshold(scene), stop=True)
-            _, cpu_mpm, _ = timed(lambda: api.run(scene, out=None, seed=seed, progress=False,
-                                                  vtk=False, figures=False, stop_when=watch))
+            _, cpu_mpm, _ = timed(lambda: _decided_run(scene, seed))
             row = {"label": label, "case": case, "index": i, "seed": seed, "fs": res.fs,
                    "fs_other": o["fs"], "cpu_fs": cpu_fs, "cpu_fs_other": o["cpu_fs"],
                    "newton_iterations": sum(t.iterations for t in res.trials),
@@ -186,6 +183,15 @@ def print_table(rows: list[dict]) -> None:
           f"{sum(r['cpu_mpm_decided'] for r in rows):.1f} s; FS / MPM median "
           f"{ratios[len(ratios) // 2]:.2f} (range {ratios[0]:.2f}-{ratios[-1]:.2f}), at most 1 "
           f"on {met} of {len(rows)}; load average {min(loads):.1f}-{max(loads):.1f}")
+
+
+def _decided_run(scene, seed):
+    """The MPM run of realization ``seed`` stopped once decided (no output files)."""
+    from fem_rmpm.campaign.decide import FailureWatch, failure_threshold
+    watch = FailureWatch(scene.montecarlo.failure_displacement, failure_threshold(scene),
+                         stop=True)
+    return api.run(scene, out=None, seed=seed, progress=False, vtk=False, figures=False,
+                   stop_when=watch)
 
 
 def _fs_seed(scene, seed):

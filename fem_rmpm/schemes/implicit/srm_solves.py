@@ -9,7 +9,7 @@ Two kinds, both small-strain geostatic Newton solves on the fixed in-situ geomet
   which decides the trial when it fails over a small change of ``F``.
 
 A continuation solve is rejected as soon as its residual grows to ``growth_rejection``
-(1.5) times the smallest residual of its earlier iterations (:func:`_newton_rejecting`).
+(1.5) times the smallest residual of its earlier iterations (:func:`_solve`).
 The line search keeps a step that lowers the residual whenever one of its halvings does,
 so a converging solve hardly ever lets it grow: in the strength-reduction searches of
 realizations 0-11 of the risk slope (xi = 12, the search that halved every failed
@@ -32,9 +32,9 @@ from fem_rmpm.scene import Scene, with_values
 from fem_rmpm.schemes.common import SimulationError
 from fem_rmpm.schemes.implicit.linear import LinearSolver
 from fem_rmpm.schemes.implicit.newton import NewtonFailure, newton
-from fem_rmpm.schemes.implicit.driver import run_implicit
 from fem_rmpm.schemes.implicit.steps import Geostatic, ImplicitSystem, StepOutcome
 from fem_rmpm.schemes.pore_pressure import scaled_water
+from fem_rmpm.schemes.regularisation import average_softening
 
 __all__ = ["FSOptions", "Trial", "KnownFailures", "reduce_strength", "gravity_solve",
            "continue_strength", "srm_scene"]
@@ -58,8 +58,14 @@ class FSOptions:
     march: float = 1.25           # first upward ratio of F from a converged state (doubles in ln F)
     decisive_change: float = 0.015  # a continuation solve failing over a change of F of at
     #                                 most this (relative) fails the trial; over more: not
-    growth_rejection: float = 1.5   # reject a continuation solve whose residual grows to
-    #                                 this times its smallest earlier one (0: never)
+    line_search: str = "energy"   # Newton's line search: "energy" (the energy's directional
+    #                               derivative) or "residual" (backtracking on the residual norm)
+    diverging: float = 10.0       # a solve fails as diverging once its residual exceeds
+    #                               this times the gravity load's norm (the energy line
+    #                               search past collapse; the implicit scheme: 1000)
+    growth_rejection: float = 1.5   # "residual" line search: reject a continuation solve whose
+    #                                 residual grows to this times its smallest earlier one
+    #                                 (0: never)
 
 
 @dataclass
@@ -105,50 +111,94 @@ def srm_scene(scene: Scene, o: FSOptions) -> Scene:
         "solver.adaptive": False})         # fixed load steps: the criterion stays as stated
 
 
-def _failure_reason(msg: str) -> str:
-    """The Newton reason inside the solver's message ("... down to a step of h (REASON);")."""
-    head = msg.split("; relative residuals")[0]
-    i = head.find("(", head.find("down to a step of"))
-    return head[i + 1:-1] if i >= 0 and head.endswith(")") else head
-
-
 def _max_displacement(pts: Particles) -> float:
     """Largest point displacement magnitude (m) of the geostatic state."""
     return float(np.sqrt(np.max(np.sum(pts.u_geostatic ** 2, axis=1), initial=0.0)))
 
 
 def gravity_solve(scene: Scene, grid: Grid, base: Particles, F: float, o: FSOptions,
-                  load: float = 1.0) -> tuple[Trial, Particles]:
+                  load: float = 1.0, known: "KnownFailures | None" = None
+                  ) -> tuple[Trial, Particles]:
     """Apply ``load`` x gravity at trial factor ``F`` on a copy of ``base`` (``scene``:
-    :func:`srm_scene`)."""
+    :func:`srm_scene`): in one geostatic Newton solve first, and where that fails in
+    ``[solver] load_steps`` geostatic load steps, each halved up to ``[solver] max_cuts``
+    times while Newton fails (the implicit scheme's geostatic phase,
+    :func:`~fem_rmpm.schemes.implicit.driver.run_implicit`, with ``adaptive = false``).
+    Either converged solve is an equilibrium at full gravity within the reduced
+    strengths, so the slope stands at ``F``; the load steps decide a failure and the
+    gravity fraction it reached.  On the system and linear solver the search shares
+    (``known``).  ``Trial.iterations`` counts the Newton iterations of both."""
+    known = KnownFailures() if known is None else known
     pts = base.copy()
     reduce_strength(pts, scene, F, o.softening)
     if load != 1.0:
         pts.mass = pts.mass * load
         scene = scaled_water(scene, load)        # pore water: its force follows the load
     t0 = time.perf_counter()
-    reason, lf = "", 1.0
-    try:
-        rec = run_implicit(scene, grid, pts)
-        stats = rec.solver
-    except SimulationError as exc:
-        stats = getattr(exc, "solver_stats", {})
-        reason = _failure_reason(str(exc))
-        lf = float(stats.get("last_converged_time", 0.0))
-    return Trial(F, not reason, _max_displacement(pts), lf,
-                 int(stats.get("iterations_total", 0)), int(stats.get("cuts_total", 0)),
+    system = ImplicitSystem(scene, grid, pts, known.solver(scene.solver.linear_solver),
+                            pattern_cache=known.patterns)
+    energy, sv = o.line_search == "energy", scene.solver
+    its0 = 0
+    if sv.load_steps > 1:                 # full gravity at once: the one solve's cost
+        reason, _, its0, _ = _load_steps(Geostatic(system), 1, 0, energy, o.diverging)
+        if not reason:
+            return Trial(F, True, _max_displacement(pts), 1.0, its0, 0,
+                         time.perf_counter() - t0), pts
+    reason, pos, its, cuts = _load_steps(Geostatic(system), sv.load_steps, sv.max_cuts,
+                                         energy, o.diverging)
+    its += its0
+    return Trial(F, not reason, _max_displacement(pts), 1.0 if not reason else pos, its, cuts,
                  time.perf_counter() - t0, reason), pts
 
 
-def _newton_rejecting(kind: Geostatic, growth: float) -> StepOutcome:
-    """One geostatic Newton solve at full gravity (as :meth:`Geostatic.solve`), rejected
-    with a :class:`NewtonFailure` once the residual of an accepted iterate exceeds
-    ``growth`` times the smallest residual of the iterates before it (``growth <= 0``:
-    never).  The check runs where Newton asks for the tangent, i.e. on the accepted
-    iterate only (the line search's last evaluation), before the tangent is built."""
+def _load_steps(kind: Geostatic, n: int, max_cuts: int, energy: bool,
+                diverging: float) -> tuple[str, float, int, int]:
+    """Gravity from 0 to 1 in ``n`` equal steps; a step Newton cannot converge is halved
+    (the rest of its load step goes on at the halved size), at most ``max_cuts`` times.
+    Returns Newton's reason of the failure ("" when full gravity is reached), the
+    gravity fraction reached, the Newton iterations (of the failed attempts too) and
+    the cuts.  A failed attempt changes nothing: a step is committed once converged."""
+    its = cuts_total = 0
+    for k in range(n):
+        pos, end = k / n, (k + 1) / n
+        h = 1.0 / n
+        while pos < end - 1e-12:
+            h = end - pos if end - pos < 1.05 * h else h     # no sliver before the end
+            cuts = 0
+            while True:
+                try:
+                    out = _solve(kind, pos, pos + h, 0.0, energy, diverging)
+                    break
+                except NewtonFailure as f:
+                    reason = f.reason
+                    its += max(len(f.residuals) - 1, 0)
+                except SimulationError as exc:
+                    reason = str(exc)
+                if cuts >= max_cuts:
+                    return reason, pos, its, cuts_total
+                cuts += 1
+                cuts_total += 1
+                h *= 0.5
+            out.commit()
+            average_softening(kind.sys.grid, kind.sys.pts)   # staggered non-local softening
+            its += out.result.iterations
+            pos += h
+    return "", 1.0, its, cuts_total
+
+
+def _solve(kind: Geostatic, lf_old: float, lf_new: float, growth: float,
+           energy: bool, diverging: float = 1e3) -> StepOutcome:
+    """One geostatic Newton solve from gravity factor ``lf_old`` to ``lf_new`` (as
+    :meth:`Geostatic.solve`; ``energy``: the energy line search of
+    :func:`~fem_rmpm.schemes.implicit.newton.newton`), rejected with a
+    :class:`NewtonFailure` once the residual of an accepted iterate exceeds ``growth``
+    times the smallest residual of the iterates before it (``growth <= 0``: never).  The
+    check runs where Newton asks for the tangent, i.e. on the accepted iterate only (the
+    line search's last evaluation), before the tangent is built.  ``diverging``: the
+    relative residual at which Newton gives up as diverging."""
     sys_ = kind.sys
     sv = sys_.sv
-    st = sys_.begin(1.0, 1.0)
+    st = sys_.begin(lf_new, lf_old)
     du0 = kind.predictor(st)
     sys_.solver.new_step()
     norms: list[float] = []
@@ -170,7 +220,7 @@ def _newton_rejecting(kind: Geostatic, growth: float) -> StepOutcome:
         return kind.tangent(st)
 
     res = newton(evaluate, tangent, du0, sys_.solver, sv.max_iterations, sv.tolerance,
-                 modes=st.S.rigid_body_modes)
+                 modes=st.S.rigid_body_modes, energy=energy, diverging=diverging)
     return StepOutcome(res, lambda: kind.commit(st, res))
 
 
@@ -207,7 +257,9 @@ def continue_strength(scene: Scene, grid: Grid, base: Particles, start: Particle
         pts.soil = base.soil
         reduce_strength(pts, scene, F, o.softening)
         try:
-            out = _newton_rejecting(Geostatic(system), o.growth_rejection)
+            energy = o.line_search == "energy"
+            out = _solve(Geostatic(system), 1.0, 1.0, 0.0 if energy else o.growth_rejection,
+                         energy, o.diverging)
         except NewtonFailure as exc:
             its, reason = max(len(exc.residuals) - 1, 0), known.add(start_id, target,
                                                                    exc.reason)

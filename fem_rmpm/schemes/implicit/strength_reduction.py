@@ -12,23 +12,32 @@ strength is set to the reduced peak, a perfectly plastic soil); ``softening=True
 the softening law with peak and residual reduced alike.
 
 **Failure criterion** (documented in ``fs.json`` as ``criterion``).  The first trial,
-``F = 1``, applies gravity in ``load_steps`` small-strain load steps; it *fails* when
-Newton does not converge within ``max_iterations`` iterations in some load step even after
-``max_cuts`` halvings of that step, i.e. before full gravity is reached.  Every later
-trial (``continuation = True``, the default) starts from the converged state of the
-largest converged ``F`` at full gravity and reduces the strengths further to the trial
-``F`` in Newton solves (:func:`.srm_solves.continue_strength`).
-A solve fails when it does not converge within ``max_iterations``, or earlier, once the
-residual of an accepted iterate exceeds ``growth_rejection`` (1.5) times the smallest
-residual before it (a converging Newton iteration lowers it at every iteration).  A solve
-failing over a change of ``F`` of at most ``decisive_change`` (1.5 %) fails the trial;
-one failing over a larger change does not decide it (Newton can fail over a large change
-below FS), the search tries a closer ``F`` instead.  A failure is accompanied by the jump
-of the maximum point displacement, which grows without bound as ``F`` approaches ``FS``
-from below (the plot ``fs_displacement.png`` shows it, the ratio of the last converged
-maximum displacement to that of the smallest trial ``F`` is ``displacement_jump`` in
-``fs.json``).  ``FS`` lies in the bracket ``[F_lo, F_hi]`` of the largest converged and
-the smallest decisively failed trial.
+``F = 1``, applies gravity in one Newton solve, and where that fails in ``load_steps``
+small-strain load steps; it *fails* when Newton does not converge within
+``max_iterations`` iterations in some load step even after ``max_cuts`` halvings of that
+step, i.e. before full gravity is reached (a converged solve, at once or in steps, is an
+equilibrium at full gravity within the reduced strengths: the slope stands).  Every
+later trial (``continuation = True``, the default) starts from the converged state of
+the largest converged ``F`` at full gravity and reduces the strengths further to the
+trial ``F`` in one Newton solve (:func:`.srm_solves.continue_strength`).  Newton's line
+search is the energy's (``line_search = "energy"``: the step length where the
+directional derivative of the potential energy along the correction has fallen to half,
+:func:`~fem_rmpm.schemes.implicit.newton.newton`): below collapse the incremental
+energy of the associated perfectly plastic solid has a minimum, which Newton reaches in
+5-17 iterations on the risk slope; past collapse it decreases without bound along the
+mechanism, the step lengths grow, and the solve fails once its residual exceeds
+``diverging`` (10) times the gravity load, within 1-7 iterations.  A solve also fails
+when it does not converge within ``max_iterations``.  (``line_search = "residual"``:
+backtracking on the residual norm, and a continuation solve rejected once the residual
+of an accepted iterate exceeds ``growth_rejection``, 1.5, times the smallest before it.)
+A solve failing over a change of ``F`` of at most ``decisive_change`` (1.5 %) fails the
+trial; one failing over a larger change does not decide it (Newton can fail over a
+large change below FS), the search tries a closer ``F`` instead.  A failure is
+accompanied by the jump of the maximum point displacement, which grows without bound as
+``F`` approaches ``FS`` from below (the plot ``fs_displacement.png`` shows it, the ratio
+of the last converged maximum displacement to that of the smallest trial ``F`` is
+``displacement_jump`` in ``fs.json``).  ``FS`` lies in the bracket ``[F_lo, F_hi]`` of
+the largest converged and the smallest decisively failed trial.
 
 **Search.**  From ``F = 1`` upwards ``F`` grows by ``march`` (1.25), the step in ``ln F``
 doubling after each converged trial, until a solve fails or ``f_max`` (10) converges
@@ -36,8 +45,9 @@ doubling after each converged trial, until a solve fails or ``f_max`` (10) conve
 reached (a lower bound of FS: at ``F = lambda`` every strength is at least that of the
 state that stood at ``lambda`` x gravity), or at ``f_min`` (0.1; failing there: "FS <
 0.1").  Then bisection in ``ln F`` towards the lowest ``F`` any solve failed at above
-``F_lo`` (not a bound of FS unless that failure was decisive, but where to look; once
-within ``decisive_change`` of ``F_lo`` it is tried again from there, which decides it),
+``F_lo`` (not a bound of FS unless that failure was decisive, but where to look; a
+midpoint within ``decisive_change`` of ``F_lo`` decides by its own failure, and that
+lowest failure itself is tried again from ``F_lo`` once within ``tolerance`` of it),
 until ``F_hi / F_lo - 1 <= tolerance`` (default 0.005); the reported FS is the
 geometric midpoint, so the search error is below ``tolerance / 2`` (0.25 %).  With
 ``continuation = False`` gravity is applied anew at every trial (``F = 1``, ``f_max`` or
@@ -45,13 +55,13 @@ geometric midpoint, so the search error is below ``tolerance / 2`` (0.25 %).  Wi
 
 **Cost.**  The solves of one search share what the fixed geometry fixes (the
 :class:`~fem_rmpm.schemes.implicit.assembly.StepSystem`: basis, DOF numbering, sparsity
-pattern; and the linear solver with its symbolic factorization, :class:`KnownFailures`);
+pattern; and the linear solver with its symbolic factorization, :class:`KnownFailures`),
+the elastic probe and the gravity solves included;
 the tangent is factorized by CHOLMOD (``linear_solver = "cholmod"``, the implicit
 scheme's policy: SuperLU for a tangent that is not symmetric positive definite); a
-continuation solve known to fail (same start state, same target) is not run again.  The
-failing solves near FS dominate a search (each up to ``max_iterations`` iterations with a
-full line search): the decisive small change, the rejection of a growing residual and
-the bisection towards the lowest failure are what keep their number and length down.
+continuation solve known to fail (same start state, same target) is not run again.
+Each Newton iteration builds and factorizes the tangent (about three quarters of its
+cost) and evaluates the residual 1.5 times on average in its line search.
 
 **Non-physical Newton failures** are told apart and raised as :class:`NonPhysicalFailure`
 (never taken as an FS): before the search a *probe* applies ``probe_load`` (1e-3) x gravity
@@ -157,21 +167,28 @@ class FSResult:
                 "strength": "softening" if o.softening else "peak",
                 "criterion": CRITERION.format(
                     it=o.max_iterations, cuts=o.max_cuts, steps=o.load_steps,
-                    cont=CONTINUED.format(it=o.max_iterations, growth=o.growth_rejection,
-                                          decisive=100 * o.decisive_change)
+                    search=SEARCHES[o.line_search].format(div=o.diverging),
+                    cont=CONTINUED.format(
+                        it=o.max_iterations, decisive=100 * o.decisive_change,
+                        early=f" (rejected earlier once its residual grows to "
+                              f"{o.growth_rejection:g} times its smallest)"
+                        if o.line_search == "residual" and o.growth_rejection > 0 else "")
                     if o.continuation else ""),
                 "options": dataclasses.asdict(o),
                 "trials": [dataclasses.asdict(t) for t in self.trials]}
 
 
-CRITERION = ("a trial F fails when Newton does not converge within {it} iterations in a "
-             "load step after {cuts} halvings of it, before full gravity is reached "
-             "({steps} small-strain load steps on the in-situ geometry){cont}; FS is the "
-             "geometric midpoint of the largest converged and the smallest failed F")
+CRITERION = ("a trial F fails when gravity does not converge in one Newton solve and, in "
+             "{steps} small-strain load steps on the in-situ geometry, Newton does not "
+             "converge within {it} iterations in a load step after {cuts} halvings of it, "
+             "before full gravity is reached{cont}; Newton's line search: {search}; FS is "
+             "the geometric midpoint of the largest converged and the smallest failed F")
 CONTINUED = (", or, for a trial continued from the converged state of a smaller F at most "
              "{decisive:g} % below it at full gravity, when the Newton solve reducing the "
-             "strengths to F does not converge within {it} iterations (rejected earlier once "
-             "its residual grows to {growth:g} times its smallest)")
+             "strengths to F does not converge within {it} iterations{early}")
+SEARCHES = {"energy": "on the energy's directional derivative, a solve failing once its "
+                      "residual exceeds {div:g} times the gravity load",
+            "residual": "backtracking on the residual norm"}
 
 
 # ----------------------------------------------------------------------------- strengths
@@ -198,10 +215,11 @@ def _numerical(reason: str) -> str:
     return "non-finite residual"
 
 
-def _probe(scene: Scene, grid: Grid, base: Particles, o: FSOptions) -> None:
+def _probe(scene: Scene, grid: Grid, base: Particles, o: FSOptions,
+           known: KnownFailures | None = None) -> None:
     one = dataclasses.replace(o, load_steps=1, max_cuts=0)
-    t, _ = gravity_solve(with_values(scene, {"solver.load_steps": 1, "solver.max_cuts": 0}), grid,
-                  base, 1.0, one, load=o.probe_load)
+    t, _ = gravity_solve(with_values(scene, {"solver.load_steps": 1, "solver.max_cuts": 0}),
+                         grid, base, 1.0, one, load=o.probe_load, known=known)
     if not t.converged:
         raise NonPhysicalFailure(
             f"{scene.source}: strength reduction: Newton failed on an elastic probe "
@@ -210,13 +228,13 @@ def _probe(scene: Scene, grid: Grid, base: Particles, o: FSOptions) -> None:
             "grid) and [solver] linear_solver", cause=t.reason)
 
 
-def _prepared(scene: Scene, seed, o: FSOptions, grid, pts):
+def _prepared(scene: Scene, seed, o: FSOptions, grid, pts, known=None):
     _check_has_strength(scene)
     if grid is None or pts is None:
         raise TypeError("strength reduction needs the prepared realization: grid, pts = "
                         "api.prepare(scene, seed) (or use api.factor_of_safety)")
     srm = srm_scene(scene, o)
-    _probe(srm, grid, pts, o)
+    _probe(srm, grid, pts, o, known)
     return srm, grid, pts
 
 
@@ -228,8 +246,9 @@ def stable_at(scene: Scene, F: float = 1.0, seed: int | None = None,
     RFEM estimate of P(FS < 1) needs (Griffiths & Fenton 2004).  Raises like
     :func:`factor_of_safety`."""
     o = options or FSOptions()
-    srm, grid, pts = _prepared(scene, seed, o, grid, pts)
-    t, _ = gravity_solve(srm, grid, pts, F, o)
+    known = KnownFailures()
+    srm, grid, pts = _prepared(scene, seed, o, grid, pts, known)
+    t, _ = gravity_solve(srm, grid, pts, F, o, known=known)
     if not t.converged and any(k in t.reason for k in _NON_PHYSICAL):
         raise NonPhysicalFailure(f"{scene.source}: strength reduction at F = {F:.4g}: "
                                  f"Newton failed for a reason that is not a mechanism "
@@ -251,15 +270,15 @@ def factor_of_safety(scene: Scene, seed: int | None = None, options: FSOptions |
     refuse_frictional(scene, "strength reduction")   # no contact in the implicit scheme
     o = options or FSOptions()
     wall0 = time.perf_counter()
-    srm, grid, pts = _prepared(scene, seed, o, grid, pts)
+    known = KnownFailures()          # and what the search's solves share
+    srm, grid, pts = _prepared(scene, seed, o, grid, pts, known)
     trials: list[Trial] = []
     best: dict = {}
-    known = KnownFailures()
 
     def run(F, continue_from=None):
         state_id = None
         if continue_from is None:
-            t, state = gravity_solve(srm, grid, pts, F, o)
+            t, state = gravity_solve(srm, grid, pts, F, o, known=known)
         else:
             t, state, state_id = continue_strength(srm, grid, pts, best["pts"], continue_from,
                                                    F, o, known, best["id"])
@@ -315,13 +334,13 @@ def _next_trial(lo: float, hi: float, failed_above: float, step: float,
     """The next trial F of the continued search from the bracket ``[lo, hi]``: upwards by
     ``exp(step)`` while nothing above ``lo`` failed, else the geometric midpoint of ``lo``
     and the lowest failure above it (``failed_above``, any failed solve, or ``hi``), or
-    a failed solve below ``hi`` itself once within ``decisive_change`` of ``lo`` (its
-    solve from ``lo`` then decides it)."""
+    a failed solve below ``hi`` itself once within ``tolerance`` (at most
+    ``decisive_change``) of ``lo`` (its solve from ``lo`` then decides it)."""
     soft = failed_above < hi * (1 - 1e-9)       # a failed solve that did not decide
     up = failed_above if soft else hi
     if math.isinf(up):
         return min(lo * math.exp(step), o.f_max)
-    if soft and up / lo - 1.0 <= o.decisive_change * (1 + 1e-9):
+    if soft and up / lo - 1.0 <= min(o.tolerance, o.decisive_change) * (1 + 1e-9):
         return up
     return math.sqrt(lo * up)
 
