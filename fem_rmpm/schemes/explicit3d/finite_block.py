@@ -117,7 +117,8 @@ def _von_mises_block(blk):
     assume_columns(blk, EIG_BLOCK)
     for j in range(EIG_BLOCK):
         e0, e1, e2 = blk[R_EIG, j], blk[R_EIG + 1, j], blk[R_EIG + 2, j]
-        mu, cp, cr, gs, gamma = blk[R_MU, j], blk[R_CP, j], blk[R_CR, j], blk[R_GS, j], blk[R_GAMMA, j]
+        mu, cp, cr = blk[R_MU, j], blk[R_CP, j], blk[R_CR, j]
+        gs, gamma = blk[R_GS, j], blk[R_GAMMA, j]
         mean = (e0 + e1 + e2) / 3.0
         d0, d1, d2 = e0 - mean, e1 - mean, e2 - mean
         q = math.sqrt(2.0) * mu * math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
