@@ -217,8 +217,10 @@ def _make_drivers(version, only, fbar, gimp, block):
     two threads, no F-bar, module docstring), basis (``gimp``: uGIMP, else Q4) and block
     update or not (``block``, the points' ``o.block``): closure values too, so the kernels
     they call are compiled for that basis and that model path alone
-    (:func:`.common.literal_choice`; a campaign's realizations share all five).  All take the step options ``o``
-    of the previous step (their dt, gravity and damping are replaced), a :class:`RunControl`
+    (:func:`.common.literal_variants`, :func:`.stress.stress_queue`,
+    :func:`_pair_worker_for`; a campaign's realizations share all five).  All take the
+    step options ``o`` of the previous step (their dt, gravity and damping are replaced),
+    a :class:`RunControl`
     ``c``, ``clock`` (float64 (7,): t, peak kinetic energy, smallest and largest dt so far,
     then the last step's kinetic energy, max |v_pic| and dt), ``count`` (int64 (3,): the
     step number; the event that stopped the call; the records in ``energy``) and
