@@ -312,7 +312,8 @@ def _finish_stage(only):
             n = np.uint64(P.x.shape[0])
             for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
                 e = min(b + np.uint64(K.BLOCK), n)
-                K.stress._finish(version, only, P, o, W[:, b:e], ta[b:e], tb[b:e], Z, b, e)
+                K.stress._finish(version, only, o.block, P, o, W[:, b:e], ta[b:e], tb[b:e],
+                                 Z, b, e)
         _FINISH[(version, only)] = finish
     return _FINISH[(version, only)]
 
