@@ -31,7 +31,7 @@ P = A.PointArrays(np.array([[0.5, 0.5]]), z.copy(), np.ones(1), np.ones(1), np.o
                   np.zeros((1, 4)), np.zeros((1, 1)), z.copy(),
                   np.zeros(1, np.int64), np.zeros((1, 2)))
 N = A.node_arrays(9, A.node_arrays(9))
-T.map_to_nodes(P, M, N, A.scratch_for(1, 4),
+T.map_to_nodes(False, P, M, N, A.scratch_for(1, 4),
                A.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False, False))
 print(N.m[0] + N.half.m[0])     # the one point is the second half's (n // 2 = 0)
 """
