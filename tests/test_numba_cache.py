@@ -16,6 +16,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from fem_rmpm.runtime import numba_cache
 
 PACKAGE = Path(numba_cache.__file__).resolve().parents[1]
@@ -142,3 +144,45 @@ def test_no_compiled_function_lets_llvm_change_a_value():
         if not flags <= allowed:
             bad.append(f"{name} {sorted(flags)}")
     assert not bad, f"numba functions with value-changing fast-math flags: {bad}"
+
+
+def _fill_index(path: str, keys: list, start) -> None:
+    """One process saving ``keys`` into the cache index ``path/kernel.nbi`` once ``start``
+    is set, each entry's data naming its key."""
+    from numba.core.caching import IndexDataCacheFile
+    import fem_rmpm.runtime.numba_cache  # noqa: F401 - installs the package's save
+    f = IndexDataCacheFile(path, "kernel", "stamp")
+    start.wait()
+    for k in keys:
+        f.save(k, ("code of", k))
+
+
+@pytest.mark.parametrize("safe", [True, False])
+def test_cache_entries_saved_by_two_processes_at_once_name_their_own_code(tmp_path, safe,
+                                                                          monkeypatch):
+    """Two processes add 150 entries each to one numba cache index at the same time (as two
+    test or campaign workers, or a run and its compile helper, compiling variants of one
+    kernel): with the package's save every entry is kept and its data file holds its own
+    code; numba's own save (``safe`` False, the reference this test can tell from it)
+    loses entries or lets an entry name another's data, in one round of 150 each here."""
+    import multiprocessing
+    from numba.core.caching import IndexDataCacheFile
+    if not safe:
+        monkeypatch.setattr(IndexDataCacheFile, "save", numba_cache._NUMBA_SAVE[0])
+    ctx = multiprocessing.get_context("fork")
+    start = ctx.Event()
+    keys = [[(w, i) for i in range(150)] for w in range(2)]
+    procs = [ctx.Process(target=_fill_index, args=(str(tmp_path), k, start)) for k in keys]
+    for p in procs:
+        p.start()
+    start.set()
+    for p in procs:
+        p.join(120)
+        assert p.exitcode == 0
+    f = IndexDataCacheFile(str(tmp_path), "kernel", "stamp")
+    got = {k: f.load(k) for ks in keys for k in ks}
+    wrong = [k for k, v in got.items() if v != ("code of", k)]
+    if safe:
+        assert not wrong, wrong[:5]
+    else:
+        assert wrong, "numba's own save kept every entry: the race was not provoked"

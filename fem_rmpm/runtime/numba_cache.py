@@ -31,7 +31,9 @@ this one compiles others (numba's front end holds the GIL, so a thread would not
 parallel); this process then loads them from the cache (the first step of an explicit run,
 :func:`fem_rmpm.schemes.explicit.step.advance`).
 
-:func:`install` also counts numba's compiles in this process (numba's event API: a
+:func:`install` also makes numba's cache save safe when several processes fill one index
+at once (:func:`_save_between_processes`: numba's own save can leave an index entry naming
+another entry's code), and counts numba's compiles in this process (numba's event API: a
 function loaded from the on-disk cache is no compile), so a run and a campaign worker can
 say whether their kernels came from the cache: :func:`compile_stats`.
 """
@@ -39,6 +41,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import itertools
 import os
 import pickle
 import subprocess
@@ -47,9 +50,13 @@ import time
 from pathlib import Path
 
 try:
-    from numba.core.caching import CacheImpl
+    from numba.core.caching import CacheImpl, IndexDataCacheFile
 except ImportError:          # numba's internals moved: numba's own rule applies (install)
-    CacheImpl = None
+    CacheImpl = IndexDataCacheFile = None
+try:
+    import fcntl
+except ImportError:          # not POSIX: numba's own save (install)
+    fcntl = None
 try:
     from numba.core import event as numba_event
 except ImportError:          # no event API: no compile count (compile_stats)
@@ -165,13 +172,59 @@ def _count_compiles() -> bool:
     return True
 
 
+def _save_between_processes(self, key, data) -> None:
+    """numba's ``IndexDataCacheFile.save``, safe when several processes fill one cache
+    index at once (test workers, campaign workers, :func:`compile_aside`).  numba numbers
+    a new entry's data file after the index it has read and writes the index before the
+    data: two processes adding different entries (two argument types, or two closure
+    variants of one kernel, which share an index) can pick the same file, and the index
+    that is written last may then name the other entry's code; a reader may also find an
+    entry before its data file is written.  Here the index is read, the file chosen, the
+    data written and then the index, all under an exclusive lock on ``<index>.lock``, so
+    an entry of the index always names its own, complete data."""
+    try:
+        lock = open(self._index_path + ".lock", "ab")
+    except OSError:           # a cache directory we cannot write a lock in: numba's save
+        return _NUMBA_SAVE[0](self, key, data)
+    with lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        overloads = self._load_index()
+        name = overloads.get(key)
+        if name is None:
+            used = set(overloads.values())
+            name = next(n for n in map(self._data_name, itertools.count(1)) if n not in used)
+        self._save_data(name, data)
+        if overloads.get(key) != name:
+            overloads[key] = name
+            self._save_index(overloads)
+    return None
+
+
+_NUMBA_SAVE: list = []      # numba's own IndexDataCacheFile.save, once replaced
+
+
+def _install_save() -> bool:
+    """Replace numba's cache save by :func:`_save_between_processes` (idempotent)."""
+    if IndexDataCacheFile is None or fcntl is None:
+        return False
+    if not _NUMBA_SAVE:
+        _NUMBA_SAVE.append(IndexDataCacheFile.save)
+        IndexDataCacheFile.save = _save_between_processes
+    return True
+
+
 def install() -> bool:
-    """Put the package's locators first in numba's list (idempotent) and count numba's
+    """Put the package's locators first in numba's list (idempotent), make numba's cache
+    save safe between processes (:func:`_save_between_processes`) and count numba's
     compiles (:func:`compile_stats`).  False if numba's cache machinery does not look as
     expected (then numba's own rule applies)."""
     try:
         _count_compiles()
     except Exception:       # noqa: BLE001 - numba's event API moved: no count, never an error
+        pass
+    try:
+        _install_save()
+    except Exception:       # noqa: BLE001 - numba's cache file class moved: numba's save
         pass
     try:
         classes = list(CacheImpl._locator_classes)
