@@ -26,11 +26,6 @@ Functions of other packages keep numba's own rule.  It runs when :mod:`fem_rmpm`
 imported, before any kernel is decorated.  If numba's locator interface changes, the
 package falls back to numba's rule (no error).
 
-:func:`compile_aside` compiles kernels in a second process into the on-disk cache while
-this one compiles others (numba's front end holds the GIL, so a thread would not run in
-parallel); this process then loads them from the cache (the first step of an explicit run,
-:func:`fem_rmpm.schemes.explicit.step.advance`).
-
 :func:`install` also makes numba's cache save safe when several processes fill one index
 at once (:func:`_save_between_processes`: numba's own save can leave an index entry naming
 another entry's code), and counts numba's compiles in this process (numba's event API: a
@@ -42,10 +37,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import itertools
-import os
-import pickle
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -63,7 +54,7 @@ except ImportError:          # no event API: no compile count (compile_stats)
     numba_event = None
 
 __all__ = ["COMPILED_SOURCES", "EXPLICIT_SOURCES", "sources_hash", "stamp_group", "install",
-           "compile_stats", "cached", "Helper", "compile_aside"]
+           "compile_stats"]
 
 PACKAGE = Path(__file__).resolve().parents[1]
 #: The package's compiled (numba) code, relative to the package directory: folders
@@ -174,14 +165,14 @@ def _count_compiles() -> bool:
 
 def _save_between_processes(self, key, data) -> None:
     """numba's ``IndexDataCacheFile.save``, safe when several processes fill one cache
-    index at once (test workers, campaign workers, :func:`compile_aside`).  numba numbers
-    a new entry's data file after the index it has read and writes the index before the
-    data: two processes adding different entries (two argument types, or two closure
-    variants of one kernel, which share an index) can pick the same file, and the index
-    that is written last may then name the other entry's code; a reader may also find an
-    entry before its data file is written.  Here the index is read, the file chosen, the
-    data written and then the index, all under an exclusive lock on ``<index>.lock``, so
-    an entry of the index always names its own, complete data."""
+    index at once (test workers, campaign workers).  numba numbers a new entry's data file
+    after the index it has read and writes the index before the data: two processes
+    adding different entries (two argument types of one kernel, which share an index) can
+    pick the same file, and the index that is written last may then name the other
+    entry's code; a reader may also find an entry before its data file is written.  Here
+    the index is read, the file chosen, the data written and then the index, all under an
+    exclusive lock on ``<index>.lock``, so an entry of the index always names its own,
+    complete data."""
     try:
         lock = open(self._index_path + ".lock", "ab")
     except OSError:           # a cache directory we cannot write a lock in: numba's save
@@ -234,70 +225,3 @@ def install() -> bool:
         return True
     CacheImpl._locator_classes = [_package_locator(c) for c in classes] + classes
     return True
-
-
-def cached(dispatcher, sig: tuple) -> bool:
-    """Whether numba's on-disk cache holds ``dispatcher`` (``cache=True``) for the argument
-    types ``sig`` (its index read, nothing loaded); False where that cannot be told."""
-    try:
-        cache = dispatcher._cache
-        key = cache._index_key(tuple(sig), dispatcher.targetctx.codegen())
-        return key in cache._cache_file._load_index()
-    except Exception:        # noqa: BLE001 - numba internals moved: say "not cached"
-        return False
-
-
-class Helper:
-    """A second process compiling kernels into numba's on-disk cache
-    (:func:`compile_aside`); :meth:`wait` for it before calling them."""
-
-    def __init__(self, proc: subprocess.Popen | None):
-        self.proc = proc
-
-    def wait(self, timeout: float = 300.0) -> bool:
-        """Wait (at most ``timeout`` s) for the helper; True if it compiled everything.  A
-        helper that fails or is late is stopped: the kernels then compile here, as
-        without it."""
-        if self.proc is None:
-            return False
-        try:
-            return self.proc.wait(timeout) == 0
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-            return False
-        finally:
-            self.proc = None
-
-
-def compile_aside(items: list) -> Helper:
-    """Start a process that compiles each ``(module, name, sig)`` of ``items`` (the
-    dispatcher ``name`` of module ``module``, ``cache=True``, for the numba argument types
-    ``sig``) into the on-disk cache, with this process's package, interpreter and
-    environment (so the same ``NUMBA_CACHE_DIR`` and cache keys).  Returns its
-    :class:`Helper` (no process where the types cannot be handed over)."""
-    try:
-        data = pickle.dumps(items)
-    except Exception:        # noqa: BLE001 - a type that does not pickle: compile here
-        return Helper(None)
-    env = dict(os.environ)
-    root = str(PACKAGE.parent)
-    env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in env.get("PYTHONPATH", "").split(
-        os.pathsep) if p])
-    try:
-        proc = subprocess.Popen([sys.executable, "-c", _HELPER], stdin=subprocess.PIPE,
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                env=env, cwd=root)
-        proc.stdin.write(data)
-        proc.stdin.close()
-    except OSError:
-        return Helper(None)
-    return Helper(proc)
-
-
-# The helper process: read the pickled items, compile each (numba saves it to the cache).
-_HELPER = """
-import importlib, pickle, sys
-for module, name, sig in pickle.loads(sys.stdin.buffer.read()):
-    getattr(importlib.import_module(module), name).compile(sig)
-"""

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from numba import typeof, types
 
 from fem_rmpm.discretise.grid import Grid
 from fem_rmpm.discretise.points import Particles
@@ -26,11 +25,6 @@ from fem_rmpm.schemes.explicit.kernels.advance import (
     record_limit,
     step_drivers,
 )
-from fem_rmpm.materials import registry
-from fem_rmpm.runtime.machine import usable_cores
-from fem_rmpm.runtime.numba_cache import cached, compile_aside
-from fem_rmpm.schemes.explicit.kernels import stress as _stress
-from fem_rmpm.schemes.explicit.kernels import transfer as _transfer
 from fem_rmpm.schemes.explicit.reference import StepStats, cfl_speeds, explicit_step_numpy
 
 __all__ = ["KERNELS", "DEFAULT_KERNEL", "explicit_step", "run_control", "advance",
@@ -74,12 +68,12 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     if threads > 1:     # (the threaded loops take the nodes' half apart: kernels.arrays.top_of)
         T = K.top_of(N)
         # 1. map to nodes: mass, momentum and force (locate + shape + scatter, one pass)
-        call(K.map_to_nodes_parallel, o.gimp, P, M, T, N.half, S, o)
+        call(K.map_to_nodes_parallel, P, M, T, N.half, S, o)
         # 2. solve on the mesh, 3a. map back: move the points, (MUSL) re-map momentum
-        ke, vmax = call(K.solve_and_move_parallel, o.gimp, P, M, T, N.half, S, o)
+        ke, vmax = call(K.solve_and_move_parallel, P, M, T, N.half, S, o)
     else:
-        call(K.map_to_nodes, o.gimp, P, M, N, S, o)
-        ke, vmax = call(K.solve_and_move, o.gimp, P, M, N, S, o)
+        call(K.map_to_nodes, P, M, N, S, o)
+        ke, vmax = call(K.solve_and_move, P, M, N, S, o)
     # 3b, 3c. nodal velocities from the re-mapped momenta, then the stress update
     K.update_stress(P, M, N, S, o, call)
     # 4. reset: the next step's map clears the nodes this one touched
@@ -133,24 +127,18 @@ def advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, th
                       bool(sv.fbar), int(threads), work.model, work.block)
     clock[:4] = clock0[0], clock0[2], rec.dt_min, rec.dt_max
     count[0], count[2] = clock0[1], 0
-    serial, parallel, pair = step_drivers(o.model, o.fbar, o.gimp, o.block)
+    serial, parallel, pair = step_drivers(o.model, o.fbar)
     if threads > 1:
         both = pair_driver_fits(threads, bool(sv.fbar)) and numba.get_num_threads() >= 2
-        drv = pair if both else parallel
-        args = (P, M, N, K.top_of(N), N.half, S, o, ctl, clock, count, work.energy)
-        if not drv.signatures:
-            compile_on_two_cores(drv, args, "pair" if both else "parallel", o)
-        call(drv, *args)
+        call(pair if both else parallel, P, M, N, K.top_of(N), N.half, S, o, ctl, clock,
+             count, work.energy)
         if count[1] == STALL:
             raise SimulationError(
                 f"step {int(count[0]) + 1} (t = {float(clock[0]):.6g} s): one of the two "
                 "threads of the step waited for the other for half a minute (numba's thread "
                 "pool did not run both); set [solver] threads = 1")
     else:
-        args = (P, M, N, S, o, ctl, clock, count, work.energy)
-        if not serial.signatures:
-            compile_on_two_cores(serial, args, "serial", o)
-        call(serial, *args)
+        call(serial, P, M, N, S, o, ctl, clock, count, work.energy)
     out = S.out
     rec.energy.extend(map(tuple, work.energy[:count[2]].tolist()))   # the steps run inside
     rec.dt_min, rec.dt_max = float(clock[2]), float(clock[3])
@@ -158,50 +146,3 @@ def advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, th
     stats = StepStats(float(clock[4]), float(clock[5]), float(out[0]), float(out[1]),
                       int(out[2]), int(out[3]))
     return stats, float(clock[6]), float(clock[0]), int(count[0]), float(clock[1])
-
-
-#: The stress pass's kernel of :func:`.kernels.stress.stress_queue` for (gimp, block).
-_QUEUES = {(False, False): "_QUEUE_Q4_POINTS", (False, True): "_QUEUE_Q4_BLOCK",
-           (True, False): "_QUEUE_GIMP_POINTS", (True, True): "_QUEUE_GIMP_BLOCK"}
-
-
-def compile_on_two_cores(driver, args: tuple, kind: str, o) -> None:
-    """Before the first call of a step ``driver`` (``kind``: ``"serial"``, ``"parallel"``
-    or ``"pair"``, :func:`.kernels.advance.step_drivers`) with ``args``, whose compiled
-    code is not in numba's on-disk cache: on a machine of two or more cores, compile the
-    stress pass (its kernel for the run's basis and model path, about half of what the
-    first step compiles) in a second process into the cache
-    (:func:`fem_rmpm.runtime.numba_cache.compile_aside`) while this one compiles the map
-    and the map back of the driver; the driver's compile then loads the stress pass from
-    the cache.  The same kernels and argument types as the driver's own compile, so the
-    same compiled code (a helper that fails or is late only costs its compile here)."""
-    try:
-        sig = tuple(typeof(a) for a in args)
-        if cached(driver, sig) or usable_cores() < 2:
-            return
-        P, M, N, S = args[0], args[1], args[2], args[5 if kind != "serial" else 3]
-        T, H, c = typeof(K.top_of(N)), typeof(N.half), types.int64
-        queue = _QUEUES[(bool(o.gimp), bool(o.block))]
-        tp, tm, ts, to = typeof(P), typeof(M), typeof(S), typeof(o)
-        qsig = (types.literal(registry.version()), types.literal(int(o.model)),
-                types.literal(bool(o.fbar)), tp, tm, T, H, ts, to, c)
-        if cached(getattr(_stress, queue), qsig):
-            return
-    except Exception:        # noqa: BLE001 - numba internals moved: the driver compiles all
-        return
-    helper = compile_aside([(_stress.__name__, queue, qsig)])
-    gimp = types.literal(bool(o.gimp))
-    try:
-        if kind == "serial":
-            K.map_to_nodes.compile((gimp, tp, tm, typeof(N), ts, to))
-            K.solve_and_move.compile((gimp, tp, tm, typeof(N), ts, to))
-        elif kind == "pair":
-            _transfer.map_half_of(bool(o.gimp)).compile((tp, tm, T, H, ts, to, c))
-            _transfer._move_half.compile((gimp, tp, tm, T, H, ts, to, c))
-        else:
-            K.map_to_nodes_parallel.compile((gimp, tp, tm, T, H, ts, to))
-            K.solve_and_move_parallel.compile((gimp, tp, tm, T, H, ts, to))
-    except Exception:        # noqa: BLE001 - the driver's own compile follows anyway
-        pass
-    finally:
-        helper.wait()
