@@ -108,10 +108,8 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         g0 = float(delta @ R) if energy else 0.0
         if g0 > 0:
             alpha, R, ref, state = _energy_step(_evaluate, du, delta, g0, line_search)
-            du = du + alpha * delta
-            last_delta = alpha * float(np.linalg.norm(delta))
-            continue
-        alpha, R, ref, state = _backtrack(_evaluate, du, delta, rn, line_search)
+        else:
+            alpha, R, ref, state = _backtrack(_evaluate, du, delta, rn, line_search)
         du = du + alpha * delta
         last_delta = alpha * float(np.linalg.norm(delta))
     raise NewtonFailure(f"not converged in {max_iterations} iterations", res)
