@@ -92,6 +92,7 @@ class CaseEstimate:
     steps: int
     cpu_seconds: float          # per realization to run: the mean over its parts
     full_run_seconds: float = 0.0    # an MPM run to its end (setup included)
+    decided_run_seconds: float = 0.0  # an MPM run stopped once decided
     full_runs: int = 0               # realizations to run with an MPM run to the end
     decided_runs: int = 0            # ... with an MPM run stopped once decided
     fs_runs: int = 0                 # ... with a factor of safety
@@ -260,7 +261,7 @@ def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = 
     cal = records_calibration(records, budget)
     with_mpm = [t for t in tasks if t["fs"] != "only"]
     if cal is None and with_mpm and probe:
-        first = next(c for c in case_list if c.name == with_mpm[0]["case"])
+        first = _case_of(with_mpm[0], case_list)
         cal = _whole_run_floor(probe_calibration(first.scene, with_mpm[0]["seed"]),
                                budget[first.name], first.scene)
     if cal is None:
@@ -270,8 +271,8 @@ def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = 
     with_fs = [t for t in tasks if t["fs"] != "off"]
     fs_probe = None
     if with_fs and probe:
-        first = next(c for c in case_list if c.name == with_fs[0]["case"])
-        fs_probe = lambda: _fs_probe(first.scene, with_fs[0]["seed"])  # noqa: E731
+        fs_case = _case_of(with_fs[0], case_list)
+        fs_probe = lambda: _fs_probe(fs_case.scene, with_fs[0]["seed"])  # noqa: E731
     parts = part_costs(records, fs_probe)
     per_case = [_case_estimate(c, budget[c.name], cal, parts,
                                [t for t in tasks if t["case"] == c.name],
@@ -294,6 +295,11 @@ def estimate_campaign(scene: Scene, out: str | Path, realizations: int | None = 
     return CampaignEstimate(out, per_case, cal, parts, k, plan, memory, cpu, wall, notes)
 
 
+def _case_of(task: dict, case_list: Sequence[Case]) -> Case:
+    """The case a task belongs to."""
+    return next(c for c in case_list if c.name == task["case"])
+
+
 def _case_estimate(case: Case, e: RunEstimate, cal: Calibration, parts: PartCosts,
                    tasks: list[dict], finished: int) -> CaseEstimate:
     """One case's line of the estimate: each task to run costs its parts (the MPM run to
@@ -307,7 +313,8 @@ def _case_estimate(case: Case, e: RunEstimate, cal: Calibration, parts: PartCost
     n_fs = sum(t["fs"] != "off" for t in tasks)
     work = n_full * full + n_decided * decided + n_fs * (parts.fs_seconds or 0.0)
     return CaseEstimate(case.name, case.label, len(tasks), finished, e.points, e.steps, steps,
-                        work / len(tasks) if tasks else full, full, n_full, n_decided, n_fs)
+                        work / len(tasks) if tasks else full, full, decided, n_full,
+                        n_decided, n_fs)
 
 
 def _worker_count(plan: dict, n_tasks: int) -> int:
@@ -340,10 +347,8 @@ def estimate_text(est: CampaignEstimate) -> str:
                 lines.append(f"    {c.full_runs} MPM run(s) to the end, "
                              f"{c.full_run_seconds:.1f} s CPU each")
             if c.decided_runs:
-                t = (c.full_run_seconds if parts.decided_seconds is None
-                     else parts.decided_seconds)
-                lines.append(f"    {c.decided_runs} MPM run(s) stopped once decided, {t:.1f} s "
-                             f"CPU each ({parts.decided_source})")
+                lines.append(f"    {c.decided_runs} MPM run(s) stopped once decided, "
+                             f"{c.decided_run_seconds:.1f} s CPU each ({parts.decided_source})")
             if c.fs_runs:
                 lines.append(f"    {c.fs_runs} factor(s) of safety, {parts.fs_seconds or 0:.1f} s "
                              f"CPU each ({parts.fs_source})")
