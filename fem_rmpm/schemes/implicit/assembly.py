@@ -166,12 +166,6 @@ class StepSystem:
         return full.reshape(-1, 2)
 
     # --- vectors
-    def _scatter(self, per_point: np.ndarray) -> np.ndarray:
-        """(n, k, 2) per-point nodal contributions -> free-DOF vector."""
-        full = np.bincount(self.point_dofs.ravel(), per_point.ravel(),
-                           minlength=2 * self.grid.n_nodes)
-        return full[self.free_dofs]
-
     def internal_force(self, V0: np.ndarray, tau4: np.ndarray, g: np.ndarray,
                        full: bool = False) -> np.ndarray:
         """``f_ai = sum_p V0_p tau_ij g_aj`` on the free DOFs (kN per m); ``full``: on all
@@ -237,24 +231,14 @@ class StepSystem:
                           np.zeros((self.grid.n_nodes, 2)))
         return f.ravel()[self.free_dofs]
 
-    def lumped_mass(self, mass: np.ndarray) -> np.ndarray:
-        """Nodal lumped mass ``m_a = sum_p m_p N_a`` (n_nodes,), t per m."""
-        return np.bincount(self.nodes.ravel(), (self.N * mass[:, None]).ravel(),
-                           minlength=self.grid.n_nodes)
-
     def mass_and_momenta(self, mass: np.ndarray, v: np.ndarray, a: np.ndarray):
-        """``(lumped_mass(mass), momentum(mass, v), momentum(mass, a))`` in one pass."""
+        """The nodal lumped mass ``m_a = sum_p m_p N_a`` (n_nodes,), t per m, and the nodal
+        sums ``sum_p m_p v_p N_a`` and ``sum_p m_p a_p N_a`` (n_nodes, 2), in one pass."""
         nn = self.grid.n_nodes
         m, mv, ma = np.zeros(nn), np.zeros((nn, 2)), np.zeros((nn, 2))
         pk.nodal_mass_momentum(self.nodes, self.N, mass, np.ascontiguousarray(v),
                                np.ascontiguousarray(a), m, mv, ma)
         return m, mv, ma
-
-    def momentum(self, mass: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Nodal ``sum_p m_p v_p N_a`` (n_nodes, 2)."""
-        w = self.N * mass[:, None]
-        return np.stack([np.bincount(self.nodes.ravel(), (w * v[:, k:k + 1]).ravel(),
-                                     minlength=self.grid.n_nodes) for k in range(2)], axis=1)
 
     # --- matrix
     def tangent(self, V0: np.ndarray, g: np.ndarray, A: np.ndarray,
