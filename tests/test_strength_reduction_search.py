@@ -25,6 +25,18 @@ from tests.test_strength_reduction import closed_form, infinite_slope
 GAMMA = 20.0     # kN/m3, meshes/infinite_slope.toml
 
 
+def _standing_slope(meshes, o: FSOptions):
+    """The infinite slope of these tests (8 rows, c = 60 kPa; this mesh: FS 1.475) at
+    gravity with F = 1 under ``o``'s search: ``(scene, srm scene, grid, points, the
+    converged state)``."""
+    sc = infinite_slope(meshes, rows=8, hx=1.0, c=60.0)
+    grid, pts = api.prepare(sc)
+    srm = srm_scene(sc, o)
+    t1, start = gravity_solve(srm, grid, pts, 1.0, o)
+    assert t1.converged
+    return sc, srm, grid, pts, start
+
+
 def test_next_trial_marches_bisects_and_never_repeats_the_bracket_end():
     o = FSOptions()
     step = math.log(o.march)
@@ -48,13 +60,9 @@ def test_rejection_keeps_converging_solves_and_shortens_failing_ones(meshes):
     converge alike with and without the rejection of a growing residual (same
     iterations, same maximum displacement); past collapse (1.7) both fail, the rejecting
     solve in fewer iterations (seen: 8 against 12)."""
-    sc = infinite_slope(meshes, rows=8, hx=1.0, c=60.0)
-    grid, pts = api.prepare(sc)
     never = FSOptions(line_search="residual", growth_rejection=0.0)
     rejecting = dataclasses.replace(never, growth_rejection=1.5)
-    srm = srm_scene(sc, never)
-    t1, start = gravity_solve(srm, grid, pts, 1.0, never)
-    assert t1.converged
+    _, srm, grid, pts, start = _standing_slope(meshes, never)
     for F in (1.3, 1.45, 1.7):
         a, _, _ = continue_strength(srm, grid, pts, start, 1.0, F, never)
         b, _, _ = continue_strength(srm, grid, pts, start, 1.0, F, rejecting)
@@ -76,13 +84,9 @@ def test_energy_line_search_converges_the_same_states_and_diverges_past_collapse
     past collapse (1.7) the energy decreases without bound along the mechanism and the
     solve fails as diverging, sooner than the residual norm's growth rejects it (seen:
     4 against 8 iterations)."""
-    sc = infinite_slope(meshes, rows=8, hx=1.0, c=60.0)
-    grid, pts = api.prepare(sc)
     energy = FSOptions()
     residual = FSOptions(line_search="residual")
-    srm = srm_scene(sc, energy)
-    t1, start = gravity_solve(srm, grid, pts, 1.0, energy)
-    assert t1.converged
+    _, srm, grid, pts, start = _standing_slope(meshes, energy)
     for F in (1.3, 1.45, 1.47):
         a, _, _ = continue_strength(srm, grid, pts, start, 1.0, F, energy)
         b, _, _ = continue_strength(srm, grid, pts, start, 1.0, F, residual)
@@ -101,13 +105,10 @@ def test_failure_over_a_small_change_is_decisive_a_large_one_is_not(meshes):
     a solve to 1.48 (1.4 %) that fails fails the trial there; a converged solve below
     FS (1.47) moves the state on.  Then the search: no decisive failure lies below its
     bracket's lower end."""
-    sc = infinite_slope(meshes, rows=8, hx=1.0, c=60.0)
-    grid, pts = api.prepare(sc)
     o = FSOptions()
-    srm = srm_scene(sc, o)
-    t0, start = gravity_solve(srm, grid, pts, 1.0, o)
+    sc, srm, grid, pts, start = _standing_slope(meshes, o)
     t1, state, _ = continue_strength(srm, grid, pts, start, 1.0, 1.46, o)
-    assert t0.converged and t1.converged
+    assert t1.converged
     big, _, _ = continue_strength(srm, grid, pts, state, 1.46, 1.6, o)
     assert not big.converged and math.isinf(big.failed_at) and big.reached == 1.46
     small, _, _ = continue_strength(srm, grid, pts, state, 1.46, 1.48, o)
