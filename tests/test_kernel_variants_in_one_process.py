@@ -1,5 +1,5 @@
-"""One process running scenes of both bases and of both thread counts: each run gets its
-own compiled kernels (a kernel specialised for one basis and handed to a run of the other
+"""One process running scenes of both bases, with and without F-bar, and of both thread
+counts: each run gets its own compiled kernels (a kernel specialised for one basis and handed to a run of the other
 gave non-finite states at the first step, or another deposit).  Reference: the same run
 earlier in the same process, and a run in a fresh process."""
 from __future__ import annotations
@@ -15,8 +15,9 @@ ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "tests" / "data" / "mc_tiny.toml"
 
 
-def _max_displacement(shape: str, threads: int) -> float:
-    scene = with_values(load_scene(TINY), {"solver.shape": shape, "solver.threads": threads})
+def _max_displacement(shape: str, threads: int, fbar: bool = False) -> float:
+    scene = with_values(load_scene(TINY), {"solver.shape": shape, "solver.threads": threads,
+                                           "solver.fbar": fbar})
     return api.run(scene, seed=7, progress=False, vtk=False, figures=False
                    ).measures["max_displacement"]
 
@@ -36,3 +37,16 @@ def test_runs_of_both_bases_in_one_process_equal_their_own_fresh_runs():
                            text=True, timeout=600, check=True)
     assert float(fresh.stdout.strip().splitlines()[-1]) == got["gimp"]
     assert got["gimp"] != got["standard"]
+
+
+def test_runs_with_and_without_fbar_in_one_process_equal_their_first_runs():
+    """F-bar on, off, on, off on 1 then 2 threads in this process (the kinematics chosen
+    as a compile-time literal): each run equals bitwise its first occurrence, and the two
+    settings differ."""
+    got = {}
+    for threads in (1, 2):
+        for fbar in (True, False, True, False):
+            d = _max_displacement("standard", threads, fbar)
+            got.setdefault(fbar, d)
+            assert d == got[fbar], (fbar, threads, d, got[fbar])
+    assert got[True] != got[False]
