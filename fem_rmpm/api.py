@@ -359,8 +359,8 @@ MECHANISM_TIME = 3.0
 #: empty numba cache to the first step done (the measured figures: the documentation's
 #: benchmark pages).  A warm start (cache filled) takes a few seconds; more on a loaded
 #: machine.
-COMPILE_SECONDS = (15.0, 60.0)
-COMPILE_SECONDS_THREADED = (10.0, 40.0)
+COMPILE_SECONDS = (10.0, 40.0)
+COMPILE_SECONDS_THREADED = (5.0, 20.0)
 #: ... and of the serial (index 0) or threaded (1) drivers alone, when the other drivers ran
 #: before (the per-half functions they share are cached).
 COMPILE_SECONDS_DRIVERS = ((5.0, 10.0), (10.0, 30.0))
