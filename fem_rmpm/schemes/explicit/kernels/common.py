@@ -186,8 +186,10 @@ def literal_variants(placeholder, make, either=None):
     function with the placeholder's arguments, compiled by numba; default, one flag: both
     kernels behind ``if flag``).  ``make``'s arguments name the flags (the placeholder's
     first ones).  The kernel of each value is the same code as the run-time branch
-    compiled for that value: the results are bitwise the same.  Returns ``make`` as it is
-    used (the kernel of each value made once)."""
+    compiled for that value: the results are bitwise the same.  ``make`` must give each
+    value's kernel a name of its own (:func:`fem_rmpm.runtime.compiled.variant`: kernels of
+    one name could run each other's code).  Returns ``make`` as it is used (the kernel of
+    each value made once)."""
     names = list(inspect.signature(placeholder).parameters)
     k = len(inspect.signature(make).parameters)
     made = functools.lru_cache(maxsize=None)(make)
