@@ -269,9 +269,11 @@ class Helper:
         end = time.monotonic() + timeout
         while self.reported < k:
             left = end - time.monotonic()
-            if left <= 0 or not select.select([self.proc.stdout], [], [], left)[0]:
-                return False
-            if not self.proc.stdout.readline():          # ended (or failed) before item k
+            try:
+                ready = left > 0 and select.select([self.proc.stdout], [], [], left)[0]
+            except (OSError, ValueError):    # no select on pipes (Windows): wait for the end
+                return self.wait(max(left, 0.0))
+            if not ready or not self.proc.stdout.readline():   # late, or ended before item k
                 return False
             self.reported += 1
         return True
