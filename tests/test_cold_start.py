@@ -9,6 +9,8 @@ import ast
 import shutil
 from pathlib import Path
 
+import pytest
+
 from fem_rmpm.campaign.cluster import warm_workers
 from fem_rmpm.runtime import numba_cache
 from fem_rmpm.runtime.numba_cache import (
@@ -230,3 +232,96 @@ def test_a_three_d_campaign_loads_nothing_ahead():
     line = warm_workers(client, [{"scene": scene, "seed": 1}], run=_compiled, load=_loaded)
     assert len(client.submitted) == 1, "the warm-up only"
     assert line.endswith("the others load them from numba's on-disk cache"), line
+
+
+def test_a_literal_flag_compiles_one_variant_and_a_run_time_flag_both():
+    """:func:`.common.literal_variants`: a caller whose flag is a literal (a closure
+    constant) compiles the kernel of that value alone; a flag from Python compiles both,
+    behind ``if flag``; each gives what the written-out branch gives."""
+    from numba import njit
+
+    from fem_rmpm.schemes.explicit.kernels.common import literal_variants
+
+    def make(double):
+        @njit
+        def scale(x):
+            return 2.0 * x if double else x + 1.0
+        return scale
+
+    def scaled(double, x):
+        raise NotImplementedError
+
+    made = literal_variants(scaled, make)
+
+    def caller(double):
+        @njit
+        def call(x):
+            return scaled(double, x)
+        return call
+
+    assert caller(True)(1.5) == 3.0
+    assert made(True).signatures and not made(False).signatures, "one variant compiled"
+
+    @njit
+    def at_run_time(double, x):
+        return scaled(double, x)
+    assert at_run_time(False, 1.5) == 2.5 and at_run_time(True, 1.5) == 3.0
+    assert made(False).signatures, "a run-time flag compiles both"
+
+
+_ASIDE = r"""
+import sys
+from numba import types
+from fem_rmpm.runtime.numba_cache import cached, compile_aside, compile_stats
+from fem_rmpm.schemes.explicit.kernels.basis import _gimp_1d
+sig = (types.float64, types.float64, types.float64)
+before = cached(_gimp_1d, sig)
+ok = compile_aside([{"module": "fem_rmpm.schemes.explicit.kernels.basis", "name": "_gimp_1d",
+                     "sig": sig}]).wait(120)
+after = cached(_gimp_1d, sig)
+w = _gimp_1d(0.1, 1.0, 0.25)
+print(before, ok, after, compile_stats()[0], w[0])
+"""
+
+
+def test_a_kernel_compiled_aside_is_loaded_not_compiled(tmp_path):
+    """:func:`.numba_cache.compile_aside`: a second process compiles a kernel into an
+    empty on-disk cache; this process then finds it there and loads it (no compile here),
+    with the value of the uGIMP weight (Bardenhagen & Kober 2004: 1 - (d^2 + lp^2) /
+    (2 h lp) where |d| < lp: 1 - (0.01 + 0.0625) / 0.5 = 0.855 at d = 0.1, h = 1,
+    lp = 0.25)."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"),
+               PYTHONPATH=str(PACKAGE.parent))
+    out = subprocess.run([sys.executable, "-c", _ASIDE], env=env, capture_output=True,
+                         text=True, check=True, cwd=tmp_path).stdout.split()
+    assert out[:4] == ["False", "True", "True", "0"], out
+    assert abs(float(out[4]) - 0.855) < 1e-12
+
+
+def test_kernel_argument_types_go_to_a_helper_as_json_and_come_back_equal():
+    """:func:`.numba_cache.type_to_json`: the types of a step driver's arguments (named
+    tuples of arrays, scalars, None, literals) survive JSON text unchanged; a type it does
+    not describe is refused, and so is a helper item with such a type (no process)."""
+    import json
+
+    import numpy as np
+    from numba import typeof, types
+
+    from fem_rmpm.runtime.numba_cache import compile_aside, type_from_json, type_to_json
+    from fem_rmpm.schemes.explicit.kernels.arrays import StepOptions
+
+    o = StepOptions(0.1, 0.0, -9.81, 0.05, 1.0, False, True, False, 2, 1, True)
+    sample = [typeof(o), typeof(np.zeros((3, 2))), typeof(np.zeros(4, dtype=np.uint64)),
+              types.literal(7), types.literal(True), types.none, types.int64,
+              types.UniTuple(types.float64, 2),
+              types.NamedTuple([typeof(np.zeros(2)), types.none], StepOptions)]
+    for t in sample:
+        assert type_from_json(json.loads(json.dumps(type_to_json(t)))) == t, t
+    with pytest.raises(ValueError):
+        type_to_json(types.unicode_type)
+    assert compile_aside([{"module": "m", "name": "f", "sig": (types.unicode_type,)}]).proc \
+        is None

@@ -33,7 +33,7 @@ P = A.PointArrays(np.array([[0.5, 0.5]]), z.copy(), np.ones(1), np.ones(1), np.o
                   np.zeros((1, 4)), np.zeros((1, 1)), z.copy(),
                   np.zeros(1, np.int64), np.zeros((1, 2)))
 N = A.node_arrays(9, A.node_arrays(9))
-T.map_to_nodes(P, M, N, A.scratch_for(1, 4),
+T.map_to_nodes(False, P, M, N, A.scratch_for(1, 4),
                A.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False, False))
 print(N.m[0] + N.half.m[0])     # the one point is the second half's (n // 2 = 0)
 """
@@ -161,7 +161,8 @@ def _fill_index(path: str, keys: list, start) -> None:
 def test_cache_entries_saved_by_two_processes_at_once_name_their_own_code(tmp_path, safe,
                                                                           monkeypatch):
     """Two processes add 150 entries each to one numba cache index at the same time (as two
-    test or campaign workers compiling specialisations of one kernel): with the package's save every entry is kept and its data file holds its own
+    test or campaign workers, or a run and its compile helper, compiling variants of one
+    kernel): with the package's save every entry is kept and its data file holds its own
     code; numba's own save (``safe`` False, the reference this test can tell from it)
     loses entries or lets an entry name another's data, in one round of 150 each here."""
     import multiprocessing

@@ -14,20 +14,26 @@ s with ``[solver] threads`` = 1 or 2 and ``NUMBA_CACHE_DIR`` set to a fresh dire
 filled (warm: the kernels are loaded).  Printed per run: ``first_step_time`` of its
 ``summary.json`` (wall seconds from the start of the time loop's set-up to the end of the
 first step: compile or load included, imports and the scene's set-up before the loop
-excluded), the process's wall and CPU seconds (user + system, all threads: the figure that
-survives a loaded machine), the functions numba compiled in it and their wall seconds
-(``solver.numba_compiles``), and the 1-minute load average.  ``--other PATH`` runs the
-same measurements with the package of another checkout (its ``PYTHONPATH``) in turn with
-this one (A B A B ...), so that the ratio of the two holds while the machine's load
-drifts.
+excluded), the process's wall and CPU seconds (user + system, all threads, and the helper
+process that compiles aside on two cores: the figure that survives a loaded
+machine), the functions numba compiled in the run's own process and their wall seconds
+(``solver.numba_compiles``; not the helper's), and the 1-minute load average.
+``--other PATH`` runs the same measurements with the package of another checkout (its
+``PYTHONPATH``) in turn with this one (A B A B ...), so that the ratio of the two holds
+while the machine's load drifts.
 
 ``--list``: one more cold process per thread count, in which numba's event API times
 every compile (:func:`_compile_listing`): function, argument types, inclusive and
 exclusive (callees compiled while typing it taken out) CPU seconds.  The kernels of the
 explicit scheme are compiled lazily, only what the run's step driver calls
 (:func:`fem_rmpm.schemes.explicit.kernels.advance.step_drivers`): the drivers and the
-stress pass are specialised on the model of the points and on F-bar, so a run without
-F-bar compiles no F-bar pass.
+stress pass are specialised on the model of the points, F-bar, the basis and the model
+path (block or point update), so a Q4 run without F-bar compiles no F-bar pass, no uGIMP
+basis and, with von Mises' block update, no per-point model update.  The listing is of
+the run's process only: on two cores a helper process compiles the stress pass, and on
+two threads then the two-thread driver, while the run steps on the serial driver
+(:mod:`fem_rmpm.schemes.explicit.cold_start`); ``--one-process`` lists a run pinned to one
+core, where no helper starts (every compile in the run's process).
 """
 from __future__ import annotations
 
@@ -105,16 +111,22 @@ print("ROWS" + json.dumps(rows))
 """
 
 
-def _compile_listing(tree: Path, threads: int) -> list:
-    """Every numba compile of a cold ``fem-rmpm run`` (fresh process and cache):
+def _compile_listing(tree: Path, threads: int, one_core: bool = False) -> list:
+    """Every numba compile of a cold ``fem-rmpm run`` (fresh process and cache) in the
+    run's process (``one_core``: pinned to one core, so all of them):
     ``[function, argument types, inclusive CPU s, exclusive CPU s]``."""
     env = dict(os.environ, PYTHONPATH=str(tree))
     with tempfile.TemporaryDirectory() as tmp:
         env["NUMBA_CACHE_DIR"] = str(Path(tmp) / "cache")
         out = subprocess.run([sys.executable, "-c", _LISTING % T_END, str(threads),
                               str(Path(tmp) / "out")], env=env, capture_output=True,
-                             text=True, check=True, cwd=tmp).stdout
+                             text=True, check=True, cwd=tmp,
+                             preexec_fn=_one_core if one_core else None).stdout
     return json.loads(out[out.index("ROWS") + 4:])
+
+
+def _one_core() -> None:
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -123,6 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--other", type=Path, help="another checkout, measured in turn with this one")
     ap.add_argument("--list", action="store_true", help="list every function numba compiles")
+    ap.add_argument("--one-process", action="store_true",
+                    help="--list with the run pinned to one core (no helper process)")
     ap.add_argument("--out", type=Path, help="JSON file of the figures")
     args = ap.parse_args(argv)
     trees = [("this", ROOT)] + ([("other", args.other.resolve())] if args.other else [])
@@ -137,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.list:
         res["compiles"] = {}
         for threads in args.threads:
-            rows = _compile_listing(ROOT, threads)
+            rows = _compile_listing(ROOT, threads, args.one_process)
             res["compiles"][threads] = rows
             total = sum(r[3] for r in rows)
             print(f"numba compiles of a cold run on {threads} thread(s): {len(rows)} "

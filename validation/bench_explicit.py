@@ -231,7 +231,7 @@ def _kinematics_stage(P, M, N, S, o, W, ta, tb, tc):
     for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
         e = min(b + np.uint64(K.BLOCK), n)
         vn = N.v_musl if b < split else N.half.v_musl
-        KS.kinematics_points(P, M, vn, S, o, W[:, b:e], ta[b:e], tb[b:e], tc[b:e], b, e)
+        KS.kinematics_points(o.gimp, P, M, vn, S, o, W[:, b:e], ta[b:e], tb[b:e], tc[b:e], b, e)
 
 
 @kernel
@@ -268,9 +268,9 @@ def stages_numba(scene, grid, pts, geostatic, steps):
                           False, 1, w.model, w.block)
         spans = []                     # (start, end) of each stage, in the order of names
         t0 = clk()
-        call(K.map_to_nodes, P, M, N, S, o)
+        call(K.map_to_nodes, o.gimp, P, M, N, S, o)
         t1 = clk()
-        call(K.solve_and_move, P, M, N, S, o)
+        call(K.solve_and_move, o.gimp, P, M, N, S, o)
         spans += [(t0, t1), (t1, clk())]
         before = {f: getattr(pts, f).copy() for f in saved}
         t0 = clk()
@@ -312,7 +312,8 @@ def _finish_stage(only):
             n = np.uint64(P.x.shape[0])
             for b in range(np.uint64(0), n, np.uint64(K.BLOCK)):
                 e = min(b + np.uint64(K.BLOCK), n)
-                K.stress._finish(version, only, P, o, W[:, b:e], ta[b:e], tb[b:e], Z, b, e)
+                K.stress._finish(version, only, o.block, P, o, W[:, b:e], ta[b:e], tb[b:e],
+                                 Z, b, e)
         _FINISH[(version, only)] = finish
     return _FINISH[(version, only)]
 
@@ -546,7 +547,7 @@ def main(argv=None):
                                                     phase == "geostatic", 10)
             w = Workspace.for_grid(grid, pts.n)
             P, M = w.bind(grid, pts)
-            K.map_to_nodes(P, M, w.nodes, w.scratch, K.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False,
+            K.map_to_nodes(False, P, M, w.nodes, w.scratch, K.StepOptions(0.0, 0.0, 0.0, 0.0, 1.0, False, False,
                                                          False))
             half = w.nodes.half          # the nodes of the second half not in the first's
             only_second = half.touched[:half.n_touched[0]]

@@ -59,13 +59,13 @@ def stage_times(t_state: float, threads: int, steps: int = 300, sort: bool = Tru
         t = [clk()]
         if threads > 1:
             top = K.top_of(N)
-            call(K.map_to_nodes_parallel, P, M, top, N.half, S, o)
+            call(K.map_to_nodes_parallel, o.gimp, P, M, top, N.half, S, o)
             t.append(clk())
-            call(K.solve_and_move_parallel, P, M, top, N.half, S, o)
+            call(K.solve_and_move_parallel, o.gimp, P, M, top, N.half, S, o)
         else:
-            call(K.map_to_nodes, P, M, N, S, o)
+            call(K.map_to_nodes, o.gimp, P, M, N, S, o)
             t.append(clk())
-            call(K.solve_and_move, P, M, N, S, o)
+            call(K.solve_and_move, o.gimp, P, M, N, S, o)
         t.append(clk())
         K.update_stress(P, M, N, S, o, call)
         t.append(clk())

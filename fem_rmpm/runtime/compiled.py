@@ -62,6 +62,45 @@ kernel_parallel = njit(cache=True, fastmath=FASTMATH, nogil=True, error_model="n
                        parallel=True)
 
 
+
+# Variants of one function.  A factory that compiles one Python function per value of a
+# flag (a closure constant: numba prunes the other branch) must give each variant a name of
+# its own (:func:`variant`).  numba names a compiled function's machine code after its
+# qualified name, a counter of the process that compiled it and its argument types, and
+# the process's JIT links calls by that name, one definition per name (numba marks the code
+# of a callee linked into its caller ``linkonce_odr``: "the same name is the same code").
+# Closures of one factory share a qualified name and, when the flag is not an argument,
+# their argument types; their counters differ within one process but not between
+# processes (each counts its compiles from 1 in the same order).  So a variant compiled in
+# one process and another variant of the same function loaded from the on-disk cache, or
+# two variants loaded from it, can carry one name, and a process that loads both runs
+# whichever was linked first for both: a uGIMP run after a Q4 run of the same scene ran
+# the Q4 map and moved 5.64 m instead of 0.91 m.  A distinct qualified name gives each
+# variant distinct machine-code names and a cache file of its own, whatever the order of
+# compiles and loads; an argument whose numba type differs per variant (a literal, as the
+# registry version and model restriction of the stress pass) does the same through the
+# argument types.  ``tests/test_kernel_variants_in_one_process.py`` runs the variants in
+# both orders in one process and from a cache another process filled.
+
+
+def variant_name(base: str, **flags) -> str:
+    """The name of the variant of ``base`` for ``flags`` (bools and ints): ``base`` and
+    each flag's name and value, e.g. ``map_half__gimp1``; an identifier."""
+    tags = [f"{k}{'m' if int(v) < 0 else ''}{abs(int(v))}" for k, v in flags.items()]
+    return "__".join([base, "_".join(tags)]) if tags else base
+
+
+def variant(base: str, **flags):
+    """Decorator for a function a factory makes per value of its ``flags``: renames it
+    :func:`variant_name` ``(base, **flags)`` (``__name__`` and ``__qualname__``) , under the
+    numba decorator (written below it), so that numba sees the new name (comment above)."""
+    name = variant_name(base, **flags)
+
+    def rename(f):
+        f.__name__ = f.__qualname__ = name
+        return f
+    return rename
+
 # Column counts: numba indexes a C-contiguous 2-D array ``a[i, j]`` as ``i a.shape[1] + j``
 # with the run-time shape, so every point's row costs an integer multiply per array, and
 # the shapes (and row pointers) compete for registers with the arithmetic (the stress

@@ -26,6 +26,11 @@ Functions of other packages keep numba's own rule.  It runs when :mod:`fem_rmpm`
 imported, before any kernel is decorated.  If numba's locator interface changes, the
 package falls back to numba's rule (no error).
 
+:func:`compile_aside` compiles kernels in a second process into the on-disk cache while
+this one compiles others (numba's front end holds the GIL, so a thread would not run in
+parallel); this process then loads them from the cache (the first step of an explicit run,
+:func:`fem_rmpm.schemes.explicit.step.advance`).
+
 :func:`install` also makes numba's cache save safe when several processes fill one index
 at once (:func:`_save_between_processes`: numba's own save can leave an index entry naming
 another entry's code), and counts numba's compiles in this process (numba's event API: a
@@ -36,9 +41,17 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib
 import itertools
+import json
+import os
+import select
+import subprocess
+import sys
 import time
 from pathlib import Path
+
+from numba.core import types
 
 try:
     from numba.core.caching import CacheImpl, IndexDataCacheFile
@@ -54,7 +67,8 @@ except ImportError:          # no event API: no compile count (compile_stats)
     numba_event = None
 
 __all__ = ["COMPILED_SOURCES", "EXPLICIT_SOURCES", "sources_hash", "stamp_group", "install",
-           "compile_stats"]
+           "compile_stats", "cached", "Helper", "compile_aside", "type_to_json",
+           "type_from_json"]
 
 PACKAGE = Path(__file__).resolve().parents[1]
 #: The package's compiled (numba) code, relative to the package directory: folders
@@ -165,14 +179,14 @@ def _count_compiles() -> bool:
 
 def _save_between_processes(self, key, data) -> None:
     """numba's ``IndexDataCacheFile.save``, safe when several processes fill one cache
-    index at once (test workers, campaign workers).  numba numbers a new entry's data file
-    after the index it has read and writes the index before the data: two processes
-    adding different entries (two argument types of one kernel, which share an index) can
-    pick the same file, and the index that is written last may then name the other
-    entry's code; a reader may also find an entry before its data file is written.  Here
-    the index is read, the file chosen, the data written and then the index, all under an
-    exclusive lock on ``<index>.lock``, so an entry of the index always names its own,
-    complete data."""
+    index at once (test workers, campaign workers, :func:`compile_aside`).  numba numbers
+    a new entry's data file after the index it has read and writes the index before the
+    data: two processes adding different entries (two argument types, or two closure
+    variants of one kernel, which share an index) can pick the same file, and the index
+    that is written last may then name the other entry's code; a reader may also find an
+    entry before its data file is written.  Here the index is read, the file chosen, the
+    data written and then the index, all under an exclusive lock on ``<index>.lock``, so
+    an entry of the index always names its own, complete data."""
     try:
         lock = open(self._index_path + ".lock", "ab")
     except OSError:           # a cache directory we cannot write a lock in: numba's save
@@ -225,3 +239,169 @@ def install() -> bool:
         return True
     CacheImpl._locator_classes = [_package_locator(c) for c in classes] + classes
     return True
+
+
+def cached(dispatcher, sig: tuple) -> bool:
+    """Whether numba's on-disk cache holds ``dispatcher`` (``cache=True``) for the argument
+    types ``sig`` (its index read, nothing loaded); False where that cannot be told."""
+    try:
+        cache = dispatcher._cache
+        key = cache._index_key(tuple(sig), dispatcher.targetctx.codegen())
+        return key in cache._cache_file._load_index()
+    except Exception:        # noqa: BLE001 - numba internals moved: say "not cached"
+        return False
+
+
+class Helper:
+    """A second process compiling kernels into numba's on-disk cache
+    (:func:`compile_aside`), one item after the other: :meth:`wait_items` for the first
+    ``k`` before calling them, :meth:`done` to ask without waiting."""
+
+    def __init__(self, proc: subprocess.Popen | None, items: int = 0):
+        self.proc, self.items, self.reported = proc, items, 0
+
+    def wait_items(self, k: int, timeout: float = 300.0) -> bool:
+        """Wait (at most ``timeout`` s) until the helper has compiled its first ``k`` items;
+        True if it has.  False if it failed, ended early or is late (then those kernels
+        compile in this process when called, as without a helper)."""
+        if self.proc is None or self.proc.stdout is None:
+            return False
+        end = time.monotonic() + timeout
+        while self.reported < k:
+            left = end - time.monotonic()
+            try:
+                ready = left > 0 and select.select([self.proc.stdout], [], [], left)[0]
+            except (OSError, ValueError):    # no select on pipes (Windows): wait for the end
+                return self.wait(max(left, 0.0))
+            if not ready or not self.proc.stdout.readline():   # late, or ended before item k
+                return False
+            self.reported += 1
+        return True
+
+    def done(self) -> bool | None:
+        """None while the helper runs; then True if it compiled every item, else False."""
+        if self.proc is None:
+            return False
+        if self.proc.poll() is None:
+            return None
+        return self.proc.returncode == 0
+
+    def wait(self, timeout: float = 300.0) -> bool:
+        """Wait (at most ``timeout`` s) for the helper to end; True if it compiled every item.
+        A helper that is late is stopped (its locked saves leave no partial cache entry,
+        :func:`_save_between_processes`)."""
+        if self.proc is None:
+            return False
+        try:
+            return self.proc.wait(timeout) == 0
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            return False
+
+
+def type_to_json(t):
+    """numba type ``t`` as plain JSON data (:func:`type_from_json` makes it again): arrays,
+    named tuples of a module-level class, tuples, literals, None and scalar types; the
+    argument types a second process needs to compile a kernel (:func:`compile_aside`).
+    ValueError for any other type."""
+    if isinstance(t, types.Literal):
+        return {"literal": t.literal_value}
+    if isinstance(t, types.Array):
+        return {"array": str(t.dtype), "ndim": t.ndim, "layout": t.layout,
+                "mutable": bool(t.mutable), "aligned": bool(t.aligned)}
+    if isinstance(t, types.BaseNamedTuple):
+        cls = t.instance_class
+        return {"namedtuple": [cls.__module__, cls.__qualname__],
+                "fields": [type_to_json(x) for x in t.types]}
+    if isinstance(t, types.BaseTuple):
+        return {"tuple": [type_to_json(x) for x in t.types]}
+    if t == types.none:
+        return {"none": True}
+    if isinstance(t, (types.Number, types.Boolean)):
+        return {"scalar": str(t)}
+    raise ValueError(f"no JSON form of the numba type {t}")
+
+
+def type_from_json(d):
+    """The numba type :func:`type_to_json` described (the named tuple's class imported
+    from its module)."""
+    if "literal" in d:
+        return types.literal(d["literal"])
+    if "array" in d:
+        return types.Array(getattr(types, d["array"]), d["ndim"], d["layout"],
+                           readonly=not d["mutable"], aligned=d["aligned"])
+    if "namedtuple" in d:
+        module, name = d["namedtuple"]
+        cls = getattr(importlib.import_module(module), name)
+        fields = [type_from_json(x) for x in d["fields"]]
+        if fields and all(f == fields[0] for f in fields):
+            return types.NamedUniTuple(fields[0], len(fields), cls)
+        return types.NamedTuple(fields, cls)
+    if "tuple" in d:
+        return types.BaseTuple.from_types([type_from_json(x) for x in d["tuple"]])
+    if "none" in d:
+        return types.none
+    if "scalar" in d:
+        return getattr(types, d["scalar"])
+    raise ValueError(f"not a numba type description: {d}")
+
+
+def compile_aside(items: list[dict]) -> Helper:
+    """Start a process that compiles each item of ``items`` into numba's on-disk cache, in
+    order, with this process's package, interpreter and environment (so the same
+    ``NUMBA_CACHE_DIR`` and cache keys).  An item: ``module`` and ``name`` of a dispatcher
+    (``cache=True``), or of a factory called with the JSON values ``factory`` (a list) whose
+    result, indexed by ``index`` when given, is the dispatcher; ``sig`` its numba argument
+    types; optionally ``check`` = (module, function, value): the helper stops (failure)
+    unless that function returns that value (e.g. the model registry's version: another
+    registry would compile other code under this process's cache key).  The items go to
+    the helper as JSON on its standard input (:func:`type_to_json`; nothing is unpickled);
+    it prints a line after each.  Returns its :class:`Helper` (no process where a type has
+    no JSON form)."""
+    try:
+        data = json.dumps([dict(item, sig=[type_to_json(t) for t in item["sig"]])
+                           for item in items])
+    except (TypeError, ValueError):      # a type without a JSON form: compile here
+        return Helper(None)
+    env = dict(os.environ)
+    root = str(PACKAGE.parent)
+    env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in env.get("PYTHONPATH", "").split(
+        os.pathsep) if p])
+    try:
+        proc = subprocess.Popen([sys.executable, "-c", _HELPER], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                env=env, cwd=root, text=True)
+        proc.stdin.write(data)
+        proc.stdin.close()
+    except OSError:
+        return Helper(None)
+    return Helper(proc, len(items))
+
+
+def _dispatcher(item: dict):
+    """The dispatcher an item of :func:`compile_aside` names."""
+    obj = getattr(importlib.import_module(item["module"]), item["name"])
+    if item.get("factory") is not None:
+        obj = obj(*item["factory"])
+    return obj if item.get("index") is None else obj[item["index"]]
+
+
+def compile_items(text: str) -> None:
+    """The helper process of :func:`compile_aside`: compile each item of the JSON ``text``
+    (numba saves each to its on-disk cache) and print a line after each; exit 1 at an
+    item whose ``check`` fails."""
+    for item in json.loads(text):
+        if item.get("check") is not None:
+            module, fn, value = item["check"]
+            if getattr(importlib.import_module(module), fn)() != value:
+                sys.exit(1)
+        _dispatcher(item).compile(tuple(type_from_json(t) for t in item["sig"]))
+        print("compiled", item["name"], flush=True)
+
+
+_HELPER = """
+import sys
+from fem_rmpm.runtime.numba_cache import compile_items
+compile_items(sys.stdin.read())
+"""

@@ -17,6 +17,7 @@ from fem_rmpm.discretise.grid import Grid
 from fem_rmpm.discretise.points import Particles
 from fem_rmpm.schemes.common import RunRecord, SimulationError
 from fem_rmpm.schemes.explicit import kernels as K
+from fem_rmpm.schemes.explicit.cold_start import serial_driver_ready, threaded_driver_ready
 from fem_rmpm.schemes.explicit.kernels import Workspace
 from fem_rmpm.schemes.explicit.kernels.advance import (
     STALL,
@@ -68,12 +69,12 @@ def explicit_step(grid: Grid, pts: Particles, dt: float, gravity: np.ndarray,
     if threads > 1:     # (the threaded loops take the nodes' half apart: kernels.arrays.top_of)
         T = K.top_of(N)
         # 1. map to nodes: mass, momentum and force (locate + shape + scatter, one pass)
-        call(K.map_to_nodes_parallel, P, M, T, N.half, S, o)
+        call(K.map_to_nodes_parallel, o.gimp, P, M, T, N.half, S, o)
         # 2. solve on the mesh, 3a. map back: move the points, (MUSL) re-map momentum
-        ke, vmax = call(K.solve_and_move_parallel, P, M, T, N.half, S, o)
+        ke, vmax = call(K.solve_and_move_parallel, o.gimp, P, M, T, N.half, S, o)
     else:
-        call(K.map_to_nodes, P, M, N, S, o)
-        ke, vmax = call(K.solve_and_move, P, M, N, S, o)
+        call(K.map_to_nodes, o.gimp, P, M, N, S, o)
+        ke, vmax = call(K.solve_and_move, o.gimp, P, M, N, S, o)
     # 3b, 3c. nodal velocities from the re-mapped momenta, then the stress update
     K.update_stress(P, M, N, S, o, call)
     # 4. reset: the next step's map clears the nodes this one touched
@@ -127,18 +128,26 @@ def advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, th
                       bool(sv.fbar), int(threads), work.model, work.block)
     clock[:4] = clock0[0], clock0[2], rec.dt_min, rec.dt_max
     count[0], count[2] = clock0[1], 0
-    serial, parallel, pair = step_drivers(o.model, o.fbar)
+    key = (o.model, o.fbar, o.gimp, o.block)
+    serial, parallel, pair = step_drivers(*key)
+    serial_args = (P, M, N, S, o._replace(threads=1), ctl, clock, count, work.energy)
     if threads > 1:
         both = pair_driver_fits(threads, bool(sv.fbar)) and numba.get_num_threads() >= 2
-        call(pair if both else parallel, P, M, N, K.top_of(N), N.half, S, o, ctl, clock,
-             count, work.energy)
+        drv = pair if both else parallel
+        args = (P, M, N, K.top_of(N), N.half, S, o, ctl, clock, count, work.energy)
+        if threaded_driver_ready("pair" if both else "parallel", drv, args, key, serial,
+                                 serial_args, serial_args[4]):
+            call(drv, *args)
+        else:                        # (compiled aside meanwhile; bitwise the same steps)
+            call(serial, *serial_args)
         if count[1] == STALL:
             raise SimulationError(
                 f"step {int(count[0]) + 1} (t = {float(clock[0]):.6g} s): one of the two "
                 "threads of the step waited for the other for half a minute (numba's thread "
                 "pool did not run both); set [solver] threads = 1")
     else:
-        call(serial, P, M, N, S, o, ctl, clock, count, work.energy)
+        serial_driver_ready(serial, serial_args, serial_args[4])
+        call(serial, *serial_args)
     out = S.out
     rec.energy.extend(map(tuple, work.energy[:count[2]].tolist()))   # the steps run inside
     rec.dt_min, rec.dt_max = float(clock[2]), float(clock[3])

@@ -44,15 +44,16 @@ import numpy as np
 from numba import njit, prange
 
 from fem_rmpm.materials import registry
+from fem_rmpm.runtime.compiled import variant
 from fem_rmpm.schemes.explicit.kernels.arrays import RECORD_BUFFER, StepOptions
 from fem_rmpm.schemes.explicit.kernels.common import QUEUE_BARRIER, arrive
 from fem_rmpm.schemes.explicit.kernels.strain import fbar_gradient_pass, fbar_gradient_pass_parallel
 from fem_rmpm.schemes.explicit.kernels.stress import (
     _combine,
     _reset_queues,
-    _stress_queue_call,
     nodal_in_pass,
     serial_stress_pass,
+    stress_queue,
     workers,
 )
 from fem_rmpm.schemes.explicit.kernels.transfer import (
@@ -162,86 +163,126 @@ def _tick(c, op, S, clock, count, energy, ke, vmax):
     return count[1]
 
 
-@driver
-def pair_worker(version, only, P, M, T, H, S, o, c, clock, count, energy, w):
+def _pair_worker_for(gimp, block):
     """Thread ``w`` (0 or 1) of ``advance_pair`` (module docstring): the steps of
     ``advance_parallel`` with its half ``w`` in each stage and a barrier after each; thread
-    0 books each step.  On a stalled barrier: ``count[1]`` = :data:`STALL`, return."""
-    bar = S.queue[QUEUE_BARRIER:]
-    k = 0
-    while True:
-        op = _options(o, c, clock[0], S.out[0], S.out[1])
-        if w == 0:
-            _reset_queues(S)          # (the last step's stress pass ended at a barrier)
-        _map_half(P, M, T, H, S, op, w)                         # 1. map to nodes
-        if not arrive(bar, k + 2):
-            break
-        _move_half(P, M, T, H, S, op, w)                        # 2. solve, 3a. map back
-        if not arrive(bar, k + 4):
-            break
-        _stress_queue_call(version, only, False, P, M, T, H, S, op, w)  # 3b, 3c. stress
-        if not arrive(bar, k + 6):
-            break
-        if w == 0:
-            _combine(S, 2)
-            ke, vmax = _grid_stats(S)
-            _tick(c, op, S, clock, count, energy, ke, vmax)
-        if not arrive(bar, k + 8):
-            break
-        if count[1] >= 0:
-            return
-        k += 8
-    count[1] = STALL
+    0 books each step.  On a stalled barrier: ``count[1]`` = :data:`STALL`, return.
+    ``version``, ``only``: literals (:func:`_make_drivers`); compiled for one basis
+    (``gimp``) and one model path (``block``), closure constants (numba's cache key holds
+    them), so the kernels it calls are compiled for those alone."""
+    @driver
+    @variant("pair_worker", gimp=gimp, block=block)
+    def worker(version, only, P, M, T, H, S, o, c, clock, count, energy, w):
+        bar = S.queue[QUEUE_BARRIER:]
+        k = 0
+        while True:
+            op = _options(o, c, clock[0], S.out[0], S.out[1])
+            if w == 0:
+                _reset_queues(S)          # (the last step's stress pass ended at a barrier)
+            _map_half(gimp, P, M, T, H, S, op, w)               # 1. map to nodes
+            if not arrive(bar, k + 2):
+                break
+            _move_half(gimp, P, M, T, H, S, op, w)              # 2. solve, 3a. map back
+            if not arrive(bar, k + 4):
+                break
+            stress_queue(True, gimp, block, version, only, False, P, M, T, H, S, op,
+                         w)                                       # 3b, 3c
+            if not arrive(bar, k + 6):
+                break
+            if w == 0:
+                _combine(S, 2)
+                ke, vmax = _grid_stats(S)
+                _tick(c, op, S, clock, count, energy, ke, vmax)
+            if not arrive(bar, k + 8):
+                break
+            if count[1] >= 0:
+                return
+            k += 8
+        count[1] = STALL
+    return worker
 
 
-def _make_drivers(version, only, fbar):
+# The workers of :func:`_pair_worker_for`, module-level names (``advance_pair`` refers to
+# them as globals, as :mod:`.stress` its queue kernels), one cache index for the four.
+_PAIR_Q4_POINTS = _pair_worker_for(False, False)
+_PAIR_Q4_BLOCK = _pair_worker_for(False, True)
+_PAIR_GIMP_POINTS = _pair_worker_for(True, False)
+_PAIR_GIMP_BLOCK = _pair_worker_for(True, True)
+#: A worker of ``advance_pair`` (the four share one cache index: whether it is filled).
+pair_worker = _PAIR_Q4_BLOCK
+
+
+def _make_drivers(version, only, fbar, gimp, block):
     """``(serial, parallel, pair)`` drivers for one registry version, model restriction
     and F-bar or not (the stress pass's, :func:`.stress.material_kernels`; ``fbar`` a
     closure value, so a driver without F-bar compiles none of its passes; ``pair``: exactly
-    two threads, no F-bar, module docstring).  All take the step options ``o``
-    of the previous step (their dt, gravity and damping are replaced), a :class:`RunControl`
+    two threads, no F-bar, module docstring), basis (``gimp``: uGIMP, else Q4) and block
+    update or not (``block``, the points' ``o.block``): closure values too, so the kernels
+    they call are compiled for that basis and that model path alone
+    (:func:`.common.literal_variants`, :func:`.stress.stress_queue`,
+    :func:`_pair_worker_for`; a campaign's realizations share all five).  All take the
+    step options ``o`` of the previous step (their dt, gravity and damping are replaced),
+    a :class:`RunControl`
     ``c``, ``clock`` (float64 (7,): t, peak kinetic energy, smallest and largest dt so far,
     then the last step's kinetic energy, max |v_pic| and dt), ``count`` (int64 (3,): the
     step number; the event that stopped the call; the records in ``energy``) and
     ``energy`` (float64 (:data:`RECORD_BUFFER`, 2): (t, kinetic energy) of the record
     steps run), all updated; ``S.out`` holds the last step's maxima on entry (the CFL
     step) and on return."""
+    flags = dict(registry=version, only=only, fbar=fbar, gimp=gimp, block=block)
+
     @driver
+    @variant("advance", **flags)
     def advance(P, M, N, S, o, c, clock, count, energy):
         while True:
             op = _options(o, c, clock[0], S.out[0], S.out[1])
-            map_to_nodes(P, M, N, S, op)                      # 1. map to nodes
-            ke, vmax = solve_and_move(P, M, N, S, op)         # 2. solve, 3a. map back
+            map_to_nodes(gimp, P, M, N, S, op)                # 1. map to nodes
+            ke, vmax = solve_and_move(gimp, P, M, N, S, op)   # 2. solve, 3a. map back
             if fbar:                                          # 3b, 3c. stress update
                 nodal_velocities(M, N)
                 fbar_gradient_pass(P, M, N, S, op)
-            serial_stress_pass(version, only, fbar, P, M, N, S, op)
+            serial_stress_pass(True, gimp, block, version, only, fbar, P, M, N, S, op)
             if _tick(c, op, S, clock, count, energy, ke, vmax) >= 0:
                 break
 
     @driver_parallel
+    @variant("advance_parallel", **flags)
     def advance_parallel(P, M, N, T, H, S, o, c, clock, count, energy):
         nch = workers(o, S)
         while True:
             op = _options(o, c, clock[0], S.out[0], S.out[1])
-            map_to_nodes_parallel(P, M, T, H, S, op)
-            ke, vmax = solve_and_move_parallel(P, M, T, H, S, op)
+            map_to_nodes_parallel(gimp, P, M, T, H, S, op)
+            ke, vmax = solve_and_move_parallel(gimp, P, M, T, H, S, op)
             if not nodal_in_pass(op, S):                      # (else in the stress pass)
                 nodal_velocities_parallel(M, T, H)
             if fbar:
                 fbar_gradient_pass_parallel(P, M, T, H, S, op)
             _reset_queues(S)
             for ch in prange(nch):
-                _stress_queue_call(version, only, fbar, P, M, T, H, S, op, np.int64(ch))
+                stress_queue(True, gimp, block, version, only, fbar, P, M, T, H, S, op,
+                             np.int64(ch))
             _combine(S, nch)
             if _tick(c, op, S, clock, count, energy, ke, vmax) >= 0:
                 break
 
     @driver_parallel
+    @variant("advance_pair", **flags)
     def advance_pair(P, M, N, T, H, S, o, c, clock, count, energy):
         S.queue[QUEUE_BARRIER] = 0
-        for w in prange(2):
-            pair_worker(version, only, P, M, T, H, S, o, c, clock, count, energy, np.int64(w))
+        for w in prange(2):          # (gimp, block: constants, three branches pruned)
+            if gimp:
+                if block:
+                    _PAIR_GIMP_BLOCK(version, only, P, M, T, H, S, o, c, clock, count, energy,
+                                     np.int64(w))
+                else:
+                    _PAIR_GIMP_POINTS(version, only, P, M, T, H, S, o, c, clock, count, energy,
+                                      np.int64(w))
+            elif block:
+                _PAIR_Q4_BLOCK(version, only, P, M, T, H, S, o, c, clock, count, energy,
+                               np.int64(w))
+            else:
+                _PAIR_Q4_POINTS(version, only, P, M, T, H, S, o, c, clock, count, energy,
+                                np.int64(w))
     return advance, advance_parallel, advance_pair
 
 
@@ -255,12 +296,13 @@ def pair_driver_fits(threads: int, fbar: bool) -> bool:
 _BY_VERSION: dict = {}
 
 
-def step_drivers(only: int = -1, fbar: bool = False):
+def step_drivers(only: int = -1, fbar: bool = False, gimp: bool = False, block: bool = False):
     """``(advance, advance_parallel, advance_pair)`` compiled for the current model registry,
     model restriction ``only`` (the one model id of all points, -1: any; see
-    :func:`.stress.material_kernels`) and F-bar or not (``fbar``: the ``o.fbar`` of the
-    steps they run)."""
-    key = (registry.version(), int(only), bool(fbar))
+    :func:`.stress.material_kernels`), F-bar or not (``fbar``: the ``o.fbar`` of the
+    steps they run), the basis (``gimp``: ``o.gimp``) and the block update (``block``:
+    ``o.block``)."""
+    key = (registry.version(), int(only), bool(fbar), bool(gimp), bool(block))
     if key not in _BY_VERSION:
         _BY_VERSION[key] = _make_drivers(*key)
     return _BY_VERSION[key]

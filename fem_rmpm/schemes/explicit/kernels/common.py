@@ -2,13 +2,15 @@
 decorators: :mod:`fem_rmpm.runtime.compiled`)."""
 from __future__ import annotations
 
+import functools
+import inspect
 import sys
 
 import numpy as np
 from llvmlite import ir
 from numba import njit, types
 from numba.core import cgutils
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 
 from fem_rmpm.runtime.compiled import assume_columns, inline
 
@@ -153,3 +155,57 @@ def fixed_columns(P, S):
     assume_columns(S.gimp_w, 12)
     assume_columns(P.stress, 4)
     assume_columns(P.log_strain, 4)
+
+
+
+# Compile-time choices.  numba types both arms of ``if flag:`` where ``flag`` is an
+# argument of the kernel being compiled, even a literal one: its dead-branch pruning keeps
+# a branch on an argument.  Typing and lowering the arm a run never takes is most of what
+# that arm costs at the first step (the uGIMP basis in a Q4 run, the per-point model
+# update in a run of block updates).  A constant is pruned, also when an inlined helper
+# receives it as an argument; so a kernel made for one value of the flag (a closure
+# constant) compiles one arm, and :func:`literal_variants` calls that kernel where the
+# caller's flag is a literal (a closure value of a step driver).
+_VARIANTS = """
+def typer({args}):
+    flags = ({flags},)
+    if not all(isinstance(f, types.BooleanLiteral) for f in flags):
+        return either
+    kernel = made(*(f.literal_value for f in flags))
+
+    def pick({args}):
+        return kernel({rest})
+    return pick
+"""
+
+
+def literal_variants(placeholder, make, either=None):
+    """Make ``placeholder(*flags, *args)`` (a Python function called from numba code only)
+    call ``make(*flags)(*args)``, the compiled kernel ``make`` gives for those boolean
+    values (made once per value), where every flag is a literal; else ``either`` (a
+    function with the placeholder's arguments, compiled by numba; default, one flag: both
+    kernels behind ``if flag``).  ``make``'s arguments name the flags (the placeholder's
+    first ones).  The kernel of each value is the same code as the run-time branch
+    compiled for that value: the results are bitwise the same.  ``make`` must give each
+    value's kernel a name of its own (:func:`fem_rmpm.runtime.compiled.variant`: kernels of
+    one name could run each other's code).  Returns ``make`` as it is used (the kernel of
+    each value made once)."""
+    names = list(inspect.signature(placeholder).parameters)
+    k = len(inspect.signature(make).parameters)
+    made = functools.lru_cache(maxsize=None)(make)
+    if either is None:
+        if k != 1:
+            raise ValueError("literal_variants: more than one flag needs its own 'either'")
+        yes, no = made(True), made(False)
+
+        src = (f"def either({', '.join(names)}):\n    if {names[0]}:\n"
+               f"        return yes({', '.join(names[1:])})\n"
+               f"    return no({', '.join(names[1:])})\n")
+        scope = {"yes": yes, "no": no}
+        exec(src, scope)             # (argument names of the placeholder, no user input)
+        either = scope["either"]
+    scope = {"types": types, "made": made, "either": either}
+    exec(_VARIANTS.format(args=", ".join(names), flags=", ".join(names[:k]),
+                          rest=", ".join(names[k:])), scope)
+    overload(placeholder, inline="always", prefer_literal=True)(scope["typer"])
+    return made

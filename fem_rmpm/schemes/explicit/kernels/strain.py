@@ -23,10 +23,22 @@ import math
 import numpy as np
 from numba import prange
 
-from fem_rmpm.runtime.compiled import assume_columns, inline, kernel, kernel_parallel
+from fem_rmpm.runtime.compiled import (
+    assume_columns,
+    inline,
+    kernel,
+    kernel_parallel,
+    variant,
+)
 from fem_rmpm.schemes.explicit.kernels.arrays import W_COLUMNS
 from fem_rmpm.schemes.explicit.kernels.basis import cell_index, gimp_kept, q4_at
-from fem_rmpm.schemes.explicit.kernels.common import BLOCK, fixed_columns, half_range, xy
+from fem_rmpm.schemes.explicit.kernels.common import (
+    BLOCK,
+    fixed_columns,
+    half_range,
+    literal_variants,
+    xy,
+)
 from fem_rmpm.schemes.explicit.kernels.hencky import exp_block, log_block
 
 __all__ = ["kinematics_points", "fbar_gradient_pass", "fbar_gradient_pass_parallel",
@@ -183,8 +195,26 @@ def inactive_row(j, W, ta, tb, tc):
     tc[j] = 0.0
 
 
-@kernel
-def kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e):
+def _kinematics_points_for(gimp):
+    """:func:`kinematics_points` compiled for one basis (``gimp``: uGIMP, else Q4)."""
+    @kernel
+    @variant("kinematics_points", gimp=gimp)
+    def kinematics(P, M, vn, S, o, W, ta, tb, tc, b, e):
+        fixed_columns(P, S)
+        assume_columns(W, W_COLUMNS)
+        _gather_points(gimp, P, M, vn, S, o, tb, tc, W, b, e)
+        n = e - b
+        if o.geostatic:
+            _small_strain_rows(W, P.log_strain, o.dt, b, n)
+            return
+        _increment_rows(W, ta, tb, tc, o.dt, n)
+        vol, V = P.vol, W[7]
+        for j in range(n):
+            vol[b + j] = V[j]
+    return kinematics
+
+
+def kinematics_points(gimp, P, M, vn, S, o, W, ta, tb, tc, b, e):
     """Points ``b:e`` (uint64; column ``i - b`` of the block scratch ``W`` (8, >= BLOCK)
     and of ``ta, tb, tc``): velocity gradient from the nodal velocities ``vn`` (2 nn,) at
     the positions before the move, per point (:func:`_gather_points`: the gathers from the
@@ -196,19 +226,13 @@ def kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e):
     tc``).  One loop over the points ran the arithmetic one point at a time: the rows took
     the kinematics from 23.6-24.6 to 13.6-15.4 ns per point (case (i) at t = 8 s, one thread,
     micro-benchmark, 8 interleaved rounds).  The velocity gradient has one call site: with
-    a second one for the geostatic path (the uGIMP basis is compiled for Q4 runs too, the
-    basis being a runtime option) the stress pass's first compile took 15-35 s longer."""
-    fixed_columns(P, S)
-    assume_columns(W, W_COLUMNS)
-    _gather_points(P, M, vn, S, o, tb, tc, W, b, e)
-    n = e - b
-    if o.geostatic:
-        _small_strain_rows(W, P.log_strain, o.dt, b, n)
-        return
-    _increment_rows(W, ta, tb, tc, o.dt, n)
-    vol, V = P.vol, W[7]
-    for j in range(n):
-        vol[b + j] = V[j]
+    a second one for the geostatic path the stress pass's first compile took 15-35 s
+    longer.  ``gimp``: the basis, ``o.gimp`` (a literal: the kernel of that basis alone,
+    :func:`.common.literal_variants`).  Called from numba code only."""
+    raise NotImplementedError("kinematics_points runs inside numba kernels only")
+
+
+_kinematics_of = literal_variants(kinematics_points, _kinematics_points_for)
 
 
 @inline
@@ -222,7 +246,7 @@ def _small_strain_rows(W, ls, dt, b, n):
 
 
 @inline
-def _gather_points(P, M, vn, S, o, tb, tc, W, b, e):
+def _gather_points(gimp, P, M, vn, S, o, tb, tc, W, b, e):
     """Per point of ``b:e``, into column ``i - b`` of the rows of ``W``: the velocity
     gradient (L00, L01, L10, L11; rows 0-3), the in-plane log strain (xx, yy, xy; rows
     4-6) and the volume (row 7).
@@ -235,8 +259,8 @@ def _gather_points(P, M, vn, S, o, tb, tc, W, b, e):
             # velocity gradient before the move: in the basis of the map to nodes (uGIMP
             # its factors, Q4 its cell and local coordinates).  Written out here, not
             # through two levels of inlined helpers, which would double the time numba's
-            # inliner takes in each stress-pass compile
-            if o.gimp:
+            # inliner takes in each stress-pass compile (``gimp``: a constant)
+            if gimp:
                 L00, L01, L10, L11 = _velocity_gradient(gimp_kept(i, S.gimp_ij, S.gimp_w, M),
                                                         vn)
             else:

@@ -39,9 +39,16 @@ from numba.core.errors import TypingError
 from numba.extending import overload
 
 from fem_rmpm.materials import registry
-from fem_rmpm.materials.dispatch import block_dispatch, has_block_update, point_dispatch
+from fem_rmpm.materials.dispatch import block_dispatch, point_dispatch
 from fem_rmpm.materials.protocol import BLOCK_COLUMNS
-from fem_rmpm.runtime.compiled import assume_columns, inline, jit, kernel, kernel_parallel
+from fem_rmpm.runtime.compiled import (
+    assume_columns,
+    inline,
+    jit,
+    kernel,
+    kernel_parallel,
+    variant,
+)
 from fem_rmpm.schemes.explicit.kernels.arrays import W_COLUMNS, top_of
 from fem_rmpm.schemes.explicit.kernels.common import (
     BLOCK,
@@ -85,25 +92,26 @@ def _trial_strain(geostatic, i, j, W, ta, tb, ls):
     return x0, x1, ls[i, 2] + 0.0, x3
 
 
-def point_kinematics(fbar, P, M, vn, S, o, W, ta, tb, tc, b, e):
+def point_kinematics(fbar, gimp, P, M, vn, S, o, W, ta, tb, tc, b, e):
     """Step 2 of the pass on points ``b:e``: :func:`.strain.fbar_apply_points` where
-    ``fbar`` (a literal), else :func:`.strain.kinematics_points`.  Placeholder called from
-    numba code only: chosen when the calling kernel is compiled, so a pass without F-bar
-    compiles no F-bar code (and one with F-bar no plain kinematics)."""
+    ``fbar`` (a literal), else :func:`.strain.kinematics_points` in the basis ``gimp``
+    (``o.gimp``, or a literal of it).  Placeholder called from numba code only: chosen
+    when the calling kernel is compiled, so a pass without F-bar compiles no F-bar code
+    (and one with F-bar no plain kinematics)."""
     raise NotImplementedError("point_kinematics runs inside numba kernels only")
 
 
 @overload(point_kinematics, inline="always", prefer_literal=True)
-def _point_kinematics(fbar, P, M, vn, S, o, W, ta, tb, tc, b, e):
+def _point_kinematics(fbar, gimp, P, M, vn, S, o, W, ta, tb, tc, b, e):
     if not isinstance(fbar, types.BooleanLiteral):
         raise TypingError("point_kinematics needs F-bar as a literal (a closure value of "
                           "the calling kernel)")
     if fbar.literal_value:
-        def impl(fbar, P, M, vn, S, o, W, ta, tb, tc, b, e):
+        def impl(fbar, gimp, P, M, vn, S, o, W, ta, tb, tc, b, e):
             fbar_apply_points(P, S, o, W, ta, tb, tc, b, e)
     else:
-        def impl(fbar, P, M, vn, S, o, W, ta, tb, tc, b, e):
-            kinematics_points(P, M, vn, S, o, W, ta, tb, tc, b, e)
+        def impl(fbar, gimp, P, M, vn, S, o, W, ta, tb, tc, b, e):
+            kinematics_points(gimp, P, M, vn, S, o, W, ta, tb, tc, b, e)
     return impl
 
 
@@ -122,10 +130,12 @@ def _make_stress_pass(version, only, fbar):
     (two workers without F-bar: by the workers, :func:`nodal_in_pass`).
     Maxima and counts are combined exactly: the same result in both."""
     @kernel
+    @variant("stress_pass", registry=version, only=only, fbar=fbar)
     def stress_pass(P, M, N, S, o):
-        serial_stress_pass(version, only, fbar, P, M, N, S, o)
+        serial_stress_pass(False, False, False, version, only, fbar, P, M, N, S, o)
 
     @kernel_parallel
+    @variant("stress_pass_parallel", registry=version, only=only, fbar=fbar)
     def stress_pass_parallel(P, M, T, H, S, o):
         nch = workers(o, S)
         _reset_queues(S)
@@ -136,17 +146,19 @@ def _make_stress_pass(version, only, fbar):
 
 
 @inline
-def serial_stress_pass(version, only, fbar, P, M, N, S, o):
+def serial_stress_pass(fixed, gimp, block, version, only, fbar, P, M, N, S, o):
     """The serial stress pass (the body of :func:`_make_stress_pass`'s ``serial``, also run
     by the step driver, :mod:`.advance`): the nodal velocities of both halves (with F-bar
     the caller computed them before its gradient pass), then every block of points in
-    order, one worker; ``version``, ``only``, ``fbar``: literals, as there."""
+    order, one worker; ``version``, ``only``, ``fbar``: literals, as there; ``gimp``,
+    ``block``: the basis and the block update, ``fixed``: whether they are constants, as
+    :func:`stress_queue`."""
     T = top(N)
     if not fbar:
         nodal_velocity_half(M, T, N.half, np.int64(0))
         nodal_velocity_half(M, T, N.half, np.int64(1))
     _reset_queues(S)
-    _stress_queue_call(version, only, fbar, P, M, T, N.half, S, o, np.int64(0))
+    stress_queue(fixed, gimp, block, version, only, fbar, P, M, T, N.half, S, o, np.int64(0))
     _combine(S, 1)
 
 
@@ -202,6 +214,13 @@ def _stress_queue_call(version, only, fbar, P, M, T, H, S, o, c):
     numba's cache key of a closure holds its cell values pickled, and a dispatcher pickles
     with a random uuid, so a threaded pass closing over this dispatcher would miss the
     cache in every new process."""
+    _stress_queue(version, only, fbar, o.gimp, o.block, P, M, T, H, S, o, c)
+
+
+@inline
+def _stress_queue(version, only, fbar, gimp, block, P, M, T, H, S, o, c):
+    """The body of :func:`_stress_queue_call`, with the basis ``gimp`` and the block
+    update ``block`` (``o.gimp``, ``o.block``; or constants, :func:`stress_queue`)."""
     n = P.x.shape[0]
     fixed_columns(P, S)
     bounds = (0, half_split(n) // BLOCK, (n + BLOCK - 1) // BLOCK)   # blocks of the halves
@@ -221,12 +240,53 @@ def _stress_queue_call(version, only, fbar, P, M, T, H, S, o, c):
             if k >= bounds[h + 1]:
                 break
             b = k * BLOCK
-            c2, nb = _stress_points(version, only, fbar, P, M, vn, S, o, b, min(b + BLOCK, n),
-                                    c)
+            c2, nb = _stress_points(version, only, fbar, gimp, block, P, M, vn, S, o, b,
+                                    min(b + BLOCK, n), c)
             c2max = max(c2max, c2)
             n_bad += nb
     S.parts[c, 0] = c2max
     S.parts[c, 1] = n_bad
+
+
+def _stress_queue_for(gimp, block):
+    """:func:`_stress_queue_call` compiled for one basis (``gimp``) and one model path
+    (``block``: the model's block update, else its point update): the constants are pruned,
+    so neither the other basis nor the other path is compiled.  A closure of two booleans
+    (numba's cache key holds them)."""
+    @kernel
+    @variant("stress_queue", gimp=gimp, block=block)
+    def queue(version, only, fbar, P, M, T, H, S, o, c):
+        _stress_queue(version, only, fbar, gimp, block, P, M, T, H, S, o, c)
+    return queue
+
+
+# The kernels of :func:`_stress_queue_for`, module-level names (a step driver refers to
+# them as globals: numba's cache key of a closure holds its cell values, and a dispatcher
+# there would pickle with a random uuid), all in one cache index (one qualified name).
+_QUEUE_Q4_POINTS = _stress_queue_for(False, False)
+_QUEUE_Q4_BLOCK = _stress_queue_for(False, True)
+_QUEUE_GIMP_POINTS = _stress_queue_for(True, False)
+_QUEUE_GIMP_BLOCK = _stress_queue_for(True, True)
+
+
+@inline
+def stress_queue(fixed, gimp, block, version, only, fbar, P, M, T, H, S, o, c):
+    """Worker ``c`` of the stress pass (:func:`_stress_queue_call`).  ``fixed`` (a
+    constant): ``gimp`` and ``block`` are constants too (closure values of a step driver,
+    :mod:`.advance`), and the kernel of :func:`_stress_queue_for` for them runs (the other
+    three are not compiled); else :func:`_stress_queue_call` with ``o.gimp`` and
+    ``o.block``."""
+    if not fixed:
+        _stress_queue_call(version, only, fbar, P, M, T, H, S, o, c)
+    elif gimp:
+        if block:
+            _QUEUE_GIMP_BLOCK(version, only, fbar, P, M, T, H, S, o, c)
+        else:
+            _QUEUE_GIMP_POINTS(version, only, fbar, P, M, T, H, S, o, c)
+    elif block:
+        _QUEUE_Q4_BLOCK(version, only, fbar, P, M, T, H, S, o, c)
+    else:
+        _QUEUE_Q4_POINTS(version, only, fbar, P, M, T, H, S, o, c)
 
 
 @inline
@@ -246,7 +306,7 @@ def _combine(S, nch):
 
 
 @inline
-def _stress_points(version, only, fbar, P, M, vn, S, o, start, stop, row):
+def _stress_points(version, only, fbar, gimp, block, P, M, vn, S, o, start, stop, row):
     """The stress pass over points ``start:stop`` (whole blocks from a multiple of
     :data:`.common.BLOCK`) with the nodal velocities ``vn`` (2 nn,) and the block scratch
     ``row`` of ``S`` (one per thread: the same BLOCK rows for every block, so they stay in
@@ -264,21 +324,23 @@ def _stress_points(version, only, fbar, P, M, vn, S, o, start, stop, row):
         e = min(b + np.uint64(BLOCK), stop_)
         if not o.geostatic:
             exp_block(P.log_strain, tb, tc, b, e)
-        point_kinematics(fbar, P, M, vn, S, o, W, ta, tb, tc, b, e)
+        point_kinematics(fbar, gimp, P, M, vn, S, o, W, ta, tb, tc, b, e)
         if not o.geostatic:
             log_block(W, ta, tb, tc, e - b)
-        c2, nb = _finish(version, only, P, o, W, ta, tb, Z, b, e)
+        c2, nb = _finish(version, only, block, P, o, W, ta, tb, Z, b, e)
         c2max = max(c2max, c2)
         n_bad += nb
     return c2max, n_bad
 
 
 @inline
-def _finish(version, only, P, o, W, ta, tb, Z, b, e):
+def _finish(version, only, block, P, o, W, ta, tb, Z, b, e):
     """Points ``b:e`` after the log series: the model update and the Cauchy stress,
-    through the model's block update where the run's points take it (``o.block``), else
+    through the model's block update where the run's points take it (``block``:
+    ``o.block``, true only where the one model of the pass has a block update,
+    :func:`fem_rmpm.materials.dispatch.takes_blocks`; a constant compiles one path), else
     point by point; returns (largest squared P-wave speed, non-finite points)."""
-    if has_block_update(version, only) and o.block:
+    if block:
         return _finish_block(version, only, P, o, W, ta, tb, Z, b, e)
     # (one call site: one inlined copy of the model update)
     return _finish_points(version, only, P, o, W, ta, tb, b, e)
@@ -356,6 +418,7 @@ def _make_material_pass(version):
     """The vectorised material update (tests, implicit scheme) for one registry version:
     the model update of trial log strains ``eps_tr`` (n, 4)."""
     @jit
+    @variant("material_pass", registry=version)
     def material_pass(eps_tr, state, model, params):
         n = eps_tr.shape[0]
         eps = np.empty((n, 4))

@@ -39,10 +39,16 @@ import math
 import numpy as np
 from numba import prange
 
-from fem_rmpm.runtime.compiled import inline, kernel, kernel_parallel
+from fem_rmpm.runtime.compiled import inline, kernel, kernel_parallel, variant
 from fem_rmpm.schemes.explicit.kernels.arrays import NodeArrays
 from fem_rmpm.schemes.explicit.kernels.basis import gimp_kept, gimp_store, q4_at, q4_cell
-from fem_rmpm.schemes.explicit.kernels.common import MASS_TOL, fixed_columns, half_range, xy
+from fem_rmpm.schemes.explicit.kernels.common import (
+    MASS_TOL,
+    fixed_columns,
+    half_range,
+    literal_variants,
+    xy,
+)
 from fem_rmpm.schemes.explicit.kernels.contact import contact_velocity
 from fem_rmpm.schemes.explicit.kernels.pairs import fma2, fma2_to, load2, mul2, sub2_from
 from fem_rmpm.schemes.explicit.kernels.water import water_force, water_ramp
@@ -114,17 +120,18 @@ def _scatter_force(sh, f, fp):
 
 
 @inline
-def _scatter_points(P, M, N, S, o, start, stop):
+def _scatter_points(gimp, P, M, N, S, o, start, stop):
     """Points ``start:stop`` (active ones) into the arrays of ``N``, from cleared ones;
-    Q4: each point's cell and local coordinates into ``S.q4_ll``, ``S.q4_st``; uGIMP: its
-    basis factors into ``S.gimp_ij``, ``S.gimp_w`` (:func:`.basis.gimp_store`)."""
+    Q4: each point's cell and local coordinates into ``S.q4_ll``, ``S.q4_st``; uGIMP
+    (``gimp``, a constant: the other basis is not compiled): its basis factors into
+    ``S.gimp_ij``, ``S.gimp_w`` (:func:`.basis.gimp_store`)."""
     nt = 0
     x, lp, cell, st = P.x, P.half_width, S.q4_ll, S.q4_st
     wet, ramp = water_ramp(M, o)     # pore water (fem_rmpm.schemes.pore_pressure)
     for i in range(np.uint64(start), np.uint64(stop)):
         if not P.active[i]:
             continue
-        if o.gimp:
+        if gimp:
             sg = gimp_store(i, x[i, 0], x[i, 1], lp[i, 0], lp[i, 1], M, S.gimp_ij, S.gimp_w)
             nt = _scatter(sg, i, P, N, nt)
             if wet:                  # the water's force -V grad u at the point (ramped)
@@ -143,39 +150,53 @@ def _scatter_points(P, M, N, S, o, start, stop):
     N.n_touched[0] = nt
 
 
-@kernel
-def _map_half(P, M, T, H, S, o, c):
+def _map_half_for(gimp):
+    """:func:`_map_half` compiled for one basis (``gimp``: uGIMP, else Q4)."""
+    @kernel
+    @variant("map_half", gimp=gimp)
+    def map_half(P, M, T, H, S, o, c):
+        fixed_columns(P, S)
+        A = _own(T, H, c)
+        start, stop = half_range(P.x.shape[0], c)
+        _clear(A)
+        _scatter_points(gimp, P, M, A, S, o, start, stop)
+    return map_half
+
+
+def _map_half(gimp, P, M, T, H, S, o, c):
     """Half ``c`` of the points into its nodal arrays (``T``: the first, ``H`` = the nodes'
-    ``half``: the second), after clearing them at the nodes of its previous step.  The two
-    halves touch disjoint arrays, so they can run at the same time (a compiled function,
-    called from the threads' loop: numba's parfor analysis crashed on this body inline)."""
-    fixed_columns(P, S)
-    A = _own(T, H, c)
-    start, stop = half_range(P.x.shape[0], c)
-    _clear(A)
-    _scatter_points(P, M, A, S, o, start, stop)
+    ``half``: the second), after clearing them at the nodes of its previous step, in the
+    basis ``gimp`` (``o.gimp``; a literal: the kernel of that basis alone,
+    :func:`.common.literal_variants`).  The two halves touch disjoint arrays, so they can
+    run at the same time (a compiled function, called from the threads' loop: numba's
+    parfor analysis crashed on this body inline).  Called from numba code only."""
+    raise NotImplementedError("_map_half runs inside numba kernels only")
+
+
+map_half_of = literal_variants(_map_half, _map_half_for)
 
 
 @kernel
-def map_to_nodes(P, M, N, S, o):
+def map_to_nodes(gimp, P, M, N, S, o):
     """Stage 1: nodal mass, momentum and internal force (stress divergence) from the
     active points (gravity, ``m_I g``, is added on the mesh by :func:`solve_and_move`),
     the first half of the points into ``N``, the second into ``N.half``; the nodes each
     half touched are listed in its ``touched[:n_touched[0]]`` (flag 1).  The nodes of the
     previous step are cleared first.  Q4: the points' cells into ``S`` (reused by the map
-    back and the stress pass, which so skip locating the points again)."""
+    back and the stress pass, which so skip locating the points again).  ``gimp``: the
+    basis, ``o.gimp`` (or a literal of it: that basis alone is compiled)."""
     T = _top(N)
-    _map_half(P, M, T, N.half, S, o, np.int64(0))
-    _map_half(P, M, T, N.half, S, o, np.int64(1))
+    _map_half(gimp, P, M, T, N.half, S, o, np.int64(0))
+    _map_half(gimp, P, M, T, N.half, S, o, np.int64(1))
 
 
 @kernel_parallel
-def map_to_nodes_parallel(P, M, T, H, S, o):
+def map_to_nodes_parallel(gimp, P, M, T, H, S, o):
     """:func:`map_to_nodes` with the two halves on two threads (bitwise the same):
     ``T`` the nodes' arrays without ``half`` (:func:`.arrays.top_of`), ``H`` = ``N.half``
     (numba's threaded loop does not take a nested group)."""
     for c in prange(2):
-        _map_half(P, M, T, H, S, o, np.int64(c))
+        _map_half(gimp, P, M, T, H, S, o, np.int64(c))
 
 
 # --------------------------------------------------------------------- 2. solve on the mesh
@@ -276,7 +297,7 @@ def _g2p_point(sh, i, P, N, v_remap, S, o):
 
 
 @inline
-def _g2p_points(P, M, A, S, o, start, stop, row):
+def _g2p_points(gimp, P, M, A, S, o, start, stop, row):
     """Points ``start:stop`` with the nodal solution of their half ``A``; their re-mapped
     momenta into ``A.v_remap``.  Into ``row`` (a row of ``S.halves``): max |v_pic|^2
     (the motion as the grid sees it), max |v|^2 (for the next CFL step), the points with a
@@ -291,7 +312,7 @@ def _g2p_points(P, M, A, S, o, start, stop, row):
     for i in range(np.uint64(start), np.uint64(stop)):
         if not P.active[i]:
             continue
-        if o.gimp:                   # the basis of the map to nodes (same position)
+        if gimp:                     # the basis of the map to nodes (same position)
             s2 = _g2p_point(gimp_kept(i, S.gimp_ij, S.gimp_w, M), i, P, A, A.v_remap, S, o)
         else:                        # the cell of the map to nodes (same position)
             sq = q4_at(S.q4_ll[i], S.q4_st[i, 0], S.q4_st[i, 1], M)
@@ -322,13 +343,14 @@ def _clear_remap(N):
 
 
 @inline
-def _move_points(P, M, T, H, S, o, c):
+def _move_points(gimp, P, M, T, H, S, o, c):
     """Stage 3a for the points of half ``c`` (the re-mapped momenta into its ``v_remap``,
-    cleared first); their statistics into ``S.halves[c]`` (:func:`_g2p_points`)."""
+    cleared first) in the basis ``gimp`` (a constant); their statistics into
+    ``S.halves[c]`` (:func:`_g2p_points`)."""
     A = _own(T, H, c)
     start, stop = half_range(P.x.shape[0], c)
     _clear_remap(A)
-    _g2p_points(P, M, A, S, o, start, stop, S.halves[c])
+    _g2p_points(gimp, P, M, A, S, o, start, stop, S.halves[c])
 
 
 @kernel
@@ -337,21 +359,35 @@ def _solve_half(M, T, H, S, o, c):
     S.halves[c, 0] = _solve_nodes(M, T, H, o, c)
 
 
-@kernel
-def _move_points_half(P, M, T, H, S, o, c):
-    fixed_columns(P, S)
-    _move_points(P, M, T, H, S, o, c)
+def _move_points_half_for(gimp):
+    """:func:`_move_points_half` compiled for one basis (``gimp``: uGIMP, else Q4)."""
+    @kernel
+    @variant("move_points_half", gimp=gimp)
+    def move_points_half(P, M, T, H, S, o, c):
+        fixed_columns(P, S)
+        _move_points(gimp, P, M, T, H, S, o, c)
+    return move_points_half
+
+
+def _move_points_half(gimp, P, M, T, H, S, o, c):
+    """Stage 3a for the points of half ``c`` in the basis ``gimp`` (``o.gimp``; a literal:
+    the kernel of that basis alone, :func:`.common.literal_variants`).  Called from numba
+    code only."""
+    raise NotImplementedError("_move_points_half runs inside numba kernels only")
+
+
+_move_points_half_of = literal_variants(_move_points_half, _move_points_half_for)
 
 
 @kernel
-def _move_half(P, M, T, H, S, o, c):
+def _move_half(gimp, P, M, T, H, S, o, c):
     """Half ``c``: stage 2 on its nodes, then stage 3a for its points (the threaded
     kernel's task; the serial kernel calls the same two functions, both halves' nodes
     first).  LLVM inlines the solve into both callers; with FMA contraction allowed it
     could fuse the kinetic-energy sum differently in each (1 ulp), so no kernel contracts
     (:data:`fem_rmpm.runtime.compiled.FASTMATH`)."""
     _solve_half(M, T, H, S, o, c)
-    _move_points_half(P, M, T, H, S, o, c)
+    _move_points_half(gimp, P, M, T, H, S, o, c)
 
 
 @inline
@@ -362,7 +398,7 @@ def _grid_stats(S):
 
 
 @kernel
-def solve_and_move(P, M, N, S, o):
+def solve_and_move(gimp, P, M, N, S, o):
     """Stage 2, solve on the mesh (the nodes' ``v_new``, ``acc``), and 3a: FLIP/PIC point
     velocities, positions (geostatic: ``P.u_geo`` instead) and the MUSL re-map of the new
     point momenta into ``v_remap``, per half (module docstring).  The positions before the
@@ -373,17 +409,17 @@ def solve_and_move(P, M, N, S, o):
     T = _top(N)                      # (both halves' nodes, then both halves' points)
     _solve_half(M, T, N.half, S, o, np.int64(0))
     _solve_half(M, T, N.half, S, o, np.int64(1))
-    _move_points_half(P, M, T, N.half, S, o, np.int64(0))
-    _move_points_half(P, M, T, N.half, S, o, np.int64(1))
+    _move_points_half(gimp, P, M, T, N.half, S, o, np.int64(0))
+    _move_points_half(gimp, P, M, T, N.half, S, o, np.int64(1))
     return _grid_stats(S)
 
 
 @kernel_parallel
-def solve_and_move_parallel(P, M, T, H, S, o):
+def solve_and_move_parallel(gimp, P, M, T, H, S, o):
     """:func:`solve_and_move` with the two halves on two threads (bitwise the same); ``T``,
     ``H`` as :func:`map_to_nodes_parallel`."""
     for c in prange(2):
-        _move_half(P, M, T, H, S, o, np.int64(c))
+        _move_half(gimp, P, M, T, H, S, o, np.int64(c))
     return _grid_stats(S)
 
 
