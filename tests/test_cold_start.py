@@ -325,3 +325,29 @@ def test_kernel_argument_types_go_to_a_helper_as_json_and_come_back_equal():
         type_to_json(types.unicode_type)
     assert compile_aside([{"module": "m", "name": "f", "sig": (types.unicode_type,)}]).proc \
         is None
+
+
+def test_a_stopped_run_stops_its_compile_helper_instead_of_waiting(monkeypatch):
+    """A helper process still compiling a threaded driver is killed when the run stops on
+    an interrupt or an error (:func:`cold_start.stop_helpers`, called by the time loop), so
+    the command's exit does not wait up to 300 s for it at exit; the time loop calls it
+    when its output callback raises."""
+    import subprocess
+    import sys
+
+    from fem_rmpm import api
+    from fem_rmpm.schemes.explicit import cold_start, loop
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    monkeypatch.setitem(cold_start._PENDING, "driver", numba_cache.Helper(proc, 1))
+    cold_start.stop_helpers()
+    assert proc.poll() is not None and not cold_start._PENDING
+    calls = []
+    monkeypatch.setattr(loop, "stop_helpers", lambda: calls.append(1))
+
+    def interrupt(t, pts):
+        if t > 0:
+            raise KeyboardInterrupt
+    scene = api.load_scene(Path(__file__).parent / "data" / "mc_tiny.toml")
+    with pytest.raises(KeyboardInterrupt):
+        api.run(scene, seed=1, stop_when=interrupt)
+    assert calls == [1]

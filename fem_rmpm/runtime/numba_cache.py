@@ -286,6 +286,12 @@ class Helper:
             return None
         return self.proc.returncode == 0
 
+    def stop(self) -> None:
+        """Stop the helper now if it still runs."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
     def wait(self, timeout: float = 300.0) -> bool:
         """Wait (at most ``timeout`` s) for the helper to end; True if it compiled every item.
         A helper that is late is stopped (its locked saves leave no partial cache entry,

@@ -18,7 +18,9 @@ cores, before the first call of a step driver whose code is not in the cache:
 The helper compiles the same kernels for the same argument types as the driver's own
 compile, so the same code; a helper that fails or is late only costs its compile here.
 A helper still compiling when the process ends is waited for (:func:`_wait_helpers`): the
-cache then holds every kernel of the run for the next one.
+cache then holds every kernel of the run for the next one.  A run stopped by an interrupt
+(Ctrl-C, SIGTERM) or an error stops its helpers at once (:func:`stop_helpers`): the
+command's exit does not wait for a compile.
 """
 from __future__ import annotations
 
@@ -34,7 +36,7 @@ from fem_rmpm.schemes.explicit.kernels import advance as _advance
 from fem_rmpm.schemes.explicit.kernels import stress as _stress
 from fem_rmpm.schemes.explicit.kernels import transfer as _transfer
 
-__all__ = ["serial_driver_ready", "threaded_driver_ready"]
+__all__ = ["serial_driver_ready", "threaded_driver_ready", "stop_helpers"]
 
 #: The stress pass's kernel of :func:`.kernels.stress.stress_queue` for (gimp, block).
 _QUEUES = {(False, False): "_QUEUE_Q4_POINTS", (False, True): "_QUEUE_Q4_BLOCK",
@@ -130,6 +132,14 @@ def threaded_driver_ready(kind: str, driver, args: tuple, key: tuple, serial, se
         return False
     del _PENDING[driver]
     return True
+
+
+def stop_helpers() -> None:
+    """Stop the helpers still compiling (a run stopped by an interrupt or an error); their
+    locked saves leave no partial cache entry."""
+    for helper in list(_PENDING.values()):
+        helper.stop()
+    _PENDING.clear()
 
 
 @atexit.register

@@ -27,6 +27,7 @@ from fem_rmpm.discretise.point_order import SORT_EVERY, PointOrder
 from fem_rmpm.discretise.points import Particles
 from fem_rmpm.scene import Scene
 from fem_rmpm.schemes.common import RunRecord, SimulationError, at_rest, check_points
+from fem_rmpm.schemes.explicit.cold_start import stop_helpers
 from fem_rmpm.schemes.explicit.kernels import Workspace
 from fem_rmpm.schemes.explicit.kernels.advance import RECORD_EVERY
 from fem_rmpm.schemes.explicit.reference import StepStats, stable_time_step
@@ -140,6 +141,9 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
                 break
         else:
             rec.stop_reason = "t_end reached"
+    except BaseException:            # interrupt or error: no wait for a compile at exit
+        stop_helpers()
+        raise
     finally:
         order.restore(pts)
     rec.steps, rec.time, rec.wall_time = step, t, time.perf_counter() - wall0
