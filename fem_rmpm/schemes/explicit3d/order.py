@@ -28,6 +28,10 @@ __all__ = ["PointOrder", "SORT_EVERY"]
 SORT_EVERY = 200
 
 
+#: Columns permuted at a time (the scratch's numbers per point).
+_CHUNK = 3
+
+
 @kernel
 def _permute_rows(a, perm, tmp):
     """``a[:] = a[perm]`` for a 2-D float array (any layout) through ``tmp`` (at least
@@ -71,12 +75,15 @@ class PointOrder:
         return bool(np.array_equal(self.ids, np.arange(len(self.ids))))
 
     def _permute(self, pts, work, perm: np.ndarray) -> None:
-        arrays = _per_point_arrays(pts, work)
+        """Every per-point array ``a[:] = a[perm]`` in place, the float arrays through one
+        scratch of :data:`_CHUNK` numbers per point (a few columns at a time)."""
         n = len(perm)
-        tmp = np.empty(max(a.size for a in arrays))
-        for a in arrays:
+        tmp = np.empty(n * _CHUNK)
+        for a in _per_point_arrays(pts, work):
             if a.dtype == np.float64:
-                _permute_rows(a.reshape(n, -1) if a.ndim == 1 else a, perm, tmp)
+                a2 = a.reshape(n, -1) if a.ndim == 1 else a
+                for j in range(0, a2.shape[1], _CHUNK):
+                    _permute_rows(a2[:, j:j + _CHUNK], perm, tmp)
             else:
                 a[...] = a[perm]
         self.ids = self.ids[perm]
