@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numba
 import numpy as np
 import pytest
 
@@ -80,3 +81,33 @@ def test_sorted_run_equals_unsorted_run_within_round_off(monkeypatch):
         print(name, err, scale)
         assert err <= 1e-12 * scale, name
     assert np.abs(p0.x - p1.x[back]).max() > 0        # the order of the sums did change
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="numba has one thread")
+def test_sorted_run_on_two_threads_is_the_one_thread_run_bitwise(monkeypatch):
+    """From a shuffled start, sorted five times: two threads give the one-thread run bit
+    for bit (the sort and the halves it makes are the same on both)."""
+    perm = np.random.default_rng(4).permutation(36448)
+    before = numba.get_num_threads()
+    monkeypatch.setattr(api, "load_scene", _with_threads(1))
+    r1, _, p1, _ = _run(monkeypatch, 8, perm=perm)
+    numba.set_num_threads(2)
+    try:
+        monkeypatch.setattr(api, "load_scene", _with_threads(2))
+        r2, _, p2, _ = _run(monkeypatch, 8, perm=perm)
+    finally:
+        numba.set_num_threads(before)
+    assert r1.solver["threads"] == 1 and r2.solver["threads"] == 2
+    assert r1.solver["point_sorts"] == r2.solver["point_sorts"] >= 5
+    for name in NAMES:
+        assert np.array_equal(getattr(p1, name), getattr(p2, name)), name
+
+
+_LOAD = api.load_scene
+
+
+def _with_threads(threads: int):
+    """``api.load_scene`` with ``[solver] threads`` set."""
+    def loader(path):
+        return api.with_value(_LOAD(path), "solver.threads", threads)
+    return loader
