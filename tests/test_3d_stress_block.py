@@ -2,9 +2,11 @@
 stress3d.stress_3d`: trial stretches, eigen-decompositions, von Mises returns and new
 tensors vectorized over blocks of points) against the same update one point at a time
 (:func:`~fem_rmpm.schemes.explicit3d.stress3d.stress_points_3d`): the same IEEE
-operations on every point, so the same bits, whatever the mix of models in a block
-(linear elastic, von Mises with the linear and the exponential law, Mohr-Coulomb),
-inactive points and a partial last block."""
+operations on every point but the logarithms and exponentials (vectorized series,
+:mod:`fem_rmpm.schemes.explicit3d.logexp`, against the library's in the reference), so
+the same results within round-off, whatever the mix of models in a block (linear
+elastic, von Mises with the linear and the exponential law, Mohr-Coulomb), inactive
+points, stretches outside the series' ranges and a partial last block."""
 from __future__ import annotations
 
 import numpy as np
@@ -64,13 +66,28 @@ def _pass(p: dict, node: np.ndarray, blocked: bool) -> np.ndarray:
     return stats
 
 
-def test_blocked_stress_pass_equals_the_point_by_point_update_bitwise():
+#: Largest difference allowed between the blocked and the point-by-point pass, relative
+#: to the largest magnitude of each array: 7e-16 is reached (the plastic state after
+#: three passes; stress and log strain 2.8e-16, volumes and maxima equal).
+ROUND_OFF = 3e-15
+
+
+def _close(a: np.ndarray, b: np.ndarray) -> bool:
+    return bool(np.abs(a - b).max() <= ROUND_OFF * np.abs(b).max())
+
+
+def test_blocked_stress_pass_equals_the_point_by_point_update_within_round_off():
     """1000 points (15 full blocks and a partial one), three passes in a row: stress, log
-    strain, stretch, volume, plastic state and the pass's maxima are bitwise those of one
-    point at a time; the case yields on the slope, crosses to the residual and returns
-    Mohr-Coulomb points, so each branch is compared."""
+    strain, stretch, volume, plastic state and the pass's maxima are those of one point
+    at a time within round-off (:data:`ROUND_OFF`); the case yields on the slope, crosses
+    to the residual and returns Mohr-Coulomb points, and eleven points are stretched
+    beyond the series' ranges (log strains 1.3-1.6: the library's logarithm and
+    exponential), so each branch is compared."""
     rng = np.random.default_rng(7)
     p = _points(1000, rng)
+    big = np.arange(0, 1000, 97)
+    p["eps"][big] = [1.6, 1.3, 1.4, 0.05, 0.0, 0.02]
+    stretch_from_log_strain(p["eps"], p["be"])
     q = {k: v.copy() for k, v in p.items()}
     gamma0 = p["state"][:, 0].copy()
     for _ in range(3):
@@ -78,9 +95,10 @@ def test_blocked_stress_pass_equals_the_point_by_point_update_bitwise():
         node[:, 1:4] = rng.normal(0, 1.0, (len(node), 3))
         s_block = _pass(p, node, True)
         s_point = _pass(q, node, False)
-        assert np.array_equal(s_block, s_point)
+        assert _close(s_block, s_point)
         for k in ("stress", "eps", "be", "vol", "state"):
-            assert np.array_equal(p[k], q[k]), k
+            assert _close(p[k], q[k]), k
+    assert ((p["eps"][big, 0] > 1.2) & (p["state"][big, 0] > gamma0[big])).sum() >= 3
     dg = p["state"][:, 0] - gamma0
     vm = (p["model"] == MODEL_VON_MISES) & p["active"]
     linear = vm & (p["plastic"][:, 3] == 0.0)

@@ -3,7 +3,8 @@ from the run's own ``summary.json`` on one and two threads, the cost of each sta
 step, and memory per point.  Plain script:
 
     nice python validation/bench_explicit_3d.py            # the extruded slab, 1 and 2 threads
-    python validation/bench_explicit_3d.py --t-end 1.0     # a shorter run
+    python validation/bench_explicit_3d.py --t-end 12      # the first 12 s
+    python validation/bench_explicit_3d.py --t-end 80      # the slab to rest (at 76.1 s)
     python validation/bench_explicit_3d.py --stages-only   # the per-stage figures alone
 
 Case: ``meshes/slope_extruded_3d.toml`` (the reference slope's section extruded 2 m,

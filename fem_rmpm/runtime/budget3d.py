@@ -39,12 +39,11 @@ BYTES_PER_POINT_3D = 1540.0
 BYTES_PER_NODE_3D = 330.0
 #: Whole-run cost per point-step of the 3-D explicit step, one thread (ns of CPU): the
 #: extruded reference slope with von Mises softening (``meshes/slope_extruded_3d.toml``,
-#: 36 448 points: first 12 s 177 ns, to rest (9 756 steps) 193 ns, the kernels' load from
-#: numba's cache included; the step alone while every point yields: 172 ns), measured
-#: 2026-12-07 at commit 90985cf on a quiet 2-core AMD EPYC VM (Zen 4, load average
-#: 1.1-1.8; an hour earlier, with one other process running, 158-168 ns)
-#: (``validation/bench_explicit_3d.py`` re-measures it).
-NS_PER_POINT_STEP_3D = 190.0
+#: 36 448 points: first 12 s 152-160 ns over five runs, to rest (13 172 steps) 152 ns, the
+#: kernels' load from numba's cache included), measured 2026-12-07 at commit 598df98 on a
+#: quiet 2-core AMD EPYC VM (Zen 4, load average 1.2-1.8); 163-172 ns on the same VM
+#: loaded (load average 2.5-3.5) (``validation/bench_explicit_3d.py`` re-measures it).
+NS_PER_POINT_STEP_3D = 170.0
 #: The same for a scene whose soils are all linear elastic (no return mapping, no
 #: eigen-decomposition in the geostatic phase): ``meshes/slope_elastic_3d.toml``, 6656
 #: points, 528 steps to rest, 156-178 ns per point-step on the same machine and commit.

@@ -32,6 +32,7 @@ from fem_rmpm.schemes.explicit3d.step import (
     step_3d,
     step_3d_threaded,
 )
+from fem_rmpm.schemes.explicit3d.order import SORT_EVERY, PointOrder
 from fem_rmpm.schemes.explicit3d.stress3d import BLOCK_ROWS
 
 __all__ = ["run_explicit_3d", "wave_speed_3d", "Workspace3D", "RECORD_EVERY"]
@@ -92,9 +93,21 @@ def _step(work: Workspace3D, dt, g, damping, flip, geostatic, threads: int) -> n
 def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None,
                     progress=None) -> RunRecord:
     """Advance ``pts`` to rest or ``t_end`` (the module docstring); ``on_output(t, pts)`` at
-    t = 0, every ``output_interval`` and the end; ``progress(t, step)`` every 20 steps."""
-    sv = scene.solver
+    t = 0, every ``output_interval`` and the end; ``progress(t, step)`` every 20 steps.
+    The points are kept sorted by cell while the loop runs (:mod:`.order`); ``on_output``
+    and the caller see them in their seeded order (also after an error)."""
     work = Workspace3D(grid, pts)
+    order = PointOrder(pts.n)
+    try:
+        return _time_loop(scene, grid, pts, work, order, on_output, progress)
+    finally:
+        order.restore(pts, work)
+
+
+# long function: the time loop's rules written out in order
+def _time_loop(scene: Scene, grid: Grid3D, pts: Particles3D, work: Workspace3D,
+               order: PointOrder, on_output, progress) -> RunRecord:
+    sv = scene.solver
     h_min = float(np.min(grid.cell))
     g_full = np.array([*scene.gravity_vector, 0.0])
     threads = _threads_used(run_threads(int(getattr(sv, "threads", 0)), "numba"))
@@ -103,6 +116,7 @@ def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None
     geostatic = sv.gravity_phase == "geostatic"
     speeds = (wave_speed_3d(pts), 0.0)
     wall0 = time.perf_counter()
+    last_sort = 0
     if on_output:
         on_output(t, pts)
     while t < sv.t_end - 1e-12:
@@ -116,8 +130,8 @@ def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None
         rec.dt_min, rec.dt_max = min(rec.dt_min, dt), max(rec.dt_max, dt)
         ke, max_speed, wave, point_speed, n_bad, n_out = stats
         if n_bad:
-            _non_finite(pts, step, t, sv.cfl)
-        if n_out and not _freeze(grid, pts, step, t, sv.edge_policy, rec):
+            _non_finite(pts, order.ids, step, t, sv.cfl)
+        if n_out and not _freeze(grid, pts, order.ids, step, t, sv.edge_policy, rec):
             rec.stop_reason = "all points left the grid"
             break
         if max_speed * dt > 0.5 * h_min:
@@ -132,8 +146,13 @@ def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None
             if progress:
                 progress(t, step)
         if on_output and t >= next_out - 1e-12:
+            order.restore(pts, work)
             on_output(t, pts)
             next_out += sv.output_interval
+            last_sort = step - SORT_EVERY             # sorted again below
+        if not geostatic and step - last_sort >= SORT_EVERY:
+            order.sort(pts, work)                     # the cells of this step's map
+            last_sort = step
         rest = at_rest(t, sv.gravity_ramp_time, max_speed, ke, ke_peak, sv.rest_velocity,
                        sv.rest_energy_ratio)
         if geostatic and (rest or t >= sv.geostatic_time):
@@ -148,7 +167,9 @@ def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None
     else:
         rec.stop_reason = "t_end reached"
     rec.steps, rec.time, rec.wall_time = step, t, time.perf_counter() - wall0
+    rec.solver["point_sorts"] = order.sorts
     if on_output and next_out - sv.output_interval < t - 1e-12:
+        order.restore(pts, work)
         on_output(t, pts)
     return rec
 
@@ -160,23 +181,24 @@ def _threads_used(asked: int) -> int:
     return 2 if numba.get_num_threads() >= 2 else 1
 
 
-def _non_finite(pts: Particles3D, step: int, t: float, cfl: float) -> None:
+def _non_finite(pts: Particles3D, ids: np.ndarray, step: int, t: float, cfl: float) -> None:
+    """The error naming the first point (by its id ``ids[i]``) with a non-finite state."""
     act = np.nonzero(pts.active)[0]
     bad = ~(np.isfinite(pts.x[act]).all(1) & np.isfinite(pts.velocity[act]).all(1)
             & np.isfinite(pts.stress[act]).all(1))
     i = act[np.argmax(bad)]
     x0 = pts.x0[i]
     raise SimulationError(
-        f"step {step} (t = {t:.4g} s): non-finite state at material point {i} (started at "
+        f"step {step} (t = {t:.4g} s): non-finite state at material point {ids[i]} (started at "
         f"x = {x0[0]:.3f}, y = {x0[1]:.3f}, z = {x0[2]:.3f} m); the explicit scheme went "
         f"unstable — reduce [solver] cfl (now {cfl:g}, default 0.5) or check the material "
         "constants")
 
 
-def _freeze(grid: Grid3D, pts: Particles3D, step: int, t: float, policy: str,
-            rec: RunRecord) -> bool:
-    """Points outside the grid box: frozen (inactive, listed) or, with ``policy`` "stop",
-    an error naming the first; False when no active point is left."""
+def _freeze(grid: Grid3D, pts: Particles3D, ids: np.ndarray, step: int, t: float,
+            policy: str, rec: RunRecord) -> bool:
+    """Points outside the grid box: frozen (inactive, listed by id ``ids[i]``) or, with
+    ``policy`` "stop", an error naming the first; False when no active point is left."""
     act = np.nonzero(pts.active)[0]
     out = ((pts.x[act] < grid.origin) | (pts.x[act] > grid.upper)).any(axis=1)
     idx = act[out]
@@ -184,9 +206,9 @@ def _freeze(grid: Grid3D, pts: Particles3D, step: int, t: float, policy: str,
         i = idx[0]
         raise SimulationError(
             f"step {step} (t = {t:.4g} s): {len(idx)} material point(s) left the grid, first "
-            f"point {i} at x = {pts.x[i, 0]:.3f}, y = {pts.x[i, 1]:.3f}, z = {pts.x[i, 2]:.3f} "
+            f"point {ids[i]} at x = {pts.x[i, 0]:.3f}, y = {pts.x[i, 1]:.3f}, z = {pts.x[i, 2]:.3f} "
             "m; enlarge [grid] size or set [solver] edge_policy = \"freeze\"")
     pts.active[idx] = False
     pts.velocity[idx] = 0.0
-    rec.frozen_points.extend(int(i) for i in idx)
+    rec.frozen_points.extend(int(ids[i]) for i in idx)
     return bool(pts.active.any())

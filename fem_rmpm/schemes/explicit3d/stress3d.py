@@ -286,7 +286,8 @@ def stress_3d(mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase, cellx
     their eigen-decompositions in vectorized loops (:func:`.elastic.sym_eig3_block`), the
     logarithms, von Mises returns, exponentials, new tensors and Cauchy stress of
     :func:`.finite_block.finite_strain_block`, then the points' rows written back and
-    checked; bitwise :func:`stress_points_3d`."""
+    checked; :func:`stress_points_3d` within round-off (its logarithms and exponentials
+    are the library's, :mod:`.finite_block`)."""
     assume_columns(node, 8)
     assume_columns(blk, EIG_BLOCK)
     frame = _pass_frame(h, shape)
@@ -316,7 +317,8 @@ def stress_points_3d(mass, vol, vol0, stress, eps, be, lam, mu, active, cellbase
     """:func:`stress_3d` one point at a time (the same arguments without the scratch):
     gradient, trial stretch, :func:`.elastic.sym_eig3`, logarithms, return
     (:func:`.plastic.plastic_return_principal_3d`), new tensors, volume, Cauchy stress.
-    The reference of the blocked pass (``tests/test_3d_stress_block.py``)."""
+    The reference of the blocked pass (``tests/test_3d_stress_block.py``), with the
+    library's logarithm and exponential."""
     frame = _pass_frame(h, shape)
     sy, sz, ihx, ihy, ihz = frame
     e3 = np.zeros(3)
