@@ -2,7 +2,9 @@
 
 After every converged step :meth:`StepController.judge` proposes the next step from
 
-* the **Newton iteration count** ``k``: ``k <= EASY_ITERATIONS`` grows the step by
+* the **Newton iteration count** ``k``, the factorized tangents of the step (the BFGS
+  iterations between them, :func:`fem_rmpm.schemes.implicit.newton.newton`, cost a
+  fifth of one and are not counted): ``k <= EASY_ITERATIONS`` grows the step by
   ``GROW``, ``k >= HARD_ITERATIONS`` (or more than half of ``max_iterations``) shrinks it
   by ``SHRINK`` (quasi-static load steps: the user's load step is the largest step and a
   converged step is never shrunk; a step halved by a cut grows back by ``GROW`` after
@@ -63,8 +65,9 @@ class StepController:
         return (r_u, "displacement") if r_u >= r_j else (r_j, "det dF")
 
     def judge(self, h: float, iterations: int, limits: dict, clipped: bool) -> Verdict:
-        """Verdict on a converged step of size ``h``; ``clipped``: the step was shortened
-        to meet an output time or the end of an interval (no growth is read from it)."""
+        """Verdict on a converged step of size ``h`` that took ``iterations`` full Newton
+        iterations (factorized tangents); ``clipped``: the step was shortened to meet an
+        output time or the end of an interval (no growth is read from it)."""
         if not self.adaptive:
             return Verdict(True, self.size, "")
         r, why = self.kinematic_ratio(limits) if self.dynamic else (0.0, "")

@@ -1,6 +1,8 @@
-"""Full Newton-Raphson on the free DOFs of one implicit step, with a line search
+"""Newton-Raphson on the free DOFs of one implicit step, with a line search
 (backtracking on the residual norm, or on the energy's directional derivative) and the
-two-part convergence test (relative residual and predicted correction)."""
+two-part convergence test (relative residual and predicted correction); optionally
+BFGS updates of the step's last factorized tangent between full Newton iterations
+(:func:`newton`, ``quasi_newton``)."""
 from __future__ import annotations
 
 import math
@@ -33,12 +35,20 @@ class NewtonResult:
     t_assembly: float = 0.0     # s (kinematics, internal force, tangent matrix)
     t_setup: float = 0.0        # s (basis at the points, DOF numbering, sparsity pattern)
     state: tuple = ()           # what the last evaluation returned (material state)
+    factorizations: int = 0     # full Newton iterations among them (a tangent factorized)
+
+
+#: BFGS iterations (``quasi_newton > 0``) start once the relative residual is below
+#: QN_START; one that leaves more than QN_RATE of the residual is followed by a full
+#: Newton iteration (a new tangent factorized)
+QN_START, QN_RATE = 1e-3, 0.1
 
 
 def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterations: int,
            tol: float, modes=None, line_search: int = 4,
-           energy: bool = False, diverging: float = 1e3) -> NewtonResult:
-    """Full Newton-Raphson on the free DOFs, with a backtracking line search.
+           energy: bool = False, diverging: float = 1e3,
+           quasi_newton: int = 0) -> NewtonResult:
+    """Newton-Raphson on the free DOFs, with a backtracking line search.
 
     ``evaluate(du) -> (R, ref, state)``: residual (free DOFs), its reference
     norm and whatever the caller needs at convergence; may raise
@@ -70,6 +80,18 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
     to the residual-norm backtracking for that iteration.  ``diverging``: the relative
     residual (to the larger of the reference norm and the first residual) beyond which
     the solve fails as diverging.
+
+    ``quasi_newton = m > 0``: once the relative residual is below ``QN_START``, up to
+    ``m`` iterations after a full Newton one take the BFGS direction of the step's last factorized tangent ``K0`` updated by the
+    secant pairs ``(s, y)`` of the iterations since (``s`` the increment, ``y`` the fall
+    of the residual: ``y = K s`` for a linear problem), in the inverse form of Matthies &
+    Strang (1979) by the two-loop recursion (Nocedal & Wright 2006, alg. 7.4) with
+    ``H0 = K0^-1`` (one forward and back substitution, no tangent, no factorization):
+    a full step, kept when it lowers the residual (one that leaves more than
+    ``QN_RATE`` of it, and the ``m``-th, make the next iteration a full Newton one; one
+    that does not lower it is dropped for a full Newton iteration from the same state).  Convergence is superlinear; the converged state
+    passes the same test.  ``max_iterations`` bounds the factorizations, and the
+    iterations at ``(m + 1) max_iterations``.
     """
     def _evaluate(u):
         try:
@@ -81,12 +103,15 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
     res: list[float] = []
     t_sol = 0.0
     last_delta = 0.0
+    n_fact = n_quasi = 0        # factorizations; BFGS iterations since the last one
+    pairs: list = []            # the BFGS memory: (s, y, 1 / y.s) since the last factorization
     R, ref, state = _evaluate(du)
     ref0 = max(ref, float(np.linalg.norm(R)))
-    for it in range(max_iterations + 1):
+    while True:
         rn = float(np.linalg.norm(R))
         r = rn / ref0 if ref0 > 0 else 0.0
         res.append(r)
+        it = len(res) - 1
         if not math.isfinite(r):
             raise NewtonFailure("non-finite residual", res)
         if r > diverging * max(1.0, res[0]):
@@ -94,9 +119,28 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         # correction the next iteration would make, |delta_k| r_{k+1} / r_k
         predicted = last_delta * r / res[-2] if it > 0 and res[-2] > 0 else 0.0
         if r <= tol and predicted <= math.sqrt(tol) * float(np.linalg.norm(du)):
-            return NewtonResult(du, res, it, t_sol, state=state)
-        if it == max_iterations:
+            return NewtonResult(du, res, it, t_sol, state=state, factorizations=n_fact)
+        quasi = (0 < n_fact and r < QN_START and n_quasi < quasi_newton
+                 and solver.can_resolve())
+        if (n_fact == max_iterations and not quasi) \
+                or it == (quasi_newton + 1) * max_iterations:
             break
+        if quasi:
+            t1 = time.perf_counter()
+            delta = _bfgs_direction(R, pairs, solver)
+            t_sol += time.perf_counter() - t1
+            out = _quasi_trial(_evaluate, du, delta)
+            n_quasi += 1
+            if out is not None and out[0] < rn:      # a lower residual: kept
+                _, R_new, ref, state = out
+                _remember(pairs, delta, R - R_new)
+                du, R, last_delta = du + delta, R_new, float(np.linalg.norm(delta))
+                if out[0] > QN_RATE * rn:
+                    n_quasi = quasi_newton           # too slow: the next one factorizes
+                continue
+            res.append(r)                            # the rejected trial was a solve
+            if out is not None:                      # the tangent is taken at du
+                R, ref, state = _evaluate(du)
         K = tangent()
         t1 = time.perf_counter()
         eta = min(1e-3, max(1e-12, 0.1 * r))
@@ -105,14 +149,59 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         except LinearSolveError as exc:
             raise NewtonFailure(f"linear solve failed ({exc})", res) from None
         t_sol += time.perf_counter() - t1
+        n_fact, n_quasi = n_fact + 1, 0
         g0 = float(delta @ R) if energy else 0.0
         if g0 > 0:
-            alpha, R, ref, state = _energy_step(_evaluate, du, delta, g0, line_search)
+            alpha, R_new, ref, state = _energy_step(_evaluate, du, delta, g0, line_search)
         else:
-            alpha, R, ref, state = _backtrack(_evaluate, du, delta, rn, line_search)
+            alpha, R_new, ref, state = _backtrack(_evaluate, du, delta, rn, line_search)
         du = du + alpha * delta
         last_delta = alpha * float(np.linalg.norm(delta))
-    raise NewtonFailure(f"not converged in {max_iterations} iterations", res)
+        pairs.clear()
+        if quasi_newton > 0:
+            _remember(pairs, alpha * delta, R - R_new)
+        R = R_new
+    raise NewtonFailure(f"not converged in {len(res) - 1} iterations", res)
+
+
+def _remember(pairs: list, s: np.ndarray, y: np.ndarray) -> None:
+    """Adds the secant pair ``(s, y)`` to the BFGS memory if its curvature ``y.s`` is
+    positive (else it is skipped, so the update stays positive definite)."""
+    ys = float(y @ s)
+    if ys > 1e-12 * float(np.linalg.norm(y) * np.linalg.norm(s)):
+        pairs.append((s, y, 1.0 / ys))
+
+
+def _bfgs_direction(R: np.ndarray, pairs: list, solver: LinearSolver) -> np.ndarray | None:
+    """``H R`` by the BFGS two-loop recursion over ``pairs`` with ``H0 = K0^-1``, the
+    step's last factorization (see :func:`newton`); None if that solve fails."""
+    q = R.copy()
+    a = []
+    for s, y, rho in reversed(pairs):
+        ai = rho * float(s @ q)
+        q -= ai * y
+        a.append(ai)
+    try:
+        d = solver.resolve(q)
+    except LinearSolveError:
+        return None
+    for (s, y, rho), ai in zip(pairs, reversed(a)):
+        d += s * (ai - rho * float(y @ d))
+    return d
+
+
+def _quasi_trial(evaluate, du: np.ndarray, delta: np.ndarray | None):
+    """The full BFGS step: ``(|R|, R, ref, state)`` at ``du + delta``, or None when there
+    is no direction or the step inverts a point (the state then stays at ``du``)."""
+    if delta is None:
+        return None
+    try:
+        R, ref, state = evaluate(du + delta)
+    except NewtonFailure as exc:
+        if exc.inverted:
+            return None
+        raise
+    return float(np.linalg.norm(R)), R, ref, state
 
 
 def _backtrack(evaluate, du: np.ndarray, delta: np.ndarray, rn: float,

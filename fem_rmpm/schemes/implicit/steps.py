@@ -53,6 +53,8 @@ __all__ = ["ImplicitSystem", "StepData", "StepKind", "Geostatic", "QuasiStatic",
            "NewmarkDynamic", "prescribed_nodes"]
 
 _MASS_TOL = 1e-14
+#: BFGS iterations per factorized tangent in a dynamic step (:func:`.newton.newton`)
+QUASI_NEWTON = 6
 _EYE = np.eye(2)
 
 
@@ -136,8 +138,10 @@ class ImplicitSystem:
         f_ext = S.body_force(mass, lf_new * self.g_full)
         if self.water is not None:   # pore water: -V grad u at the step's start positions
             f_ext = f_ext + nodal_water_force(self.water, S, pts.x[act], pts.volume[act], lf_new)
+        soil = pts.soil.take(act)     # C order once here: the kernels take C arrays
+        soil = MaterialPoints(soil.model, np.ascontiguousarray(soil.params))
         return StepData(S, act, pts.volume0[act], pts.volume[act], mass, pts.log_strain[act],
-                        pts.state[act], pts.soil.take(act), f_ext, lf_new, lf_old, presc, dt)
+                        pts.state[act], soil, f_ext, lf_new, lf_old, presc, dt)
 
     def _step_system(self, act: np.ndarray, dynamic: bool = False) -> StepSystem:
         """The StepSystem at the active points' positions: the cached one if the same
@@ -185,6 +189,7 @@ class StepKind:
     :class:`ImplicitSystem` (see the module docstring)."""
     name = ""
     dynamic = False
+    quasi_newton = 0        # BFGS iterations per factorization (:func:`.newton.newton`)
 
     def __init__(self, system: ImplicitSystem):
         self.sys = system
@@ -273,7 +278,7 @@ class StepKind:
         sys_.solver.new_step(st.S)
         res = newton(lambda du: self.residual(st, du), lambda: self.tangent(st), du0,
                      sys_.solver, sv.max_iterations, sv.tolerance,
-                     modes=st.S.rigid_body_modes)
+                     modes=st.S.rigid_body_modes, quasi_newton=self.quasi_newton)
         res.t_material, res.t_assembly, res.t_setup = (st.clock["material"],
                                                        st.clock["assembly"], t_setup)
         return StepOutcome(res, lambda: self.commit(st, res), lambda: self.limits(st, res))
@@ -457,6 +462,7 @@ class NewmarkDynamic(QuasiStatic):
     """
     name = "dynamic"
     dynamic = True
+    quasi_newton = QUASI_NEWTON
 
     def _coefficients(self):
         alpha = float(self.sys.sv.hht_alpha)
