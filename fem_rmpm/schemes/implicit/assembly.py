@@ -51,7 +51,7 @@ class StepSystem:
         self.n, self.k = n, k
         nn = grid.n_nodes
         used = np.zeros(nn, dtype=bool)
-        touch = (N != 0) | (dN != 0).any(axis=2)     # uGIMP lists nodes with zero weight
+        touch = (N != 0) | (dN[:, :, 0] != 0) | (dN[:, :, 1] != 0)   # uGIMP: zero weights
         used[nodes[touch]] = True
         self.used = used
         free_mask = (used[:, None] & ~fixed).ravel()           # dof = 2 node + comp

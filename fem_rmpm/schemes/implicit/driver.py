@@ -258,6 +258,9 @@ class _Run:
         stats["ms_per_iteration"] = {k: 1e3 * stats[f"{k}_time"] / max(its, 1)
                                      for k in ("setup", "material", "assembly", "solve")}
         steps = stats["steps"]
+        stats["ms_per_step"] = {k: 1e3 * stats[f"{k}_time"] / max(len(steps), 1)
+                                for k in ("setup", "material", "assembly", "solve")}
+        stats["factorizations_per_step"] = stats["factorizations_total"] / max(len(steps), 1)
         stats["max_iterations_in_a_step"] = max((s["iterations"] for s in steps), default=0)
         stats["n_steps"] = len(steps)
         stats["iterations_per_step"] = its / max(len(steps), 1)

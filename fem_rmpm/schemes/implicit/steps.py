@@ -103,6 +103,7 @@ class ImplicitSystem:
         self.g_full = np.array(scene.gravity_vector, dtype=float)
         self.water = water_table(scene)          # pore water (None: dry)
         self.acc = np.zeros((pts.n, 2))          # point accelerations (dynamic)
+        self._soil_of = None                     # (pts.soil, act, their C-order soil)
         self.regions = prescribed_nodes(scene, grid)
         mask = np.zeros((grid.n_nodes, 2), dtype=bool)
         target = np.zeros((grid.n_nodes, 2))     # prescribed displacement at load factor 1
@@ -138,10 +139,20 @@ class ImplicitSystem:
         f_ext = S.body_force(mass, lf_new * self.g_full)
         if self.water is not None:   # pore water: -V grad u at the step's start positions
             f_ext = f_ext + nodal_water_force(self.water, S, pts.x[act], pts.volume[act], lf_new)
-        soil = pts.soil.take(act)     # C order once here: the kernels take C arrays
-        soil = MaterialPoints(soil.model, np.ascontiguousarray(soil.params))
         return StepData(S, act, pts.volume0[act], pts.volume[act], mass, pts.log_strain[act],
-                        pts.state[act], soil, f_ext, lf_new, lf_old, presc, dt)
+                        pts.state[act], self._active_soil(act), f_ext, lf_new, lf_old, presc,
+                        dt)
+
+    def _active_soil(self, act: np.ndarray) -> MaterialPoints:
+        """The active points' materials with their parameters in C order (the compiled
+        updates take C arrays), kept while the same points are active and ``pts.soil``
+        is the same object (strength reduction replaces it)."""
+        c = self._soil_of
+        if c is None or c[0] is not self.pts.soil or not np.array_equal(c[1], act):
+            soil = self.pts.soil.take(act)
+            soil = MaterialPoints(soil.model, np.ascontiguousarray(soil.params))
+            c = self._soil_of = (self.pts.soil, act.copy(), soil)
+        return c[2]
 
     def _step_system(self, act: np.ndarray, dynamic: bool = False) -> StepSystem:
         """The StepSystem at the active points' positions: the cached one if the same
@@ -471,13 +482,14 @@ class NewmarkDynamic(QuasiStatic):
     def predictor(self, st):
         S, pts, act, mass, dt = st.S, self.sys.pts, st.act, st.mass, st.dt
         m_nodes, mv, ma = S.mass_and_momenta(mass, pts.velocity[act], self.sys.acc[act])
-        has = m_nodes > _MASS_TOL
-        inv_m = np.where(has, 1.0 / np.where(has, m_nodes, 1.0), 0.0)[:, None]
-        v_n = (mv * inv_m).ravel()[S.free_dofs]
-        a_n = (ma * inv_m).ravel()[S.free_dofs]
+        m_dof = m_nodes[S.free_dofs // 2]         # the free DOFs only, not the whole grid
+        has = m_dof > _MASS_TOL
+        inv_m = np.where(has, 1.0 / np.where(has, m_dof, 1.0), 0.0)
+        v_n = mv.ravel()[S.free_dofs] * inv_m
+        a_n = ma.ravel()[S.free_dofs] * inv_m
         frac = float(self.sys.sv.min_mass_fraction)
         m_min = frac * float(mass.sum() / st.Vn.sum()) * float(np.prod(self.sys.grid.cell))
-        m_free = np.maximum(np.repeat(m_nodes, 2)[S.free_dofs], m_min)
+        m_free = np.maximum(m_dof, m_min)
         alpha, gamma, beta = self._coefficients()
         st.cache.update(v_n=v_n, a_n=a_n, m_free=m_free, c=1.0 / (beta * dt * dt),
                         n_floor=int(np.count_nonzero(m_nodes[S.used] < m_min)))
