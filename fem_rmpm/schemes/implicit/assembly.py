@@ -54,17 +54,17 @@ class StepSystem:
         touch = (N != 0) | (dN[:, :, 0] != 0) | (dN[:, :, 1] != 0)   # uGIMP: zero weights
         used[nodes[touch]] = True
         self.used = used
+        self.point_dofs = (2 * nodes[:, :, None] + np.arange(2)).reshape(n, 2 * k)  # global
+        self.halo_cells = None
+        if k == 4 and halo:                  # the DOFs of the cells and their halo
+            self._cell_pattern(grid, fixed, keep)
+            return
         free_mask = (used[:, None] & ~fixed).ravel()           # dof = 2 node + comp
         self.free_dofs = np.nonzero(free_mask)[0]
         self.n_free = nf = len(self.free_dofs)
         fnum = np.full(2 * nn, -1, dtype=np.int64)
         fnum[self.free_dofs] = np.arange(nf)
         self.fnum = fnum
-        self.point_dofs = (2 * nodes[:, :, None] + np.arange(2)).reshape(n, 2 * k)  # global
-        self.halo_cells = None
-        if k == 4 and halo:
-            self._cell_pattern(grid, fixed, keep)
-            return
         # group the points by their node set (Q4: the host cell, identified by node 0)
         if k == 4:
             inv = _dense_rank(nodes[:, 0], nn)

@@ -425,22 +425,33 @@ class QuasiStatic(StepKind):
     def commit(self, st, res):
         ls, q, tau, dFm = res.state
         S, pts, act = st.S, self.sys.pts, st.act
-        du_nodes = S.to_nodes(res.du, st.presc)
+        du_nodes = None
         info = {}
         if st.presc is not None:
+            du_nodes = S.to_nodes(res.du, st.presc)
             Finv, J = inv2(_EYE + S.gradient(du_nodes))
             st.cache["J"] = J
             info = self.sys.reactions(st, res.du, self.force_stress(st, tau),
                                       np.matmul(S.dN, Finv))
         pts.log_strain[act], pts.state[act] = ls, q
         # x += N du, F <- dF F, V = det(F) V0, sigma = tau / det F (one compiled pass)
-        pk.move_points(act, S.interpolate(du_nodes), np.ascontiguousarray(dFm), st.V0,
+        pk.move_points(act, self._point_increment(st, res, du_nodes),
+                       np.ascontiguousarray(dFm), st.V0,
                        np.ascontiguousarray(tau), pts.x, pts.F, pts.volume, pts.stress)
         return info
 
+    def _point_increment(self, st, res, du_nodes=None):
+        """The converged increment at the points (n, 2), interpolated once per step."""
+        c = st.cache.get("u_points")
+        if c is None or c[0] is not res.du:
+            if du_nodes is None:
+                du_nodes = st.S.to_nodes(res.du, st.presc)
+            c = st.cache["u_points"] = (res.du, st.S.interpolate(du_nodes))
+        return c[1]
+
     def limits(self, st, res):
         dFm = res.state[3]
-        u = st.S.interpolate(st.S.to_nodes(res.du, st.presc))
+        u = self._point_increment(st, res)
         J = dFm[:, 0, 0] * dFm[:, 1, 1] - dFm[:, 0, 1] * dFm[:, 1, 0]
         disp = np.sqrt(np.max(np.sum(u * u, axis=1), initial=0.0))
         i = int(np.argmax(np.abs(np.log(J)))) if len(J) else 0
