@@ -149,8 +149,8 @@ class ImplicitSystem:
         is the same object (strength reduction replaces it)."""
         c = self._soil_of
         if c is None or c[0] is not self.pts.soil or not np.array_equal(c[1], act):
-            soil = self.pts.soil.take(act)
-            soil = MaterialPoints(soil.model, np.ascontiguousarray(soil.params))
+            soil = self.pts.soil.take(act)       # (MaterialPoints keeps column order)
+            soil.params = np.ascontiguousarray(soil.params)
             c = self._soil_of = (self.pts.soil, act.copy(), soil)
         return c[2]
 
