@@ -59,7 +59,8 @@ def _solver_stats(sv) -> dict:
             "linear_solver": sv.linear_solver, "tolerance": sv.tolerance,
             "displacement_tolerance": math.sqrt(sv.tolerance),
             "max_iterations": sv.max_iterations, "max_cuts": sv.max_cuts,
-            "iterations_total": 0, "factorizations_total": 0, "cuts_total": 0, "setup_time": 0.0, "material_time": 0.0,
+            "iterations_total": 0, "factorizations_total": 0, "cuts_total": 0,
+            "setup_time": 0.0, "material_time": 0.0,
             "assembly_time": 0.0, "solve_time": 0.0, "rejected_total": 0, "limited_by": {},
             "adaptive": bool(sv.adaptive), "limits": {
                 "max_displacement_fraction": sv.max_displacement_fraction,
