@@ -35,8 +35,9 @@ explicit run of the same scene, both through :func:`fem_rmpm.api.run` without ou
 BLAS thread, each in a fresh process (``--one explicit|implicit``: a 0.1 s warm-up run
 that loads numba's cache, then the timed run), in interleaved pairs (explicit, implicit,
 explicit, implicit, ...; ``--repeat`` pairs).  Per run: wall (``perf_counter``) and CPU
-(``process_time``) seconds, the steps, and for the implicit run the Newton iterations and
-its per-iteration parts; per pair the implicit / explicit ratios of wall and CPU, and the
+(``process_time``) seconds, the steps, and for the implicit run the Newton iterations,
+the factorized ones among them (the others are BFGS iterations) and the CPU ms per step
+with its parts; per pair the implicit / explicit ratios of wall and CPU, and the
 load average before and after.  Appends each pair to
 ``validation/out/bench_implicit_whole_run.jsonl``.  ``--t-end``: stop both runs at that
 simulated time instead of at rest (default 40 s, the scene's: they stop at rest).
@@ -155,6 +156,9 @@ def case_i(t_end: float, label: str, linear_solver: str | None) -> dict:
     its = s["iterations_total"]
     return {"label": label, "code": str(Path(fem_rmpm.__file__).parent), "t_end_s": t_end,
             "steps": s["n_steps"], "iterations": its, "ms_per_iteration": ms,
+            "factorizations": s.get("factorizations_total", its),
+            "ms_per_step": s.get("ms_per_step"),
+            "run_cpu_ms_per_step": 1e3 * cpu / max(s["n_steps"], 1),
             "ms_total_per_iteration": sum(ms.values()),
             "run_cpu_ms_per_iteration": 1e3 * cpu / max(its, 1), "run_cpu_s": cpu,
             "linear_solver": rec.solver.get("linear_solver", linear_solver or "default"),
@@ -182,7 +186,9 @@ def one_whole_run(scheme: str, threads: int, t_end: float) -> dict:
            "runout_m": res.measures["runout_distance"]}
     if scheme == "implicit":
         s = rec.solver
-        row.update(iterations=s["iterations_total"], cuts=s["cuts_total"],
+        row.update(iterations=s["iterations_total"], factorizations=s["factorizations_total"],
+                   ms_per_step=s["ms_per_step"], cpu_ms_per_step=1e3 * cpu / max(rec.steps, 1),
+                   cuts=s["cuts_total"],
                    rejected=s["rejected_total"], limited_by=s["limited_by"],
                    ms_per_iteration=s["ms_per_iteration"],
                    factorizations_by=s["factorizations_by"],
@@ -210,14 +216,15 @@ def whole_run(pairs: int, threads: int, t_end: float, label: str) -> None:
                 "ratio_wall": imp["wall_s"] / exp["wall_s"],
                 "ratio_cpu": imp["cpu_s"] / exp["cpu_s"], "load_before": load0,
                 "load_after": load1}
-        m = imp["ms_per_iteration"]
+        m = imp["ms_per_step"]
         print(f"pair {k + 1}, {threads} thread(s): explicit {exp['stop_reason']} at "
               f"{exp['time_s']:.1f} s, {exp['steps']} steps, wall {exp['wall_s']:.1f} s, CPU "
               f"{exp['cpu_s']:.1f} s; implicit {imp['stop_reason']} at {imp['time_s']:.1f} s, "
-              f"{imp['steps']} steps, {imp['iterations']} iterations, wall "
-              f"{imp['wall_s']:.1f} s, CPU {imp['cpu_s']:.1f} s ("
+              f"{imp['steps']} steps, {imp['iterations']} iterations of which "
+              f"{imp['factorizations']} factorized, wall {imp['wall_s']:.1f} s, CPU "
+              f"{imp['cpu_s']:.1f} s ({imp['cpu_ms_per_step']:.1f} ms per step: "
               + ", ".join(f"{p} {v:.1f}" for p, v in m.items())
-              + f" ms per iteration); implicit / explicit: wall {pair['ratio_wall']:.2f}x, "
+              + f"); implicit / explicit: wall {pair['ratio_wall']:.2f}x, "
               f"CPU {pair['ratio_cpu']:.2f}x; load {load0[0]:.2f} -> {load1[0]:.2f}",
               flush=True)
         with open(OUT / "bench_implicit_whole_run.jsonl", "a") as f:
@@ -280,7 +287,8 @@ def main():
         for _ in range(a.repeat):
             r = case_i(a.t_end or 1.0, a.label, a.linear_solver)
             m = r["ms_per_iteration"]
-            print(f"{r['label'] or r['code']}: {r['steps']} steps, {r['iterations']} its; "
+            print(f"{r['label'] or r['code']}: {r['steps']} steps, {r['iterations']} its "
+                  f"({r['factorizations']} factorized); "
                   + ", ".join(f"{k} {v:.1f}" for k, v in m.items())
                   + f"; total {r['ms_total_per_iteration']:.1f} ms, whole run "
                   f"{r['run_cpu_ms_per_iteration']:.1f} ms CPU per iteration "

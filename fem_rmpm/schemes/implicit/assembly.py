@@ -3,6 +3,8 @@ numbering, and the vectorised assembly of internal force, tangent and lumped mas
 material points as quadrature points."""
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -51,20 +53,19 @@ class StepSystem:
         self.n, self.k = n, k
         nn = grid.n_nodes
         used = np.zeros(nn, dtype=bool)
-        touch = (N != 0) | (dN != 0).any(axis=2)     # uGIMP lists nodes with zero weight
+        touch = (N != 0) | (dN[:, :, 0] != 0) | (dN[:, :, 1] != 0)   # uGIMP: zero weights
         used[nodes[touch]] = True
         self.used = used
+        self.halo_cells = None
+        if k == 4 and halo:                  # the DOFs of the cells and their halo
+            self._cell_pattern(grid, fixed, keep)
+            return
         free_mask = (used[:, None] & ~fixed).ravel()           # dof = 2 node + comp
         self.free_dofs = np.nonzero(free_mask)[0]
         self.n_free = nf = len(self.free_dofs)
         fnum = np.full(2 * nn, -1, dtype=np.int64)
         fnum[self.free_dofs] = np.arange(nf)
         self.fnum = fnum
-        self.point_dofs = (2 * nodes[:, :, None] + np.arange(2)).reshape(n, 2 * k)  # global
-        self.halo_cells = None
-        if k == 4 and halo:
-            self._cell_pattern(grid, fixed, keep)
-            return
         # group the points by their node set (Q4: the host cell, identified by node 0)
         if k == 4:
             inv = _dense_rank(nodes[:, 0], nn)
@@ -87,6 +88,11 @@ class StepSystem:
         # pattern (compiled path of :meth:`bbar_tangent_into`)
         self.groups_are_cells = k == 4 and bool(
             np.all(self.host == self.host[first][self._group]))
+
+    @cached_property
+    def point_dofs(self) -> np.ndarray:
+        """The global DOFs of each point's nodes (n, 2k), ``2 node + component``."""
+        return (2 * self.nodes[:, :, None] + np.arange(2)).reshape(self.n, 2 * self.k)
 
     def _cell_pattern(self, grid: Grid, fixed: np.ndarray, keep) -> None:
         """Q4 dynamic steps: the DOF numbering and sparsity pattern of a set of cells that

@@ -59,7 +59,8 @@ def _solver_stats(sv) -> dict:
             "linear_solver": sv.linear_solver, "tolerance": sv.tolerance,
             "displacement_tolerance": math.sqrt(sv.tolerance),
             "max_iterations": sv.max_iterations, "max_cuts": sv.max_cuts,
-            "iterations_total": 0, "cuts_total": 0, "setup_time": 0.0, "material_time": 0.0,
+            "iterations_total": 0, "factorizations_total": 0, "cuts_total": 0,
+            "setup_time": 0.0, "material_time": 0.0,
             "assembly_time": 0.0, "solve_time": 0.0, "rejected_total": 0, "limited_by": {},
             "adaptive": bool(sv.adaptive), "limits": {
                 "max_displacement_fraction": sv.max_displacement_fraction,
@@ -112,11 +113,13 @@ class _Run:
         stats = self.stats
         self.step += 1
         stats["iterations_total"] += res.iterations
+        stats["factorizations_total"] += res.factorizations
         for k in ("assembly", "material", "setup", "solve"):
             stats[f"{k}_time"] += getattr(res, f"t_{k}")
         entry = {"step": self.step, "phase": kind.name,
                  ("time" if kind.dynamic else "load_factor"): pos,
-                 "size": h, "iterations": res.iterations, "cuts": cuts,
+                 "size": h, "iterations": res.iterations,
+                 "factorizations": res.factorizations, "cuts": cuts,
                  "residuals": res.residuals}
         if limits:
             entry.update(displacement=limits["displacement"], det_min=limits["det_min"],
@@ -149,7 +152,7 @@ class _Run:
                 h, clipped = 0.5 * h, False
                 continue
             limits = out.limits() if kind.dynamic else {}
-            verdict = ctl.judge(h, out.result.iterations, limits, clipped)
+            verdict = ctl.judge(h, out.result.factorizations, limits, clipped)
             if verdict.accept or rejections >= MAX_REJECTIONS:
                 return out, h, cuts, verdict, limits
             rejections += 1
@@ -256,6 +259,9 @@ class _Run:
         stats["ms_per_iteration"] = {k: 1e3 * stats[f"{k}_time"] / max(its, 1)
                                      for k in ("setup", "material", "assembly", "solve")}
         steps = stats["steps"]
+        stats["ms_per_step"] = {k: 1e3 * stats[f"{k}_time"] / max(len(steps), 1)
+                                for k in ("setup", "material", "assembly", "solve")}
+        stats["factorizations_per_step"] = stats["factorizations_total"] / max(len(steps), 1)
         stats["max_iterations_in_a_step"] = max((s["iterations"] for s in steps), default=0)
         stats["n_steps"] = len(steps)
         stats["iterations_per_step"] = its / max(len(steps), 1)

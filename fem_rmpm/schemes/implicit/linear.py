@@ -50,6 +50,7 @@ class LinearSolver:
         self.factorizations_by = {"cholmod": 0, "superlu": 0}
         self.symbolic_analyses = 0
         self._system = None       # the step's StepSystem (its pattern's transpose gather)
+        self._last = None         # solve with the last factorization (quasi-Newton)
 
     def new_step(self, system=None) -> None:
         """A new step: the pyamg hierarchy is rebuilt (the LU ordering and CHOLMOD's
@@ -59,8 +60,24 @@ class LinearSolver:
         gather of the pattern from it instead of searching for it."""
         self._ml = None
         self._system = system
+        self._last = None
+
+    def can_resolve(self) -> bool:
+        """Whether :meth:`resolve` has a factorization of this step to use."""
+        return self._last is not None
+
+    def resolve(self, b: np.ndarray) -> np.ndarray:
+        """``K0^-1 b`` with the last factorization ``K0`` of this step (CHOLMOD or
+        SuperLU; one forward and back substitution, no factorization)."""
+        if self._last is None:
+            raise LinearSolveError("no factorization to reuse in this step")
+        x = self._last(b)
+        if not np.all(np.isfinite(x)):
+            raise LinearSolveError("the reused factorization returned a non-finite solution")
+        return x
 
     def solve(self, K: sp.csr_matrix, b: np.ndarray, modes=None, rtol: float = 1e-10) -> np.ndarray:
+        self._last = None
         if self.kind == "cholmod":
             return self._cholmod(K, b)
         if self.kind == "superlu":
@@ -95,6 +112,7 @@ class LinearSolver:
         x = _cholmod_solve(c["F"], b)
         if not np.all(np.isfinite(x)):
             return self._superlu(K, b)
+        self._last = lambda r, F=c["F"]: _cholmod_solve(F, r)
         self.factorizations += 1
         self.factorizations_by["cholmod"] += 1
         return x
@@ -134,6 +152,7 @@ class LinearSolver:
         x = apply(b)
         if not np.all(np.isfinite(x)):
             raise LinearSolveError("SuperLU returned a non-finite solution (singular tangent)")
+        self._last = apply
         return x
 
     def _pyamg(self, K, b, modes, rtol):

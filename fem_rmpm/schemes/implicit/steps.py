@@ -53,6 +53,8 @@ __all__ = ["ImplicitSystem", "StepData", "StepKind", "Geostatic", "QuasiStatic",
            "NewmarkDynamic", "prescribed_nodes"]
 
 _MASS_TOL = 1e-14
+#: BFGS iterations per factorized tangent in a dynamic step (:func:`.newton.newton`)
+QUASI_NEWTON = 6
 _EYE = np.eye(2)
 
 
@@ -101,6 +103,7 @@ class ImplicitSystem:
         self.g_full = np.array(scene.gravity_vector, dtype=float)
         self.water = water_table(scene)          # pore water (None: dry)
         self.acc = np.zeros((pts.n, 2))          # point accelerations (dynamic)
+        self._soil_of = None                     # (pts.soil, act, their C-order soil)
         self.regions = prescribed_nodes(scene, grid)
         mask = np.zeros((grid.n_nodes, 2), dtype=bool)
         target = np.zeros((grid.n_nodes, 2))     # prescribed displacement at load factor 1
@@ -137,7 +140,19 @@ class ImplicitSystem:
         if self.water is not None:   # pore water: -V grad u at the step's start positions
             f_ext = f_ext + nodal_water_force(self.water, S, pts.x[act], pts.volume[act], lf_new)
         return StepData(S, act, pts.volume0[act], pts.volume[act], mass, pts.log_strain[act],
-                        pts.state[act], pts.soil.take(act), f_ext, lf_new, lf_old, presc, dt)
+                        pts.state[act], self._active_soil(act), f_ext, lf_new, lf_old, presc,
+                        dt)
+
+    def _active_soil(self, act: np.ndarray) -> MaterialPoints:
+        """The active points' materials with their parameters in C order (the compiled
+        updates take C arrays), kept while the same points are active and ``pts.soil``
+        is the same object (strength reduction replaces it)."""
+        c = self._soil_of
+        if c is None or c[0] is not self.pts.soil or not np.array_equal(c[1], act):
+            soil = self.pts.soil.take(act)       # (MaterialPoints keeps column order)
+            soil.params = np.ascontiguousarray(soil.params)
+            c = self._soil_of = (self.pts.soil, act.copy(), soil)
+        return c[2]
 
     def _step_system(self, act: np.ndarray, dynamic: bool = False) -> StepSystem:
         """The StepSystem at the active points' positions: the cached one if the same
@@ -185,6 +200,7 @@ class StepKind:
     :class:`ImplicitSystem` (see the module docstring)."""
     name = ""
     dynamic = False
+    quasi_newton = 0        # BFGS iterations per factorization (:func:`.newton.newton`)
 
     def __init__(self, system: ImplicitSystem):
         self.sys = system
@@ -273,7 +289,7 @@ class StepKind:
         sys_.solver.new_step(st.S)
         res = newton(lambda du: self.residual(st, du), lambda: self.tangent(st), du0,
                      sys_.solver, sv.max_iterations, sv.tolerance,
-                     modes=st.S.rigid_body_modes)
+                     modes=st.S.rigid_body_modes, quasi_newton=self.quasi_newton)
         res.t_material, res.t_assembly, res.t_setup = (st.clock["material"],
                                                        st.clock["assembly"], t_setup)
         return StepOutcome(res, lambda: self.commit(st, res), lambda: self.limits(st, res))
@@ -409,22 +425,33 @@ class QuasiStatic(StepKind):
     def commit(self, st, res):
         ls, q, tau, dFm = res.state
         S, pts, act = st.S, self.sys.pts, st.act
-        du_nodes = S.to_nodes(res.du, st.presc)
+        du_nodes = None
         info = {}
         if st.presc is not None:
+            du_nodes = S.to_nodes(res.du, st.presc)
             Finv, J = inv2(_EYE + S.gradient(du_nodes))
             st.cache["J"] = J
             info = self.sys.reactions(st, res.du, self.force_stress(st, tau),
                                       np.matmul(S.dN, Finv))
         pts.log_strain[act], pts.state[act] = ls, q
         # x += N du, F <- dF F, V = det(F) V0, sigma = tau / det F (one compiled pass)
-        pk.move_points(act, S.interpolate(du_nodes), np.ascontiguousarray(dFm), st.V0,
+        pk.move_points(act, self._point_increment(st, res, du_nodes),
+                       np.ascontiguousarray(dFm), st.V0,
                        np.ascontiguousarray(tau), pts.x, pts.F, pts.volume, pts.stress)
         return info
 
+    def _point_increment(self, st, res, du_nodes=None):
+        """The converged increment at the points (n, 2), interpolated once per step."""
+        c = st.cache.get("u_points")
+        if c is None or c[0] is not res.du:
+            if du_nodes is None:
+                du_nodes = st.S.to_nodes(res.du, st.presc)
+            c = st.cache["u_points"] = (res.du, st.S.interpolate(du_nodes))
+        return c[1]
+
     def limits(self, st, res):
         dFm = res.state[3]
-        u = st.S.interpolate(st.S.to_nodes(res.du, st.presc))
+        u = self._point_increment(st, res)
         J = dFm[:, 0, 0] * dFm[:, 1, 1] - dFm[:, 0, 1] * dFm[:, 1, 0]
         disp = np.sqrt(np.max(np.sum(u * u, axis=1), initial=0.0))
         i = int(np.argmax(np.abs(np.log(J)))) if len(J) else 0
@@ -457,6 +484,7 @@ class NewmarkDynamic(QuasiStatic):
     """
     name = "dynamic"
     dynamic = True
+    quasi_newton = QUASI_NEWTON
 
     def _coefficients(self):
         alpha = float(self.sys.sv.hht_alpha)
@@ -465,13 +493,14 @@ class NewmarkDynamic(QuasiStatic):
     def predictor(self, st):
         S, pts, act, mass, dt = st.S, self.sys.pts, st.act, st.mass, st.dt
         m_nodes, mv, ma = S.mass_and_momenta(mass, pts.velocity[act], self.sys.acc[act])
-        has = m_nodes > _MASS_TOL
-        inv_m = np.where(has, 1.0 / np.where(has, m_nodes, 1.0), 0.0)[:, None]
-        v_n = (mv * inv_m).ravel()[S.free_dofs]
-        a_n = (ma * inv_m).ravel()[S.free_dofs]
+        m_dof = m_nodes[S.free_dofs // 2]         # the free DOFs only, not the whole grid
+        has = m_dof > _MASS_TOL
+        inv_m = np.where(has, 1.0 / np.where(has, m_dof, 1.0), 0.0)
+        v_n = mv.ravel()[S.free_dofs] * inv_m
+        a_n = ma.ravel()[S.free_dofs] * inv_m
         frac = float(self.sys.sv.min_mass_fraction)
         m_min = frac * float(mass.sum() / st.Vn.sum()) * float(np.prod(self.sys.grid.cell))
-        m_free = np.maximum(np.repeat(m_nodes, 2)[S.free_dofs], m_min)
+        m_free = np.maximum(m_dof, m_min)
         alpha, gamma, beta = self._coefficients()
         st.cache.update(v_n=v_n, a_n=a_n, m_free=m_free, c=1.0 / (beta * dt * dt),
                         n_floor=int(np.count_nonzero(m_nodes[S.used] < m_min)))

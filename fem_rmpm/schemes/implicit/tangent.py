@@ -83,7 +83,12 @@ def trial_stiffness(eps_tr: np.ndarray, state: np.ndarray, soil: MaterialPoints,
         idx = slice(None) if len(ids) == 1 else np.nonzero(soil.model == k)[0]
         hook = getattr(registry.model(int(k)), "tangent", None)
         if hook is not None:
-            out[idx] = hook(eps_tr[idx], st[idx], soil.params[idx])[:, :, _IN_PLANE]
+            if len(ids) == 1:        # one model: its columns straight in (no gathers)
+                D = hook(eps_tr, st, soil.params)
+                out[:, :, :2] = D[:, :, :2]
+                out[:, :, 2] = D[:, :, 3]
+            else:
+                out[idx] = hook(eps_tr[idx], st[idx], soil.params[idx])[:, :, _IN_PLANE]
             continue
         e, m = eps_tr[idx], len(eps_tr[idx])
         e3 = np.tile(e.astype(complex), (3, 1))
