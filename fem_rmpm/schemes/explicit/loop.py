@@ -16,6 +16,7 @@ cell averaging.  The stable step (CFL) is mapped in :mod:`.stability` and
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import gc
 import time
@@ -66,6 +67,20 @@ def _without_gc(run):
     return paused
 
 
+@contextlib.contextmanager
+def _stopping(order: PointOrder, pts: Particles):
+    """Around the time loop: the points back in their seeded order however it ends; an
+    interrupt or error also stops the compile helpers at once (no wait for a compile at
+    exit, :func:`.cold_start.stop_helpers`)."""
+    try:
+        yield
+    except BaseException:
+        stop_helpers()
+        raise
+    finally:
+        order.restore(pts)
+
+
 @_without_gc
 def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
                  progress=None, kernel: str | None = None,
@@ -101,7 +116,7 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
         on_output(t, pts)
     order = PointOrder(sort_every if kernel == "numba" else 0)
     driven = kernel == "numba" and not has_nonlocal(pts.soil)    # non-local: Python steps
-    try:
+    with _stopping(order, pts):
         while t < sv.t_end - 1e-12:
             if driven:
                 ctl = run_control(sv, h_min, g_full, next_out if on_output else np.inf,
@@ -141,11 +156,6 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
                 break
         else:
             rec.stop_reason = "t_end reached"
-    except BaseException:            # interrupt or error: no wait for a compile at exit
-        stop_helpers()
-        raise
-    finally:
-        order.restore(pts)
     rec.steps, rec.time, rec.wall_time = step, t, time.perf_counter() - wall0
     if on_output and next_out - sv.output_interval < t - 1e-12:
         on_output(t, pts)

@@ -206,8 +206,9 @@ def _freeze(grid: Grid3D, pts: Particles3D, ids: np.ndarray, step: int, t: float
         i = idx[0]
         raise SimulationError(
             f"step {step} (t = {t:.4g} s): {len(idx)} material point(s) left the grid, first "
-            f"point {ids[i]} at x = {pts.x[i, 0]:.3f}, y = {pts.x[i, 1]:.3f}, z = {pts.x[i, 2]:.3f} "
-            "m; enlarge [grid] size or set [solver] edge_policy = \"freeze\"")
+            f"point {ids[i]} at x = {pts.x[i, 0]:.3f}, y = {pts.x[i, 1]:.3f}, "
+            f"z = {pts.x[i, 2]:.3f} m; enlarge [grid] size or set [solver] "
+            "edge_policy = \"freeze\"")
     pts.active[idx] = False
     pts.velocity[idx] = 0.0
     rec.frozen_points.extend(int(ids[i]) for i in idx)
