@@ -301,8 +301,7 @@ class Helper:
         try:
             return self.proc.wait(timeout) == 0
         except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+            self.stop()
             return False
 
 

@@ -69,10 +69,11 @@ def _compile_transfers(P, M, N, S, o) -> None:
                                            types.int64))
 
 
-def _first_serial_compile(serial, args: tuple, o, helper: Helper) -> None:
-    """Compile the serial driver's transfers here while ``helper`` compiles the stress pass
-    (its first item); then wait for that item, so the driver's compile loads it."""
-    P, M, N, S = args[:4]
+def _first_serial_compile(args: tuple, helper: Helper) -> None:
+    """Compile the serial driver's transfers for its arguments ``args`` here while ``helper``
+    compiles the stress pass (its first item); then wait for that item, so the driver's
+    compile loads it."""
+    P, M, N, S, o = args[:5]
     try:
         _compile_transfers(P, M, N, S, o)
     except Exception:        # noqa: BLE001 - the driver's own compile follows anyway
@@ -80,30 +81,31 @@ def _first_serial_compile(serial, args: tuple, o, helper: Helper) -> None:
     helper.wait_items(1)
 
 
-def serial_driver_ready(serial, args: tuple, o) -> None:
-    """Before the first call of the serial driver ``serial`` with ``args`` (``o`` its step
-    options): if its code is not cached and two cores are there, compile the stress pass in
-    a helper process while this one compiles the transfers (module docstring)."""
+def serial_driver_ready(serial, args: tuple) -> None:
+    """Before the first call of the serial driver ``serial`` with ``args`` (``P, M, N, S``
+    and its step options first): if its code is not cached and two cores are there,
+    compile the stress pass in a helper process while this one compiles the transfers
+    (module docstring)."""
     try:
         if serial.signatures or usable_cores() < 2 or cached(serial,
                                                             tuple(typeof(a) for a in args)):
             return
-        item = _stress_item(args[0], args[1], args[2], args[3], o)
+        item = _stress_item(*args[:5])
     except Exception:        # noqa: BLE001 - numba internals moved: the driver compiles all
         return
     if item is not None:
         helper = compile_aside([item])
-        _first_serial_compile(serial, args, o, helper)
+        _first_serial_compile(args, helper)
         helper.wait()
 
 
-def threaded_driver_ready(kind: str, driver, args: tuple, key: tuple, serial, serial_args,
-                          o1) -> bool:
+def threaded_driver_ready(kind: str, driver, args: tuple, key: tuple, serial,
+                          serial_args: tuple) -> bool:
     """Whether the run steps on the threaded ``driver`` now (``kind``: ``"pair"`` or
     ``"parallel"``; ``args`` its arguments; ``key`` the arguments of
     :func:`.kernels.advance.step_drivers` that made it).  False while a helper compiles it
     into the cache (module docstring): the caller steps on ``serial`` with ``serial_args``
-    (``o1``: the step options with one thread), made ready here at its first call."""
+    (their step options with one thread), made ready here at its first call."""
     helper = _PENDING.get(driver)
     if helper is None:
         if driver.signatures or usable_cores() < 2:
@@ -112,8 +114,7 @@ def threaded_driver_ready(kind: str, driver, args: tuple, key: tuple, serial, se
             sig = tuple(typeof(a) for a in args)
             if cached(driver, sig):
                 return True
-            P, M, N, S = serial_args[:4]
-            stress = _stress_item(P, M, N, S, o1)
+            stress = _stress_item(*serial_args[:5])
         except Exception:    # noqa: BLE001 - numba internals moved: compile it here
             return True
         items = [] if stress is None else [stress]
@@ -125,7 +126,7 @@ def threaded_driver_ready(kind: str, driver, args: tuple, key: tuple, serial, se
             return True
         _PENDING[driver] = helper
         if not serial.signatures and stress is not None:
-            _first_serial_compile(serial, serial_args, o1, helper)
+            _first_serial_compile(serial_args, helper)
         return False
     state = helper.done()
     if state is None:

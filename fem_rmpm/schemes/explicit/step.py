@@ -136,7 +136,7 @@ def advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, th
         drv = pair if both else parallel
         args = (P, M, N, K.top_of(N), N.half, S, o, ctl, clock, count, work.energy)
         if threaded_driver_ready("pair" if both else "parallel", drv, args, key, serial,
-                                 serial_args, serial_args[4]):
+                                 serial_args):
             call(drv, *args)
         else:                        # (compiled aside meanwhile; bitwise the same steps)
             call(serial, *serial_args)
@@ -146,7 +146,7 @@ def advance(grid: Grid, pts: Particles, work: Workspace, sv, geostatic: bool, th
                 "threads of the step waited for the other for half a minute (numba's thread "
                 "pool did not run both); set [solver] threads = 1")
     else:
-        serial_driver_ready(serial, serial_args, serial_args[4])
+        serial_driver_ready(serial, serial_args)
         call(serial, *serial_args)
     out = S.out
     rec.energy.extend(map(tuple, work.energy[:count[2]].tolist()))   # the steps run inside
