@@ -16,7 +16,7 @@ import pytest
 
 from fem_rmpm import api
 from fem_rmpm.discretise.grid import locate, make_grid
-from fem_rmpm.discretise.point_order import PointOrder, permute_points
+from fem_rmpm.discretise.point_order import PointOrder, permute_points, plane_point_order
 from fem_rmpm.discretise.points import seed_particles
 from fem_rmpm.scene import load_scene, with_values
 from fem_rmpm.schemes.explicit.loop import run_explicit
@@ -44,20 +44,58 @@ def test_sort_key_numbers_cells_row_by_row():
     assert locate(G, x)[0].tolist() == [0, 4, 1, 7, 3]      # the last one clamped to (3, 0)
 
 
+def test_schedule_sorts_after_every_steps_and_after_a_restore():
+    """The schedule both dimensions share: with ``every`` = 5 a sort after step 1 (the
+    points not sorted yet), then after step 6, and at once after a restore; the restore
+    permutes by the inverse of the composed sorts (ids back to 0..n-1); with ``first`` =
+    5 (the three-dimensional loop) the first sort after step 5; ``every`` = 0 never."""
+    perms = []
+    state = {"key": np.array([3, 2, 1, 0])}
+
+    def permute(idx):
+        perms.append(idx.copy())
+        state["key"] = state["key"][idx]
+
+    order = PointOrder(4, lambda: state["key"], permute, every=5)
+    sorted_after = []
+    for step in range(1, 13):
+        before = order.sorts
+        order.sort_if_due(step)
+        if order.sorts > before:
+            sorted_after.append(step)
+        if step == 8:
+            assert order.due_step() == 11.0
+            order.restore()
+            assert order.in_id_order and order.due_step() == 0.0
+            assert state["key"].tolist() == [3, 2, 1, 0]
+    assert sorted_after == [1, 6, 9]
+    assert len(perms) == 3            # the sort at step 6 found the points in order already
+    late = PointOrder(4, lambda: state["key"], permute, every=5, first=5)
+    first_sort = None
+    for step in range(1, 7):
+        late.sort_if_due(step)
+        first_sort = first_sort or (step if late.sorts else None)
+    assert first_sort == 5
+    never = PointOrder(4, lambda: state["key"], permute, every=0)
+    never.sort_if_due(1)
+    assert never.sorts == 0 and never.due_step() == float("inf")
+
+
 def test_permutation_and_restore_are_exact(meshes):
+
     scene = _scene(meshes)
     grid = make_grid(scene)
     pts = seed_particles(scene, grid)
     pts.x += np.random.default_rng(1).normal(0.0, 0.3, pts.x.shape)    # disorder
     ref = pts.copy()
-    order = PointOrder()
-    order.sort(grid, pts)
+    order = plane_point_order(grid, pts)
+    order.sort()
     key = locate(grid, pts.x)[0]
-    assert order.sorted and order.order is not None and (np.diff(key) >= 0).all()
-    assert np.array_equal(pts.x0, ref.x0[order.order])
-    assert np.array_equal(pts.soil.params, ref.soil.params[order.order], equal_nan=True)
-    order.restore(pts)
-    assert not order.sorted and order.order is None
+    assert order.sorted and not order.in_id_order and (np.diff(key) >= 0).all()
+    assert np.array_equal(pts.x0, ref.x0[order.ids])
+    assert np.array_equal(pts.soil.params, ref.soil.params[order.ids], equal_nan=True)
+    order.restore()
+    assert not order.sorted and order.in_id_order
     for f in FIELDS:
         assert np.array_equal(getattr(pts, f), getattr(ref, f)), f
     assert np.array_equal(pts.soil.params, ref.soil.params, equal_nan=True)

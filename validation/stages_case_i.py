@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fem_rmpm import api  # noqa: E402
-from fem_rmpm.discretise.point_order import PointOrder  # noqa: E402
+from fem_rmpm.discretise.point_order import plane_point_order  # noqa: E402
 from fem_rmpm.scene import load_scene, with_values  # noqa: E402
 from fem_rmpm.schemes.explicit import kernels as K
 from fem_rmpm.schemes.explicit.loop import Workspace, explicit_step, run_explicit  # noqa: E402
@@ -43,7 +43,7 @@ def stage_times(t_state: float, threads: int, steps: int = 300, sort: bool = Tru
     grid, pts = api.prepare(scene)
     rec = run_explicit(scene, grid, pts)
     if sort:                        # as the run holds them (it restores the order at its end)
-        PointOrder().sort(grid, pts)
+        plane_point_order(grid, pts).sort()
     sv = scene.solver
     w = Workspace.for_grid(grid, pts.n)
     g = np.array(scene.gravity_vector)

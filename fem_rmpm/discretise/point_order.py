@@ -16,8 +16,16 @@ lists, error messages).
 The sort is a stable sort of the cell numbers of the current positions: a pure function
 of the state, the same on any number of threads.  It changes the order of the nodal
 sums, so a sorted run agrees with an unsorted one to round-off, not bitwise.
+
+:class:`PointOrder` is the schedule and the bookkeeping of both dimensions: it sorts by a
+key it is given and permutes through a function it is given.  The plane-strain loop's key
+is the host cell of :func:`~fem_rmpm.discretise.grid.locate` and its permutation
+:func:`permute_points` (:func:`plane_point_order`); the three-dimensional loop's are in
+:mod:`fem_rmpm.schemes.explicit3d.order`.
 """
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
@@ -25,7 +33,7 @@ from fem_rmpm.discretise.grid import Grid, locate
 from fem_rmpm.discretise.points import Particles
 from fem_rmpm.schemes.regularisation import forget_plan
 
-__all__ = ["SORT_EVERY", "permute_points", "PointOrder"]
+__all__ = ["SORT_EVERY", "permute_points", "PointOrder", "plane_point_order"]
 
 #: Steps between two sorts of the points (besides the sort after every output).
 SORT_EVERY = 500
@@ -61,38 +69,50 @@ def permute_points(pts: Particles, idx: np.ndarray, buffers: dict | None = None)
 
 
 class PointOrder:
-    """The points' order in the time loop: :meth:`sort` by host cell, :meth:`restore`
-    the original order, :meth:`sort_if_due` after a step.  ``every``: steps between two
-    sorts (0: never sort; every method is then a no-op).  ``order[s]``: the original
-    index of the point in slot ``s`` (None while the points are in their original order);
-    ``sorted``: True from a :meth:`sort` to the next :meth:`restore`."""
+    """The points' order in a time loop: :meth:`sort` by a key, :meth:`restore` the
+    original order, :meth:`sort_if_due` after a step.
 
-    def __init__(self, every: int = SORT_EVERY) -> None:
+    ``n``: the number of points; ``key()``: each slot's sort key (the host cell's number)
+    for the current state; ``permute(idx)``: reorder every per-point array of the run in
+    place, slot ``s`` taking the point in slot ``idx[s]``; ``every``: steps between two
+    sorts (0: never sort; every method is then a no-op); ``first``: the step after which
+    the first sort is due (0: the first step).  ``ids[s]``: the original index (the
+    point's id) of the point in slot ``s``; ``sorted``: True from a :meth:`sort` to the next
+    :meth:`restore`; ``sorts``: the sorts done."""
+
+    def __init__(self, n: int, key: Callable[[], np.ndarray],
+                 permute: Callable[[np.ndarray], None], every: int = SORT_EVERY,
+                 first: int = 0) -> None:
+        self.ids = np.arange(n)
         self.every = int(every)
-        self.order: np.ndarray | None = None
-        self.sorted = False
-        self.next_sort = 0
-        self._buffers: dict = {}
+        self.sorted = first > 0           # the seeded order serves until step ``first``
+        self.next_sort = int(first)
+        self.sorts = 0
+        self._key, self._permute = key, permute
 
-    def sort(self, grid: Grid, pts: Particles) -> None:
-        """Sort the points by host cell, :func:`fem_rmpm.discretise.grid.locate`'s number (row by
-        row, ``j nx + i``, as the grid numbers its cells and nodes; points outside the grid in its
-        edge cells), stably: ties keep their current order."""
+    @property
+    def in_id_order(self) -> bool:
+        """True when every point is in its original slot."""
+        return bool(np.array_equal(self.ids, np.arange(len(self.ids))))
+
+    def sort(self) -> None:
+        """Sort the points by their key, stably: ties keep their current order."""
         if self.every <= 0:
             return
         self.sorted = True
-        key = locate(grid, pts.x)[0]
+        self.sorts += 1
+        key = self._key()
         if bool((key[1:] >= key[:-1]).all()):
             return
         idx = np.argsort(key, kind="stable")
-        permute_points(pts, idx, self._buffers)
-        self.order = idx if self.order is None else self.order[idx]
+        self._permute(idx)
+        self.ids = self.ids[idx]
 
-    def sort_if_due(self, grid: Grid, pts: Particles, step: int) -> None:
+    def sort_if_due(self, step: int) -> None:
         """After step ``step``: sort if the points were restored since the last sort (an
         output, a guard) or ``every`` steps have passed."""
         if self.every > 0 and (not self.sorted or step >= self.next_sort):
-            self.sort(grid, pts)
+            self.sort()
             self.next_sort = step + self.every
 
     def due_step(self) -> float:
@@ -102,12 +122,22 @@ class PointOrder:
             return float("inf")
         return float(self.next_sort) if self.sorted else 0.0
 
-    def restore(self, pts: Particles) -> None:
-        """Put the points back in their original order."""
+    def restore(self) -> None:
+        """Put the points back in their original order (nothing to do when they are)."""
         self.sorted = False
-        if self.order is None:
+        if self.in_id_order:
             return
-        inverse = np.empty_like(self.order)
-        inverse[self.order] = np.arange(len(self.order))
-        permute_points(pts, inverse, self._buffers)
-        self.order = None
+        inverse = np.empty_like(self.ids)
+        inverse[self.ids] = np.arange(len(self.ids))
+        self._permute(inverse)
+        self.ids = np.arange(len(self.ids))
+
+
+def plane_point_order(grid: Grid, pts: Particles, every: int = SORT_EVERY) -> PointOrder:
+    """The order of the plane-strain loop's points ``pts`` on ``grid``: keyed by host cell,
+    :func:`fem_rmpm.discretise.grid.locate`'s number (row by row, ``j nx + i``, as the grid
+    numbers its cells and nodes; points outside the grid in its edge cells), permuted by
+    :func:`permute_points` through work buffers kept for the run."""
+    buffers: dict = {}
+    return PointOrder(pts.n, lambda: locate(grid, pts.x)[0],
+                      lambda idx: permute_points(pts, idx, buffers), every)

@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from fem_rmpm.discretise.grid import Grid
-from fem_rmpm.discretise.point_order import SORT_EVERY, PointOrder
+from fem_rmpm.discretise.point_order import SORT_EVERY, PointOrder, plane_point_order
 from fem_rmpm.discretise.points import Particles
 from fem_rmpm.scene import Scene
 from fem_rmpm.schemes.common import RunRecord, SimulationError, at_rest, check_points
@@ -68,7 +68,7 @@ def _without_gc(run):
 
 
 @contextlib.contextmanager
-def _stopping(order: PointOrder, pts: Particles):
+def _stopping(order: PointOrder):
     """Around the time loop: the points back in their seeded order however it ends; an
     interrupt or error also stops the compile helpers at once (no wait for a compile at
     exit, :func:`.cold_start.stop_helpers`)."""
@@ -78,7 +78,7 @@ def _stopping(order: PointOrder, pts: Particles):
         stop_helpers()
         raise
     finally:
-        order.restore(pts)
+        order.restore()
 
 
 @_without_gc
@@ -114,9 +114,9 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
     wall0 = time.perf_counter()
     if on_output:
         on_output(t, pts)
-    order = PointOrder(sort_every if kernel == "numba" else 0)
+    order = plane_point_order(grid, pts, sort_every if kernel == "numba" else 0)
     driven = kernel == "numba" and not has_nonlocal(pts.soil)    # non-local: Python steps
-    with _stopping(order, pts):
+    with _stopping(order):
         while t < sv.t_end - 1e-12:
             if driven:
                 ctl = run_control(sv, h_min, g_full, next_out if on_output else np.inf,
@@ -140,10 +140,10 @@ def run_explicit(scene: Scene, grid: Grid, pts: Particles, on_output=None,
             if progress and (driven or step % RECORD_EVERY == 0):
                 progress(t, step)
             if on_output and t >= next_out - 1e-12:
-                order.restore(pts)
+                order.restore()
                 on_output(t, pts)
                 next_out += sv.output_interval
-            order.sort_if_due(grid, pts, step)
+            order.sort_if_due(step)
             rest = at_rest(t, sv.gravity_ramp_time, stats.max_speed, stats.kinetic_energy, ke_peak,
                            sv.rest_velocity, sv.rest_energy_ratio)
             if geostatic and (rest or t >= sv.geostatic_time):
@@ -168,7 +168,7 @@ def _guards(grid: Grid, pts: Particles, stats: StepStats, order: PointOrder, ste
     :func:`fem_rmpm.schemes.common.check_points` on the points in their original order (the
     guards name points by their original index); frozen points make the next CFL step come
     from :func:`.reference.stable_time_step`.  False when no active point is left."""
-    order.restore(pts)
+    order.restore()
     check_points(grid, pts, step, t, policy, rec)
     if stats.n_outside:
         stats.wave_speed = None

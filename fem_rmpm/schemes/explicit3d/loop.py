@@ -32,7 +32,8 @@ from fem_rmpm.schemes.explicit3d.step import (
     step_3d,
     step_3d_threaded,
 )
-from fem_rmpm.schemes.explicit3d.order import SORT_EVERY, PointOrder
+from fem_rmpm.discretise.point_order import PointOrder
+from fem_rmpm.schemes.explicit3d.order import SORT_EVERY, point_order_3d
 from fem_rmpm.schemes.explicit3d.stress3d import BLOCK_ROWS
 
 __all__ = ["run_explicit_3d", "wave_speed_3d", "Workspace3D", "RECORD_EVERY"]
@@ -97,11 +98,11 @@ def run_explicit_3d(scene: Scene, grid: Grid3D, pts: Particles3D, on_output=None
     The points are kept sorted by cell while the loop runs (:mod:`.order`); ``on_output``
     and the caller see them in their seeded order (also after an error)."""
     work = Workspace3D(grid, pts)
-    order = PointOrder(pts.n)
+    order = point_order_3d(pts, work, SORT_EVERY)
     try:
         return _time_loop(scene, grid, pts, work, order, on_output, progress)
     finally:
-        order.restore(pts, work)
+        order.restore()
 
 
 # long function: the time loop's rules written out in order
@@ -116,7 +117,6 @@ def _time_loop(scene: Scene, grid: Grid3D, pts: Particles3D, work: Workspace3D,
     geostatic = sv.gravity_phase == "geostatic"
     speeds = (wave_speed_3d(pts), 0.0)
     wall0 = time.perf_counter()
-    last_sort = 0
     if on_output:
         on_output(t, pts)
     while t < sv.t_end - 1e-12:
@@ -146,13 +146,11 @@ def _time_loop(scene: Scene, grid: Grid3D, pts: Particles3D, work: Workspace3D,
             if progress:
                 progress(t, step)
         if on_output and t >= next_out - 1e-12:
-            order.restore(pts, work)
+            order.restore()
             on_output(t, pts)
             next_out += sv.output_interval
-            last_sort = step - SORT_EVERY             # sorted again below
-        if not geostatic and step - last_sort >= SORT_EVERY:
-            order.sort(pts, work)                     # the cells of this step's map
-            last_sort = step
+        if not geostatic:
+            order.sort_if_due(step)                   # by the cells of this step's map
         rest = at_rest(t, sv.gravity_ramp_time, max_speed, ke, ke_peak, sv.rest_velocity,
                        sv.rest_energy_ratio)
         if geostatic and (rest or t >= sv.geostatic_time):
@@ -169,7 +167,7 @@ def _time_loop(scene: Scene, grid: Grid3D, pts: Particles3D, work: Workspace3D,
     rec.steps, rec.time, rec.wall_time = step, t, time.perf_counter() - wall0
     rec.solver["point_sorts"] = order.sorts
     if on_output and next_out - sv.output_interval < t - 1e-12:
-        order.restore(pts, work)
+        order.restore()
         on_output(t, pts)
     return rec
 

@@ -3,13 +3,17 @@ that the map, the map back and the stress pass, which take the points in array o
 read and write the nodal rows of one cell after another (cache lines already loaded)
 instead of jumping across the grid as the points move away from their seeded order.
 
-:class:`PointOrder` permutes every per-point array of the run together (the points'
-dataclass, their material rows, the step's workspace) in place, so every reference to
-them stays valid, and keeps ``ids``: the seeded index (the point's id) of the point at
-each position.  The time loop (:mod:`.loop`) sorts every :data:`SORT_EVERY` steps and
-after each output, and puts the points back in id order before each output and at the
-end of the run (also when it stops on an error), so outputs, measures and the points
-handed back are per id as before.
+The schedule and the bookkeeping are the plane-strain loop's
+(:class:`fem_rmpm.discretise.point_order.PointOrder`); :func:`point_order_3d` gives them
+the three-dimensional key (each point's cell in the last map, the inactive points last)
+and permutation: :func:`permute_points_3d` reorders every per-point array of the run
+together (the points' dataclass, their material rows, the step's workspace) in place, so
+every reference to them stays valid, through a scratch of three numbers per point rather
+than a full copy of each array (24 B per point, which counts at millions of points).
+The time loop (:mod:`.loop`) sorts every :data:`SORT_EVERY` steps after the gravity
+phase and after each output, and puts the points back in id order before each output
+and at the end of the run (also when it stops on an error), so outputs, measures and the
+points handed back are per id as before.
 The order of the nodal sums changes with the order of the points: a sorted run differs
 from an unsorted one by round-off (``validation/plane_strain_3d.py``).
 """
@@ -19,9 +23,10 @@ from dataclasses import fields
 
 import numpy as np
 
+from fem_rmpm.discretise.point_order import PointOrder
 from fem_rmpm.runtime.compiled import kernel
 
-__all__ = ["PointOrder", "SORT_EVERY"]
+__all__ = ["SORT_EVERY", "permute_points_3d", "point_order_3d"]
 
 #: Steps between two sorts (besides the sort after each output): the points cross a few
 #: cells in that time, and a sort costs about two steps.
@@ -62,43 +67,28 @@ def _per_point_arrays(pts, work) -> list:
     return out
 
 
-class PointOrder:
-    """The order of the points of a run (module docstring): ``ids[i]`` is the id of the
-    point at position ``i``; ``sorts`` counts the sorts done."""
+def permute_points_3d(pts, work, perm: np.ndarray) -> None:
+    """Every per-point array of the run (:func:`_per_point_arrays`) ``a[:] = a[perm]`` in
+    place, the float arrays through one scratch of :data:`_CHUNK` numbers per point (a
+    few columns at a time)."""
+    n = len(perm)
+    tmp = np.empty(n * _CHUNK)
+    for a in _per_point_arrays(pts, work):
+        if a.dtype == np.float64:
+            a2 = a.reshape(n, -1) if a.ndim == 1 else a
+            for j in range(0, a2.shape[1], _CHUNK):
+                _permute_rows(a2[:, j:j + _CHUNK], perm, tmp)
+        else:
+            a[...] = a[perm]
 
-    def __init__(self, n: int):
-        self.ids = np.arange(n)
-        self.sorts = 0
 
-    @property
-    def in_id_order(self) -> bool:
-        return bool(np.array_equal(self.ids, np.arange(len(self.ids))))
+def point_order_3d(pts, work, every: int = SORT_EVERY) -> PointOrder:
+    """The order of the points ``pts`` (:class:`~fem_rmpm.discretise.points3d.Particles3D`)
+    and the per-point arrays of ``work`` (:class:`.loop.Workspace3D`: stretch, Lame
+    columns, each point's cell): keyed by the cell of the last map (``cellbase``), the
+    inactive points last; the first sort after ``every`` steps."""
+    def key() -> np.ndarray:
+        return np.where(pts.active, work.scratch.cellbase, np.iinfo(np.int64).max)
 
-    def _permute(self, pts, work, perm: np.ndarray) -> None:
-        """Every per-point array ``a[:] = a[perm]`` in place, the float arrays through one
-        scratch of :data:`_CHUNK` numbers per point (a few columns at a time)."""
-        n = len(perm)
-        tmp = np.empty(n * _CHUNK)
-        for a in _per_point_arrays(pts, work):
-            if a.dtype == np.float64:
-                a2 = a.reshape(n, -1) if a.ndim == 1 else a
-                for j in range(0, a2.shape[1], _CHUNK):
-                    _permute_rows(a2[:, j:j + _CHUNK], perm, tmp)
-            else:
-                a[...] = a[perm]
-        self.ids = self.ids[perm]
-
-    def sort(self, pts, work) -> None:
-        """Sort the points of ``pts`` (:class:`~fem_rmpm.discretise.points3d.Particles3D`)
-        and the per-point arrays of ``work`` (:class:`.loop.Workspace3D`: stretch, Lame
-        columns, each point's cell) by cell, stably, the inactive points last; the
-        cells are those of the last map (``cellbase``)."""
-        cb = work.scratch.cellbase
-        key = np.where(pts.active, cb, np.iinfo(np.int64).max)
-        self._permute(pts, work, np.argsort(key, kind="stable"))
-        self.sorts += 1
-
-    def restore(self, pts, work) -> None:
-        """Put the points back in id order (nothing to do when they are)."""
-        if not self.in_id_order:
-            self._permute(pts, work, np.argsort(self.ids))
+    return PointOrder(len(pts.mass), key, lambda perm: permute_points_3d(pts, work, perm),
+                      every, first=every)
