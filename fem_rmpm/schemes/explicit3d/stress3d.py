@@ -219,7 +219,7 @@ def _trial_block(blk, dt):
 @inline
 def _stress_and_checks(i, J, mass, vol, vol0, stress, lam, mu, acc):
     """Volume, Cauchy stress of point ``i`` (from the Kirchhoff stress in ``stress[i]``)
-    and its part of the maxima and counts ``acc`` (:func:`_point_checks`)."""
+    and its part of the maxima and counts ``acc`` (:func:`_stress_checks`)."""
     vol[i] *= J
     ratio = vol0[i] / vol[i]
     ok = True
@@ -227,11 +227,11 @@ def _stress_and_checks(i, J, mass, vol, vol0, stress, lam, mu, acc):
         stress[i, k] *= ratio
         ok &= math.isfinite(stress[i, k])
     c2 = (lam[i] + 2.0 * mu[i]) * vol[i] / mass[i]
-    return _point_checks(ok, c2, acc)
+    return _stress_checks(ok, c2, acc)
 
 
 @inline
-def _point_checks(ok, c2, acc):
+def _stress_checks(ok, c2, acc):
     """A point's part of the pass's largest squared P-wave speed and count of non-finite
     stresses ``acc`` (c2max, nbad): ``ok`` its stress is finite, ``c2`` its squared
     P-wave speed (m2/s2)."""
@@ -241,13 +241,13 @@ def _point_checks(ok, c2, acc):
 @inline
 def _write_and_check(i, j, blk, vol, stress, acc):
     """Point ``i``'s Cauchy stress and volume from column ``j`` of the block and its part
-    of the maxima and counts ``acc`` (:func:`_point_checks`)."""
+    of the maxima and counts ``acc`` (:func:`_stress_checks`)."""
     ok = True
     for k in range(6):
         stress[i, k] = blk[R_TAU + k, j]
         ok &= math.isfinite(stress[i, k])
     vol[i] = blk[R_VOL, j]
-    return _point_checks(ok, blk[R_MASS, j], acc)
+    return _stress_checks(ok, blk[R_MASS, j], acc)
 
 
 @inline
