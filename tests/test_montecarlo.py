@@ -537,15 +537,18 @@ def test_default_scene_runs_the_literature_cases():
 
 # --------------------------------------------------------------------------- validation script
 
-def test_validation_script_writes_the_case_figures(tmp_path):
+def test_validation_script_writes_the_case_figures(tmp_path, dask_scheduler):
     """validation/montecarlo_cases.py on the tiny scene with N = 2 runs the four
     literature cases (the deterministic one once) with common random
     numbers, writes results.csv, summary.json and the figures (valid PNGs), and prints per
-    case the P(failure) that the table's rows give."""
+    case the P(failure) that the table's rows give.  It runs on the test run's cluster
+    (``--scheduler``; a command that starts a cluster of its own:
+    :func:`test_one_and_two_workers_give_identical_tables`)."""
     import csv
     out = tmp_path / "val"
     r = subprocess.run([sys.executable, str(ROOT / "validation" / "montecarlo_cases.py"),
-                        "--scene", str(TINY), "-n", "2", "--workers", "2", "--out", str(out)],
+                        "--scene", str(TINY), "-n", "2", "--scheduler", dask_scheduler,
+                        "--out", str(out)],
                        env=_env(), capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     rows = list(csv.DictReader((out / "results.csv").open()))
