@@ -72,6 +72,25 @@ def dask_client():
 
 
 @pytest.fixture(scope="package")
+def mc_tiny_campaign(tmp_path_factory) -> Path:
+    """A finished two-realization campaign of ``tests/data/mc_tiny.toml`` made by the
+    command line (``python -m fem_rmpm.cli mc ... -n 2 --workers 1``: its own LocalCluster
+    of one worker process), once per test process.  Read-only: a module whose tests change a
+    campaign works on a copy of its own (``shutil.copytree``)."""
+    import os
+    import subprocess
+    import sys
+    out = tmp_path_factory.mktemp("mc_tiny_campaign") / "mc"
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    r = subprocess.run([sys.executable, "-m", "fem_rmpm.cli", "mc",
+                        str(ROOT / "tests" / "data" / "mc_tiny.toml"), "-n", "2",
+                        "--workers", "1", "--out", str(out)],
+                       env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+@pytest.fixture(scope="package")
 def dask_scheduler(dask_client) -> str:
     """The address of :func:`dask_client`'s scheduler (for ``mc --scheduler``)."""
     return dask_client.scheduler.address

@@ -210,8 +210,12 @@ def test_nonlocal_averaging_follows_every_step_with_the_runs_grid(monkeypatch):
 @pytest.mark.parametrize("options", [
     {"solver.kernel": "numpy", "solver.shape": "gimp", "solver.fbar": True,
      "solver.flip": 0.9, "solver.threads": 1},
+    # a von Mises soil that stays elastic: the model does not change what reaches a step,
+    # and these two-thread kernels are the ones tests/test_advance.py's reference runs use
     {"solver.kernel": "numba", "solver.shape": "standard", "solver.fbar": False,
-     "solver.flip": 1.0, "solver.threads": 2},
+     "solver.flip": 1.0, "solver.threads": 2, "soil.model": "von_mises_softening",
+     "soil.cohesion_peak": 200.0, "soil.cohesion_residual": 100.0,
+     "soil.softening_strain": 0.5},
 ])
 def test_solver_options_reach_every_step(monkeypatch, options):
     """``[solver] kernel, shape, fbar, flip, threads`` are what each explicit step gets;

@@ -294,11 +294,13 @@ def test_loopback_cluster_survives_a_killed_worker(tmp_path, loopback_cluster, s
 
 # --------------------------------------------------------------------------- resuming
 
-def test_sigkill_of_the_client_then_rerun_finishes_only_the_missing(tmp_path, slow_reference):
+def test_sigkill_of_the_client_then_rerun_finishes_only_the_missing(tmp_path, slow_reference,
+                                                                  dask_scheduler):
     """`fem-rmpm mc` is SIGKILLed (the client process only) after its first
     records; its local workers exit with it (they watch their parent); re-running the
-    same command computes only the realizations without a record, and the final table
-    equals the uninterrupted campaign's bitwise."""
+    same campaign (in this process, on the test run's cluster) computes only the
+    realizations without a record, and the final table equals the uninterrupted
+    campaign's bitwise."""
     out = tmp_path / "killed"
     argv = ["mc", str(SLOW), "--out", str(out), "--workers", "2", "--quiet"]
     proc = subprocess.Popen([sys.executable, "-m", "fem_rmpm.cli", *argv], env=_env(),
@@ -317,11 +319,12 @@ def test_sigkill_of_the_client_then_rerun_finishes_only_the_missing(tmp_path, sl
     done = len(_records(out))
     assert 1 <= done < 12, f"{done} records at the kill: not mid-campaign"
     assert not (out / "results.csv").exists()
-    assert cli.main(argv) == 0
+    rerun = [a for a in argv if a not in ("--workers", "2")] + ["--scheduler", dask_scheduler]
+    assert cli.main(rerun) == 0
     s = _summary(out)["this_run"]
     assert s["computed"] == 12 - done and s["skipped_finished"] == done
     assert _table(out) == _table(slow_reference)
-    # once more: nothing left to compute, no cluster started
+    # once more, the command as first given: nothing left to compute, no cluster started
     assert cli.main(argv) == 0
     assert _summary(out)["this_run"]["computed"] == 0
     assert _table(out) == _table(slow_reference)
@@ -537,15 +540,18 @@ def test_default_scene_runs_the_literature_cases():
 
 # --------------------------------------------------------------------------- validation script
 
-def test_validation_script_writes_the_case_figures(tmp_path):
+def test_validation_script_writes_the_case_figures(tmp_path, dask_scheduler):
     """validation/montecarlo_cases.py on the tiny scene with N = 2 runs the four
     literature cases (the deterministic one once) with common random
     numbers, writes results.csv, summary.json and the figures (valid PNGs), and prints per
-    case the P(failure) that the table's rows give."""
+    case the P(failure) that the table's rows give.  It runs on the test run's cluster
+    (``--scheduler``; a command that starts a cluster of its own:
+    :func:`test_one_and_two_workers_give_identical_tables`)."""
     import csv
     out = tmp_path / "val"
     r = subprocess.run([sys.executable, str(ROOT / "validation" / "montecarlo_cases.py"),
-                        "--scene", str(TINY), "-n", "2", "--workers", "2", "--out", str(out)],
+                        "--scene", str(TINY), "-n", "2", "--scheduler", dask_scheduler,
+                        "--out", str(out)],
                        env=_env(), capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     rows = list(csv.DictReader((out / "results.csv").open()))

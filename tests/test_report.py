@@ -15,20 +15,12 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from fem_rmpm.campaign.report import ReportError, report_html, write_report
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _env() -> dict:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
-    return env
+from fem_rmpm.cli import main
 
 
 def _browser() -> str:
@@ -43,13 +35,11 @@ def _browser() -> str:
 
 
 @pytest.fixture(scope="module")
-def campaign(tmp_path_factory) -> Path:
+def campaign(mc_tiny_campaign, tmp_path_factory) -> Path:
+    """This module's copy of the shared finished campaign of ``tests/data/mc_tiny.toml``
+    (``fem-rmpm mc -n 2 --workers 1``, conftest.py): its tests rewrite the report."""
     out = tmp_path_factory.mktemp("report") / "mc"
-    r = subprocess.run([sys.executable, "-m", "fem_rmpm.cli", "mc",
-                        str(ROOT / "tests" / "data" / "mc_tiny.toml"), "-n", "2",
-                        "--workers", "1", "--out", str(out)],
-                       env=_env(), capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
+    shutil.copytree(mc_tiny_campaign, out)
     return out
 
 
@@ -59,17 +49,19 @@ def test_mc_writes_the_report(campaign):
     assert page.startswith("<!DOCTYPE html>") and "mc_tiny" in page
 
 
-def test_report_command(campaign, tmp_path):
-    """``fem-rmpm report DIR`` rewrites the page; a directory without a campaign is exit 2,
-    one line, and nothing is written there."""
+def test_report_command(campaign, tmp_path, capsys):
+    """``fem-rmpm report DIR`` (the command line's ``main``, in this process) rewrites the
+    page; a directory without a campaign is exit 2, one line, and nothing is written
+    there."""
     (campaign / "report.html").unlink()
-    r = subprocess.run([sys.executable, "-m", "fem_rmpm.cli", "report", str(campaign)],
-                       env=_env(), capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0 and (campaign / "report.html").is_file(), r.stderr
-    r = subprocess.run([sys.executable, "-m", "fem_rmpm.cli", "report", str(tmp_path)],
-                       env=_env(), capture_output=True, text=True, timeout=120)
-    assert r.returncode == 2 and len(r.stderr.splitlines()) == 1, r.stderr
-    assert "no summary.json" in r.stderr and list(tmp_path.iterdir()) == []
+    code = main(["report", str(campaign)])
+    err = capsys.readouterr().err
+    assert code == 0 and (campaign / "report.html").is_file(), err
+    code = main(["report", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert "Traceback" not in err
+    assert "no summary.json" in err and list(tmp_path.iterdir()) == []
 
 
 def test_report_content(campaign):
