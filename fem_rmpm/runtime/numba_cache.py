@@ -67,7 +67,7 @@ except ImportError:          # no event API: no compile count (compile_stats)
     numba_event = None
 
 __all__ = ["COMPILED_SOURCES", "EXPLICIT_SOURCES", "sources_hash", "stamp_group", "install",
-           "compile_stats", "cached", "Helper", "compile_aside", "type_to_json",
+           "compile_stats", "process_seconds", "cached", "Helper", "compile_aside", "type_to_json",
            "type_from_json"]
 
 PACKAGE = Path(__file__).resolve().parents[1]
@@ -153,6 +153,20 @@ def compile_stats() -> tuple[int, float]:
     wall time (s) spent in them (outermost compiles only, callees are inside).  (0, 0.0)
     where numba's event API is missing."""
     return _COMPILES[0], _COMPILES[1]
+
+
+def process_seconds() -> float | None:
+    """Wall seconds since this process started (the kernel's start time of the process,
+    ``/proc/self/stat``, against the clock since boot; to the kernel's clock tick, 10 ms
+    on Linux), so that the interpreter's start and the imports count; None where that
+    cannot be read (not Linux)."""
+    try:
+        with open("/proc/self/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()
+        started = int(fields[19]) / os.sysconf("SC_CLK_TCK")     # (field 22: starttime)
+        return max(time.clock_gettime(time.CLOCK_BOOTTIME) - started, 0.0)
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
 
 
 def _count_compiles() -> bool:

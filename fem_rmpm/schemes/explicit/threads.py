@@ -20,7 +20,7 @@ from numba.np.ufunc import parallel as numba_parallel
 
 from fem_rmpm.runtime.machine import slow_threads_warning, threading_layer
 from fem_rmpm.runtime.machine import usable_cores as _cores
-from fem_rmpm.runtime.numba_cache import compile_stats
+from fem_rmpm.runtime.numba_cache import compile_stats, process_seconds
 from fem_rmpm.schemes.common import RunRecord
 
 __all__ = ["auto_threads", "run_threads", "busy_threads_warning", "threads_from_auto",
@@ -124,13 +124,20 @@ def threads_from_auto(resolved: bool):
 
 
 def first_step_done(rec: RunRecord, seconds: float, threads: int) -> None:
-    """Book the first step's wall time (s), the functions numba compiled in this process
+    """Book the first step's wall time (s) from the time loop's set-up
+    (``first_step_time``) and from the start of the process (``first_step_after_start``:
+    the interpreter, the imports and the scene's set-up included;
+    :func:`fem_rmpm.runtime.numba_cache.process_seconds`, absent where the process's start
+    time cannot be read), the functions numba compiled in this process
     up to it and the wall seconds that took (``numba_compiles``,
     :func:`fem_rmpm.runtime.numba_cache.compile_stats`: 0 when every kernel came from the
     on-disk cache) and, on two or more threads, numba's threading layer in ``rec.solver``;
     warn (once per process) when that layer is the slow one
     (:func:`fem_rmpm.runtime.machine.slow_threads_warning`)."""
     rec.solver["first_step_time"] = seconds
+    since_start = process_seconds()
+    if since_start is not None:
+        rec.solver["first_step_after_start"] = since_start
     functions, compile_seconds = compile_stats()
     rec.solver["numba_compiles"] = {"functions": functions, "seconds": compile_seconds}
     if threads > 1:
