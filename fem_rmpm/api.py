@@ -20,25 +20,22 @@ the seed's own noise (``grid = prepare(scene)[0]``), so that
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import os
 import sys
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import meshio
 import numpy as np
 from tqdm import tqdm
 
 from fem_rmpm.discretise.contact import refuse_frictional
 from fem_rmpm.discretise.grid import Grid, make_grid
-from fem_rmpm.discretise.grid3d import make_grid_3d, soil_cells_3d
-from fem_rmpm.discretise.points3d import seed_particles_3d
 from fem_rmpm.discretise.points import Particles, seed_particles, soil_cells
 from fem_rmpm.io.output import PvdSeries, write_grid, write_json
-from fem_rmpm.io.output3d import VTK_HEX_ORDER, write_grid_3d
-from fem_rmpm.io.plots import plot_energy, plot_profile, plot_snapshots
 from fem_rmpm.io.rundir import (
     RunDirError,
     check_run_dir,
@@ -47,15 +44,6 @@ from fem_rmpm.io.rundir import (
     start_run_dir,
 )
 from fem_rmpm.materials import point_problem
-from fem_rmpm.measures import table as measure_table
-from fem_rmpm.measures.deposit import compute_measures, excluded_summary
-from fem_rmpm.measures.deposit3d import compute_measures_3d
-from fem_rmpm.random_field import apply_to_points, field_noise, noise_shape, sample_point_properties
-from fem_rmpm.random_field.points3d import (
-    apply_to_points_3d,
-    prepare_field_3d,
-    sample_point_properties_3d,
-)
 from fem_rmpm.runtime.budget import check_budget, explicit_numba
 from fem_rmpm.runtime.machine import describe as describe_machine
 from fem_rmpm.runtime.signals import interrupt_name, raise_if_interrupted
@@ -65,11 +53,28 @@ from fem_rmpm.schemes.explicit import kernels
 from fem_rmpm.schemes.explicit.kernels.advance import pair_driver_fits, pair_worker
 from fem_rmpm.schemes.explicit.loop import run_explicit
 from fem_rmpm.schemes.explicit.threads import auto_threads, threads_from_auto
-from fem_rmpm.schemes.explicit3d import run_explicit_3d
-from fem_rmpm.schemes.fem import FemResult, solve_static
-from fem_rmpm.schemes.fem3d import Fem3DResult, solve_static_3d
-from fem_rmpm.schemes.implicit import run_implicit, strength_reduction
 from fem_rmpm.schemes.pore_pressure import saturate_points, vtk_fields
+
+if TYPE_CHECKING:
+    from fem_rmpm.schemes.fem import FemResult
+    from fem_rmpm.schemes.fem3d import Fem3DResult
+
+# Imported where first used, so that an explicit two-dimensional run loads neither the
+# implicit scheme, the static FEM reference, the random fields (unless its scene has one),
+# the three-dimensional scheme, the measures (after the time loop) nor matplotlib (the
+# figures at the end) before its first step (``tests/test_start_up.py``).
+# ``noise_shape`` and ``field_noise`` are the random field's (:mod:`fem_rmpm.random_field`),
+# loaded on first access (PEP 562).
+_LAZY = {"noise_shape": "fem_rmpm.random_field", "field_noise": "fem_rmpm.random_field"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["load_scene", "with_value", "prepare", "run", "fem", "factor_of_safety", "RunResult",
            "noise_shape", "field_noise", "with_run_threads", "SceneError", "SimulationError",
@@ -100,6 +105,8 @@ def prepare(scene: Scene, seed: int | None = None, noise=None) -> tuple[Grid, Pa
     pts = seed_particles(scene, grid)
     saturate_points(scene, pts)                # [water]: saturated mass below the surface
     if scene.random_field is not None:
+        # lazy: a scene with a random field only
+        from fem_rmpm.random_field import apply_to_points, sample_point_properties
         seed = scene.montecarlo.seed if seed is None else seed
         values = sample_point_properties(scene, grid, pts, seed, noise=noise)
         pts.soil = apply_to_points(pts.soil, values)   # residuals in proportion to peak
@@ -111,6 +118,14 @@ def _prepare_3d(scene: Scene, seed: int | None, noise) -> tuple:
     """:func:`prepare` of a three-dimensional scene: the field's memory is checked (and its
     embedding set up) before the points are seeded
     (:mod:`fem_rmpm.random_field.points3d`)."""
+    from fem_rmpm.discretise.grid3d import make_grid_3d, soil_cells_3d  # lazy: 3-D only
+    from fem_rmpm.discretise.points3d import seed_particles_3d  # lazy: 3-D only
+    # lazy: 3-D only
+    from fem_rmpm.random_field.points3d import (
+        apply_to_points_3d,
+        prepare_field_3d,
+        sample_point_properties_3d,
+    )
     grid = make_grid_3d(scene)
     if scene.random_field is None:
         return grid, seed_particles_3d(scene, grid)
@@ -138,6 +153,7 @@ def _run_scheme(scene, grid, pts, on_output, progress, out=None):
     """The scheme's run; Ctrl-C or SIGTERM marks the summary in ``out`` interrupted."""
     try:
         if scene.solver.scheme == "implicit":
+            from fem_rmpm.schemes.implicit import run_implicit  # lazy: implicit runs only
             return run_implicit(scene, grid, pts, on_output=on_output, progress=progress)
         return run_explicit(scene, grid, pts, on_output=on_output, progress=progress)
     except KeyboardInterrupt as exc:
@@ -260,6 +276,7 @@ def run(scene: Scene, out: str | Path | None = None, seed: int | None = None, *,
         if bar:
             bar.close()
     rec.wall_time, rec.cpu_time = time.perf_counter() - wall0, time.process_time() - cpu0
+    from fem_rmpm.measures.deposit import compute_measures  # lazy: after the time loop
     mc, t0 = scene.montecarlo, rec.solver.get("geostatic_end_time", 0.0)   # t0: motion starts
     measures = compute_measures(pts, scene.scene.frame_angle_deg, mc.failure_displacement,
                                 grid.cell, rec.time if rec.stop_reason == "at rest" else None,
@@ -286,6 +303,10 @@ def _run_3d(scene: Scene, out, seed, *, progress: bool, vtk: bool | None,
     strike-wise measures (:mod:`fem_rmpm.measures.deposit3d`).  No snapshot of the
     positions is kept in memory (``snapshots`` holds the output times only);
     ``stop_when`` as in :func:`run`."""
+    from fem_rmpm.discretise.grid3d import soil_cells_3d  # lazy: 3-D only
+    from fem_rmpm.io.output3d import write_grid_3d  # lazy: 3-D only
+    from fem_rmpm.measures.deposit3d import compute_measures_3d  # lazy: 3-D only
+    from fem_rmpm.schemes.explicit3d import run_explicit_3d  # lazy: 3-D only
     out = check_run_dir(out, force) if out is not None else None
     check_seed(seed)
     estimate = check_budget(scene)
@@ -435,6 +456,7 @@ def compile_notice(scene: Scene) -> str | None:
 
 
 def _summary(scene, seed, pts, rec, measures, machine: dict, estimate) -> dict:
+    from fem_rmpm.measures.deposit import excluded_summary  # lazy: after the time loop
     return {
         "scene": scene_to_dict(scene), "scene_file": scene.source, "seed": seed,
         "scheme": rec.scheme, "status": "failed" if rec.error else "ok", "error": rec.error,
@@ -461,6 +483,9 @@ def _summary(scene, seed, pts, rec, measures, machine: dict, estimate) -> dict:
 
 
 def _figures(out, scene, grid, snapshots, measures, label: str | None = None, rec=None):
+    # lazy: matplotlib, for figures
+    from fem_rmpm.io.plots import plot_energy, plot_profile, plot_snapshots
+    from fem_rmpm.measures import table as measure_table  # lazy: figures only
     times = np.array([t for t, *_ in snapshots])
     mech = measures.get("mechanism_time")
     targets = list(times[-1] * np.array([0.0, 0.1, 0.25, 0.5, 1.0]))   # early failure in detail
@@ -493,6 +518,9 @@ def fem(scene: Scene, out: str | Path | None = None, *, force: bool = False) -> 
     check_budget(scene)
     if scene.grid.dimension == 3:
         return _fem_3d(scene, out, t0)
+    import meshio  # lazy: fem only
+
+    from fem_rmpm.schemes.fem import solve_static  # lazy: fem only
     res = solve_static(scene)
     if out is not None:
         out = start_run_dir(out, {"scene": scene_to_dict(scene), "scene_file": scene.source,
@@ -519,6 +547,10 @@ def fem(scene: Scene, out: str | Path | None = None, *, force: bool = False) -> 
 def _fem_3d(scene: Scene, out, t0: float) -> Fem3DResult:
     """:func:`fem` of a three-dimensional scene (:mod:`fem_rmpm.schemes.fem3d`): the
     soil hexahedra with their displacement and mean Gauss-point stress in ``fem.vtu``."""
+    import meshio  # lazy: fem only
+
+    from fem_rmpm.io.output3d import VTK_HEX_ORDER  # lazy: 3-D fem only
+    from fem_rmpm.schemes.fem3d import solve_static_3d  # lazy: 3-D fem only
     res = solve_static_3d(scene)
     if out is None:
         return res
@@ -554,6 +586,7 @@ def factor_of_safety(scene: Scene, seed: int | None = None, out: str | Path | No
         raise SceneError(f"{scene.source}: [grid.size] a three-dimensional scene; allowed: "
                          "a plane-strain scene for the factor of safety (the implicit "
                          "strength reduction is plane strain only)")
+    from fem_rmpm.schemes.implicit import strength_reduction  # lazy: fs only
     grid, pts = prepare(scene, seed)
     res = strength_reduction.factor_of_safety(
         scene, seed=seed, options=strength_reduction.FSOptions(**options), grid=grid, pts=pts)

@@ -23,13 +23,9 @@ from fem_rmpm import (
     campaign,  # its cluster and runner modules (dask) load on first use
 )
 from fem_rmpm.campaign.cases import campaign_cases, default_scene_path
-from fem_rmpm.campaign.report import ReportError, write_report
-from fem_rmpm.campaign.summary_text import subset_summary_text, summary_text
 from fem_rmpm.campaign.three_d import check_campaign_3d
-from fem_rmpm.io import field_output
 from fem_rmpm.io.output import OutputError
 from fem_rmpm.io.rundir import output_dir_for
-from fem_rmpm.measures import table as measure_table
 from fem_rmpm.runtime.errors import InputError
 from fem_rmpm.runtime.signals import graceful_interrupts, interrupt_exit_code, interrupt_name
 from fem_rmpm.scene import (
@@ -42,10 +38,21 @@ from fem_rmpm.scene import (
 )
 from fem_rmpm.scene.dimension import refuse_three_d
 from fem_rmpm.schemes.common import SimulationError
-from fem_rmpm.schemes.implicit.strength_reduction import fs_cli
 
 __all__ = ["main", "default_scene_path", "build_parser", "parse_settings", "summary_text",
            "campaign_cases", "InputError"]
+
+# The modules of one command only are imported by that command (``fem-rmpm run`` of an
+# explicit scene loads neither the implicit scheme, the campaign's statistics and report,
+# the random fields' figures nor the measures' table before its first step:
+# ``tests/test_start_up.py``); ``summary_text`` stays a name of this module (PEP 562).
+
+
+def __getattr__(name: str):
+    if name == "summary_text":
+        from fem_rmpm.campaign.summary_text import summary_text  # lazy: mc only
+        return summary_text
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _scene_arg(p: argparse.ArgumentParser, optional: bool = False) -> None:
@@ -82,6 +89,7 @@ def scene_from_args(a):
 def _cmd_run(a) -> int:
     scene = scene_from_args(a)
     res = api.run(scene, out=a.out, seed=a.seed, progress=not a.quiet, force=a.force)
+    from fem_rmpm.measures import table as measure_table  # lazy: loaded after the run
     s, m = res.summary, res.measures
     if s["stop_reason"] == "load applied":
         steps = f"{s['steps']} load steps (load factor 1)"
@@ -123,6 +131,7 @@ def _cmd_mc_response(a, scene: Scene, cluster: campaign.ClusterSpec) -> int:
                                        scheduler=a.scheduler, force=a.force,
                                        progress=not a.quiet, cluster=cluster,
                                        method=a.method)
+    from fem_rmpm.campaign.summary_text import subset_summary_text  # lazy: mc only
     print(subset_summary_text(res))
     return 3 if res.lost else 0
 
@@ -168,6 +177,7 @@ def _cmd_mc(a) -> int:
                                 workers=a.workers, scheduler=a.scheduler, force=a.force,
                                 keep_vtk=a.keep_vtk, progress=not a.quiet, cluster=cluster,
                                 fs_only=a.fs_only, method=a.method)
+    from fem_rmpm.campaign.summary_text import summary_text  # lazy: mc only
     print(summary_text(res))
     return 3 if res.lost else 0
 
@@ -218,6 +228,7 @@ def _cmd_main_job(a, cluster: campaign.ClusterSpec) -> int:
         return 0
     main, side = main_job.run_main_job(a.out, a.realizations, scene=risk, keep_vtk=a.keep_vtk,
                                        progress=not a.quiet, **opts)
+    from fem_rmpm.campaign.summary_text import summary_text  # lazy: mc only
     print(summary_text(main))
     print(summary_text(side))
     print(f"Main job: {os.path.join(a.out, 'report.html')} (the risk slope, its fragility "
@@ -231,6 +242,7 @@ def _cmd_fs(a) -> int:
     scene = scene_from_args(a)
     refuse_three_d(scene, "fs")
     grid, pts = api.prepare(scene, a.seed)
+    from fem_rmpm.schemes.implicit.strength_reduction import fs_cli  # lazy: fs only
     return fs_cli(a, scene, grid, pts)
 
 
@@ -238,6 +250,7 @@ def _cmd_field(a) -> int:
     """``fem-rmpm field [SCENE] --seed S --out DIR [--data CSV] [--fit CSV]``."""
     t0 = time.perf_counter()
     refuse_three_d(load_scene(a.scene), "field")
+    from fem_rmpm.io import field_output  # lazy: field only
     scene, note = field_output.field_scene(a.scene)
     k, rf = field_output.field_property(scene, getattr(a, "property", None))
     seed = scene.montecarlo.seed if getattr(a, "seed", None) is None else check_seed(a.seed)
@@ -258,6 +271,7 @@ def _cmd_field(a) -> int:
 
 def _cmd_report(a) -> int:
     """``fem-rmpm report DIR``: write DIR/report.html from a campaign directory."""
+    from fem_rmpm.campaign.report import ReportError, write_report  # lazy: report only
     try:
         path = write_report(a.campaign)
     except ReportError as exc:
@@ -386,14 +400,30 @@ def _add_mc(sub) -> None:
     m.add_argument("--method", choices=tuple(campaign.METHODS), default="crude",
                    help="; ".join(f"{k}: {e.help}" for k, e in campaign.METHODS.items())
                    + " (default crude; for subset -n is the samples per level, default 1000)")
-    m.add_argument("--response", default=None,
-                   help=f"subset: {measure_table.responses_text()}; failure above or below "
-                   "--threshold (factor_of_safety: default 1)")
+    m.add_argument("--response", default=None, action=_ResponseArgument)
     m.add_argument("--threshold", type=float, default=None,
                    help="subset: the failure threshold, in the response's unit")
     m.add_argument("--p0", type=float, default=None,
                    help="subset: level probability in (0, 0.5] (default 0.1)")
     m.set_defaults(func=_cmd_mc)
+
+
+class _ResponseArgument(argparse.Action):
+    """``mc --response``, stored as given; its help (the responses of the measures' table)
+    is made when shown, so that building the parser does not import the measures."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+
+    @property
+    def help(self) -> str:
+        from fem_rmpm.measures import table as measure_table  # lazy: when shown
+        return (f"subset: {measure_table.responses_text()}; failure above or below "
+                "--threshold (factor_of_safety: default 1)")
+
+    @help.setter
+    def help(self, value) -> None:       # (argparse sets None: the property answers)
+        pass
 
 
 def _add_converge(sub) -> None:
