@@ -17,6 +17,7 @@ from fem_rmpm.scene import Scene
 from fem_rmpm.schemes.common import RunRecord, SimulationError, at_rest, check_points
 from fem_rmpm.schemes.implicit.control import DET_BOUNDS, StepController, Verdict
 from fem_rmpm.schemes.implicit.linear import LinearSolver
+from fem_rmpm.schemes.implicit import step_kernels as sk
 from fem_rmpm.schemes.implicit.newton import NewtonFailure
 from fem_rmpm.schemes.implicit.steps import (
     Geostatic,
@@ -177,8 +178,17 @@ class _Run:
             size = verdict.size if ctl.adaptive else (h if cuts else size)
             self.t = time_of(pos)
             self.record_step(kind, out.result, pos, h, cuts, info, verdict, limits)
-            check_points(self.grid, self.pts, self.step, self.t, self.sv.edge_policy, self.rec)
+            self.check_points()
             yield info
+
+    def check_points(self) -> None:
+        """The point check after a step (:func:`fem_rmpm.schemes.common.check_points`: a
+        non-finite state stops the run, a point off the grid is frozen or stops it), run
+        only when one compiled pass over the points finds something to report."""
+        pts, lo, hi = self.pts, self.grid.origin, self.grid.upper
+        if not sk.points_fine(pts.active, pts.x, pts.velocity, pts.stress, float(lo[0]),
+                              float(lo[1]), float(hi[0]), float(hi[1])):
+            check_points(self.grid, pts, self.step, self.t, self.sv.edge_policy, self.rec)
 
     # -- phases
     def load_phase(self) -> None:
