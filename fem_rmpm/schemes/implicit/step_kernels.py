@@ -28,7 +28,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ["q4_step_basis", "dense_rank", "kept_groups", "free_body_force", "newmark_start",
-           "interpolate_free", "newmark_commit", "step_limits", "points_fine", "gather_rows"]
+           "interpolate_free", "newmark_commit", "step_limits", "points_fine", "gather_rows",
+           "scatter_rows"]
 
 
 @njit(cache=True, error_model="numpy")
@@ -254,3 +255,12 @@ def gather_rows(src, act, out):
         for c in range(src.shape[1]):
             out[j, c] = src[p, c]
     return out
+
+
+@njit(cache=True)
+def scatter_rows(dst, act, src):
+    """``dst[act[j]] = src[j]`` for a 2-D ``dst`` (the rows of the active points)."""
+    for j in range(len(act)):
+        p = act[j]
+        for c in range(dst.shape[1]):
+            dst[p, c] = src[j, c]

@@ -294,14 +294,17 @@ class StepKind:
         sys_, sv = self.sys, self.sys.sv
         t_setup = time.perf_counter()
         st = sys_.begin(lf_new, lf_old, dt, self.dynamic)
-        t_setup = time.perf_counter() - t_setup
+        t_pred = time.perf_counter()
+        t_setup = t_pred - t_setup
         du0 = self.predictor(st)
+        t_pred = time.perf_counter() - t_pred
         sys_.solver.new_step(st.S)
         res = newton(lambda du: self.residual(st, du), lambda: self.tangent(st), du0,
                      sys_.solver, sv.max_iterations, sv.tolerance,
                      modes=st.S.rigid_body_modes, quasi_newton=self.quasi_newton)
         res.t_material, res.t_assembly, res.t_setup = (st.clock["material"],
                                                        st.clock["assembly"], t_setup)
+        res.t_predictor = t_pred
         return StepOutcome(res, lambda: self.commit(st, res), lambda: self.limits(st, res))
 
     def limits(self, st: StepData, res: NewtonResult) -> dict:
@@ -443,7 +446,8 @@ class QuasiStatic(StepKind):
             st.cache["J"] = J
             info = self.sys.reactions(st, res.du, self.force_stress(st, tau),
                                       np.matmul(S.dN, Finv))
-        pts.log_strain[act], pts.state[act] = ls, q
+        _set_rows(pts.log_strain, act, ls)
+        _set_rows(pts.state, act, q)
         # x += N du, F <- dF F, V = det(F) V0, sigma = tau / det F (one compiled pass)
         pk.move_points(act, self._point_increment(st, res, du_nodes),
                        np.ascontiguousarray(dFm), st.V0,
@@ -566,6 +570,15 @@ def _rows(a: np.ndarray, act: np.ndarray) -> np.ndarray:
     if a.ndim != 2 or a.dtype != np.float64:
         return a[act]
     return sk.gather_rows(a, act, np.empty((len(act), a.shape[1])))
+
+
+def _set_rows(a: np.ndarray, act: np.ndarray, values: np.ndarray) -> None:
+    """``a[act] = values`` for a 2-D per-point array (a compiled scatter)."""
+    if a.ndim == 2 and values.ndim == 2 and a.dtype == values.dtype == np.float64 \
+            and values.shape == (len(act), a.shape[1]):
+        sk.scatter_rows(a, act, values)
+    else:
+        a[act] = values
 
 
 def prescribed_nodes(scene: Scene, grid: Grid) -> list[dict]:
