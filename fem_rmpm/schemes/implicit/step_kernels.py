@@ -15,7 +15,9 @@ DOFs):
 * :func:`interpolate_free`, :func:`newmark_commit`, :func:`step_limits` -- free-DOF
   vectors at the points, the FLIP/PIC point velocity and acceleration update, and the
   kinematic figures of a step;
-* :func:`points_fine` -- the point check of a step (finite state, inside the grid).
+* :func:`points_fine` -- the point check of a step (finite state, inside the grid);
+* :func:`rows`, :func:`set_rows` -- the active points' rows of a per-point array, read and
+  written by compiled loops.
 
 Every sum runs in the order of the numpy code it replaces, so a run is bitwise the same
 (``tests/test_implicit_step_kernels.py``).  Compiled on first use and cached on disk.
@@ -29,7 +31,7 @@ from numba import njit
 
 __all__ = ["q4_step_basis", "dense_rank", "kept_groups", "free_body_force", "newmark_start",
            "interpolate_free", "newmark_commit", "step_limits", "points_fine", "gather_rows",
-           "scatter_rows"]
+           "scatter_rows", "rows", "set_rows"]
 
 
 @njit(cache=True, error_model="numpy")
@@ -264,3 +266,19 @@ def scatter_rows(dst, act, src):
         p = act[j]
         for c in range(dst.shape[1]):
             dst[p, c] = src[j, c]
+
+
+def rows(a: np.ndarray, act: np.ndarray) -> np.ndarray:
+    """``a[act]`` for a per-point array, in C order (compiled for 2-D float arrays)."""
+    if a.ndim != 2 or a.dtype != np.float64:
+        return a[act]
+    return gather_rows(a, act, np.empty((len(act), a.shape[1])))
+
+
+def set_rows(a: np.ndarray, act: np.ndarray, values: np.ndarray) -> None:
+    """``a[act] = values`` for a per-point array (compiled for 2-D float arrays)."""
+    if a.ndim == 2 and values.ndim == 2 and a.dtype == values.dtype == np.float64 \
+            and values.shape == (len(act), a.shape[1]):
+        scatter_rows(a, act, values)
+    else:
+        a[act] = values

@@ -150,7 +150,7 @@ class ImplicitSystem:
         if self.water is not None:   # pore water: -V grad u at the step's start positions
             f_ext = f_ext + nodal_water_force(self.water, S, pts.x[act], pts.volume[act], lf_new)
         return StepData(S, act, pts.volume0[act], pts.volume[act], mass,
-                        _rows(pts.log_strain, act), _rows(pts.state, act),
+                        sk.rows(pts.log_strain, act), sk.rows(pts.state, act),
                         self._active_soil(act), f_ext, lf_new, lf_old, presc, dt)
 
     def _active_soil(self, act: np.ndarray) -> MaterialPoints:
@@ -172,7 +172,7 @@ class ImplicitSystem:
         cell (:meth:`StepSystem._cell_pattern`: the occupied cells and a halo around
         them), so the symbolic factorization is reused."""
         pts, c = self.pts, self.pattern_cache
-        x = _rows(pts.x, act)
+        x = sk.rows(pts.x, act)
         hw = pts.half_width[act] if pts.half_width is not None else None
         S = c.get("S")
         if S is not None and c["grid"] is self.grid and c["shape"] == self.sv.shape \
@@ -446,8 +446,8 @@ class QuasiStatic(StepKind):
             st.cache["J"] = J
             info = self.sys.reactions(st, res.du, self.force_stress(st, tau),
                                       np.matmul(S.dN, Finv))
-        _set_rows(pts.log_strain, act, ls)
-        _set_rows(pts.state, act, q)
+        sk.set_rows(pts.log_strain, act, ls)
+        sk.set_rows(pts.state, act, q)
         # x += N du, F <- dF F, V = det(F) V0, sigma = tau / det F (one compiled pass)
         pk.move_points(act, self._point_increment(st, res, du_nodes),
                        np.ascontiguousarray(dFm), st.V0,
@@ -512,8 +512,8 @@ class NewmarkDynamic(QuasiStatic):
         nf = S.n_free
         v_n, a_n, m_free = np.empty(nf), np.empty(nf), np.empty(nf)
         # the nodal mass, velocity and acceleration on the free DOFs only, in one pass
-        n_floor = sk.newmark_start(S.nodes, S.N, mass, _rows(pts.velocity, act),
-                                   _rows(self.sys.acc, act), S.fnum, S.free_dofs,
+        n_floor = sk.newmark_start(S.nodes, S.N, mass, sk.rows(pts.velocity, act),
+                                   sk.rows(self.sys.acc, act), S.fnum, S.free_dofs,
                                    S.used_nodes, m_min, _MASS_TOL, self.sys.node_work(),
                                    np.zeros(nf), np.zeros(nf), v_n, a_n, m_free)
         alpha, gamma, beta = self._coefficients()
@@ -563,22 +563,6 @@ class NewmarkDynamic(QuasiStatic):
         ke = 0.5 * float(np.sum(c["m_free"] * v_new * v_new))
         return {"kinetic_energy": ke, "floor_mass_nodes": c["n_floor"],
                 "max_speed": float(v_max)}
-
-
-def _rows(a: np.ndarray, act: np.ndarray) -> np.ndarray:
-    """``a[act]`` for a 2-D per-point array, in C order (a compiled gather)."""
-    if a.ndim != 2 or a.dtype != np.float64:
-        return a[act]
-    return sk.gather_rows(a, act, np.empty((len(act), a.shape[1])))
-
-
-def _set_rows(a: np.ndarray, act: np.ndarray, values: np.ndarray) -> None:
-    """``a[act] = values`` for a 2-D per-point array (a compiled scatter)."""
-    if a.ndim == 2 and values.ndim == 2 and a.dtype == values.dtype == np.float64 \
-            and values.shape == (len(act), a.shape[1]):
-        sk.scatter_rows(a, act, values)
-    else:
-        a[act] = values
 
 
 def prescribed_nodes(scene: Scene, grid: Grid) -> list[dict]:
