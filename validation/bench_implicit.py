@@ -37,7 +37,9 @@ that loads numba's cache, then the timed run), in interleaved pairs (explicit, i
 explicit, implicit, ...; ``--repeat`` pairs).  Per run: wall (``perf_counter``) and CPU
 (``process_time``) seconds, the steps, and for the implicit run the Newton iterations,
 the factorized ones among them (the others are BFGS iterations) and the CPU ms per step
-with its parts; per pair the implicit / explicit ratios of wall and CPU, and the
+with its parts (setup: the grid reset; predictor; material, assembly and solve inside the
+Newton iterations; commit: the kinematic limits, the point update, the step's record and
+the point check; other: the rest of the Newton iterations and the driver); per pair the implicit / explicit ratios of wall and CPU, and the
 load average before and after.  Appends each pair to
 ``validation/out/bench_implicit_whole_run.jsonl``.  ``--t-end``: stop both runs at that
 simulated time instead of at rest (default 40 s, the scene's: they stop at rest).
@@ -224,6 +226,7 @@ def whole_run(pairs: int, threads: int, t_end: float, label: str) -> None:
               f"{imp['factorizations']} factorized, wall {imp['wall_s']:.1f} s, CPU "
               f"{imp['cpu_s']:.1f} s ({imp['cpu_ms_per_step']:.1f} ms per step: "
               + ", ".join(f"{p} {v:.1f}" for p, v in m.items())
+              + f", other {imp['cpu_ms_per_step'] - sum(m.values()):.1f}"
               + f"); implicit / explicit: wall {pair['ratio_wall']:.2f}x, "
               f"CPU {pair['ratio_cpu']:.2f}x; load {load0[0]:.2f} -> {load1[0]:.2f}",
               flush=True)

@@ -11,6 +11,7 @@ import scipy.sparse as sp
 from fem_rmpm.discretise.basis import shape_at_points
 from fem_rmpm.discretise.grid import Grid
 from fem_rmpm.schemes.implicit import point_kernels as pk
+from fem_rmpm.schemes.implicit import step_kernels as sk
 from fem_rmpm.schemes.locking import (
     bbar_tangent_correction,
     cell_pressure_tangent_correction,
@@ -42,19 +43,30 @@ class StepSystem:
                  halo: bool = False):
         self.grid = grid
         fixed = grid.fixed if fixed is None else fixed      # (n_nodes, 2) prescribed DOFs
-        self.host = host_cells(grid, x)                     # F-bar cells
+        nn = grid.n_nodes
+        if shape == "gimp":
+            self.host = host_cells(grid, x)                 # F-bar cells
+            _, nodes, N, dN, _ = shape_at_points(grid, x, shape, half_width)
+            used = np.zeros(nn, dtype=bool)
+            touch = (N != 0) | (dN[:, :, 0] != 0) | (dN[:, :, 1] != 0)  # uGIMP: zero weights
+            used[nodes[touch]] = True
+        else:                       # Q4: host cells, basis and used nodes in one pass
+            n = len(x)
+            self.host = np.empty(n, dtype=np.int64)
+            t = grid.mesh.t                                 # (4, n_cells) cell nodes
+            nodes, N, dN = np.empty((n, 4), dtype=t.dtype), np.empty((n, 4)), \
+                np.empty((n, 4, 2))
+            used = np.zeros(nn, dtype=bool)
+            sk.q4_step_basis(np.ascontiguousarray(x, dtype=float), grid.origin, grid.cell,
+                             1.0 / grid.cell, grid.shape[0], grid.shape[1], t,
+                             self.host, nodes, N, dN, used)
         # the host cells numbered 0..n_host-1: the cell sums over the points (bincount in
         # point order, the same sums as over grid cells) on arrays of the used cells only
-        self.cell = _dense_rank(self.host, grid.n_cells)
-        self.n_host = int(self.cell.max()) + 1 if len(self.cell) else 0
-        _, nodes, N, dN, _ = shape_at_points(grid, x, shape, half_width)
+        self.cell = np.empty(len(self.host), dtype=np.int64)
+        self.n_host = sk.dense_rank(self.host, grid.n_cells, self.cell)
         self.nodes, self.N, self.dN = nodes, N, dN
         n, k = nodes.shape
         self.n, self.k = n, k
-        nn = grid.n_nodes
-        used = np.zeros(nn, dtype=bool)
-        touch = (N != 0) | (dN[:, :, 0] != 0) | (dN[:, :, 1] != 0)   # uGIMP: zero weights
-        used[nodes[touch]] = True
         self.used = used
         self.halo_cells = None
         if k == 4 and halo:                  # the DOFs of the cells and their halo
@@ -90,6 +102,11 @@ class StepSystem:
             np.all(self.host == self.host[first][self._group]))
 
     @cached_property
+    def used_nodes(self) -> np.ndarray:
+        """The nodes of :attr:`used` (ascending)."""
+        return np.nonzero(self.used)[0]
+
+    @cached_property
     def point_dofs(self) -> np.ndarray:
         """The global DOFs of each point's nodes (n, 2k), ``2 node + component``."""
         return (2 * self.nodes[:, :, None] + np.arange(2)).reshape(self.n, 2 * self.k)
@@ -105,18 +122,16 @@ class StepSystem:
         and their halo anew."""
         nodes = self.nodes
         fits = keep is not None and keep.halo_cells is not None \
-            and np.array_equal(keep._fixed, fixed)
-        if fits:
-            inv = keep._group_of[nodes[:, 0]]
-            fits = not (len(inv) and inv.min() < 0)
-        if fits:
+            and (keep._fixed is fixed or np.array_equal(keep._fixed, fixed))
+        self._group = np.empty(self.n, dtype=np.int64)
+        if fits and sk.kept_groups(keep._group_of, nodes, self._group):
             for name in ("free_dofs", "n_free", "fnum", "n_groups", "_indptr", "_indices",
                          "_positions", "_diag", "transpose", "nnz", "halo_cells",
                          "_group_of", "_fixed"):
                 setattr(self, name, getattr(keep, name))
         else:
             self._halo_pattern(grid, fixed)
-        self._group = self._group_of[nodes[:, 0]]
+            self._group = self._group_of[nodes[:, 0]]
         self.groups_are_cells = False          # B-bar (geostatic steps) needs the exact sets
 
     def _halo_pattern(self, grid: Grid, fixed: np.ndarray) -> None:

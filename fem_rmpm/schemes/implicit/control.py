@@ -38,7 +38,13 @@ HARD_ITERATIONS = 7        # a step that needed this many or more shrinks
 GROW, SHRINK = 1.5, 0.6
 DET_BOUNDS = (0.8, 1.25)   # allowed det dF of a point in one step (volume ratio)
 REJECT_RATIO = 2.0         # a limit exceeded by this factor rejects the step
-SAFETY = 0.8               # aim below a limit when scaling a step to meet it
+#: aim below a limit when scaling a step to meet it: the next step is the last one scaled
+#: by SAFETY / (its displacement or det dF against the limit).  The largest displacement
+#: changes little from one step to the next in a flow, so a step sized so lands within
+#: 2 % of its aim for 90 % of the steps (case (i)); 0.9 takes 10 % fewer steps than 0.8
+#: and keeps all but 3 of them within the limit (case (i) to rest: 1633 steps, 4578
+#: factorizations, against 1818 and 4881 with 0.8; 0.95: 1647 and 5145, 12 steps over)
+SAFETY = 0.9
 
 
 @dataclass

@@ -17,6 +17,7 @@ from fem_rmpm.scene import Scene
 from fem_rmpm.schemes.common import RunRecord, SimulationError, at_rest, check_points
 from fem_rmpm.schemes.implicit.control import DET_BOUNDS, StepController, Verdict
 from fem_rmpm.schemes.implicit.linear import LinearSolver
+from fem_rmpm.schemes.implicit import step_kernels as sk
 from fem_rmpm.schemes.implicit.newton import NewtonFailure
 from fem_rmpm.schemes.implicit.steps import (
     Geostatic,
@@ -61,7 +62,8 @@ def _solver_stats(sv) -> dict:
             "max_iterations": sv.max_iterations, "max_cuts": sv.max_cuts,
             "iterations_total": 0, "factorizations_total": 0, "cuts_total": 0,
             "setup_time": 0.0, "material_time": 0.0,
-            "assembly_time": 0.0, "solve_time": 0.0, "rejected_total": 0, "limited_by": {},
+            "assembly_time": 0.0, "solve_time": 0.0, "predictor_time": 0.0,
+            "commit_time": 0.0, "rejected_total": 0, "limited_by": {},
             "adaptive": bool(sv.adaptive), "limits": {
                 "max_displacement_fraction": sv.max_displacement_fraction,
                 "det_dF_bounds": list(DET_BOUNDS), "dt": sv.dt, "dt_max": sv.dt_max,
@@ -114,8 +116,8 @@ class _Run:
         self.step += 1
         stats["iterations_total"] += res.iterations
         stats["factorizations_total"] += res.factorizations
-        for k in ("assembly", "material", "setup", "solve"):
-            stats[f"{k}_time"] += getattr(res, f"t_{k}")
+        for k in ("assembly", "material", "setup", "solve", "predictor"):
+            stats[f"{k}_time"] += getattr(res, f"t_{k}", 0.0)
         entry = {"step": self.step, "phase": kind.name,
                  ("time" if kind.dynamic else "load_factor"): pos,
                  "size": h, "iterations": res.iterations,
@@ -151,7 +153,9 @@ class _Run:
                 self.stats["cuts_total"] += 1
                 h, clipped = 0.5 * h, False
                 continue
+            t0 = time.perf_counter()
             limits = out.limits() if kind.dynamic else {}
+            self.stats["commit_time"] += time.perf_counter() - t0
             verdict = ctl.judge(h, out.result.factorizations, limits, clipped)
             if verdict.accept or rejections >= MAX_REJECTIONS:
                 return out, h, cuts, verdict, limits
@@ -171,14 +175,25 @@ class _Run:
                 h = a1 - pos
             out, h, cuts, verdict, limits = self.attempt(kind, pos, h, label, gravity_of,
                                                          ctl, h < 0.999 * size)
+            t0 = time.perf_counter()
             info = out.commit() or {}
             average_softening(self.grid, self.pts)    # staggered non-local softening
             pos += h
             size = verdict.size if ctl.adaptive else (h if cuts else size)
             self.t = time_of(pos)
             self.record_step(kind, out.result, pos, h, cuts, info, verdict, limits)
-            check_points(self.grid, self.pts, self.step, self.t, self.sv.edge_policy, self.rec)
+            self.check_points()
+            self.stats["commit_time"] += time.perf_counter() - t0
             yield info
+
+    def check_points(self) -> None:
+        """The point check after a step (:func:`fem_rmpm.schemes.common.check_points`: a
+        non-finite state stops the run, a point off the grid is frozen or stops it), run
+        only when one compiled pass over the points finds something to report."""
+        pts, lo, hi = self.pts, self.grid.origin, self.grid.upper
+        if not sk.points_fine(pts.active, pts.x, pts.velocity, pts.stress, float(lo[0]),
+                              float(lo[1]), float(hi[0]), float(hi[1])):
+            check_points(self.grid, pts, self.step, self.t, self.sv.edge_policy, self.rec)
 
     # -- phases
     def load_phase(self) -> None:
@@ -260,7 +275,8 @@ class _Run:
                                      for k in ("setup", "material", "assembly", "solve")}
         steps = stats["steps"]
         stats["ms_per_step"] = {k: 1e3 * stats[f"{k}_time"] / max(len(steps), 1)
-                                for k in ("setup", "material", "assembly", "solve")}
+                                for k in ("setup", "predictor", "material", "assembly",
+                                          "solve", "commit")}
         stats["factorizations_per_step"] = stats["factorizations_total"] / max(len(steps), 1)
         stats["max_iterations_in_a_step"] = max((s["iterations"] for s in steps), default=0)
         stats["n_steps"] = len(steps)

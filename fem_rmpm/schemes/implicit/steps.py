@@ -29,6 +29,7 @@ from fem_rmpm.scene import Scene, SceneError
 from fem_rmpm.schemes.common import SimulationError
 from fem_rmpm.schemes.explicit import kernels
 from fem_rmpm.schemes.implicit import point_kernels as pk
+from fem_rmpm.schemes.implicit import step_kernels as sk
 from fem_rmpm.schemes.implicit.assembly import StepSystem
 from fem_rmpm.schemes.implicit.linear import LinearSolver
 from fem_rmpm.schemes.implicit.newton import NewtonFailure, NewtonResult, newton
@@ -118,6 +119,14 @@ class ImplicitSystem:
         self.stress_update = kernels.stress_update_points if compiled else stress_update
         self.small_strain_update = (kernels.small_strain_update_points if compiled
                                     else small_strain_update)
+        self._node_work = None
+
+    def node_work(self) -> np.ndarray:
+        """A zeroed work array of one value per grid node, kept for the run (the compiled
+        step kernels zero what they touch before they return)."""
+        if self._node_work is None or len(self._node_work) != self.grid.n_nodes:
+            self._node_work = np.zeros(self.grid.n_nodes)
+        return self._node_work
 
     def begin(self, lf_new: float, lf_old: float, dt: float = 0.0,
               dynamic: bool = False) -> StepData:
@@ -136,12 +145,13 @@ class ImplicitSystem:
             if dynamic:
                 raise SimulationError("prescribed displacements need quasi-static load steps")
             presc = np.where(self.presc_mask, (lf_new - lf_old) * self.presc_target, 0.0)
-        f_ext = S.body_force(mass, lf_new * self.g_full)
+        gx, gy = (float(v) for v in lf_new * self.g_full)
+        f_ext = sk.free_body_force(S.nodes, S.N, mass, gx, gy, S.fnum, np.zeros(S.n_free))
         if self.water is not None:   # pore water: -V grad u at the step's start positions
             f_ext = f_ext + nodal_water_force(self.water, S, pts.x[act], pts.volume[act], lf_new)
-        return StepData(S, act, pts.volume0[act], pts.volume[act], mass, pts.log_strain[act],
-                        pts.state[act], self._active_soil(act), f_ext, lf_new, lf_old, presc,
-                        dt)
+        return StepData(S, act, pts.volume0[act], pts.volume[act], mass,
+                        sk.rows(pts.log_strain, act), sk.rows(pts.state, act),
+                        self._active_soil(act), f_ext, lf_new, lf_old, presc, dt)
 
     def _active_soil(self, act: np.ndarray) -> MaterialPoints:
         """The active points' materials with their parameters in C order (the compiled
@@ -162,12 +172,12 @@ class ImplicitSystem:
         cell (:meth:`StepSystem._cell_pattern`: the occupied cells and a halo around
         them), so the symbolic factorization is reused."""
         pts, c = self.pts, self.pattern_cache
-        x = pts.x[act]
+        x = sk.rows(pts.x, act)
         hw = pts.half_width[act] if pts.half_width is not None else None
         S = c.get("S")
         if S is not None and c["grid"] is self.grid and c["shape"] == self.sv.shape \
                 and np.array_equal(c["act"], act) and np.array_equal(c["x"], x) \
-                and np.array_equal(c["fixed"], self.fixed) \
+                and (c["fixed"] is self.fixed or np.array_equal(c["fixed"], self.fixed)) \
                 and (hw is None) == (c["hw"] is None) \
                 and (hw is None or np.array_equal(c["hw"], hw)):
             return S
@@ -177,8 +187,8 @@ class ImplicitSystem:
                        halo=halo)
         if S.halo_cells is not None:
             c.update(cells=S, cells_grid=self.grid)
-        c.update(S=S, grid=self.grid, shape=self.sv.shape, act=act.copy(), x=x.copy(),
-                 fixed=self.fixed.copy(), hw=None if hw is None else hw.copy())
+        c.update(S=S, grid=self.grid, shape=self.sv.shape, act=act.copy(), x=x,
+                 fixed=self.fixed, hw=None if hw is None else hw.copy())
         return S
 
     def reactions(self, st: StepData, du: np.ndarray, tau: np.ndarray,
@@ -284,14 +294,17 @@ class StepKind:
         sys_, sv = self.sys, self.sys.sv
         t_setup = time.perf_counter()
         st = sys_.begin(lf_new, lf_old, dt, self.dynamic)
-        t_setup = time.perf_counter() - t_setup
+        t_pred = time.perf_counter()
+        t_setup = t_pred - t_setup
         du0 = self.predictor(st)
+        t_pred = time.perf_counter() - t_pred
         sys_.solver.new_step(st.S)
         res = newton(lambda du: self.residual(st, du), lambda: self.tangent(st), du0,
                      sys_.solver, sv.max_iterations, sv.tolerance,
                      modes=st.S.rigid_body_modes, quasi_newton=self.quasi_newton)
         res.t_material, res.t_assembly, res.t_setup = (st.clock["material"],
                                                        st.clock["assembly"], t_setup)
+        res.t_predictor = t_pred
         return StepOutcome(res, lambda: self.commit(st, res), lambda: self.limits(st, res))
 
     def limits(self, st: StepData, res: NewtonResult) -> dict:
@@ -433,7 +446,8 @@ class QuasiStatic(StepKind):
             st.cache["J"] = J
             info = self.sys.reactions(st, res.du, self.force_stress(st, tau),
                                       np.matmul(S.dN, Finv))
-        pts.log_strain[act], pts.state[act] = ls, q
+        sk.set_rows(pts.log_strain, act, ls)
+        sk.set_rows(pts.state, act, q)
         # x += N du, F <- dF F, V = det(F) V0, sigma = tau / det F (one compiled pass)
         pk.move_points(act, self._point_increment(st, res, du_nodes),
                        np.ascontiguousarray(dFm), st.V0,
@@ -444,20 +458,21 @@ class QuasiStatic(StepKind):
         """The converged increment at the points (n, 2), interpolated once per step."""
         c = st.cache.get("u_points")
         if c is None or c[0] is not res.du:
-            if du_nodes is None:
-                du_nodes = st.S.to_nodes(res.du, st.presc)
-            c = st.cache["u_points"] = (res.du, st.S.interpolate(du_nodes))
+            S = st.S
+            if st.presc is None and du_nodes is None:     # no full-grid vector
+                u = sk.interpolate_free(res.du, S.fnum, S.nodes, S.N, np.empty((S.n, 2)))
+            else:
+                u = S.interpolate(S.to_nodes(res.du, st.presc) if du_nodes is None
+                                  else du_nodes)
+            c = st.cache["u_points"] = (res.du, u)
         return c[1]
 
     def limits(self, st, res):
-        dFm = res.state[3]
-        u = self._point_increment(st, res)
-        J = dFm[:, 0, 0] * dFm[:, 1, 1] - dFm[:, 0, 1] * dFm[:, 1, 0]
-        disp = np.sqrt(np.max(np.sum(u * u, axis=1), initial=0.0))
-        i = int(np.argmax(np.abs(np.log(J)))) if len(J) else 0
+        disp, j_min, j_max, i = sk.step_limits(self._point_increment(st, res),
+                                               np.ascontiguousarray(res.state[3]))
         return {"displacement": float(disp / np.min(self.sys.grid.cell)),
-                "det_min": float(J.min(initial=1.0)), "det_max": float(J.max(initial=1.0)),
-                "worst_point": int(st.act[i]) if len(J) else -1}
+                "det_min": float(j_min), "det_max": float(j_max),
+                "worst_point": int(st.act[i]) if len(st.act) else -1}
 
 
 class NewmarkDynamic(QuasiStatic):
@@ -492,18 +507,18 @@ class NewmarkDynamic(QuasiStatic):
 
     def predictor(self, st):
         S, pts, act, mass, dt = st.S, self.sys.pts, st.act, st.mass, st.dt
-        m_nodes, mv, ma = S.mass_and_momenta(mass, pts.velocity[act], self.sys.acc[act])
-        m_dof = m_nodes[S.free_dofs // 2]         # the free DOFs only, not the whole grid
-        has = m_dof > _MASS_TOL
-        inv_m = np.where(has, 1.0 / np.where(has, m_dof, 1.0), 0.0)
-        v_n = mv.ravel()[S.free_dofs] * inv_m
-        a_n = ma.ravel()[S.free_dofs] * inv_m
         frac = float(self.sys.sv.min_mass_fraction)
         m_min = frac * float(mass.sum() / st.Vn.sum()) * float(np.prod(self.sys.grid.cell))
-        m_free = np.maximum(m_dof, m_min)
+        nf = S.n_free
+        v_n, a_n, m_free = np.empty(nf), np.empty(nf), np.empty(nf)
+        # the nodal mass, velocity and acceleration on the free DOFs only, in one pass
+        n_floor = sk.newmark_start(S.nodes, S.N, mass, sk.rows(pts.velocity, act),
+                                   sk.rows(self.sys.acc, act), S.fnum, S.free_dofs,
+                                   S.used_nodes, m_min, _MASS_TOL, self.sys.node_work(),
+                                   np.zeros(nf), np.zeros(nf), v_n, a_n, m_free)
         alpha, gamma, beta = self._coefficients()
         st.cache.update(v_n=v_n, a_n=a_n, m_free=m_free, c=1.0 / (beta * dt * dt),
-                        n_floor=int(np.count_nonzero(m_nodes[S.used] < m_min)))
+                        n_floor=int(n_floor))
         if alpha > 0:
             tau_n = pts.stress[act] * (st.Vn / st.V0)[:, None]
             if self.sys.fbar:        # the work-conjugate F-bar force at dF = I
@@ -542,14 +557,12 @@ class NewmarkDynamic(QuasiStatic):
         a_new = self._acceleration(st, res.du)
         gamma = self._coefficients()[1]
         v_new = v_n + st.dt * ((1.0 - gamma) * a_n + gamma * a_new)
-        v_pic = S.interpolate(S.to_nodes(v_new))
-        flip = self.sys.sv.flip
-        pts.velocity[act] = flip * (pts.velocity[act] + S.interpolate(S.to_nodes(v_new - v_n))) \
-            + (1 - flip) * v_pic
-        self.sys.acc[act] = S.interpolate(S.to_nodes(a_new))
+        # FLIP/PIC point velocities and the point accelerations in one pass
+        v_max = sk.newmark_commit(act, v_new, v_new - v_n, a_new, S.fnum, S.nodes, S.N,
+                                  float(self.sys.sv.flip), pts.velocity, self.sys.acc)
         ke = 0.5 * float(np.sum(c["m_free"] * v_new * v_new))
         return {"kinetic_energy": ke, "floor_mass_nodes": c["n_floor"],
-                "max_speed": float(np.sqrt(np.max(np.sum(v_pic * v_pic, 1), initial=0.0)))}
+                "max_speed": float(v_max)}
 
 
 def prescribed_nodes(scene: Scene, grid: Grid) -> list[dict]:
