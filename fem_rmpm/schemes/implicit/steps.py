@@ -35,6 +35,7 @@ from fem_rmpm.schemes.implicit.newton import NewtonFailure, NewtonResult, newton
 from fem_rmpm.schemes.pore_pressure import nodal_water_force, water_table
 from fem_rmpm.schemes.implicit.tangent import (
     elastic_left_cauchy_green,
+    finite_strain_parts,
     finite_strain_tangent,
     inv2,
     small_strain_tangent,
@@ -413,6 +414,25 @@ class QuasiStatic(StepKind):
         st.clock["material"] += time.perf_counter() - t1
         st.cache.update(H=H, dF=dFm, g=g, tau=tau)
         return ls, q, tau, g, dFm
+
+    def tangent(self, st):
+        """Without F-bar and with CHOLMOD: the lower triangle of the tangent in one
+        compiled pass from the model stiffness, the trial Jacobian and the stress
+        (:meth:`.assembly.StepSystem.finite_strain_tangent`); else, or when a point's
+        tangent is not symmetric, the whole matrix (:meth:`StepKind.tangent`)."""
+        if self.sys.fbar or self.sys.solver.kind != "cholmod":
+            return super().tangent(st)
+        t0 = time.perf_counter()
+        c = st.cache
+        if "b_e" not in c:
+            c["b_e"] = elastic_left_cauchy_green(st.ls0)
+        D, cols, J = finite_strain_parts(c["dF"], st.ls0, st.state0, st.soil, c["b_e"])
+        t1 = time.perf_counter()
+        K = st.S.finite_strain_tangent(st.V0, c["g"], D, cols, J, c["tau"],
+                                       self.stiffness_factor(st), self.diagonal(st))
+        st.clock["material"] += t1 - t0
+        st.clock["assembly"] += time.perf_counter() - t1
+        return super().tangent(st) if K is None else K
 
     def point_tangent(self, st):
         c = st.cache
