@@ -210,8 +210,8 @@ class StepKind:
     def predictor(self, st: StepData) -> np.ndarray:
         return np.zeros(st.S.n_free)
 
-    def material(self, st: StepData, H: np.ndarray):
-        """Stress update at the displacement-increment gradient ``H`` (n, 2, 2):
+    def material(self, st: StepData, u: np.ndarray):
+        """Stress update at the nodal displacement increment ``u`` (n_nodes, 2):
         ``(log_strain, gamma_p, tau, g, dF)`` with ``g`` the spatial gradients."""
         raise NotImplementedError
 
@@ -233,9 +233,9 @@ class StepKind:
         ``ref`` the norm it is measured against, ``state = (ls, q, tau, dF)``."""
         S = st.S
         t0 = time.perf_counter()
-        H = S.gradient(S.to_nodes(du, st.presc))
+        u = S.to_nodes(du, st.presc)
         t_mat = st.clock["material"]
-        ls, q, tau, g, dFm = self.material(st, H)
+        ls, q, tau, g, dFm = self.material(st, u)
         tf = self.force_stress(st, tau)
         f_int = S.internal_force(st.V0, tf, g)
         R = st.f_ext - f_int
@@ -334,8 +334,9 @@ class Geostatic(StepKind):
             K = K + st.S.cell_pressure_tangent(st.V0, g, A, w)
         return K
 
-    def material(self, st, H):
+    def material(self, st, u):
         sys_ = self.sys
+        H = st.S.gradient(u)
         Hm = bbar_gradient(H, st.Vn, st.S.cell, st.S.n_host) if sys_.fbar else H
         t1 = time.perf_counter()
         if sys_.cell_pressure:       # one in-plane mean stress per cell (locking_constraint)
@@ -395,11 +396,12 @@ class QuasiStatic(StepKind):
         K = st.S.fbar_tangent(st.V0, g, Q, w) + st.S.tangent(st.V0, g, Ag)
         return K + st.S.fbar_work_tangent(st.V0, g, A, f * tau, w)
 
-    def material(self, st, H):
+    def material(self, st, u):
         sys_ = self.sys
-        n, S = len(H), st.S
+        S = st.S
+        n = S.n
         dF, det, g = np.empty((n, 2, 2)), np.empty(n), np.empty_like(S.dN)
-        if not pk.spatial_gradients(np.ascontiguousarray(H), S.dN, dF, det, g) > 0:
+        if not pk.increment_kinematics(u, S.nodes, S.dN, dF, det, g) > 0:
             i = st.act[np.argmin(det)]
             raise NewtonFailure(f"material point {i} inverted (det dF = {det.min():.3g})", [],
                                 inverted=True)
@@ -412,7 +414,7 @@ class QuasiStatic(StepKind):
         t1 = time.perf_counter()
         ls, q, tau = sys_.stress_update(dFm, st.ls0, st.state0, st.soil)
         st.clock["material"] += time.perf_counter() - t1
-        st.cache.update(H=H, dF=dFm, g=g, tau=tau)
+        st.cache.update(dF=dFm, g=g, tau=tau)
         return ls, q, tau, g, dFm
 
     def tangent(self, st):
