@@ -84,6 +84,36 @@ def trial_jacobian(dF, B, eps, J):
     return eps, J
 
 
+@njit(inline="always")
+def _point_tangent(D, c0, c1, c2, J, tau, p, d, A):
+    """``A (2, 2, 2, 2)`` of point ``p`` as :func:`spatial_tangent` describes it, from
+    the columns ``c0, c1, c2`` (trial ``xx, yy, xy``) of ``D[p]``; ``d`` (3, 3) scratch."""
+    t00, t11, t01 = tau[p, 0], tau[p, 1], tau[p, 3]
+    for k in range(3):
+        for r, c in ((0, 0), (1, 1), (2, 3)):
+            d[k, r] = (D[p, c, c0] * J[p, 0, k] + D[p, c, c1] * J[p, 1, k]
+                       + D[p, c, c2] * J[p, 2, k])
+    w00, w11, w01 = t01, -t01, 0.5 * (t11 - t00)     # W tau - tau W
+    for lm in range(4):
+        l, m = lm // 2, lm % 2
+        if lm == 0:
+            a00, a11, a01, a10 = d[0, 0], d[0, 1], d[0, 2], d[0, 2]
+        elif lm == 3:
+            a00, a11, a01, a10 = d[1, 0], d[1, 1], d[1, 2], d[1, 2]
+        elif lm == 1:
+            a00, a11, a01, a10 = d[2, 0] + w00, d[2, 1] + w11, d[2, 2] + w01, d[2, 2] + w01
+        else:
+            a00, a11, a01, a10 = d[2, 0] - w00, d[2, 1] - w11, d[2, 2] - w01, d[2, 2] - w01
+        A[0, 0, l, m], A[1, 1, l, m] = a00, a11
+        A[0, 1, l, m], A[1, 0, l, m] = a01, a10
+    # geometric term: - delta_jl tau_im
+    for i in range(2):
+        for m in range(2):
+            tim = (t00 if m == 0 else t01) if i == 0 else (t01 if m == 0 else t11)
+            A[i, 0, 0, m] -= tim
+            A[i, 1, 1, m] -= tim
+
+
 @njit(cache=True, error_model="numpy")
 def spatial_tangent(D, J, tau, A):
     """``A[p] (2, 2, 2, 2)``: ``A_ijlm = d tau_ij / d(grad_x du)_lm - delta_jl tau_im``
@@ -94,30 +124,7 @@ def spatial_tangent(D, J, tau, A):
     ``d tau = W tau - tau W``."""
     d = np.empty((3, 3))                # d[k] = (d tau_xx, d tau_yy, d tau_xy) along E_k
     for p in range(D.shape[0]):
-        t00, t11, t01 = tau[p, 0], tau[p, 1], tau[p, 3]
-        for k in range(3):
-            for r, c in ((0, 0), (1, 1), (2, 3)):
-                d[k, r] = (D[p, c, 0] * J[p, 0, k] + D[p, c, 1] * J[p, 1, k]
-                           + D[p, c, 2] * J[p, 2, k])
-        w00, w11, w01 = t01, -t01, 0.5 * (t11 - t00)     # W tau - tau W
-        for lm in range(4):
-            l, m = lm // 2, lm % 2
-            if lm == 0:
-                a00, a11, a01, a10 = d[0, 0], d[0, 1], d[0, 2], d[0, 2]
-            elif lm == 3:
-                a00, a11, a01, a10 = d[1, 0], d[1, 1], d[1, 2], d[1, 2]
-            elif lm == 1:
-                a00, a11, a01, a10 = d[2, 0] + w00, d[2, 1] + w11, d[2, 2] + w01, d[2, 2] + w01
-            else:
-                a00, a11, a01, a10 = d[2, 0] - w00, d[2, 1] - w11, d[2, 2] - w01, d[2, 2] - w01
-            A[p, 0, 0, l, m], A[p, 1, 1, l, m] = a00, a11
-            A[p, 0, 1, l, m], A[p, 1, 0, l, m] = a01, a10
-        # geometric term: - delta_jl tau_im
-        for i in range(2):
-            for m in range(2):
-                tim = (t00 if m == 0 else t01) if i == 0 else (t01 if m == 0 else t11)
-                A[p, i, 0, 0, m] -= tim
-                A[p, i, 1, 1, m] -= tim
+        _point_tangent(D, 0, 1, 2, J, tau, p, d, A[p])
     return A
 
 
@@ -147,30 +154,7 @@ def assemble_spatial_lower(D, cols, J, tau, f, g, V0, group, positions, data):
     asym = 0.0
     amax = 0.0
     for p in range(n):
-        t00, t11, t01 = tau[p, 0], tau[p, 1], tau[p, 3]
-        for kk in range(3):
-            for r in range(3):
-                c = 0 if r == 0 else (1 if r == 1 else 3)
-                d[kk, r] = (D[p, c, c0_] * J[p, 0, kk] + D[p, c, c1_] * J[p, 1, kk]
-                            + D[p, c, c2_] * J[p, 2, kk])
-        w00, w11, w01 = t01, -t01, 0.5 * (t11 - t00)
-        for lm in range(4):
-            l, m = lm // 2, lm % 2
-            if lm == 0:
-                a00, a11, a01, a10 = d[0, 0], d[0, 1], d[0, 2], d[0, 2]
-            elif lm == 3:
-                a00, a11, a01, a10 = d[1, 0], d[1, 1], d[1, 2], d[1, 2]
-            elif lm == 1:
-                a00, a11, a01, a10 = d[2, 0] + w00, d[2, 1] + w11, d[2, 2] + w01, d[2, 2] + w01
-            else:
-                a00, a11, a01, a10 = d[2, 0] - w00, d[2, 1] - w11, d[2, 2] - w01, d[2, 2] - w01
-            A[0, 0, l, m], A[1, 1, l, m] = a00, a11
-            A[0, 1, l, m], A[1, 0, l, m] = a01, a10
-        for i in range(2):
-            for m in range(2):
-                tim = (t00 if m == 0 else t01) if i == 0 else (t01 if m == 0 else t11)
-                A[i, 0, 0, m] -= tim
-                A[i, 1, 1, m] -= tim
+        _point_tangent(D, c0_, c1_, c2_, J, tau, p, d, A)
         if f != 1.0:
             for i in range(2):
                 for j in range(2):
