@@ -263,22 +263,24 @@ class StepSystem:
         return sp.csr_matrix((data, self._indices, self._indptr),
                              shape=(self.n_free, self.n_free))
 
-    def lower_positions(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(positions, diag)`` into the data of the pattern's lower triangle in CHOLMOD's
-        order (the entries ``(r, c)``, ``c >= r``, of the CSR rows in turn): the position
-        of each block entry (layout of the full pattern's; -1 for the upper triangle and
-        prescribed DOFs) and of each diagonal entry.  Kept with the pattern: steps that
-        keep it (:meth:`_cell_pattern`) reuse them."""
+    def lower_positions(self) -> tuple[np.ndarray, np.ndarray, int]:
+        """``(positions, diag, n)`` into the data of the pattern's lower triangle in
+        CHOLMOD's order (the entries ``(r, c)``, ``c >= r``, of the CSR rows in turn): the
+        position of each block entry (layout of the full pattern's; -1 for the upper
+        triangle and prescribed DOFs), of each diagonal entry, and the length ``n`` of
+        that data.  Kept with the pattern (one entry, replaced as a whole, so concurrent
+        systems at worst recompute it): steps that keep it (:meth:`_cell_pattern`) reuse
+        them."""
         key = self._positions
-        c = _LOWER_CACHE.get("key")
-        if c is not key:
+        c = _LOWER_CACHE.get("last")
+        if c is None or c[0] is not key:
             row = np.repeat(np.arange(self.n_free, dtype=np.int64), np.diff(self._indptr))
             lower = np.nonzero(self._indices >= row)[0]
             index = np.full(self.nnz + 1, -1, dtype=np.int64)      # [-1]: a prescribed DOF
             index[lower] = np.arange(len(lower))
-            _LOWER_CACHE.update(key=key, positions=index[key], diag=index[self._diag],
-                                n=len(lower))
-        return _LOWER_CACHE["positions"], _LOWER_CACHE["diag"]
+            c = (key, index[key], index[self._diag], len(lower))
+            _LOWER_CACHE["last"] = c
+        return c[1], c[2], c[3]
 
     def finite_strain_tangent(self, V0: np.ndarray, g: np.ndarray, D: np.ndarray,
                               cols: np.ndarray, J: np.ndarray, tau: np.ndarray, factor: float,
@@ -291,8 +293,8 @@ class StepSystem:
         :func:`.tangent_kernels.spatial_tangent` and :meth:`tangent` to the last bit).
         None when a point's ``A`` lacks the major symmetry ``A_ijlm = A_lmij`` to ``rtol``
         of the largest entry (the caller then assembles the whole matrix)."""
-        positions, diag = self.lower_positions()
-        data = np.zeros(_LOWER_CACHE["n"])
+        positions, diag, n_lower = self.lower_positions()
+        data = np.zeros(n_lower)
         asym, amax = tk.assemble_spatial_lower(
             D, cols, J, np.ascontiguousarray(tau, dtype=float), float(factor), g, V0,
             self._group, positions, data)
