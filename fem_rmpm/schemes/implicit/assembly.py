@@ -12,6 +12,8 @@ from fem_rmpm.discretise.basis import shape_at_points
 from fem_rmpm.discretise.grid import Grid
 from fem_rmpm.schemes.implicit import point_kernels as pk
 from fem_rmpm.schemes.implicit import step_kernels as sk
+from fem_rmpm.schemes.implicit import tangent_kernels as tk
+from fem_rmpm.schemes.implicit.linear import LowerTangent
 from fem_rmpm.schemes.locking import (
     bbar_tangent_correction,
     cell_pressure_tangent_correction,
@@ -276,8 +278,59 @@ class StepSystem:
         return sp.csr_matrix((data, self._indices, self._indptr),
                              shape=(self.n_free, self.n_free))
 
+    def lower_positions(self) -> tuple[np.ndarray, np.ndarray, int]:
+        """``(positions, diag, n)`` into the data of the pattern's lower triangle in
+        CHOLMOD's order (the entries ``(r, c)``, ``c >= r``, of the CSR rows in turn): the
+        position of each block entry (layout of the full pattern's; -1 for the upper
+        triangle and prescribed DOFs), of each diagonal entry, and the length ``n`` of
+        that data.  Kept with the pattern (one entry, replaced as a whole, so concurrent
+        systems at worst recompute it): steps that keep it (:meth:`_cell_pattern`) reuse
+        them."""
+        key = self._positions
+        c = _LOWER_CACHE.get("last")
+        if c is None or c[0] is not key:
+            row = np.repeat(np.arange(self.n_free, dtype=np.int64), np.diff(self._indptr))
+            lower = np.nonzero(self._indices >= row)[0]
+            index = np.full(self.nnz + 1, -1, dtype=np.int64)      # [-1]: a prescribed DOF
+            index[lower] = np.arange(len(lower))
+            c = (key, index[key], index[self._diag], len(lower))
+            _LOWER_CACHE["last"] = c
+        return c[1], c[2], c[3]
+
+    def finite_strain_tangent(self, V0: np.ndarray, g: np.ndarray, D: np.ndarray,
+                              cols: np.ndarray, J: np.ndarray, tau: np.ndarray, factor: float,
+                              diagonal: np.ndarray | None = None,
+                              rtol: float = 1e-12) -> LowerTangent | None:
+        """The tangent of a finite-strain step, ``factor sum_p V0_p g_aj A_ijlm g_bm``
+        (+ ``diag(diagonal)``), as its lower triangle in one compiled pass from the model
+        stiffness ``D`` (columns ``cols``), the trial Jacobian ``J`` and the stress ``tau``
+        (:func:`.tangent_kernels.assemble_spatial_lower`; the same entries as
+        :func:`.tangent_kernels.spatial_tangent` and :meth:`tangent` to the last bit).
+        None when a point's ``A`` lacks the major symmetry ``A_ijlm = A_lmij`` to ``rtol``
+        of the largest entry (the caller then assembles the whole matrix)."""
+        positions, diag, n_lower = self.lower_positions()
+        data = np.zeros(n_lower)
+        asym, amax = tk.assemble_spatial_lower(
+            D, cols, J, np.ascontiguousarray(tau, dtype=float), float(factor), g, V0,
+            self._group, positions, data)
+        if not asym <= rtol * amax:
+            return None
+        if diagonal is not None:
+            data[diag] += diagonal
+
+        def full():
+            A = tk.spatial_tangent(D if cols[2] == 2 else D[:, :, cols], J,
+                                   np.ascontiguousarray(tau, dtype=float),
+                                   np.empty((self.n, 2, 2, 2, 2)))
+            return self.tangent(V0, g, A if factor == 1.0 else factor * A, diagonal)
+        return LowerTangent(data, self._indptr, self._indices, full)
+
     def rigid_body_modes(self) -> np.ndarray:
         return rigid_body_modes(self.grid.nodes, self.free_dofs)
+
+
+#: the lower-triangle positions of the last pattern (:meth:`StepSystem.lower_positions`)
+_LOWER_CACHE: dict = {}
 
 
 def _dense_rank(values: np.ndarray, size: int) -> np.ndarray:

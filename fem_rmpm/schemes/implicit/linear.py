@@ -30,11 +30,32 @@ try:                                   # SuiteSparse's CHOLMOD (cvxopt ships it 
 except ImportError:                    # pragma: no cover - a core dependency
     cvxopt = cholmod = None
 
-__all__ = ["LinearSolver", "LinearSolveError"]
+__all__ = ["LinearSolver", "LinearSolveError", "LowerTangent"]
 
 
 class LinearSolveError(RuntimeError):
     pass
+
+
+class LowerTangent:
+    """A symmetric free-DOF tangent given by the data of its lower triangle in CHOLMOD's
+    order (CSR row ``j`` from the diagonal on: column ``j`` of the lower triangle), on the
+    CSR pattern ``indptr``, ``indices`` (the step's, :class:`.assembly.StepSystem`);
+    symmetric to round-off (checked where it was assembled).  ``full()`` assembles the
+    whole matrix (CSR) for a solver that needs it: SuperLU, pyamg, or CHOLMOD's fallback
+    to SuperLU when the tangent is not positive definite."""
+
+    def __init__(self, lower_data: np.ndarray, indptr: np.ndarray, indices: np.ndarray,
+                 full):
+        self.lower_data, self.indptr, self.indices = lower_data, indptr, indices
+        self._full = full
+        self.shape = (len(indptr) - 1, len(indptr) - 1)
+
+    def full(self) -> sp.csr_matrix:
+        """The whole matrix (CSR), assembled on first call."""
+        if not isinstance(self._full, sp.csr_matrix):
+            self._full = self._full()
+        return self._full
 
 
 class LinearSolver:
@@ -76,10 +97,13 @@ class LinearSolver:
             raise LinearSolveError("the reused factorization returned a non-finite solution")
         return x
 
-    def solve(self, K: sp.csr_matrix, b: np.ndarray, modes=None, rtol: float = 1e-10) -> np.ndarray:
+    def solve(self, K, b: np.ndarray, modes=None, rtol: float = 1e-10) -> np.ndarray:
+        """``K^-1 b``; ``K`` a CSR matrix or a :class:`LowerTangent`."""
         self._last = None
         if self.kind == "cholmod":
             return self._cholmod(K, b)
+        if isinstance(K, LowerTangent):
+            K = K.full()
         if self.kind == "superlu":
             return self._superlu(K, b)
         return self._pyamg(K, b, modes, rtol)
@@ -87,31 +111,36 @@ class LinearSolver:
     def _cholmod(self, K: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
         """Sparse Cholesky with the symbolic factor of the pattern reused (see the module
         docstring); SuperLU where the tangent is not symmetric positive definite."""
+        given = isinstance(K, LowerTangent)
         if cholmod is None:
-            return self._superlu(K, b)
+            return self._superlu(K.full() if given else K, b)
         c = self._chol
-        if c is None or not (np.array_equal(c["indptr"], K.indptr)
-                             and np.array_equal(c["indices"], K.indices)):
+        if c is None or not (_same(c["indptr"], K.indptr) and _same(c["indices"], K.indices)):
             S = self._system
-            given = S is not None and np.array_equal(K.indptr, S._indptr) \
-                and np.array_equal(K.indices, S._indices)
-            c = self._chol = _cholmod_pattern(K, S.transpose if given else None)
+            ours = S is not None and _same(K.indptr, S._indptr) \
+                and _same(K.indices, S._indices)
+            pattern = sp.csr_matrix((np.zeros(len(K.indices)), K.indices, K.indptr),
+                                    shape=K.shape) if given else K
+            c = self._chol = _cholmod_pattern(pattern, S.transpose if ours else None)
             self.symbolic_analyses += 1
         if c["transpose"] is None:
-            return self._superlu(K, b)
-        lower = symmetric_lower(K.data, c["transpose"], c["lower"], 1e-12)
-        if lower is None:
-            return self._superlu(K, b)
+            return self._superlu(K.full() if given else K, b)
+        if given:                            # the lower triangle, checked symmetric
+            lower = K.lower_data
+        else:
+            lower = symmetric_lower(K.data, c["transpose"], c["lower"], 1e-12)
+            if lower is None:
+                return self._superlu(K, b)
         c["A"].V = cvxopt.matrix(lower)
         try:
             if c["F"] is None:
                 c["F"] = cholmod.symbolic(c["A"], uplo="L")
             cholmod.numeric(c["A"], c["F"])
         except ArithmeticError:              # not positive definite
-            return self._superlu(K, b)
+            return self._superlu(K.full() if given else K, b)
         x = _cholmod_solve(c["F"], b)
         if not np.all(np.isfinite(x)):
-            return self._superlu(K, b)
+            return self._superlu(K.full() if given else K, b)
         self._last = lambda r, F=c["F"]: _cholmod_solve(F, r)
         self.factorizations += 1
         self.factorizations_by["cholmod"] += 1
@@ -170,6 +199,11 @@ class LinearSolver:
                                        f"rtol {rtol:.1e} (info {info})")
         return x
 
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two index arrays are equal (the same array object: at once)."""
+    return a is b or np.array_equal(a, b)
 
 
 def _ordering(K: sp.csr_matrix, ip: np.ndarray) -> dict:

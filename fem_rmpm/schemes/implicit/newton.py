@@ -4,16 +4,20 @@ two-part convergence test (relative residual and predicted correction); optional
 BFGS updates of the step's last factorized tangent between full Newton iterations.
 
 BFGS iterations (:func:`newton` with ``quasi_newton = m > 0``): once the relative
-residual is below ``QN_START``, up to ``m`` iterations after a full Newton one take the
-direction of the step's last factorized tangent ``K0`` updated by the secant pairs
-``(s, y)`` of the iterations since (``s`` the increment, ``y`` the fall of the residual:
-``y = K s`` for a linear problem), in the inverse form of Matthies & Strang (1979) by
-the two-loop recursion (Nocedal & Wright 2006, alg. 7.4) with ``H0 = K0^-1`` (one
-forward and back substitution, no tangent, no factorization): a full step, kept when it
-lowers the residual (one that leaves more than ``QN_RATE`` of it, and the ``m``-th, make
-the next iteration a full Newton one; one that does not lower it is dropped for a full
-Newton iteration from the same state).  Convergence is superlinear; the converged state
-passes the same test.
+residual is below ``QN_START``, or once a full Newton iteration left more than
+``QN_STALL`` of the residual (Newton stalling, as at a kink of a softening law: the
+tangent of one side of the kink overshoots, the secant pairs see both sides), up to
+``m`` iterations after a full Newton one take the direction of the step's last
+factorized tangent ``K0`` updated by the secant pairs ``(s, y)`` of the iterations since
+(``s`` the increment, ``y`` the fall of the residual: ``y = K s`` for a linear problem),
+in the inverse form of Matthies & Strang (1979) by the two-loop recursion (Nocedal &
+Wright 2006, alg. 7.4) with ``H0 = K0^-1`` (one forward and back substitution, no
+tangent, no factorization): a full step, kept when it lowers the residual (one that
+leaves more than ``QN_RATE`` of it -- after a stalled Newton iteration, more than the
+share that iteration left if that is larger -- and the ``m``-th make the next iteration
+a full Newton one; one that does not lower it is dropped for a full Newton iteration
+from the same state).  Convergence is superlinear; the converged state passes the same
+test.
 """
 from __future__ import annotations
 
@@ -54,6 +58,10 @@ class NewtonResult:
 #: QN_START; one that leaves more than QN_RATE of the residual is followed by a full
 #: Newton iteration (a new tangent factorized)
 QN_START, QN_RATE = 1e-3, 0.1
+#: ... or, at any residual, once a Newton iteration left more than QN_STALL of the
+#: residual (Newton stalling at a kink of the softening law); a BFGS iteration is then
+#: slow when it leaves more than the larger of QN_RATE and that Newton iteration's share
+QN_STALL = 0.3
 
 
 def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterations: int,
@@ -94,6 +102,7 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
     res: list[float] = []
     t_sol = last_delta = 0.0    # s of linear solves; |the last increment|
     n_fact = n_quasi = 0        # factorizations; BFGS iterations since the last one
+    stall = 0.0                 # the share of the residual the last Newton iteration left
     pairs: list = []            # the BFGS memory: (s, y, 1 / y.s) since the last factorization
     R, ref, state = _evaluate(du)
     ref0 = max(ref, float(np.linalg.norm(R)))
@@ -110,14 +119,15 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         predicted = last_delta * r / res[-2] if it > 0 and res[-2] > 0 else 0.0
         if r <= tol and predicted <= math.sqrt(tol) * float(np.linalg.norm(du)):
             return NewtonResult(du, res, it, t_sol, state=state, factorizations=n_fact)
-        quasi = (0 < n_fact and r < QN_START and n_quasi < quasi_newton
-                 and solver.can_resolve())
+        quasi = (0 < n_fact and (r < QN_START or stall > QN_STALL)
+                 and n_quasi < quasi_newton and solver.can_resolve())
         if (n_fact == max_iterations and not quasi) \
                 or it == (quasi_newton + 1) * max_iterations:
             break
         if quasi:
             n_quasi += 1
-            dt, kept, moved = _bfgs_iteration(_evaluate, du, R, rn, pairs, solver)
+            dt, kept, moved = _bfgs_iteration(_evaluate, du, R, rn, pairs, solver,
+                                              max(QN_RATE, stall))
             t_sol += dt
             if kept is not None:                     # a lower residual
                 du, R, ref, state, last_delta, slow = kept
@@ -134,6 +144,7 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         pairs.clear()
         if quasi_newton > 0:
             _remember(pairs, alpha * delta, R - R_new)
+            stall = float(np.linalg.norm(R_new)) / rn if rn > 0 else 0.0
         R = R_new
     raise NewtonFailure(f"not converged in {len(res) - 1} iterations", res)
 
@@ -162,11 +173,11 @@ def _newton_iteration(evaluate, tangent, solver: LinearSolver, du: np.ndarray,
 
 
 def _bfgs_iteration(evaluate, du: np.ndarray, R: np.ndarray, rn: float, pairs: list,
-                    solver: LinearSolver):
+                    solver: LinearSolver, rate: float = QN_RATE):
     """One BFGS iteration of :func:`newton` (see the module docstring) from ``du``
     (residual ``R`` of norm ``rn``).  Returns the seconds of the substitution, ``(du, R,
     ref, state, |increment|, slow)`` if the full step lowered the residual (``slow``: to
-    more than ``QN_RATE`` of it; the secant pair is then added to ``pairs``) else None,
+    more than ``rate`` of it; the secant pair is then added to ``pairs``) else None,
     and whether the last evaluation left ``du`` (then the caller evaluates it again)."""
     t1 = time.perf_counter()
     delta = _bfgs_direction(R, pairs, solver)
@@ -177,7 +188,7 @@ def _bfgs_iteration(evaluate, du: np.ndarray, R: np.ndarray, rn: float, pairs: l
     rn_new, R_new, ref, state = out
     _remember(pairs, delta, R - R_new)
     return dt, (du + delta, R_new, ref, state, float(np.linalg.norm(delta)),
-                rn_new > QN_RATE * rn), False
+                rn_new > rate * rn), False
 
 
 def _remember(pairs: list, s: np.ndarray, y: np.ndarray) -> None:

@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["assemble_tangent", "assemble_bbar_tangent", "displacement_gradient", "block_pattern",
-           "interpolate", "spatial_gradients", "nodal_mass_momentum", "move_points",
+           "interpolate", "spatial_gradients", "increment_kinematics", "nodal_mass_momentum", "move_points",
            "body_force",
            "internal_force"]
 
@@ -245,6 +245,41 @@ def spatial_gradients(H, dN, dF, det, g):
     for p in range(n):
         f00, f01 = 1.0 + H[p, 0, 0], H[p, 0, 1]
         f10, f11 = H[p, 1, 0], 1.0 + H[p, 1, 1]
+        dF[p, 0, 0], dF[p, 0, 1], dF[p, 1, 0], dF[p, 1, 1] = f00, f01, f10, f11
+        d = f00 * f11 - f01 * f10
+        det[p] = d
+        if d < dmin:
+            dmin = d
+        if not d > 0.0:
+            continue
+        i00, i11, i01, i10 = f11 / d, f00 / d, -f01 / d, -f10 / d
+        for a in range(k):
+            d0, d1 = dN[p, a, 0], dN[p, a, 1]
+            g[p, a, 0] = d0 * i00 + d1 * i10
+            g[p, a, 1] = d0 * i01 + d1 * i11
+    return dmin
+
+
+@njit(cache=True, error_model="numpy")
+def increment_kinematics(du, nodes, dN, dF, det, g):
+    """:func:`displacement_gradient` of the nodal increment ``du`` (n_nodes, 2) and
+    :func:`spatial_gradients` of it in one pass over the points (the same arithmetic, so
+    the same bits, without the gradient array): ``dF = I + grad du``, ``det`` and ``g``;
+    returns the smallest ``det``."""
+    n, k = nodes.shape
+    dmin = np.inf
+    for p in range(n):
+        h00 = h01 = h10 = h11 = 0.0
+        for a in range(k):
+            q = nodes[p, a]
+            u0, u1 = du[q, 0], du[q, 1]
+            d0, d1 = dN[p, a, 0], dN[p, a, 1]
+            h00 += u0 * d0
+            h01 += u0 * d1
+            h10 += u1 * d0
+            h11 += u1 * d1
+        f00, f01 = 1.0 + h00, h01
+        f10, f11 = h10, 1.0 + h11
         dF[p, 0, 0], dF[p, 0, 1], dF[p, 1, 0], dF[p, 1, 1] = f00, f01, f10, f11
         d = f00 * f11 - f01 * f10
         det[p] = d

@@ -36,6 +36,7 @@ from fem_rmpm.schemes.implicit.newton import NewtonFailure, NewtonResult, newton
 from fem_rmpm.schemes.pore_pressure import nodal_water_force, water_table
 from fem_rmpm.schemes.implicit.tangent import (
     elastic_left_cauchy_green,
+    finite_strain_parts,
     finite_strain_tangent,
     inv2,
     small_strain_tangent,
@@ -219,8 +220,8 @@ class StepKind:
     def predictor(self, st: StepData) -> np.ndarray:
         return np.zeros(st.S.n_free)
 
-    def material(self, st: StepData, H: np.ndarray):
-        """Stress update at the displacement-increment gradient ``H`` (n, 2, 2):
+    def material(self, st: StepData, u: np.ndarray):
+        """Stress update at the nodal displacement increment ``u`` (n_nodes, 2):
         ``(log_strain, gamma_p, tau, g, dF)`` with ``g`` the spatial gradients."""
         raise NotImplementedError
 
@@ -242,9 +243,9 @@ class StepKind:
         ``ref`` the norm it is measured against, ``state = (ls, q, tau, dF)``."""
         S = st.S
         t0 = time.perf_counter()
-        H = S.gradient(S.to_nodes(du, st.presc))
+        u = S.to_nodes(du, st.presc)
         t_mat = st.clock["material"]
-        ls, q, tau, g, dFm = self.material(st, H)
+        ls, q, tau, g, dFm = self.material(st, u)
         tf = self.force_stress(st, tau)
         f_int = S.internal_force(st.V0, tf, g)
         R = st.f_ext - f_int
@@ -346,8 +347,9 @@ class Geostatic(StepKind):
             K = K + st.S.cell_pressure_tangent(st.V0, g, A, w)
         return K
 
-    def material(self, st, H):
+    def material(self, st, u):
         sys_ = self.sys
+        H = st.S.gradient(u)
         Hm = bbar_gradient(H, st.Vn, st.S.cell, st.S.n_host) if sys_.fbar else H
         t1 = time.perf_counter()
         if sys_.cell_pressure:       # one in-plane mean stress per cell (locking_constraint)
@@ -407,11 +409,12 @@ class QuasiStatic(StepKind):
         K = st.S.fbar_tangent(st.V0, g, Q, w) + st.S.tangent(st.V0, g, Ag)
         return K + st.S.fbar_work_tangent(st.V0, g, A, f * tau, w)
 
-    def material(self, st, H):
+    def material(self, st, u):
         sys_ = self.sys
-        n, S = len(H), st.S
+        S = st.S
+        n = S.n
         dF, det, g = np.empty((n, 2, 2)), np.empty(n), np.empty_like(S.dN)
-        if not pk.spatial_gradients(np.ascontiguousarray(H), S.dN, dF, det, g) > 0:
+        if not pk.increment_kinematics(u, S.nodes, S.dN, dF, det, g) > 0:
             i = st.act[np.argmin(det)]
             raise NewtonFailure(f"material point {i} inverted (det dF = {det.min():.3g})", [],
                                 inverted=True)
@@ -424,8 +427,27 @@ class QuasiStatic(StepKind):
         t1 = time.perf_counter()
         ls, q, tau = sys_.stress_update(dFm, st.ls0, st.state0, st.soil)
         st.clock["material"] += time.perf_counter() - t1
-        st.cache.update(H=H, dF=dFm, g=g, tau=tau)
+        st.cache.update(dF=dFm, g=g, tau=tau)
         return ls, q, tau, g, dFm
+
+    def tangent(self, st):
+        """Without F-bar and with CHOLMOD: the lower triangle of the tangent in one
+        compiled pass from the model stiffness, the trial Jacobian and the stress
+        (:meth:`.assembly.StepSystem.finite_strain_tangent`); else, or when a point's
+        tangent is not symmetric, the whole matrix (:meth:`StepKind.tangent`)."""
+        if self.sys.fbar or self.sys.solver.kind != "cholmod":
+            return super().tangent(st)
+        t0 = time.perf_counter()
+        c = st.cache
+        if "b_e" not in c:
+            c["b_e"] = elastic_left_cauchy_green(st.ls0)
+        D, cols, J = finite_strain_parts(c["dF"], st.ls0, st.state0, st.soil, c["b_e"])
+        t1 = time.perf_counter()
+        K = st.S.finite_strain_tangent(st.V0, c["g"], D, cols, J, c["tau"],
+                                       self.stiffness_factor(st), self.diagonal(st))
+        st.clock["material"] += t1 - t0
+        st.clock["assembly"] += time.perf_counter() - t1
+        return super().tangent(st) if K is None else K
 
     def point_tangent(self, st):
         c = st.cache

@@ -34,7 +34,7 @@ from fem_rmpm.materials import (
 from fem_rmpm.schemes.implicit import tangent_kernels as tk
 
 __all__ = ["small_strain_tangent", "finite_strain_tangent", "finite_strain_tangent_reference",
-           "trial_stiffness", "elastic_left_cauchy_green", "tensor", "inv2"]
+           "finite_strain_parts", "trial_stiffness", "elastic_left_cauchy_green", "tensor", "inv2"]
 
 _IN_PLANE = [0, 1, 3]     # trial strain components a plane-strain perturbation moves
 
@@ -97,6 +97,42 @@ def trial_stiffness(eps_tr: np.ndarray, state: np.ndarray, soil: MaterialPoints,
         d = _derivatives(e3, st[idx], soil.take(np.arange(n)[idx]), step).reshape(3, m, 4)
         out[idx] = np.transpose(d, (1, 2, 0))
     return out
+
+
+def model_stiffness(eps_tr: np.ndarray, state: np.ndarray,
+                    soil: MaterialPoints) -> tuple[np.ndarray, np.ndarray]:
+    """``(D, cols)``: the models' ``d tau / d eps_tr`` at the trial log strain (n, 4) and
+    the columns of ``D`` that are the in-plane trial components ``xx, yy, xy``: the
+    ``tangent`` hook's (n, 4, 4) as it returns it, ``cols = (0, 1, 3)``, when every point
+    has one model with that hook (no column gathers); else :func:`trial_stiffness`,
+    ``cols = (0, 1, 2)``."""
+    models = soil.model
+    if len(eps_tr) and models.min() == models.max():
+        hook = getattr(registry.model(int(models[0])), "tangent", None)
+        if hook is not None:
+            st = state[:, None] if state.ndim == 1 else state
+            return hook(eps_tr, st, soil.params), _COLS_HOOK
+    return trial_stiffness(eps_tr, state, soil), _COLS_PLANE
+
+
+_COLS_HOOK, _COLS_PLANE = np.array([0, 1, 3]), np.array([0, 1, 2])
+
+
+def finite_strain_parts(dF: np.ndarray, log_strain: np.ndarray, state: np.ndarray,
+                        soil: MaterialPoints, b_e: np.ndarray):
+    """The pieces of :func:`finite_strain_tangent` before they are joined: ``(D, cols,
+    J)``, the model stiffness at the trial log strain (:func:`model_stiffness`) and the
+    trial Jacobian (n, 3, 3) (:func:`.tangent_kernels.trial_jacobian`); joined with the
+    stress by :func:`.tangent_kernels.spatial_tangent` (or straight into the matrix by
+    :func:`.tangent_kernels.assemble_spatial_lower`)."""
+    n = dF.shape[0]
+    eps_tr = np.empty((n, 4))
+    eps_tr[:, 2] = log_strain[:, 2]
+    eps_tr, J = tk.trial_jacobian(np.ascontiguousarray(dF, dtype=float),
+                                  np.ascontiguousarray(b_e, dtype=float), eps_tr,
+                                  np.empty((n, 3, 3)))
+    D, cols = model_stiffness(eps_tr, state, soil)
+    return D, cols, J
 
 
 def _derivatives(eps_c: np.ndarray, state: np.ndarray, soil: MaterialPoints,
