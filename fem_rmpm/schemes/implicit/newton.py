@@ -111,10 +111,7 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
         r = rn / ref0 if ref0 > 0 else 0.0
         res.append(r)
         it = len(res) - 1
-        if not math.isfinite(r):
-            raise NewtonFailure("non-finite residual", res)
-        if r > diverging * max(1.0, res[0]):
-            raise NewtonFailure(f"diverging (residual grew {diverging:g}-fold)", res)
+        _refuse_growth(r, res, diverging)
         # correction the next iteration would make, |delta_k| r_{k+1} / r_k
         predicted = last_delta * r / res[-2] if it > 0 and res[-2] > 0 else 0.0
         if r <= tol and predicted <= math.sqrt(tol) * float(np.linalg.norm(du)):
@@ -147,6 +144,15 @@ def newton(evaluate, tangent, du0: np.ndarray, solver: LinearSolver, max_iterati
             stall = float(np.linalg.norm(R_new)) / rn if rn > 0 else 0.0
         R = R_new
     raise NewtonFailure(f"not converged in {len(res) - 1} iterations", res)
+
+
+def _refuse_growth(r: float, res: list[float], diverging: float) -> None:
+    """:class:`NewtonFailure` when the relative residual ``r`` is not finite or beyond
+    ``diverging`` times the larger of 1 and the first one (``res`` the history)."""
+    if not math.isfinite(r):
+        raise NewtonFailure("non-finite residual", res)
+    if r > diverging * max(1.0, res[0]):
+        raise NewtonFailure(f"diverging (residual grew {diverging:g}-fold)", res)
 
 
 def _newton_iteration(evaluate, tangent, solver: LinearSolver, du: np.ndarray,

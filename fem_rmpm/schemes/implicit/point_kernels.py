@@ -12,9 +12,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ["assemble_tangent", "assemble_bbar_tangent", "displacement_gradient", "block_pattern",
-           "interpolate", "spatial_gradients", "increment_kinematics", "nodal_mass_momentum", "move_points",
-           "body_force",
-           "internal_force"]
+           "interpolate", "spatial_gradients", "increment_kinematics", "nodal_mass_momentum",
+           "move_points", "body_force", "internal_force"]
 
 
 @njit(cache=True, error_model="numpy")
