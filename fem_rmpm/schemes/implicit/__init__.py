@@ -129,6 +129,7 @@ one shared system), :mod:`.driver` (phases, step cutting, output, the run record
 from fem_rmpm.schemes.common import SimulationError
 from fem_rmpm.schemes.implicit.assembly import StepSystem, rigid_body_modes
 from fem_rmpm.schemes.implicit.driver import run_implicit
+from fem_rmpm.schemes.implicit.dynamic import NewmarkDynamic
 from fem_rmpm.schemes.implicit.linear import LinearSolveError, LinearSolver
 from fem_rmpm.schemes.implicit.newton import NewtonFailure, NewtonResult, newton
 from fem_rmpm.schemes.implicit.skfem_forms import (
@@ -139,7 +140,6 @@ from fem_rmpm.schemes.implicit.skfem_forms import (
 from fem_rmpm.schemes.implicit.steps import (
     Geostatic,
     ImplicitSystem,
-    NewmarkDynamic,
     QuasiStatic,
     StepKind,
     prescribed_nodes,

@@ -19,10 +19,10 @@ from fem_rmpm.schemes.implicit.control import DET_BOUNDS, StepController, Verdic
 from fem_rmpm.schemes.implicit.linear import LinearSolver
 from fem_rmpm.schemes.implicit import step_kernels as sk
 from fem_rmpm.schemes.implicit.newton import NewtonFailure
+from fem_rmpm.schemes.implicit.dynamic import NewmarkDynamic
 from fem_rmpm.schemes.implicit.steps import (
     Geostatic,
     ImplicitSystem,
-    NewmarkDynamic,
     QuasiStatic,
     StepKind,
 )
