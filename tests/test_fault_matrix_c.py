@@ -210,6 +210,9 @@ if __name__ == "__main__":
         future.result(timeout=120)
     except Exception as exc:
         print(type(exc).__name__, flush=True)
+        # as a campaign goes on after a death: the worker back (its nanny has seen the
+        # death) before the cluster closes, which would silence the notice
+        client.wait_for_workers(1, timeout=60)
     client.close()
     cluster.close()
 """
