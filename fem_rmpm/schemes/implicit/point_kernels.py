@@ -235,27 +235,34 @@ def interpolate(nodal, nodes, N, out):
 
 
 @njit(cache=True, error_model="numpy")
+def _spatial_at(p, f00, f01, f10, f11, dN, dF, det, g):
+    """Point ``p``'s ``dF`` (its four entries given), ``det dF`` and, where ``det > 0``,
+    its spatial basis gradients ``g[p, a, j] = sum_l dN[p, a, l] (dF^-1)_lj``; returns
+    ``det dF``."""
+    dF[p, 0, 0], dF[p, 0, 1], dF[p, 1, 0], dF[p, 1, 1] = f00, f01, f10, f11
+    d = f00 * f11 - f01 * f10
+    det[p] = d
+    if not d > 0.0:
+        return d
+    i00, i11, i01, i10 = f11 / d, f00 / d, -f01 / d, -f10 / d
+    for a in range(dN.shape[1]):
+        d0, d1 = dN[p, a, 0], dN[p, a, 1]
+        g[p, a, 0] = d0 * i00 + d1 * i10
+        g[p, a, 1] = d0 * i01 + d1 * i11
+    return d
+
+
+@njit(cache=True, error_model="numpy")
 def spatial_gradients(H, dN, dF, det, g):
     """Per point: ``dF = I + H``, ``det = det dF`` and the spatial basis gradients
     ``g[p, a, j] = sum_l dN[p, a, l] (dF^-1)_lj`` (n, k, 2); returns the smallest
     ``det`` (``g`` is left unset at a point with ``det <= 0``)."""
-    n, k = dN.shape[0], dN.shape[1]
     dmin = np.inf
-    for p in range(n):
-        f00, f01 = 1.0 + H[p, 0, 0], H[p, 0, 1]
-        f10, f11 = H[p, 1, 0], 1.0 + H[p, 1, 1]
-        dF[p, 0, 0], dF[p, 0, 1], dF[p, 1, 0], dF[p, 1, 1] = f00, f01, f10, f11
-        d = f00 * f11 - f01 * f10
-        det[p] = d
+    for p in range(dN.shape[0]):
+        d = _spatial_at(p, 1.0 + H[p, 0, 0], H[p, 0, 1], H[p, 1, 0], 1.0 + H[p, 1, 1], dN,
+                        dF, det, g)
         if d < dmin:
             dmin = d
-        if not d > 0.0:
-            continue
-        i00, i11, i01, i10 = f11 / d, f00 / d, -f01 / d, -f10 / d
-        for a in range(k):
-            d0, d1 = dN[p, a, 0], dN[p, a, 1]
-            g[p, a, 0] = d0 * i00 + d1 * i10
-            g[p, a, 1] = d0 * i01 + d1 * i11
     return dmin
 
 
@@ -277,20 +284,9 @@ def increment_kinematics(du, nodes, dN, dF, det, g):
             h01 += u0 * d1
             h10 += u1 * d0
             h11 += u1 * d1
-        f00, f01 = 1.0 + h00, h01
-        f10, f11 = h10, 1.0 + h11
-        dF[p, 0, 0], dF[p, 0, 1], dF[p, 1, 0], dF[p, 1, 1] = f00, f01, f10, f11
-        d = f00 * f11 - f01 * f10
-        det[p] = d
+        d = _spatial_at(p, 1.0 + h00, h01, h10, 1.0 + h11, dN, dF, det, g)
         if d < dmin:
             dmin = d
-        if not d > 0.0:
-            continue
-        i00, i11, i01, i10 = f11 / d, f00 / d, -f01 / d, -f10 / d
-        for a in range(k):
-            d0, d1 = dN[p, a, 0], dN[p, a, 1]
-            g[p, a, 0] = d0 * i00 + d1 * i10
-            g[p, a, 1] = d0 * i01 + d1 * i11
     return dmin
 
 
