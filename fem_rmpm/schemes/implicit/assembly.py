@@ -82,7 +82,8 @@ class StepSystem:
         self.fnum = fnum
         # group the points by their node set (Q4: the host cell, identified by node 0)
         if k == 4:
-            inv = _dense_rank(nodes[:, 0], nn)
+            inv = np.empty(n, dtype=np.int64)
+            sk.dense_rank(nodes[:, 0], nn, inv)
         else:
             _, inv = np.unique(nodes, axis=0, return_inverse=True)
             inv = inv.ravel()
@@ -97,6 +98,7 @@ class StepSystem:
         (self._indptr, self._indices, self._positions, self._diag,
          self.transpose) = pk.block_pattern(np.ascontiguousarray(gd), nf)
         self.nnz = len(self._indices)
+        self._lower: dict = {}          # lower_positions, made on first use
         self._group = inv.astype(np.int64)
         # Q4: the node sets are the host cells, so the B-bar terms are blocks of the
         # pattern (compiled path of :meth:`bbar_tangent_into`)
@@ -128,7 +130,7 @@ class StepSystem:
         self._group = np.empty(self.n, dtype=np.int64)
         if fits and sk.kept_groups(keep._group_of, nodes, self._group):
             for name in ("free_dofs", "n_free", "fnum", "n_groups", "_indptr", "_indices",
-                         "_positions", "_diag", "transpose", "nnz", "halo_cells",
+                         "_positions", "_diag", "transpose", "nnz", "_lower", "halo_cells",
                          "_group_of", "_fixed"):
                 setattr(self, name, getattr(keep, name))
         else:
@@ -163,6 +165,7 @@ class StepSystem:
         (self._indptr, self._indices, self._positions, self._diag,
          self.transpose) = pk.block_pattern(np.ascontiguousarray(gd), nf)
         self.nnz = len(self._indices)
+        self._lower: dict = {}          # lower_positions, made on first use
         self.n_groups = len(cells)
         self.halo_cells = cells
         self._group_of = np.full(nn, -1, dtype=np.int64)
@@ -250,9 +253,8 @@ class StepSystem:
     def body_force(self, mass: np.ndarray, gravity) -> np.ndarray:
         """``f_ai = sum_p m_p g_i N_a`` on the free DOFs (kN per m)."""
         gx, gy = (float(v) for v in np.asarray(gravity, dtype=float))
-        f = pk.body_force(self.nodes, self.N, np.ascontiguousarray(mass, dtype=float), gx, gy,
-                          np.zeros((self.grid.n_nodes, 2)))
-        return f.ravel()[self.free_dofs]
+        return sk.free_body_force(self.nodes, self.N, np.ascontiguousarray(mass, dtype=float),
+                                  gx, gy, self.fnum, np.zeros(self.n_free))
 
     def mass_and_momenta(self, mass: np.ndarray, v: np.ndarray, a: np.ndarray):
         """The nodal lumped mass ``m_a = sum_p m_p N_a`` (n_nodes,), t per m, and the nodal
@@ -283,19 +285,16 @@ class StepSystem:
         CHOLMOD's order (the entries ``(r, c)``, ``c >= r``, of the CSR rows in turn): the
         position of each block entry (layout of the full pattern's; -1 for the upper
         triangle and prescribed DOFs), of each diagonal entry, and the length ``n`` of
-        that data.  Kept with the pattern (one entry, replaced as a whole, so concurrent
-        systems at worst recompute it): steps that keep it (:meth:`_cell_pattern`) reuse
-        them."""
-        key = self._positions
-        c = _LOWER_CACHE.get("last")
-        if c is None or c[0] is not key:
+        that data.  Made once per pattern and kept with it (``_lower``, shared by the
+        steps that keep the pattern, :meth:`_cell_pattern`)."""
+        c = self._lower
+        if not c:
             row = np.repeat(np.arange(self.n_free, dtype=np.int64), np.diff(self._indptr))
             lower = np.nonzero(self._indices >= row)[0]
             index = np.full(self.nnz + 1, -1, dtype=np.int64)      # [-1]: a prescribed DOF
             index[lower] = np.arange(len(lower))
-            c = (key, index[key], index[self._diag], len(lower))
-            _LOWER_CACHE["last"] = c
-        return c[1], c[2], c[3]
+            c.update(positions=index[self._positions], diag=index[self._diag], n=len(lower))
+        return c["positions"], c["diag"], c["n"]
 
     def finite_strain_tangent(self, V0: np.ndarray, g: np.ndarray, D: np.ndarray,
                               cols: np.ndarray, J: np.ndarray, tau: np.ndarray, factor: float,
@@ -327,18 +326,6 @@ class StepSystem:
 
     def rigid_body_modes(self) -> np.ndarray:
         return rigid_body_modes(self.grid.nodes, self.free_dofs)
-
-
-#: the lower-triangle positions of the last pattern (:meth:`StepSystem.lower_positions`)
-_LOWER_CACHE: dict = {}
-
-
-def _dense_rank(values: np.ndarray, size: int) -> np.ndarray:
-    """The rank of each value among the distinct ``values`` (int64, ``0 <= values <
-    size``): ``np.unique(values, return_inverse=True)[1]`` by a table of ``size``."""
-    present = np.zeros(size + 1, dtype=np.int64)
-    present[values + 1] = 1
-    return np.cumsum(present)[values]
 
 
 def rigid_body_modes(node_xy: np.ndarray, free_dofs: np.ndarray) -> np.ndarray:

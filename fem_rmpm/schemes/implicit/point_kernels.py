@@ -13,7 +13,7 @@ from numba import njit
 
 __all__ = ["assemble_tangent", "assemble_bbar_tangent", "displacement_gradient", "block_pattern",
            "interpolate", "spatial_gradients", "increment_kinematics", "nodal_mass_momentum",
-           "move_points", "body_force", "internal_force"]
+           "move_points", "internal_force"]
 
 
 @njit(cache=True, error_model="numpy")
@@ -328,18 +328,3 @@ def move_points(act, dx, dF, V0, tau4, x, F, volume, stress):
         volume[p] = J * V0[j]
         for c in range(stress.shape[1]):
             stress[p, c] = tau4[j, c] / J
-
-
-
-@njit(cache=True, error_model="numpy")
-def body_force(nodes, N, mass, gx, gy, out):
-    """``out[nodes[p, a], i] += (N[p, a] m_p) g_i`` (``out`` (n_nodes, 2), zeroed by the
-    caller): the nodal body force, summed in point order (as a ``bincount``)."""
-    n, k = nodes.shape
-    for p in range(n):
-        for a in range(k):
-            w = N[p, a] * mass[p]
-            q = nodes[p, a]
-            out[q, 0] += w * gx
-            out[q, 1] += w * gy
-    return out

@@ -108,7 +108,7 @@ def kept_groups(group_of, nodes, out):
 def free_body_force(nodes, N, mass, gx, gy, fnum, out):
     """``out[fnum[2 q + i]] += (N[p, a] m_p) g_i`` over the points and their nodes ``q``
     (free DOFs only, ``out`` (n_free,) zeroed by the caller): the nodal body force (kN/m)
-    summed in point order, as :func:`fem_rmpm.schemes.implicit.point_kernels.body_force`."""
+    summed in point order (as a ``bincount`` over the points)."""
     n, k = nodes.shape
     for p in range(n):
         for a in range(k):

@@ -147,8 +147,7 @@ class ImplicitSystem:
             if dynamic:
                 raise SimulationError("prescribed displacements need quasi-static load steps")
             presc = np.where(self.presc_mask, (lf_new - lf_old) * self.presc_target, 0.0)
-        gx, gy = (float(v) for v in lf_new * self.g_full)
-        f_ext = sk.free_body_force(S.nodes, S.N, mass, gx, gy, S.fnum, np.zeros(S.n_free))
+        f_ext = S.body_force(mass, lf_new * self.g_full)
         if self.water is not None:   # pore water: -V grad u at the step's start positions
             f_ext = f_ext + nodal_water_force(self.water, S, pts.x[act], pts.volume[act], lf_new)
         return StepData(S, act, pts.volume0[act], pts.volume[act], mass,
